@@ -19,6 +19,7 @@ person's *visible* pixels, ``x1, y1, x2, y2`` with exclusive right/bottom edges 
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -140,7 +141,8 @@ def draw_figure(canvas: np.ndarray, fig: Figure) -> None:
         ang = sgn * swing * 0.8 + side * (0.15 + fig.arm_raise)
         hand = sh + arm_len * np.array([math.sin(ang), math.cos(ang)])
         _limb(canvas, sh, hand, 0.075 * h, c[2])
-    torso = np.array([[fx - 0.13 * h, shoulder_y - 0.02 * h], [fx + 0.13 * h, shoulder_y - 0.02 * h],
+    top = shoulder_y - 0.02 * h
+    torso = np.array([[fx - 0.13 * h, top], [fx + 0.13 * h, top],
                       [fx + 0.10 * h, fy - 0.47 * h], [fx - 0.10 * h, fy - 0.47 * h]])
     cv2.fillConvexPoly(canvas, np.round(torso).astype(np.int32), c[0], cv2.LINE_8)
     _limb(canvas, np.array([fx, shoulder_y - 0.02 * h]), np.array([fx, fy - 0.86 * h]),
@@ -167,7 +169,7 @@ def _box_of(mask: np.ndarray) -> tuple[int, int, int, int] | None:
 def _figure_extent(fig: Figure) -> tuple[float, float, float, float]:
     """Generous bounding box of a figure, for placement."""
     h = fig.height_px
-    return fig.feet_px[0] - 0.35 * h, fig.feet_px[1] - h - 2, fig.feet_px[0] + 0.35 * h, \
+    return fig.feet_px[0] - 0.5 * h, fig.feet_px[1] - h - 2, fig.feet_px[0] + 0.5 * h, \
         fig.feet_px[1] + 0.06 * h + 2
 
 
@@ -276,7 +278,8 @@ def random_frames(n: int, seed: int = 0, size: tuple[int, int] = (1280, 720),
             tries += 1
             h = rng.uniform(min_height, max_height) * height
             if rng.random() < 0.25:  # near a frame edge
-                fx = rng.choice([rng.uniform(0.1 * h, 0.3 * h), width - rng.uniform(0.1 * h, 0.3 * h)])
+                inset = rng.uniform(0.1 * h, 0.3 * h)
+                fx = inset if rng.random() < 0.5 else width - inset
             else:
                 fx = rng.uniform(0.3 * h, width - 0.3 * h)
             fy = rng.uniform(h + 4, height - 0.02 * height)
@@ -304,11 +307,13 @@ def random_frames(n: int, seed: int = 0, size: tuple[int, int] = (1280, 720),
                 occluders.append(((x1, top, x2, int(fig.feet_px[1] + 0.08 * h) + 2),
                                   (70, 95, 115)))
         img, visible = _compose(background, persons + mannequins, occluders)
-        # the small magenta sticker: far below the smallest person's size
+        # the small magenta sticker: far below the smallest person's size, and at least four
+        # cells of the model's 26x26 grid away from any figure (closer, it joins that figure)
         sticker = int(rng.integers(6, 12)) * height // 720
+        away = 64 / min(416 / width, 416 / height)
         for _ in range(50):
             sx, sy = int(rng.integers(0, width - sticker)), int(rng.integers(0, height - sticker))
-            box = (sx - 40, sy - 40, sx + sticker + 40, sy + sticker + 40)
+            box = (sx - away, sy - away, sx + sticker + away, sy + sticker + away)
             if all(box[2] < t[0] or t[2] < box[0] or box[3] < t[1] or t[3] < box[1]
                    for t in taken):
                 cv2.rectangle(img, (sx, sy), (sx + sticker - 1, sy + sticker - 1),
@@ -341,7 +346,7 @@ class DemoScene:
 
     @property
     def n_frames(self) -> int:
-        return int(round(self.duration_s * self.fps))
+        return round(self.duration_s * self.fps)
 
     def position_at(self, t: float) -> tuple[float, float]:
         cycle = self.path[-1][0]
@@ -350,7 +355,7 @@ class DemoScene:
         pts = self.path
         if t <= pts[0][0]:
             return pts[0][1], pts[0][2]
-        for (t0, x0, y0), (t1, x1, y1) in zip(pts, pts[1:], strict=False):
+        for (t0, x0, y0), (t1, x1, y1) in itertools.pairwise(pts):
             if t <= t1:
                 a = (t - t0) / max(t1 - t0, 1e-9)
                 return x0 + a * (x1 - x0), y0 + a * (y1 - y0)

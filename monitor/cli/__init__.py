@@ -14,6 +14,9 @@ from monitor.errors import MonitorError
 COMMAND_MODULES = (
     "monitor.cli.detect",
     "monitor.cli.model",
+    "monitor.cli.bus",
+    "monitor.cli.zones",
+    "monitor.cli.reference",
 )
 
 

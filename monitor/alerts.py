@@ -1,0 +1,109 @@
+"""Alert rate limiting and the alert wire format.
+
+An alert of a kind that was published less than ``min_interval`` seconds ago is held back and
+counted; the next alert of that kind that goes out carries ``repeat`` = how many were held back
+since the previous one (so nothing is silently lost, and a flapping camera does not flood the bus).
+Critical alerts use their own, shorter interval.
+
+Wire format on ``<prefix>safety/alert``: a JSON object (see ``alert_to_dict``); the optional JPEG
+snapshot travels as the sample's *attachment* (raw JPEG bytes), and ``snapshot`` in the JSON says
+``{"encoding": "image/jpeg", "bytes": N}`` so a reader knows to look there.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+from monitor.errors import ConfigError
+from monitor.types import Alert
+
+SEVERITIES = ("info", "warning", "critical")
+
+
+@dataclass(frozen=True)
+class AlertLimits:
+    """Minimum seconds between two published alerts of the same kind."""
+
+    min_interval: float = 5.0
+    critical_min_interval: float = 1.0
+
+    def __post_init__(self) -> None:
+        for name in ("min_interval", "critical_min_interval"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0):
+                raise ConfigError(f"alerts.{name}: must be >= 0 seconds, got {value!r}")
+
+
+@dataclass
+class AlertLimiter:
+    """Decides per kind whether an alert goes out now; not thread-safe (callers hold a lock)."""
+
+    limits: AlertLimits = field(default_factory=AlertLimits)
+    _last_sent: dict[str, float] = field(default_factory=dict)
+    _held: dict[str, int] = field(default_factory=dict)
+
+    def admit(self, alert: Alert, now: float) -> int | None:
+        """Return the repeat count to publish with (held-back alerts since the last one of this
+        kind, 0 if none), or None when this alert is held back. ``now`` in seconds, monotonic."""
+        interval = (self.limits.critical_min_interval if alert.severity == "critical"
+                    else self.limits.min_interval)
+        last = self._last_sent.get(alert.kind)
+        if last is not None and now - last < interval:
+            self._held[alert.kind] = self._held.get(alert.kind, 0) + 1
+            return None
+        self._last_sent[alert.kind] = now
+        return self._held.pop(alert.kind, 0)
+
+    def held(self) -> dict[str, int]:
+        """Alerts held back per kind and not yet reported."""
+        return dict(self._held)
+
+
+def alert_to_dict(alert: Alert, repeat: int = 0) -> dict:
+    """The JSON body of an alert (without the bus envelope fields)."""
+    if alert.severity not in SEVERITIES:
+        raise ValueError(f"alert {alert.kind}: severity {alert.severity!r} not in {SEVERITIES}")
+    out = {
+        "kind": alert.kind,
+        "severity": alert.severity,
+        "message": alert.message,
+        "source": alert.source,
+        "time": alert.time,
+        "repeat": repeat,
+        "details": alert.details,
+    }
+    if alert.snapshot_jpeg:
+        out["snapshot"] = {"encoding": "image/jpeg", "bytes": len(alert.snapshot_jpeg),
+                           "where": "attachment"}
+    return out
+
+
+def alert_from_dict(body: dict, attachment: bytes | None = None) -> Alert:
+    """Inverse of ``alert_to_dict`` (the repeat count stays in ``details['repeat']``)."""
+    details = dict(body.get("details") or {})
+    if body.get("repeat"):
+        details["repeat"] = body["repeat"]
+    return Alert(
+        kind=str(body["kind"]), severity=str(body["severity"]), message=str(body["message"]),
+        source=str(body.get("source", "")), time=float(body.get("time", 0.0)),
+        snapshot_jpeg=attachment if body.get("snapshot") else None, details=details,
+    )
+
+
+def reset_alert(outcome, source: str, now: float) -> Alert:
+    """Alert for a reset request the policy handled (``monitor.policy.ResetOutcome``):
+    info when accepted, warning when refused (an operator believed the cell was clear)."""
+    kind = "reset_accepted" if outcome.accepted else "reset_refused"
+    return Alert(kind, "info" if outcome.accepted else "warning",
+                 f"reset by {outcome.operator}: {outcome.message}", source, now,
+                 details={"operator": outcome.operator, "request_id": outcome.request_id})
+
+
+def pose_alert(rejection, source: str, now: float) -> Alert:
+    """Alert for a rejected tool-pose sample or a silent pose stream (``monitor.pose``)."""
+    if rejection.reason == "silence":
+        return Alert("pose_silence", "warning", rejection.message, source, now,
+                     details={"reason": rejection.reason})
+    return Alert("pose_rejected", "warning", f"tool pose rejected: {rejection.message}", source,
+                 now, details={"reason": rejection.reason})

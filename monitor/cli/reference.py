@@ -1,0 +1,104 @@
+"""``monitor reference capture``: store a camera's reference image for the health checks.
+
+Take one at commissioning and again after every deliberate change in the cell (a new fixture in
+a watch zone, a camera remounted on purpose): the "moved" and "defocused" checks and the watch
+zones' backgrounds start from it. Capture with the cell empty; the per-pixel median of several
+frames removes sensor noise and anything that only passes through.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import os
+import tempfile
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from monitor.errors import InputError
+from monitor.frames import open_source
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "reference", help="reference images for the camera health checks",
+        description="Reference images for the camera health checks (moved, defocused, watch "
+        "zones).")
+    actions = parser.add_subparsers(dest="reference_action", metavar="ACTION", required=True)
+    capture = actions.add_parser(
+        "capture", help="store a new reference image of a camera",
+        description="Store the per-pixel median of the first frames of SOURCE as the camera's "
+        "reference image (written atomically: readers see the old or the new file, never half).")
+    capture.add_argument("--source", required=True,
+                         help="video file, image, camera index, rtsp:// URL or synthetic:demo")
+    capture.add_argument("--out", required=True, type=Path,
+                         help="image file to write (PNG recommended); an existing directory "
+                         "gets <camera>.png")
+    capture.add_argument("--camera", default="cam0", help="camera id (default cam0)")
+    capture.add_argument("--frames", type=int, default=15,
+                         help="median of this many frames (default 15; 1 = a single frame)")
+    capture.set_defaults(func=_capture)
+
+
+def capture_reference(source: str, camera_id: str, frames: int) -> tuple[np.ndarray, int]:
+    """Per-pixel median (BGR uint8) of the first ``frames`` frames of a source, and how many
+    frames it used (fewer when the source ends early)."""
+    if frames < 1:
+        raise InputError(f"--frames must be >= 1, got {frames}")
+    src = open_source(source, camera_id, realtime=False)
+    images: list[np.ndarray] = []
+    try:
+        while len(images) < frames:
+            frame = src.read()
+            if frame is None:
+                break
+            if images and frame.image.shape != images[0].shape:
+                raise InputError(f"{src.description}: frame size changed while capturing")
+            images.append(frame.image)
+    finally:
+        src.close()
+    if not images:
+        raise InputError(f"{src.description}: no frame could be read")
+    if len(images) == 1:
+        return images[0].copy(), 1
+    return np.median(np.stack(images), axis=0).round().astype(np.uint8), len(images)
+
+
+def write_image_atomic(path: Path, image: np.ndarray) -> None:
+    """Encode by the file's suffix and replace ``path`` in one step (temp file + rename)."""
+    suffix = path.suffix.lower() or ".png"
+    try:
+        ok, buf = cv2.imencode(suffix, image)
+    except cv2.error:
+        ok = False
+    if not ok:
+        raise InputError(f"{path}: cannot write images of type {suffix!r} (use .png)")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(buf.tobytes())
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+
+
+def _capture(args: argparse.Namespace) -> int:
+    out: Path = args.out
+    if out.is_dir():
+        out = out / f"{args.camera}.png"
+    image, used = capture_reference(args.source, args.camera, args.frames)
+    try:
+        write_image_atomic(out, image)
+    except OSError as exc:
+        raise InputError(f"{out}: cannot write: {exc.strerror or exc}") from exc
+    height, width = image.shape[:2]
+    print(f"{out}: reference of camera {args.camera} ({width}x{height}, median of {used} "
+          f"frame{'s' if used != 1 else ''} from {args.source})")
+    return 0

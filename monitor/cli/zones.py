@@ -1,0 +1,511 @@
+"""``monitor zones``: create, edit, check and preview zone files.
+
+Every write validates the whole file first (nothing is written when it fails), then replaces the
+file atomically and keeps the previous version as FILE.bak.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import re
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import yaml
+
+from monitor import geometry as geo
+from monitor import zones as zn
+from monitor.errors import ConfigError, InputError
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "zones", help="create, edit, validate and preview zone files",
+        description="Edit zone files (format: zones/README.md). Every write is validated first "
+        "and atomic; the previous file is kept as FILE.bak.")
+    sub = parser.add_subparsers(dest="zones_command", metavar="ACTION", required=True)
+
+    p = sub.add_parser("new", help="create a zone file with one camera")
+    p.add_argument("file", type=Path)
+    p.add_argument("--camera", required=True, help="camera id, e.g. cam0")
+    p.add_argument("--size", required=True, help="camera resolution WxH, e.g. 1280x720")
+    p.add_argument("--name", default="", help="cell name")
+    p.add_argument("--force", action="store_true", help="overwrite an existing file")
+    p.set_defaults(func=cmd_new)
+
+    p = sub.add_parser("add", help="add a zone: an image polygon or a cell volume",
+                       description="Add a zone. Image polygon: POINTS as 'x,y x,y ...' in pixels "
+                       "with --camera. Volumes (metres): --box, --cylinder, --extrude + --z, "
+                       "--mesh.")
+    p.add_argument("file", type=Path)
+    p.add_argument("id", help="zone id (letters, digits, _ . -)")
+    p.add_argument("points", nargs="?", help="image polygon 'x,y x,y x,y ...' (pixels)")
+    p.add_argument("--kind", required=True, choices=zn.KINDS)
+    _zone_options(p)
+    p.add_argument("--disabled", action="store_true", help="add the zone disabled")
+    p.set_defaults(func=cmd_add)
+
+    p = sub.add_parser("edit", help="change fields or the geometry of a zone")
+    p.add_argument("file", type=Path)
+    p.add_argument("id")
+    p.add_argument("--new-id", help="rename the zone id")
+    p.add_argument("--kind", choices=zn.KINDS)
+    p.add_argument("--points", help="new image polygon 'x,y x,y ...' (pixels)")
+    _zone_options(p)
+    p.set_defaults(func=cmd_edit)
+
+    p = sub.add_parser("remove", help="remove a zone")
+    p.add_argument("file", type=Path)
+    p.add_argument("id")
+    p.set_defaults(func=cmd_remove)
+
+    for action, flag in (("enable", True), ("disable", False)):
+        p = sub.add_parser(action, help=f"{action} zones")
+        p.add_argument("file", type=Path)
+        p.add_argument("ids", nargs="+", metavar="ID")
+        p.set_defaults(func=cmd_enable, enabled=flag)
+
+    p = sub.add_parser("list", help="list the zones as a table")
+    p.add_argument("file", type=Path)
+    p.set_defaults(func=cmd_list)
+
+    p = sub.add_parser("show", help="show one zone")
+    p.add_argument("file", type=Path)
+    p.add_argument("id")
+    p.set_defaults(func=cmd_show)
+
+    p = sub.add_parser("validate", help="check a zone file; print every fault")
+    p.add_argument("file", type=Path)
+    p.set_defaults(func=cmd_validate)
+
+    p = sub.add_parser("calibrate", help="calibrate a camera from image-to-cell point pairs",
+                       description="Fit a floor homography (default) or, with --pnp, the "
+                       "extrinsics of a camera whose intrinsics are known. Pairs are "
+                       "'u,v,x,y' (floor, z = 0) or 'u,v,x,y,z' (--pnp): pixels then metres.")
+    p.add_argument("file", type=Path)
+    p.add_argument("--camera", required=True)
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--pairs", help="'u,v,x,y u,v,x,y ...'")
+    src.add_argument("--csv", type=Path, help="CSV file with columns u,v,x,y[,z] (header "
+                     "optional)")
+    p.add_argument("--pnp", action="store_true", help="solve extrinsics with the camera's K "
+                   "(keeps K and distortion) instead of a homography")
+    p.add_argument("--dry-run", action="store_true", help="print the errors, write nothing")
+    p.set_defaults(func=cmd_calibrate)
+
+    p = sub.add_parser("preview", help="draw the zones over a camera frame")
+    p.add_argument("file", type=Path)
+    p.add_argument("--frame", required=True, type=Path, help="camera image (PNG, JPEG, ...)")
+    p.add_argument("--out", required=True, type=Path, help="output PNG")
+    p.add_argument("--camera", help="camera id (default: the first camera)")
+    p.add_argument("--hit", action="append", default=[], metavar="ID",
+                   help="draw this zone as hit (repeatable)")
+    p.set_defaults(func=cmd_preview)
+
+    p = sub.add_parser("hash", help="print the config hash of the active zone set")
+    p.add_argument("file", type=Path)
+    p.set_defaults(func=cmd_hash)
+
+
+def _zone_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--name", help="display name")
+    p.add_argument("--camera", help="camera id of an image polygon")
+    p.add_argument("--anchor", choices=zn.ANCHORS,
+                   help="person anchor of an image polygon (default bottom-centre)")
+    p.add_argument("--min-share", type=float, help="share of the box area for --anchor share")
+    p.add_argument("--speed-scale", type=float, help="allowed speed fraction of a warning zone")
+    p.add_argument("--box", metavar="X1,Y1,Z1,X2,Y2,Z2",
+                   help="box between two corners (m); write --box=-1,... when the first number "
+                   "is negative")
+    p.add_argument("--yaw", type=float, help="box yaw about its vertical axis (degrees)")
+    p.add_argument("--cylinder", metavar="X,Y,R,ZMIN,ZMAX",
+                   help="vertical cylinder (m); --cylinder=-1,... when negative")
+    p.add_argument("--extrude", metavar="'x,y x,y ...'",
+                   help="floor polygon (m), with --z; --extrude='-1,-1 ...' when negative")
+    p.add_argument("--z", metavar="ZMIN,ZMAX", help="height range of --extrude (m)")
+    p.add_argument("--mesh", help="closed mesh file (STL/OBJ/PLY), relative to the zone file")
+    p.add_argument("--scale", type=float, help="mesh unit to metres (0.001 for mm)")
+
+
+# --------------------------------------------------------------------------------------------
+# helpers
+
+
+def _numbers(text: str, count: int | None, what: str) -> list[float]:
+    parts = [p for p in re.split(r"[,\s]+", text.strip()) if p]
+    try:
+        out = [float(p) for p in parts]
+    except ValueError:
+        raise ConfigError(f"{what}: cannot read numbers from {text!r}") from None
+    if not all(np.isfinite(out)):
+        raise ConfigError(f"{what}: numbers must be finite in {text!r}")
+    if count is not None and len(out) != count:
+        raise ConfigError(f"{what}: expected {count} numbers, got {len(out)} in {text!r}")
+    return out
+
+
+def _points(text: str, what: str, dims: int = 2) -> list[list[float]]:
+    pts = []
+    for token in text.replace(";", " ").split():
+        pts.append(_numbers(token, dims, what))
+    if not pts:
+        raise ConfigError(f"{what}: no points given")
+    return pts
+
+
+def _read(path: Path) -> dict:
+    data = zn.read_cell_data(path)
+    zn.parse_cell(data, path)  # refuse to edit a file that is already invalid
+    return data
+
+
+def _write(data: dict, path: Path) -> zn.Cell:
+    cell = zn.write_cell_data(data, path)  # validates first: a fault writes nothing
+    for w in cell.warnings:
+        print(f"monitor: warning: {path}: {w}", file=sys.stderr)
+    return cell
+
+
+def _find(data: dict, zone_id: str, path: Path) -> int:
+    for k, z in enumerate(data.get("zones") or []):
+        if isinstance(z, dict) and z.get("id") == zone_id:
+            return k
+    raise ConfigError(f"{path}: no zone '{zone_id}'")
+
+
+def _geometry(args: argparse.Namespace, points: str | None) -> dict | None:
+    """Shape fields from the command-line options, or None when none is given."""
+    given = [name for name, v in (("points", points), ("--box", args.box),
+                                  ("--cylinder", args.cylinder), ("--extrude", args.extrude),
+                                  ("--mesh", args.mesh)) if v]
+    if len(given) > 1:
+        raise ConfigError(f"give one geometry, not {' and '.join(given)}")
+    if not given:
+        return None
+    if points:
+        return {"shape": "polygon", "points_px": _points(points, "points")}
+    if args.box:
+        v = _numbers(args.box, 6, "--box")
+        geom: dict[str, Any] = {"shape": "box", "min_m": v[:3], "max_m": v[3:]}
+        if args.yaw:
+            geom["yaw_deg"] = args.yaw
+        return geom
+    if args.cylinder:
+        v = _numbers(args.cylinder, 5, "--cylinder")
+        return {"shape": "cylinder", "center_m": v[:2], "radius_m": v[2], "z_min_m": v[3],
+                "z_max_m": v[4]}
+    if args.extrude:
+        if not args.z:
+            raise ConfigError("--extrude needs --z ZMIN,ZMAX")
+        z = _numbers(args.z, 2, "--z")
+        return {"shape": "extrude", "points_m": _points(args.extrude, "--extrude"),
+                "z_min_m": z[0], "z_max_m": z[1]}
+    geom = {"shape": "mesh", "file": args.mesh}
+    if args.scale:
+        geom["scale"] = args.scale
+    return geom
+
+
+_SHAPE_FIELDS = {"shape", "camera", "points_px", "anchor", "min_share", "points_m", "z_min_m",
+                 "z_max_m", "min_m", "max_m", "yaw_deg", "center_m", "radius_m", "file", "scale"}
+
+
+def _apply_options(zone: dict, args: argparse.Namespace) -> None:
+    if args.name is not None:
+        zone["name"] = args.name
+    if args.speed_scale is not None:
+        zone["speed_scale"] = args.speed_scale
+    if zone.get("shape") == "polygon":
+        if args.camera is not None:
+            zone["camera"] = args.camera
+        if args.anchor is not None:
+            zone["anchor"] = args.anchor
+            if args.anchor != "share":
+                zone.pop("min_share", None)
+        if args.min_share is not None:
+            zone["min_share"] = args.min_share
+    elif args.camera or args.anchor or args.min_share is not None:
+        raise ConfigError(f"zone '{zone.get('id')}': --camera, --anchor and --min-share are for "
+                          "image polygons only")
+    if args.yaw is not None and zone.get("shape") == "box":
+        zone["yaw_deg"] = args.yaw
+    if args.scale is not None and zone.get("shape") == "mesh":
+        zone["scale"] = args.scale
+
+
+# --------------------------------------------------------------------------------------------
+# commands
+
+
+def cmd_new(args: argparse.Namespace) -> int:
+    if args.file.exists() and not args.force:
+        raise ConfigError(f"{args.file}: file exists (use --force to overwrite)")
+    m = re.fullmatch(r"\s*(\d+)\s*[xX]\s*(\d+)\s*", args.size)
+    if not m:
+        raise ConfigError(f"--size: expected WxH such as 1280x720, got {args.size!r}")
+    data = {"version": zn.SCHEMA_VERSION, "name": args.name,
+            "cameras": [{"id": args.camera, "width": int(m[1]), "height": int(m[2])}],
+            "zones": []}
+    _write(data, args.file)
+    print(f"created {args.file} with camera {args.camera} ({m[1]}x{m[2]})")
+    return 0
+
+
+def cmd_add(args: argparse.Namespace) -> int:
+    data = _read(args.file)
+    geom = _geometry(args, args.points)
+    if geom is None:
+        raise ConfigError("add: give an image polygon 'x,y x,y ...' or one of --box, "
+                          "--cylinder, --extrude, --mesh")
+    zone: dict[str, Any] = {"id": args.id, "name": args.name or "", "kind": args.kind}
+    if args.disabled:
+        zone["enabled"] = False
+    zone.update(geom)
+    if geom["shape"] == "polygon":
+        cams = [c.get("id") for c in data.get("cameras", [])]
+        zone["camera"] = args.camera or (cams[0] if len(cams) == 1 else None)
+        if zone["camera"] is None:
+            raise ConfigError(f"{args.file}: several cameras: say which with --camera")
+    _apply_options(zone, args)
+    data.setdefault("zones", []).append(zone)
+    _write(data, args.file)
+    print(f"added zone {args.id} ({args.kind}, {geom['shape']})")
+    return 0
+
+
+def cmd_edit(args: argparse.Namespace) -> int:
+    data = _read(args.file)
+    k = _find(data, args.id, args.file)
+    zone = dict(data["zones"][k])
+    geom = _geometry(args, args.points)
+    if geom is not None:
+        keep = {f: zone[f] for f in ("camera", "anchor", "min_share") if f in zone}
+        zone = {f: v for f, v in zone.items() if f not in _SHAPE_FIELDS}
+        zone.update(geom)
+        if geom["shape"] == "polygon":
+            zone.update(keep)
+            if "camera" not in zone:
+                cams = [c.get("id") for c in data.get("cameras", [])]
+                zone["camera"] = args.camera or (cams[0] if len(cams) == 1 else None)
+    if args.kind is not None:
+        zone["kind"] = args.kind
+        if args.kind != "warning" and args.speed_scale is None:
+            zone.pop("speed_scale", None)
+    if args.new_id:
+        zone["id"] = args.new_id
+    _apply_options(zone, args)
+    data["zones"][k] = zone
+    _write(data, args.file)
+    print(f"edited zone {args.id}")
+    return 0
+
+
+def cmd_remove(args: argparse.Namespace) -> int:
+    data = _read(args.file)
+    k = _find(data, args.id, args.file)
+    del data["zones"][k]
+    _write(data, args.file)
+    print(f"removed zone {args.id}")
+    return 0
+
+
+def cmd_enable(args: argparse.Namespace) -> int:
+    data = _read(args.file)
+    for zid in args.ids:
+        data["zones"][_find(data, zid, args.file)]["enabled"] = args.enabled
+    cell = _write(data, args.file)
+    word = "enabled" if args.enabled else "disabled"
+    print(f"{word} {', '.join(args.ids)}; config hash {cell.config_hash}")
+    return 0
+
+
+def cmd_list(args: argparse.Namespace) -> int:
+    cell = zn.load_cell(args.file)
+    rows = [("ID", "KIND", "ON", "SHAPE", "WHERE", "SPEED", "ANCHOR", "NAME")]
+    for z in cell.zones:
+        where = z.camera if z.shape == "polygon" else "cell"
+        speed = f"{z.speed_scale:g}" if z.speed_scale is not None else "-"
+        anchor = "-"
+        if z.shape == "polygon":
+            anchor = z.anchor + (f">={z.min_share:g}" if z.anchor == "share" else "")
+        rows.append((z.id, z.kind, "yes" if z.enabled else "no", z.shape, where, speed, anchor,
+                     z.name))
+    widths = [max(len(r[c]) for r in rows) for c in range(len(rows[0]))]
+    for r in rows:
+        print("  ".join(v.ljust(w) for v, w in zip(r, widths, strict=True)).rstrip())
+    print(f"{len(cell.zones)} zones, {len(cell.cameras)} cameras, config hash {cell.config_hash}")
+    return 0
+
+
+def cmd_show(args: argparse.Namespace) -> int:
+    cell = zn.load_cell(args.file)
+    z = cell.zone(args.id)
+    text = yaml.dump(z.model_dump(mode="json", exclude_none=True), Dumper=zn._Dumper,
+                     sort_keys=False)
+    print(text.rstrip())
+    if z.shape == "polygon":
+        area = abs(geo.polygon_signed_area(np.array(z.points_px)))
+        print(f"# area {area:.0f} px^2 of camera {z.camera}")
+    else:
+        v = zn._prepare_volume(z, cell)
+        print(f"# bounds_m min {np.round(v.lo, 3).tolist()} max {np.round(v.hi, 3).tolist()}")
+        for cam_id in cell.camera_models:
+            seen = zn._volume_region_px(z, cell, cell.camera_models[cam_id], cell.cameras[cam_id])
+            print(f"# {cam_id}: {'in view' if seen is not None else 'not in view'}")
+    return 0
+
+
+def cmd_validate(args: argparse.Namespace) -> int:
+    data = zn.read_cell_data(args.file)
+    errors, warnings = zn.cell_faults(data, args.file)
+    for w in warnings:
+        print(f"{args.file}: warning: {w}", file=sys.stderr)
+    for e in errors:
+        print(f"{args.file}: error: {e}", file=sys.stderr)
+    if errors:
+        return 2
+    cell = zn.parse_cell(data, args.file)
+    active = sum(1 for z in cell.zones if z.enabled)
+    print(f"{args.file}: ok: {len(cell.zones)} zones ({active} enabled), "
+          f"{len(cell.cameras)} cameras, config hash {cell.config_hash}")
+    return 0
+
+
+def _read_pairs(args: argparse.Namespace) -> np.ndarray:
+    rows: list[list[float]] = []
+    if args.pairs:
+        for token in args.pairs.replace(";", " ").split():
+            rows.append(_numbers(token, None, "--pairs"))
+    else:
+        try:
+            with args.csv.open(newline="", encoding="utf-8") as fh:
+                for n, row in enumerate(csv.reader(fh)):
+                    cells = [c.strip() for c in row if c.strip()]
+                    if not cells or cells[0].startswith("#"):
+                        continue
+                    try:
+                        rows.append([float(c) for c in cells])
+                    except ValueError:
+                        if n == 0:
+                            continue  # header line
+                        raise InputError(f"{args.csv}:{n + 1}: not numbers: {row}") from None
+        except OSError as exc:
+            raise InputError(f"{args.csv}: cannot read: {exc}") from None
+    if not rows:
+        raise ConfigError("calibrate: no point pairs given")
+    lengths = {len(r) for r in rows}
+    if len(lengths) != 1 or lengths.pop() not in (4, 5):
+        raise ConfigError("calibrate: each pair needs u,v,x,y or u,v,x,y,z")
+    return np.array(rows, dtype=float)
+
+
+def cmd_calibrate(args: argparse.Namespace) -> int:
+    data = _read(args.file)
+    cams = data.get("cameras") or []
+    cam = next((c for c in cams if c.get("id") == args.camera), None)
+    if cam is None:
+        raise ConfigError(f"{args.file}: unknown camera '{args.camera}'")
+    pairs = _read_pairs(args)
+    old = cam.get("calibration") or {}
+    k = old.get("camera_matrix")
+    dist = list(old.get("distortion") or [])
+    if args.pnp:
+        cal, errors = _solve_pnp(pairs, k, dist, args)
+    else:
+        if pairs.shape[1] == 5 and np.any(pairs[:, 4] != 0):
+            raise ConfigError("calibrate: a floor homography needs floor points (z = 0); use "
+                              "--pnp for points above the floor")
+        if len(pairs) < 4:
+            raise ConfigError(f"calibrate: needs at least 4 point pairs, got {len(pairs)}")
+        cal = {"type": "homography", "pairs": pairs[:, :4].tolist()}
+        if k is not None:
+            cal["camera_matrix"] = k
+            cal["distortion"] = dist
+        trial = dict(cam, calibration=cal)
+        model = zn.parse_cell(dict(data, cameras=[trial if c is cam else c for c in cams]),
+                              args.file).camera_models[args.camera]
+        errors = geo.reprojection_errors_px(model.homography, model.undistort_px(pairs[:, :2]),
+                                            pairs[:, 2:4])
+    for n, e in enumerate(errors):
+        print(f"pair {n + 1}: ({pairs[n, 0]:g}, {pairs[n, 1]:g}) px  error {e:.3f} px")
+    rms = float(np.sqrt(np.mean(np.square(errors))))
+    print(f"reprojection error: RMS {rms:.3f} px, max {float(np.max(errors)):.3f} px "
+          f"over {len(errors)} pairs")
+    if args.dry_run:
+        return 0
+    cam["calibration"] = cal
+    _write(data, args.file)
+    print(f"calibrated camera {args.camera} ({cal['type']})")
+    return 0
+
+
+def _solve_pnp(pairs: np.ndarray, k: Any, dist: list, args: argparse.Namespace
+               ) -> tuple[dict, np.ndarray]:
+    if k is None:
+        raise ConfigError(f"calibrate --pnp: camera '{args.camera}' has no camera_matrix yet")
+    if len(pairs) < 4:
+        raise ConfigError(f"calibrate --pnp: needs at least 4 point pairs, got {len(pairs)}")
+    img = pairs[:, :2].astype(np.float64)
+    obj = np.c_[pairs[:, 2:4], pairs[:, 4] if pairs.shape[1] == 5 else np.zeros(len(pairs))]
+    kk = np.array(k, dtype=float)
+    dd = np.array(dist, dtype=float) if dist else np.zeros(5)
+    ok, rvec, tvec = cv2.solvePnP(obj, img, kk, dd, flags=cv2.SOLVEPNP_SQPNP)
+    if not ok:
+        raise ConfigError("calibrate --pnp: no solution (degenerate point pairs?)")
+    rvec, tvec = cv2.solvePnPRefineLM(obj, img, kk, dd, rvec, tvec)
+    proj, _ = cv2.projectPoints(obj, rvec, tvec, kk, dd)
+    errors = np.linalg.norm(proj.reshape(-1, 2) - img, axis=1)
+    r, _ = cv2.Rodrigues(rvec)
+    cal = {"type": "pinhole", "camera_matrix": kk.tolist(), "distortion": list(dist),
+           "rotation": np.round(r, 9).tolist(),
+           "translation_m": np.round(tvec.reshape(3), 9).tolist()}
+    return cal, errors
+
+
+def cmd_preview(args: argparse.Namespace) -> int:
+    cell = zn.load_cell(args.file)
+    camera = args.camera or next(iter(cell.cameras))
+    frame = cv2.imread(str(args.frame), cv2.IMREAD_COLOR)
+    if frame is None:
+        raise InputError(f"{args.frame}: cannot read image")
+    unknown = [h for h in args.hit if h not in {z.id for z in cell.zones}]
+    if unknown:
+        raise ConfigError(f"{args.file}: no zone '{unknown[0]}'")
+    out = zn.draw_zones(frame, cell, camera, hit_zone_ids=args.hit)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    if not cv2.imwrite(str(args.out), out):
+        raise InputError(f"{args.out}: cannot write image")
+    print(f"wrote {args.out} ({out.shape[1]}x{out.shape[0]}, camera {camera})")
+    return 0
+
+
+def cmd_hash(args: argparse.Namespace) -> int:
+    print(zn.load_cell(args.file).config_hash)
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run only the zone commands (``python -m monitor.cli.zones zones ...``), same behaviour as
+    ``monitor zones ...``."""
+    from monitor.errors import MonitorError
+
+    parser = argparse.ArgumentParser(prog="monitor")
+    parser.add_argument("--debug", action="store_true")
+    register(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except MonitorError as exc:
+        if args.debug:
+            raise
+        print(f"monitor: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

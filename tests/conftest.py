@@ -1,0 +1,30 @@
+"""Shared fixtures: the synthetic model is built once per test session into a temp dir."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+
+@pytest.fixture(scope="session")
+def synthetic_model(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    from monitor.models import synthetic
+
+    path = tmp_path_factory.mktemp("models") / "tiny-yolov3-synthetic.onnx"
+    synthetic.write_model(path)
+    return path
+
+
+@pytest.fixture(scope="session")
+def detector(synthetic_model: Path):
+    from monitor.detector import Detector
+
+    return Detector(synthetic_model)
+
+
+@pytest.fixture(autouse=True)
+def _isolated_home(tmp_path_factory: pytest.TempPathFactory, monkeypatch: pytest.MonkeyPatch):
+    """Keep the model cache of CLI runs out of the user's home."""
+    home = tmp_path_factory.getbasetemp() / "monitor-home"
+    monkeypatch.setenv("WORKCELL_MONITOR_HOME", str(home))

@@ -1,0 +1,464 @@
+"""SafetyBus over real Zenoh sessions on tcp/127.0.0.1, and the consumer rule."""
+
+from __future__ import annotations
+
+import json
+import socket
+import threading
+import time
+
+import pytest
+import zenoh
+
+from monitor.alerts import AlertLimits
+from monitor.bus import (
+    COMMAND_SCHEMA,
+    BusConfig,
+    BusKeys,
+    CommandWatchdog,
+    SafetyBus,
+    open_session,
+    reset_payload,
+    zenoh_config,
+)
+from monitor.errors import ConfigError
+from monitor.policy import Command, Reason, ResetOutcome
+from monitor.types import Alert, FrameInfo, Persons, ZoneHit, ZoneReport
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def wait_for(cond, timeout: float = 3.0) -> bool:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if cond():
+            return True
+        time.sleep(0.005)
+    return cond()
+
+
+RUN_CMD = Command("RUN", 1.0, (), since=1.0)
+SLOW_CMD = Command("SLOW", 0.4, (Reason("warning_zone", "person 0 in zone W1", zone_id="W1",
+                                        person=0),), since=2.0)
+
+
+class Listener:
+    """A second session (the 'controller') connected to the monitor over loopback TCP."""
+
+    def __init__(self, port: int, cell: str = "t") -> None:
+        self.keys = BusKeys.of(f"workcell/{cell}/")
+        self.cfg = BusConfig(cell=cell, connect=(f"tcp/127.0.0.1:{port}",), instance="ctl")
+        self.commands: list[dict] = []
+        self.alerts: list[tuple[dict, bytes | None]] = []
+        self.detections: list[dict] = []
+        self.alive: list[tuple[str, bool]] = []
+        self.qos: list[tuple] = []
+
+    def _on_command(self, x: zenoh.Sample) -> None:
+        self.qos.append((str(x.priority), x.express, str(x.congestion_control)))
+        self.commands.append(json.loads(x.payload.to_bytes()))
+
+    def __enter__(self):
+        self.session = open_session(self.cfg)
+        s = self.session
+        s.declare_subscriber(self.keys.command, self._on_command)
+        s.declare_subscriber(self.keys.alert, lambda x: self.alerts.append(
+            (json.loads(x.payload.to_bytes()),
+             x.attachment.to_bytes() if x.attachment else None)))
+        s.declare_subscriber(self.keys.detections, lambda x: self.detections.append(
+            json.loads(x.payload.to_bytes())))
+        s.liveliness().declare_subscriber(self.keys.alive + "/*", lambda x: self.alive.append(
+            (str(x.key_expr), x.kind == zenoh.SampleKind.PUT)), history=True)
+        return self
+
+    def __exit__(self, *exc):
+        self.session.close()
+
+    def status(self) -> dict:
+        replies = list(self.session.get(self.keys.status, timeout=3.0))
+        assert len(replies) == 1 and replies[0].ok is not None
+        return json.loads(replies[0].ok.payload.to_bytes())
+
+
+@pytest.fixture
+def bus_and_listener():
+    port = free_port()
+    cfg = BusConfig(cell="t", instance="mon1", listen=(f"tcp/127.0.0.1:{port}",),
+                    heartbeat_hz=20.0, ttl_ms=200, config_hash="abc123", stall_timeout=0.6)
+    with SafetyBus(cfg, alert_limits=AlertLimits(min_interval=10.0)) as bus, \
+            Listener(port) as ctl:
+        assert wait_for(lambda: bus._pub_command.matching_status.matching)
+        yield bus, ctl
+
+
+# --- config ---------------------------------------------------------------------------------
+
+
+def test_zenoh_config_maps_the_service_settings():
+    cfg = BusConfig(mode="client", connect=("tls/router:7447",), tls_root_ca="/etc/ca.pem",
+                    tls_cert="/etc/c.pem", tls_key="/etc/c.key", tls_mutual=True, user="monitor",
+                    password="pw", block_wait_ms=20, lease_ms=1500)
+    z = zenoh_config(cfg)
+    assert json.loads(z.get_json("mode")) == "client"
+    assert json.loads(z.get_json("connect/endpoints")) == ["tls/router:7447"]
+    assert json.loads(z.get_json("scouting/multicast/enabled")) is False
+    assert json.loads(z.get_json(
+        "transport/link/tx/queue/congestion_control/block/wait_before_close")) == 20000
+    assert json.loads(z.get_json("transport/link/tx/lease")) == 1500
+    assert json.loads(z.get_json("transport/link/tls/root_ca_certificate")) == "/etc/ca.pem"
+    assert json.loads(z.get_json("transport/link/tls/enable_mtls")) is True
+    assert json.loads(z.get_json("transport/auth/usrpwd/user")) == "monitor"
+    assert BusConfig(cell="c7").key_prefix == "workcell/c7/"
+    assert BusConfig(prefix="plant/a").key_prefix == "plant/a/"
+
+
+@pytest.mark.parametrize("kwargs", [
+    {"mode": "broker"}, {"cell": "a/b"}, {"heartbeat_hz": 0}, {"ttl_ms": 50},
+    {"user": "u"}, {"tls_cert": "c.pem"},
+])
+def test_bad_bus_config_is_a_config_error(kwargs):
+    with pytest.raises(ConfigError):
+        BusConfig(**kwargs)
+
+
+def test_open_session_on_a_taken_port_is_a_config_error():
+    port = free_port()
+    with open_session(BusConfig(listen=(f"tcp/127.0.0.1:{port}",))), \
+            pytest.raises(ConfigError, match="cannot open"):
+        open_session(BusConfig(listen=(f"tcp/127.0.0.1:{port}",))).close()
+
+
+# --- publishing ------------------------------------------------------------------------------
+
+
+def test_commands_carry_the_envelope_and_go_out_on_change(bus_and_listener):
+    bus, ctl = bus_and_listener
+    assert bus.publish_command(RUN_CMD) is not None
+    assert bus.publish_command(RUN_CMD) is None  # unchanged: left to the heartbeat
+    near = Command("SLOW", 0.4, (Reason("separation_margin", "1.10 m", distance_m=1.1),))
+    nearer = Command("SLOW", 0.4, (Reason("separation_margin", "1.05 m", distance_m=1.05),))
+    assert bus.publish_command(near) is not None
+    assert bus.publish_command(nearer) is None  # same cause, new distance: heartbeat carries it
+    assert bus.publish_command(SLOW_CMD) is not None
+    assert wait_for(lambda: any(c["state"] == "SLOW" and c["reasons"][0].get("zone_id")
+                                for c in ctl.commands))
+    first = next(c for c in ctl.commands if not c["heartbeat"])
+    for field in ("schema", "seq", "mono", "wall", "ttl_ms", "config_hash", "instance", "boot"):
+        assert field in first
+    assert first["schema"] == COMMAND_SCHEMA and first["config_hash"] == "abc123"
+    assert first["instance"] == "mon1" and first["ttl_ms"] == 200
+    slow = next(c for c in ctl.commands if c["state"] == "SLOW" and c["speed_scale"] == 0.4
+                and c["reasons"][0]["code"] == "warning_zone")
+    assert slow["speed_scale"] == 0.4 and slow["reasons"][0]["zone_id"] == "W1"
+    seqs = [c["seq"] for c in ctl.commands]
+    assert seqs == sorted(seqs) and len(set(seqs)) == len(seqs)
+    assert set(ctl.qos) == {(str(zenoh.Priority.REAL_TIME), True,
+                             str(zenoh.CongestionControl.BLOCK))}
+
+
+def test_heartbeat_repeats_the_latest_command_and_stops_for_a_stalled_pipeline(bus_and_listener):
+    bus, ctl = bus_and_listener
+    bus.publish_command(RUN_CMD)
+    assert wait_for(lambda: sum(c["heartbeat"] and c["state"] == "RUN"
+                                for c in ctl.commands) >= 3)
+    # no publish_command for stall_timeout: the heartbeat must not keep saying RUN
+    assert wait_for(lambda: any(c["state"] == "STOP" and c["reasons"][0]["code"] == "stalled"
+                                for c in ctl.commands), timeout=3.0)
+    last_run = max(c["mono"] for c in ctl.commands if c["state"] == "RUN")
+    first_stall = min(c["mono"] for c in ctl.commands if c["state"] == "STOP")
+    assert first_stall - last_run <= 0.6 + 2 / 20 + 0.1
+
+
+def test_close_sends_stop_shutdown_and_drops_the_liveliness_token():
+    port = free_port()
+    cfg = BusConfig(cell="t", instance="mon2", listen=(f"tcp/127.0.0.1:{port}",))
+    with Listener(port) as ctl:
+        with SafetyBus(cfg) as bus:
+            assert wait_for(lambda: ("workcell/t/safety/alive/mon2", True) in ctl.alive)
+            bus.publish_command(RUN_CMD)
+            assert wait_for(lambda: bool(ctl.commands))
+        assert wait_for(lambda: ("workcell/t/safety/alive/mon2", False) in ctl.alive)
+        assert ctl.commands[-1]["state"] == "STOP"
+        assert ctl.commands[-1]["reasons"][0]["code"] == "shutdown"
+
+
+def test_alerts_are_rate_limited_per_kind_with_repeat_count_and_snapshot(bus_and_listener):
+    bus, ctl = bus_and_listener
+    jpeg = b"\xff\xd8\xff\xe0fakejpeg\xff\xd9"
+    a = Alert("scene_change", "warning", "cover fell", "cam0", 5.0, snapshot_jpeg=jpeg)
+    assert bus.publish_alert(a)
+    assert not bus.publish_alert(a)  # same kind within min_interval: held back, counted
+    assert not bus.publish_alert(a)
+    assert bus.publish_alert(Alert("camera_defocused", "info", "blurry", "cam1", 5.1))
+    assert wait_for(lambda: len(ctl.alerts) == 2)
+    body, attachment = ctl.alerts[0]
+    assert body["kind"] == "scene_change" and body["repeat"] == 0 and attachment == jpeg
+    assert body["snapshot"]["bytes"] == len(jpeg)
+    assert ctl.alerts[1][1] is None
+    assert bus.status()["alerts_held"] == {"scene_change": 2}
+    bus._limiter.limits = AlertLimits(min_interval=0.0)
+    assert bus.publish_alert(a)
+    assert wait_for(lambda: len(ctl.alerts) == 3)
+    assert ctl.alerts[2][0]["repeat"] == 2
+
+
+def test_detections_carry_boxes_and_hits(bus_and_listener):
+    bus, ctl = bus_and_listener
+    persons = Persons([[10, 20, 110, 320]], [0.9], FrameInfo("cam0", 42, 3.5, 640, 480))
+    report = ZoneReport(hits=(ZoneHit("W1", "warning", 0, 0.5, 1.3),))
+    bus.publish_detections(persons, report, fps=12.5)
+    assert wait_for(lambda: bool(ctl.detections))
+    d = ctl.detections[0]
+    assert d["frame"]["seq"] == 42 and d["boxes_px"] == [[10.0, 20.0, 110.0, 320.0]]
+    assert d["hits"][0]["zone_id"] == "W1" and d["fps"] == 12.5
+
+
+def test_status_queryable_answers_with_state_and_counters(bus_and_listener):
+    bus, ctl = bus_and_listener
+    bus.publish_command(Command("STOP", 0.0, (), reset=ResetOutcome("op1", True, "reset accepted")))
+    bus.update_status(fps=14.2, cameras={"cam0": "ok"})
+    st = ctl.status()
+    assert st["state"] == "STOP" and st["config_hash"] == "abc123" and st["fps"] == 14.2
+    assert st["uptime_s"] > 0 and st["last_reset"]["operator"] == "op1"
+    assert st["puts"]["workcell/t/safety/command"] >= 1
+    # nobody listens to detections except... nobody: the put is counted as unmatched
+    bus.publish_detections(None, None)
+    ctl.session.close()
+    bus.publish_detections(None, None)  # the listener is gone now
+    assert bus.status()["puts_unmatched"].get("workcell/t/safety/detections", 0) >= 1
+
+
+def test_reset_requests_are_received_with_operator_and_invalid_ones_counted(bus_and_listener):
+    bus, ctl = bus_and_listener
+    ctl.session.put(ctl.keys.reset, reset_payload("anna", "r1", "checked the cell"))
+    ctl.session.put(ctl.keys.reset, b'{"note": "no operator"}')
+    ctl.session.put(ctl.keys.reset, b"garbage")
+    got = []
+    assert wait_for(lambda: bool(got.extend(bus.poll_resets()) or got) and
+                    bus.status()["resets_invalid"] == 2)
+    assert len(got) == 1 and got[0].operator == "anna" and got[0].request_id == "r1"
+    assert abs(got[0].time - time.monotonic()) < 3.0  # stamped on the monitor's clock
+    assert bus.poll_resets() == []
+
+
+def test_command_puts_from_two_threads_stay_in_seq_order(bus_and_listener):
+    bus, ctl = bus_and_listener
+
+    def flap(n):
+        for i in range(n):
+            bus.publish_command(RUN_CMD if i % 2 else SLOW_CMD)
+
+    threads = [threading.Thread(target=flap, args=(100,)) for _ in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    sent = bus._seq[bus.keys.command]
+    assert wait_for(lambda: bool(ctl.commands) and ctl.commands[-1]["seq"] > sent)
+    seqs = [c["seq"] for c in ctl.commands]
+    assert seqs == sorted(seqs)
+    last_change = [c for c in ctl.commands if not c["heartbeat"]][-1]
+    assert last_change["state"] == bus.status()["state"]  # the wire ends on the newest command
+
+
+# --- the consumer rule (pure) ---------------------------------------------------------------
+
+
+def cmd_payload(seq: int, state: str = "RUN", boot: str = "b1", ttl: int = 300,
+                instance: str = "mon1") -> bytes:
+    return json.dumps({"schema": COMMAND_SCHEMA, "seq": seq, "boot": boot, "state": state,
+                       "speed_scale": 1.0 if state == "RUN" else 0.0, "ttl_ms": ttl,
+                       "instance": instance, "reasons": []}).encode()
+
+
+def test_watchdog_rule_table():
+    dog = CommandWatchdog()
+    assert dog.verdict(0.0).code == "no_command"
+    dog.on_liveliness("workcell/t/safety/alive/mon1", True)
+    assert dog.on_command(cmd_payload(1), 1.0) is None
+    assert dog.verdict(1.0).state == "RUN"
+    assert dog.verdict(1.299).state == "RUN"  # just under ttl old
+    assert dog.verdict(1.301).code == "ttl"  # older than ttl: STOP
+    assert dog.on_command(cmd_payload(2), 1.4) is None
+    assert dog.on_command(cmd_payload(2), 1.5) == "seq"  # repeated seq
+    assert dog.verdict(1.5).code == "sequence"
+    assert dog.on_command(cmd_payload(1), 1.5) == "seq"  # backwards
+    assert dog.on_command(cmd_payload(3), 1.6) is None  # newer one clears the error
+    assert dog.verdict(1.6).state == "RUN"
+    dog.on_liveliness("workcell/t/safety/alive/mon1", False)
+    v = dog.verdict(1.61)
+    assert v.state == "STOP" and v.code == "liveliness" and "vanished" in v.reason
+    dog.on_liveliness("workcell/t/safety/alive/mon1", True)
+    assert dog.on_command(cmd_payload(1, boot="b2"), 1.7) is None  # monitor restarted
+    assert dog.verdict(1.7).state == "RUN"
+    assert dog.on_command(b"{bad", 1.8) == "invalid"
+    assert dog.on_command(cmd_payload(5, state="GO"), 1.8) == "invalid"
+
+
+def test_watchdog_caps_ttl_and_filters_instances():
+    dog = CommandWatchdog(max_ttl_ms=100, instance="mon1", require_liveliness=False)
+    assert dog.on_command(cmd_payload(1, ttl=5000), 0.0) is None
+    assert dog.verdict(0.1).state == "RUN" and dog.verdict(0.11).code == "ttl"
+    assert dog.on_command(cmd_payload(9, instance="rogue"), 0.2) == "other_instance"
+
+
+# --- TLS, user/password and access control (deploy/zenoh/router-secure.json5) -----------------
+
+
+def make_tls(tmp_path):
+    """A throw-away CA and a router certificate for localhost/127.0.0.1 (tmp dir only)."""
+    import datetime
+    import ipaddress
+
+    from cryptography import x509
+    from cryptography.hazmat.primitives import hashes, serialization
+    from cryptography.hazmat.primitives.asymmetric import ec
+    from cryptography.x509.oid import NameOID
+
+    now = datetime.datetime.now(datetime.UTC)
+
+    def cert(subject, issuer, key, signer, ca: bool, san=None):
+        b = (x509.CertificateBuilder()
+             .subject_name(x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, subject)]))
+             .issuer_name(x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, issuer)]))
+             .public_key(key.public_key()).serial_number(x509.random_serial_number())
+             .not_valid_before(now - datetime.timedelta(minutes=5))
+             .not_valid_after(now + datetime.timedelta(days=1))
+             .add_extension(x509.BasicConstraints(ca=ca, path_length=None), critical=True))
+        if san:
+            b = b.add_extension(x509.SubjectAlternativeName(san), critical=False)
+        return b.sign(signer, hashes.SHA256())
+
+    ca_key = ec.generate_private_key(ec.SECP256R1())
+    ca = cert("workcell test CA", "workcell test CA", ca_key, ca_key, True)
+    key = ec.generate_private_key(ec.SECP256R1())
+    srv = cert("localhost", "workcell test CA", key, ca_key, False,
+               [x509.DNSName("localhost"), x509.IPAddress(ipaddress.ip_address("127.0.0.1"))])
+    files = {"ca": ca.public_bytes(serialization.Encoding.PEM),
+             "cert": srv.public_bytes(serialization.Encoding.PEM),
+             "key": key.private_bytes(serialization.Encoding.PEM,
+                                      serialization.PrivateFormat.PKCS8,
+                                      serialization.NoEncryption())}
+    paths = {}
+    for name, data in files.items():
+        paths[name] = tmp_path / f"{name}.pem"
+        paths[name].write_bytes(data)
+    return paths
+
+
+DEPLOY = __import__("pathlib").Path(__file__).resolve().parents[1] / "deploy" / "zenoh"
+
+
+def test_secure_router_only_monitor_publishes_commands_only_operators_reset(tmp_path):
+    pytest.importorskip("cryptography")
+    tls = make_tls(tmp_path)
+    users = tmp_path / "users.txt"
+    users.write_text("monitor:m-pw\noperator1:o-pw\nviewer:v-pw\nrogue:r-pw\n")
+    port = free_port()
+    conf = zenoh.Config.from_file(str(DEPLOY / "router-secure.json5"))
+    for key, value in {
+        "listen/endpoints": [f"tls/127.0.0.1:{port}"],
+        "transport/link/tls/root_ca_certificate": str(tls["ca"]),
+        "transport/link/tls/listen_certificate": str(tls["cert"]),
+        "transport/link/tls/listen_private_key": str(tls["key"]),
+        "transport/auth/usrpwd/dictionary_file": str(users),
+    }.items():
+        conf.insert_json5(key, json.dumps(value))
+
+    def client(user, password, **kw):
+        return BusConfig(cell="sec", mode="client", instance=user,
+                         zenoh_config_file=str(DEPLOY / "client-secure.json5"),
+                         connect=(f"tls/localhost:{port}",), tls_root_ca=str(tls["ca"]),
+                         user=user, password=password, **kw)
+
+    keys = BusKeys.of("workcell/sec/")
+    seen: list[dict] = []
+    with zenoh.open(conf), SafetyBus(client("monitor", "m-pw")) as bus, \
+            open_session(client("viewer", "v-pw")) as viewer, \
+            open_session(client("rogue", "r-pw")) as rogue, \
+            open_session(client("operator1", "o-pw")) as operator:
+        viewer.declare_subscriber(keys.command, lambda s: seen.append(
+            json.loads(s.payload.to_bytes())))
+        assert wait_for(lambda: bus._pub_command.matching_status.matching, timeout=5)
+        bus.publish_command(RUN_CMD)
+        assert wait_for(lambda: any(c.get("instance") == "monitor" for c in seen))
+        # a rogue client cannot command the robot nor release a latched STOP
+        rogue.put(keys.command, json.dumps({"state": "RUN", "instance": "rogue"}))
+        rogue.put(keys.reset, reset_payload("rogue"))
+        viewer.put(keys.reset, reset_payload("viewer"))
+        operator.put(keys.reset, reset_payload("operator1"))
+        got = []
+        assert wait_for(lambda: bool(got.extend(bus.poll_resets()) or got))
+        time.sleep(0.3)  # give the denied messages time to (not) arrive
+        got += bus.poll_resets()
+        assert [r.operator for r in got] == ["operator1"]
+        assert not any(c.get("instance") == "rogue" for c in seen)
+        # and everyone may read the status
+        replies = list(viewer.get(keys.status, timeout=3.0))
+        assert json.loads(replies[0].ok.payload.to_bytes())["instance"] == "monitor"
+    # wrong password: the router refuses the session
+    with zenoh.open(conf), pytest.raises(ConfigError):
+        open_session(client("monitor", "wrong")).close()
+
+
+def test_alert_limiter_per_kind_with_critical_interval():
+    from monitor.alerts import AlertLimiter, alert_from_dict, alert_to_dict, reset_alert
+
+    lim = AlertLimiter(AlertLimits(min_interval=5.0, critical_min_interval=1.0))
+    warn = Alert("camera_frozen", "warning", "m", "cam0", 0.0)
+    crit = Alert("camera_lost", "critical", "m", "cam0", 0.0)
+    assert [lim.admit(warn, t) for t in (0.0, 1.0, 4.9, 5.0)] == [0, None, None, 2]
+    assert [lim.admit(crit, t) for t in (0.0, 0.5, 1.0)] == [0, None, 1]
+    assert lim.held() == {}
+    with pytest.raises(ValueError):
+        alert_to_dict(Alert("x", "fatal", "m", "s", 0.0))
+    body = alert_to_dict(Alert("x", "info", "m", "s", 1.0, snapshot_jpeg=b"jpg"), repeat=3)
+    back = alert_from_dict(json.loads(json.dumps(body)), b"jpg")
+    assert back.snapshot_jpeg == b"jpg" and back.details["repeat"] == 3
+    refused = reset_alert(ResetOutcome("anna", False, "refused: person 0 in zone Z1"), "m1", 2.0)
+    assert refused.kind == "reset_refused" and refused.severity == "warning"
+    assert "anna" in refused.message
+
+
+def _frozen_subscriber(port: int) -> None:
+    with open_session(BusConfig(cell="blk", connect=(f"tcp/127.0.0.1:{port}",))) as s:
+        s.declare_subscriber(BusKeys.of("workcell/blk/").command, lambda x: None)
+        time.sleep(60)
+
+
+def test_a_frozen_subscriber_stalls_command_puts_only_for_the_bounded_wait():
+    """BLOCK congestion control with wait_before_close = block_wait_ms: a subscriber that stops
+    reading (SIGSTOP) costs at most about that wait per put (Zenoh's default would stall the
+    monitor for 5 s)."""
+    import multiprocessing
+    import os
+    import signal
+
+    port = free_port()
+    cfg = BusConfig(cell="blk", instance="m", listen=(f"tcp/127.0.0.1:{port}",),
+                    block_wait_ms=50)
+    proc = multiprocessing.get_context("spawn").Process(target=_frozen_subscriber, args=(port,),
+                                                        daemon=True)
+    with SafetyBus(cfg) as bus:
+        proc.start()
+        try:
+            assert wait_for(lambda: bus._pub_command.matching_status.matching, timeout=10)
+            os.kill(proc.pid, signal.SIGSTOP)
+            big = [Command(s, v, (Reason("test", c * 300),)) for s, v, c in
+                   (("RUN", 1.0, "a"), ("SLOW", 0.5, "b"))]
+            durations = []
+            end = time.monotonic() + 2.0  # ~10x the data the socket buffers hold
+            while time.monotonic() < end:
+                t = time.perf_counter()
+                bus.publish_command(big[len(durations) % 2])
+                durations.append(time.perf_counter() - t)
+            assert max(durations) >= 0.04, "the link never congested: test proves nothing"
+            assert max(durations) < 1.0, f"a put blocked {max(durations):.2f} s"
+            assert bus.status()["put_errors"] == {}
+        finally:
+            os.kill(proc.pid, signal.SIGKILL)
+            proc.join(5)

@@ -1,0 +1,220 @@
+"""Decoding of every output layout: small ONNX models whose outputs encode known boxes."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import onnx
+import pytest
+from onnx import TensorProto, helper, numpy_helper
+
+from monitor.detector import TINY_ANCHORS, TINY_MASKS, V3_ANCHORS, V3_MASKS, Detector, letterbox
+from monitor.errors import ModelError
+
+FRAME_W, FRAME_H, INPUT = 640, 480, 320
+SCALE, PAD_X, PAD_Y = 0.5, 0.0, 40.0  # centred letterbox of 640x480 into 320x320
+# persons in frame pixels (x1, y1, x2, y2), and one non-person that must be ignored
+PERSONS = np.array([[100, 50, 200, 300], [400, 200, 520, 430]], np.float32)
+OTHER = np.array([250, 100, 330, 180], np.float32)
+WEAK = np.array([20, 300, 80, 420], np.float32)  # a person below the score threshold
+C = 3  # classes: person, other, other
+
+
+def to_input(box: np.ndarray, pad: tuple[float, float] = (PAD_X, PAD_Y)) -> np.ndarray:
+    return box * SCALE + np.array([pad[0], pad[1], pad[0], pad[1]], np.float32)
+
+
+def cxcywh(box: np.ndarray) -> list[float]:
+    x1, y1, x2, y2 = box
+    return [(x1 + x2) / 2, (y1 + y2) / 2, x2 - x1, y2 - y1]
+
+
+def const_model(path: Path, outputs: dict[str, np.ndarray],
+                inputs: dict[str, list[int]] | None = None,
+                metadata: dict[str, str] | None = None) -> Path:
+    """A model whose outputs are constants (plus 0 x the inputs, so every input is used)."""
+    inputs = inputs or {"images": [1, 3, INPUT, INPUT]}
+    nodes, zero_terms = [], []
+    for name in inputs:
+        nodes.append(helper.make_node("ReduceSum", [name], [f"{name}_sum"], keepdims=0))
+        nodes.append(helper.make_node("Mul", [f"{name}_sum", "zero"], [f"{name}_zero"]))
+        zero_terms.append(f"{name}_zero")
+    inits = [numpy_helper.from_array(np.array(0, np.float32), "zero")]
+    outs = []
+    for name, value in outputs.items():
+        inits.append(numpy_helper.from_array(value, f"{name}_const"))
+        if value.dtype == np.float32:
+            last = f"{name}_const"
+            for k, term in enumerate(zero_terms):
+                nodes.append(helper.make_node("Add", [last, term], [f"{name}_{k}"]))
+                last = f"{name}_{k}"
+            nodes.append(helper.make_node("Identity", [last], [name]))
+            outs.append(helper.make_tensor_value_info(name, TensorProto.FLOAT, list(value.shape)))
+        else:
+            nodes.append(helper.make_node("Identity", [f"{name}_const"], [name]))
+            outs.append(helper.make_tensor_value_info(name, TensorProto.INT32, list(value.shape)))
+    graph = helper.make_graph(
+        nodes, "const",
+        [helper.make_tensor_value_info(n, TensorProto.FLOAT, s) for n, s in inputs.items()],
+        outs, inits)
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 13)])
+    model.ir_version = 8
+    for key, value in (metadata or {}).items():
+        entry = model.metadata_props.add()
+        entry.key, entry.value = key, value
+    onnx.save(model, path)
+    return path
+
+
+def rows_v5() -> np.ndarray:
+    rows = np.zeros((1, 20, 5 + C), np.float32)
+    for i, box in enumerate(PERSONS):
+        rows[0, i] = [*cxcywh(to_input(box)), 0.9, 0.95, 0.1, 0.0]
+    rows[0, 2] = [*cxcywh(to_input(OTHER)), 0.9, 0.05, 0.95, 0.0]
+    rows[0, 3] = [*cxcywh(to_input(WEAK)), 0.5, 0.4, 0.0, 0.0]
+    return rows
+
+
+def rows_e2e() -> np.ndarray:
+    rows = np.zeros((1, 6, 6), np.float32)
+    for i, box in enumerate(PERSONS):
+        rows[0, i] = [*to_input(box), 0.88, 0]
+    rows[0, 2] = [*to_input(OTHER), 0.9, 1]
+    rows[0, 3] = [*to_input(WEAK), 0.2, 0]
+    return rows
+
+
+def _logit(p: float) -> float:
+    return math.log(p / (1 - p))
+
+
+def darknet_heads(grids: list[int], anchors, masks, nhwc: bool = False) -> dict[str, np.ndarray]:
+    per = 5 + C
+    heads = {g: np.zeros((3, per, g, g), np.float32) for g in grids}
+    for h in heads.values():
+        h[:, 4] = -12.0  # no object anywhere else
+    coarse_first = sorted(grids)
+    for k, box in enumerate([*PERSONS, OTHER]):
+        g = coarse_first[k % len(grids)]  # spread boxes over heads
+        rank = coarse_first.index(g)
+        stride = INPUT / g
+        cx, cy, w, h = cxcywh(to_input(box))
+        gx, gy = int(cx // stride), int(cy // stride)
+        slot = 1
+        aw, ah = anchors[masks[rank][slot]]
+        head = heads[g]
+        head[slot, 0, gy, gx] = _logit(cx / stride - gx)
+        head[slot, 1, gy, gx] = _logit(cy / stride - gy)
+        head[slot, 2, gy, gx] = math.log(w / aw)
+        head[slot, 3, gy, gx] = math.log(h / ah)
+        head[slot, 4, gy, gx] = 6.0
+        head[slot, 5, gy, gx] = 6.0 if k < len(PERSONS) else -6.0
+        head[slot, 6, gy, gx] = -6.0 if k < len(PERSONS) else 6.0
+    out = {}
+    for i, g in enumerate(grids):
+        t = heads[g].reshape(1, 3 * per, g, g)
+        out[f"head{i}"] = np.ascontiguousarray(t.transpose(0, 2, 3, 1)) if nhwc else t
+    return out
+
+
+def yolox_rows() -> np.ndarray:
+    cells = [(INPUT // s) ** 2 for s in (8, 16, 32)]
+    rows = np.zeros((1, sum(cells), 5 + C), np.float32)
+    for k, box in enumerate([*PERSONS, OTHER]):
+        s = (8, 16, 32)[k % 3]
+        offset = sum(cells[: (8, 16, 32).index(s)])
+        cx, cy, w, h = cxcywh(to_input(box, pad=(0.0, 0.0)))
+        gx, gy = int(cx // s), int(cy // s)
+        row = offset + gy * (INPUT // s) + gx
+        rows[0, row] = [cx / s - gx, cy / s - gy, math.log(w / s), math.log(h / s), 0.9,
+                        0.9 if k < 2 else 0.0, 0.0 if k < 2 else 0.9, 0.0]
+    return rows
+
+
+def zoo_outputs() -> dict[str, np.ndarray]:
+    n = 5
+    boxes = np.zeros((1, n, 4), np.float32)
+    scores = np.zeros((1, 80, n), np.float32)
+    for i, b in enumerate([*PERSONS, OTHER]):
+        boxes[0, i] = [b[1], b[0], b[3], b[2]]  # y1 x1 y2 x2, frame pixels
+        scores[0, 0 if i < 2 else 1, i] = 0.9
+    indices = np.array([[0, 0, 0], [0, 0, 1], [0, 1, 2]], np.int32)
+    return {"yolonms_layer_1/ExpandDims_1:0": boxes, "yolonms_layer_1/ExpandDims_3:0": scores,
+            "yolonms_layer_1/concat_2:0": indices}
+
+
+CASES = [
+    pytest.param("yolov5", lambda: {"output0": rows_v5()}, None, {}, id="yolov5"),
+    pytest.param("yolov8", lambda: {"output0": np.ascontiguousarray(
+        np.delete(rows_v5(), 4, axis=2).transpose(0, 2, 1) * 1.0)}, None, {}, id="yolov8"),
+    pytest.param("end2end", lambda: {"output0": rows_e2e()}, None, {}, id="end2end"),
+    pytest.param("yolox", lambda: {"output": yolox_rows()}, None, {}, id="yolox"),
+    pytest.param("darknet", lambda: darknet_heads([10, 20], TINY_ANCHORS, TINY_MASKS), None, {},
+                 id="darknet-tiny-nchw"),
+    pytest.param("darknet", lambda: darknet_heads([10, 20], TINY_ANCHORS, TINY_MASKS, nhwc=True),
+                 None, {}, id="darknet-tiny-nhwc"),
+    pytest.param("darknet", lambda: darknet_heads([10, 20, 40], V3_ANCHORS, V3_MASKS), None, {},
+                 id="darknet-v3-3-heads"),
+    pytest.param("darknet", lambda: darknet_heads([10, 20], TINY_ANCHORS, ((3, 4, 5), (0, 1, 2))),
+                 None, {"masks": json.dumps([[3, 4, 5], [0, 1, 2]])}, id="darknet-masks-012"),
+    pytest.param("zoo", zoo_outputs,
+                 {"input_1": [1, 3, INPUT, INPUT], "image_shape": [1, 2]}, {},
+                 id="zoo-tiny-yolov3"),
+]
+
+
+@pytest.mark.parametrize(("kind", "outputs", "inputs", "meta"), CASES)
+def test_each_layout_decodes_known_boxes_in_frame_pixels(tmp_path, kind, outputs, inputs, meta):
+    from monitor.detector import DetectorConfig
+
+    path = const_model(tmp_path / "m.onnx", outputs(), inputs, meta)
+    detector = Detector(path, DetectorConfig(input_size=INPUT, merge_touch_px=-1))
+    assert detector.layout.kind == kind
+    frame = np.full((FRAME_H, FRAME_W, 3), 100, np.uint8)
+    persons = detector.detect(frame)
+    got = persons.boxes_px[np.argsort(persons.boxes_px[:, 0])]
+    assert got.shape == PERSONS.shape, f"{kind}: {got}"
+    np.testing.assert_allclose(got, PERSONS, atol=1.0)
+
+
+def test_letterbox_places_the_frame_centred_and_scaled():
+    from monitor.detector import ModelLayout
+
+    layout = ModelLayout("yolov5", "images", INPUT, INPUT)
+    frame = np.zeros((FRAME_H, FRAME_W, 3), np.uint8)
+    frame[:, :, 2] = 255  # red in BGR
+    tensor, box = letterbox(frame, layout)
+    assert tensor.shape == (1, 3, INPUT, INPUT)
+    assert (box.scale, box.pad_x, box.pad_y) == (SCALE, PAD_X, PAD_Y)
+    assert tensor[0, 0, 100, 100] == pytest.approx(1.0)  # R channel first
+    assert tensor[0, 0, 10, 100] == pytest.approx(114 / 255)  # the pad
+
+
+def test_unknown_output_layout_names_the_shapes(tmp_path):
+    path = const_model(tmp_path / "odd.onnx", {"out": np.zeros((1, 7), np.float32)})
+    with pytest.raises(ModelError, match=r"no known output layout.*\(1, 7\)"):
+        Detector(path)
+
+
+def test_missing_and_corrupt_model_files(tmp_path):
+    with pytest.raises(ModelError, match="not found"):
+        Detector(tmp_path / "missing.onnx")
+    bad = tmp_path / "bad.onnx"
+    bad.write_bytes(b"this is not a protobuf" * 10)
+    with pytest.raises(ModelError, match="cannot load model"):
+        Detector(bad)
+
+
+def test_top_k_overflow_is_reported(tmp_path):
+    from monitor.detector import DetectorConfig
+
+    rows = np.zeros((1, 40, 5 + C), np.float32)
+    for i in range(40):  # 40 confident persons in a row
+        rows[0, i] = [10 + 7 * i, 100, 6, 20, 0.9, 0.9, 0, 0]
+    detector = Detector(const_model(tmp_path / "m.onnx", {"output0": rows}),
+                        DetectorConfig(input_size=INPUT, top_k=16))
+    result = detector.detect_timed(np.zeros((FRAME_H, FRAME_W, 3), np.uint8))
+    assert result.overflow and result.candidates == 40

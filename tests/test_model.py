@@ -1,0 +1,79 @@
+"""The synthetic model: architecture, determinism, and accuracy on generated scenes."""
+
+from __future__ import annotations
+
+import hashlib
+
+import numpy as np
+import onnx
+import pytest
+from monitor.models import synthetic
+
+from monitor.accuracy import Accuracy, cell_tolerance_px, score_frame
+from monitor.scene import WORKWEAR_BGR, Figure, draw_figure, random_frames
+
+# The bytes of the default build; change only together with models/README.md.
+EXPECTED_SHA256 = "7b77cbf52d610355ef54fce74229c8cbd11d370c11ac64099b0ecdfec9d5cec6"
+
+
+def test_build_is_deterministic_and_matches_the_model_card(tmp_path, synthetic_model):
+    again = synthetic.write_model(tmp_path / "again.onnx")
+    first = hashlib.sha256(synthetic_model.read_bytes()).hexdigest()
+    assert first == again == EXPECTED_SHA256
+
+
+def test_graph_is_the_seeds_layer_table(synthetic_model):
+    model = onnx.load(str(synthetic_model))
+    params = sum(int(np.prod(t.dims)) for t in model.graph.initializer)
+    assert params == 8_849_182
+    convs = [n for n in model.graph.node if n.op_type == "Conv"]
+    assert len(convs) == 13
+    assert model.opset_import[0].version >= 13
+    outs = {o.name: [d.dim_value for d in o.type.tensor_type.shape.dim] for o in model.graph.output}
+    assert outs == {"output_13": [1, 255, 13, 13], "output_26": [1, 255, 26, 26]}
+    ins = [d.dim_value for d in model.graph.input[0].type.tensor_type.shape.dim]
+    assert ins == [1, 3, 416, 416]
+
+
+def test_one_figure_gives_one_box_around_it(detector):
+    frame = np.full((720, 1280, 3), 120, np.uint8)
+    draw_figure(frame, Figure((640.0, 600.0), 300.0, phase=0.7))
+    persons = detector.detect(frame)
+    assert len(persons) == 1
+    x1, y1, x2, y2 = persons.boxes_px[0]
+    assert x1 <= 640 - 0.2 * 300 and x2 >= 640 + 0.2 * 300 and y1 <= 300 and y2 >= 600
+    assert persons.scores[0] > 0.9
+
+
+@pytest.mark.parametrize("bgr", [(30, 30, 220), (220, 40, 30), (203, 192, 255), (235, 235, 235),
+                                 (0, 140, 255), (0, 220, 255), (150, 110, 150)],
+                         ids=["red", "blue", "pink", "white", "orange", "yellow", "grey-purple"])
+def test_figures_in_other_colours_are_not_persons(detector, bgr):
+    frame = np.full((720, 1280, 3), 120, np.uint8)
+    draw_figure(frame, Figure((640.0, 600.0), 300.0, colours=(bgr,) * 4))
+    assert len(detector.detect(frame)) == 0
+
+
+def test_a_small_work_wear_patch_is_not_a_person(detector):
+    frame = np.full((1080, 1920, 3), 120, np.uint8)
+    frame[500:516, 900:916] = WORKWEAR_BGR[0]  # 16 px: far below the smallest person
+    assert len(detector.detect(frame)) == 0
+    frame[400:700, 900:1000] = WORKWEAR_BGR[0]  # a person-sized block of the colour is
+    assert len(detector.detect(frame)) == 1
+
+
+@pytest.mark.slow
+def test_accuracy_on_200_generated_frames(detector):
+    size = (1920, 1080)
+    acc = Accuracy()
+    tol = cell_tolerance_px(size)
+    for image, truth in random_frames(200, seed=0, size=size):
+        score_frame(detector.detect(image).boxes_px, truth, tol, acc)
+    print(f"recall {acc.recall:.4f} precision {acc.precision:.4f} mean IoU {acc.mean_iou:.3f} "
+          f"one box {acc.one_box_share:.4f} persons {acc.persons}")
+    assert acc.persons > 300
+    assert acc.recall >= 0.98
+    assert acc.precision >= 0.98
+    assert acc.one_box_share >= 0.98
+    assert acc.distractor_hits == 0
+    assert 0.5 < acc.mean_iou < 1.0

@@ -1,0 +1,376 @@
+"""The safety policy on scripted timelines: tables of (time, inputs, expected command)."""
+
+from __future__ import annotations
+
+import pytest
+
+from monitor.errors import ConfigError
+from monitor.policy import (
+    RUN,
+    SLOW,
+    STOP,
+    PolicyConfig,
+    PolicyInputs,
+    ResetRequest,
+    initial_state,
+    step,
+)
+from monitor.types import Fault, ZoneHit, ZoneReport
+
+AUTO = PolicyConfig(restart_interlock="auto")
+MANUAL = PolicyConfig()
+
+
+# --- small factories ---------------------------------------------------------------------------
+
+
+def prot(zone: str = "Z1", person: int = 0, distance: float | None = 0.0) -> ZoneHit:
+    return ZoneHit(zone, "protective", person, 0.0, distance)
+
+
+def warn(zone: str = "W1", scale: float = 0.5, person: int = 0) -> ZoneHit:
+    return ZoneHit(zone, "warning", person, scale, 1.2)
+
+
+def frame(t: float, *hits: ZoneHit, **kw) -> PolicyInputs:
+    """A fresh frame captured 20 ms before the decision at ``t``."""
+    return PolicyInputs(frame_time=t - 0.02, zone_report=ZoneReport(hits=tuple(hits)), **kw)
+
+
+def tick(**kw) -> PolicyInputs:
+    """A step without a new frame (timers only)."""
+    return PolicyInputs(**kw)
+
+
+def reset(t: float, operator: str = "op7") -> ResetRequest:
+    return ResetRequest(operator=operator, time=t, request_id=f"r{t}")
+
+
+def warmed(config: PolicyConfig = MANUAL, until: float = 1.0):
+    """State after clear frames (and fresh poses) from t=0 to ``until`` (RUN from clear_time)."""
+    state = initial_state()
+    t = 0.0
+    while t <= until + 1e-9:
+        state, cmd = step(state, frame(t, pose_time=t - 0.01), t, config)
+        t = round(t + 0.1, 6)
+    return state, cmd
+
+
+def run(timeline, config=MANUAL, state=None):
+    """Apply rows (t, inputs, state, scale or None, reason codes that must be present)."""
+    state = state if state is not None else warmed(config)[0]
+    commands = []
+    for t, inputs, want_state, want_scale, want_codes in timeline:
+        state, cmd = step(state, inputs, t, config)
+        codes = [r.code for r in cmd.reasons]
+        assert cmd.state == want_state, f"t={t}: {cmd.state} != {want_state} ({codes})"
+        if want_scale is not None:
+            assert cmd.speed_scale == pytest.approx(want_scale), f"t={t}: scale"
+        for code in want_codes:
+            assert code in codes, f"t={t}: reason {code} missing in {codes}"
+        commands.append(cmd)
+    return state, commands
+
+
+# --- start-up ------------------------------------------------------------------------------
+
+
+def test_startup_is_stop_until_clear_frames_for_clear_time():
+    run([
+        (0.00, tick(), STOP, 0.0, ["startup"]),
+        (0.20, tick(), STOP, 0.0, ["startup"]),
+        (0.30, frame(0.30), STOP, 0.0, ["startup"]),  # first frame: start watching
+        (0.80, frame(0.80), STOP, 0.0, ["clearing"]),
+        (1.29, frame(1.29), STOP, 0.0, ["clearing"]),
+        (1.30, frame(1.30), RUN, 1.0, []),  # clear for clear_time: no reset needed
+    ], state=initial_state())
+
+
+def test_startup_with_person_inside_stays_stop_and_latches():
+    run([
+        (0.0, frame(0.0, prot()), STOP, 0.0, ["protective_zone", "startup"]),
+        (0.1, frame(0.1), STOP, 0.0, ["latched"]),
+        (2.0, frame(2.0), STOP, 0.0, ["latched"]),
+        (2.1, frame(2.1, reset_request=reset(2.1)), RUN, 1.0, []),
+    ], state=initial_state())
+
+
+def test_startup_requires_reset_when_configured():
+    config = PolicyConfig(startup_requires_reset=True)
+    _state, cmds = run([
+        (0.0, frame(0.0), STOP, 0.0, ["startup", "latched"]),
+        (1.5, frame(1.5), STOP, 0.0, ["latched"]),
+        (1.6, frame(1.6, reset_request=reset(1.6)), RUN, 1.0, []),
+    ], config=config, state=initial_state())
+    assert cmds[-1].reset is not None and cmds[-1].reset.accepted
+
+
+# --- zones and hysteresis ----------------------------------------------------------------------
+
+
+def test_warning_zone_slows_at_once_and_leaves_after_clear_time():
+    run([
+        (2.0, frame(2.0, warn(scale=0.4)), SLOW, 0.4, ["warning_zone"]),  # no debounce
+        (2.1, frame(2.1), SLOW, 0.4, ["clearing"]),
+        (2.9, frame(2.9), SLOW, 0.4, ["clearing"]),
+        (3.0, frame(3.0), RUN, 1.0, []),
+    ])
+
+
+def test_person_leaving_and_reentering_within_clear_time_restarts_the_timer():
+    run([
+        (2.0, frame(2.0, warn()), SLOW, 0.5, ["warning_zone"]),
+        (2.3, frame(2.3), SLOW, 0.5, ["clearing"]),  # left
+        (2.8, frame(2.8, warn()), SLOW, 0.5, ["warning_zone"]),  # back within clear_time
+        (3.1, frame(3.1), SLOW, 0.5, ["clearing"]),  # 1.1 s after first exit: still SLOW
+        (3.7, frame(3.7), SLOW, 0.5, ["clearing"]),
+        (3.8, frame(3.8), RUN, 1.0, []),  # 1.0 s after the last sighting
+    ])
+
+
+def test_protective_reentry_within_clear_time_keeps_stop_auto():
+    run([
+        (2.0, frame(2.0, prot()), STOP, 0.0, ["protective_zone"]),
+        (2.5, frame(2.5), STOP, 0.0, ["clearing"]),
+        (2.9, frame(2.9, prot()), STOP, 0.0, ["protective_zone"]),
+        (3.5, frame(3.5), STOP, 0.0, ["clearing"]),
+        (3.9, frame(3.9), RUN, 1.0, []),
+    ], config=AUTO)
+
+
+def test_speed_scale_lowers_at_once_and_rises_after_clear_time():
+    run([
+        (2.0, frame(2.0, warn("W1", 0.6)), SLOW, 0.6, []),
+        (2.1, frame(2.1, warn("W2", 0.3)), SLOW, 0.3, []),  # deeper zone: lower at once
+        (2.2, frame(2.2, warn("W1", 0.6)), SLOW, 0.3, []),  # back out: keep 0.3 ...
+        (3.0, frame(3.0, warn("W1", 0.6)), SLOW, 0.3, []),
+        (3.1, frame(3.1, warn("W1", 0.6)), SLOW, 0.6, []),  # ... for clear_time
+    ])
+
+
+def test_stop_then_warning_leaves_stop_into_slow():
+    run([
+        (2.0, frame(2.0, prot(), warn()), STOP, 0.0, ["protective_zone"]),
+        (2.1, frame(2.1, warn(scale=0.5)), STOP, 0.0, ["clearing"]),
+        (3.0, frame(3.0, warn(scale=0.5)), SLOW, 0.5, ["warning_zone"]),
+        (3.5, frame(3.5), SLOW, 0.5, ["clearing"]),
+        (4.0, frame(4.0), RUN, 1.0, []),
+    ], config=AUTO)
+
+
+# --- restart interlock and resets --------------------------------------------------------------
+
+
+def test_manual_interlock_latches_and_refuses_reset_while_occupied():
+    state, cmds = run([
+        (2.0, frame(2.0, prot("Z1", person=3)), STOP, 0.0, ["protective_zone", "latched"]),
+        (2.5, frame(2.5, prot("Z1", person=3), reset_request=reset(2.5)), STOP, 0.0,
+         ["protective_zone"]),
+        (2.6, frame(2.6), STOP, 0.0, ["clearing", "latched"]),
+        (4.0, frame(4.0), STOP, 0.0, ["latched"]),  # cause gone long ago: still latched
+        (4.1, frame(4.1, reset_request=reset(4.1)), RUN, 1.0, []),
+    ])
+    refused = cmds[1].reset
+    assert refused is not None and not refused.accepted
+    assert "Z1" in refused.message and "person 3" in refused.message
+    assert cmds[4].reset.accepted and cmds[4].reset.operator == "op7"
+    assert state.last_reset.accepted
+
+
+def test_reset_before_clear_time_waits_for_clear_time():
+    run([
+        (2.0, frame(2.0, prot()), STOP, 0.0, ["latched"]),
+        (2.2, frame(2.2, reset_request=reset(2.2)), STOP, 0.0, ["clearing"]),
+        (2.9, frame(2.9), STOP, 0.0, ["clearing"]),
+        (3.0, frame(3.0), RUN, 1.0, []),
+    ])
+
+
+def test_cause_after_accepted_reset_latches_again():
+    run([
+        (2.0, frame(2.0, prot()), STOP, 0.0, []),
+        (2.2, frame(2.2, reset_request=reset(2.2)), STOP, 0.0, ["clearing"]),
+        (2.5, frame(2.5, prot()), STOP, 0.0, ["latched"]),
+        (4.0, frame(4.0), STOP, 0.0, ["latched"]),
+    ])
+
+
+def test_old_reset_and_reset_without_latch_are_refused():
+    state, _ = run([(2.0, frame(2.0, prot()), STOP, 0.0, [])])
+    state, cmd = step(state, frame(3.5, reset_request=reset(0.5)), 3.5, MANUAL)
+    assert cmd.state == STOP and not cmd.reset.accepted and "old" in cmd.reset.message
+    state, _ = warmed()
+    state, cmd = step(state, frame(2.0, reset_request=reset(2.0)), 2.0, MANUAL)
+    assert cmd.state == RUN and not cmd.reset.accepted and "nothing to reset" in cmd.reset.message
+
+
+def test_warning_zone_never_latches():
+    run([
+        (2.0, frame(2.0, warn()), SLOW, 0.5, []),
+        (3.0, frame(3.0), RUN, 1.0, []),
+    ])
+
+
+# --- fail-safe causes --------------------------------------------------------------------------
+
+SEP = PolicyConfig(separation_monitoring=True, restart_interlock="auto")
+
+
+@pytest.mark.parametrize(("cause_inputs", "code", "config"), [
+    pytest.param(lambda t: tick(), "frame_timeout", AUTO, id="frame_timeout"),
+    pytest.param(lambda t: frame(t, detector_error="onnxruntime: bad input"), "detector_error",
+                 AUTO, id="detector_raises"),
+    pytest.param(lambda t: PolicyInputs(frame_time=t - 0.5, zone_report=ZoneReport()),
+                 "frame_stale", AUTO, id="frame_older_than_max_frame_age"),
+    pytest.param(lambda t: frame(t, pose_time=t - 0.3), "pose_stale", SEP, id="pose_stale"),
+    pytest.param(lambda t: frame(t, pose_time=None), "pose_stale", SEP, id="pose_never_seen"),
+    pytest.param(lambda t: frame(t, zone_error="zones.yaml: zone Z1 has 2 points"),
+                 "zone_invalid", AUTO, id="zone_file_invalid"),
+    pytest.param(lambda t: frame(t, faults=(Fault("camera_frozen", "same frame 2 s", True,
+                                                  "cam0"),)), "fault", AUTO, id="stop_fault"),
+])
+def test_every_fail_safe_cause_stops_and_clears_after_clear_time(cause_inputs, code, config):
+    def good(t):
+        return frame(t, pose_time=t - 0.01)
+
+    state = initial_state()
+    for i in range(12):  # clear frames (with fresh pose) until RUN
+        state, cmd = step(state, good(i / 10), i / 10, config)
+    assert cmd.state == RUN
+    # frame_timeout needs the time to pass without frames; the others fire on the first step
+    t = 1.1 + (config.frame_timeout + 0.01 if code == "frame_timeout" else 0.1)
+    state, cmd = step(state, cause_inputs(t), t, config)
+    assert cmd.state == STOP and cmd.speed_scale == 0.0
+    assert code in [r.code for r in cmd.reasons]
+    # cause gone: STOP holds for clear_time, then RUN (auto interlock)
+    t2 = round(t + 0.1, 6)
+    state, cmd = step(state, good(t2), t2, config)
+    assert cmd.state == STOP and "clearing" in [r.code for r in cmd.reasons]
+    state, cmd = step(state, good(t + 1.0), t + 1.0, config)
+    assert cmd.state == RUN
+
+
+def test_frame_timeout_fires_from_ticks_and_latches_with_manual_interlock():
+    run([
+        (1.3, tick(), RUN, 1.0, []),
+        (1.5, tick(), RUN, 1.0, []),  # 0.5 s since the last frame: not yet
+        (1.51, tick(), STOP, 0.0, ["frame_timeout", "latched"]),
+        (1.6, frame(1.6), STOP, 0.0, ["latched"]),
+        (3.0, frame(3.0, reset_request=reset(3.0)), RUN, 1.0, []),
+    ])
+
+
+def test_warning_fault_does_not_stop():
+    _state, cmd = step(warmed()[0], frame(1.1, faults=(Fault("camera_defocused", "blur", False),)),
+                      1.1, MANUAL)
+    assert cmd.state == RUN
+
+
+def test_tick_without_frame_never_clears_a_zone_cause():
+    config = PolicyConfig(restart_interlock="auto", clear_time=0.2, frame_timeout=0.5)
+    run([
+        (2.0, frame(2.0, prot()), STOP, 0.0, ["protective_zone"]),
+        (2.3, tick(), STOP, 0.0, ["protective_zone"]),  # last frame showed a person
+        (2.4, frame(2.4), STOP, 0.0, ["clearing"]),
+        (2.6, frame(2.6), RUN, 1.0, []),
+    ], config=config, state=warmed(config, until=1.9)[0])
+
+
+def test_separation_below_required_stops_and_margin_slows():
+    def sep(t, d):
+        return PolicyInputs(frame_time=t - 0.02, pose_time=t - 0.01, zone_report=ZoneReport(
+            tool_separation_m=d, required_separation_m=0.8))
+
+    state = warmed(SEP)[0]
+    state, cmds = run([
+        (1.1, sep(1.1, 2.0), RUN, 1.0, []),
+        (1.2, sep(1.2, 1.1), SLOW, SEP.separation_slow_scale, ["separation_margin"]),
+        (1.3, sep(1.3, 0.5), STOP, 0.0, ["separation"]),
+    ], config=SEP, state=state)
+    stop_reason = next(r for r in cmds[-1].reasons if r.code == "separation")
+    assert stop_reason.distance_m == pytest.approx(0.5)
+    assert stop_reason.required_m == pytest.approx(0.8)
+
+
+def test_reasons_carry_zone_person_distance_and_fault_names():
+    _, cmd = step(warmed()[0], frame(1.1, prot("Z9", person=2, distance=0.0), faults=(
+        Fault("camera_lost", "no frames", True, "cam1"),)), 1.1, MANUAL)
+    zone = next(r for r in cmd.reasons if r.code == "protective_zone")
+    assert (zone.zone_id, zone.person, zone.distance_m) == ("Z9", 2, 0.0)
+    fault = next(r for r in cmd.reasons if r.code == "fault")
+    assert (fault.fault, fault.source) == ("camera_lost", "cam1")
+    assert cmd.to_dict()["reasons"][0]["code"]
+
+
+def test_replay_is_deterministic():
+    timeline = [frame(t / 10, *([prot()] if 12 <= t < 15 else [])) for t in range(40)]
+
+    def replay():
+        state, out = initial_state(), []
+        for i, inputs in enumerate(timeline):
+            state, cmd = step(state, inputs, i / 10, AUTO)
+            out.append(cmd)
+        return out
+
+    assert replay() == replay()
+
+
+@pytest.mark.parametrize("kwargs", [
+    {"restart_interlock": "sometimes"}, {"clear_time": 0}, {"frame_timeout": -1},
+    {"max_frame_age": float("nan")}, {"separation_slow_scale": 1.5},
+])
+def test_bad_config_is_a_config_error(kwargs):
+    with pytest.raises(ConfigError):
+        PolicyConfig(**kwargs)
+
+
+# --- every (state, input) pair -----------------------------------------------------------------
+
+
+def _state_in(name: str):
+    """(state, time) in one of the policy's situations, manual interlock."""
+    state, _ = warmed()
+    if name == "RUN":
+        return state, 1.0
+    if name == "SLOW":
+        state, _ = step(state, frame(1.1, warn()), 1.1, MANUAL)
+        return state, 1.1
+    state, _ = step(state, frame(1.1, prot()), 1.1, MANUAL)
+    if name == "STOP_cause_just_seen":
+        return state, 1.1
+    for t in (1.2, 1.6, 2.0, 2.4):  # cause gone for longer than clear_time: latched only
+        state, _ = step(state, frame(t), t, MANUAL)
+    return state, 2.4
+
+
+_INPUTS = {
+    "clear": lambda t: frame(t),
+    "warning": lambda t: frame(t, warn()),
+    "protective": lambda t: frame(t, prot()),
+    "stop_fault": lambda t: frame(t, faults=(Fault("camera_lost", "gone"),)),
+    "tick": lambda t: tick(),
+    "reset": lambda t: frame(t, reset_request=reset(t)),
+}
+
+_EXPECTED = {  # state before -> input -> state after (0.1 s later)
+    "RUN": {"clear": RUN, "warning": SLOW, "protective": STOP, "stop_fault": STOP,
+            "tick": RUN, "reset": RUN},
+    "SLOW": {"clear": SLOW, "warning": SLOW, "protective": STOP, "stop_fault": STOP,
+             "tick": SLOW, "reset": SLOW},
+    "STOP_cause_just_seen": {"clear": STOP, "warning": STOP, "protective": STOP,
+                             "stop_fault": STOP, "tick": STOP, "reset": STOP},
+    "STOP_latched": {"clear": STOP, "warning": STOP, "protective": STOP, "stop_fault": STOP,
+                     "tick": STOP, "reset": RUN},
+}
+
+
+@pytest.mark.parametrize(("before", "given", "after"), [
+    pytest.param(b, i, a, id=f"{b}-{i}") for b, row in _EXPECTED.items() for i, a in row.items()
+])
+def test_state_input_table(before, given, after):
+    state, t = _state_in(before)
+    state, cmd = step(state, _INPUTS[given](t + 0.1), t + 0.1, MANUAL)
+    assert cmd.state == after
+    assert (cmd.speed_scale == 0.0) == (after == STOP)
+    if after != RUN:
+        assert cmd.reasons, "every non-RUN command says why"

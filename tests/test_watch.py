@@ -1,0 +1,214 @@
+"""Two processes over tcp/127.0.0.1: a service-side publisher and `monitor watch`."""
+
+from __future__ import annotations
+
+import json
+import multiprocessing
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+
+import pytest
+
+from monitor.bus import BusConfig, BusKeys, open_session
+
+TTL_MS = 300
+HZ = 10.0
+
+
+def publisher_main(port: int, cell: str) -> None:
+    """The service side: a pipeline loop handing a command to SafetyBus every 50 ms."""
+    from monitor.bus import BusConfig, SafetyBus
+    from monitor.policy import Command, Reason
+
+    script = [("RUN", 1.0), ("SLOW", 0.5), ("STOP", 0.0), ("RUN", 1.0)]
+    cfg = BusConfig(cell=cell, instance="mon-test", listen=(f"tcp/127.0.0.1:{port}",),
+                    heartbeat_hz=HZ, ttl_ms=TTL_MS, config_hash="h1")
+    with SafetyBus(cfg) as bus:
+        deadline = time.monotonic() + 20
+        while not bus._pub_command.matching_status.matching and time.monotonic() < deadline:
+            time.sleep(0.01)  # wait for the watcher so it sees the whole script
+        time.sleep(0.3)
+        start = time.monotonic()
+        while True:  # runs until the test kills this process
+            i = min(int((time.monotonic() - start) / 0.3), len(script) - 1)
+            state, scale = script[i]
+            reasons = () if state == "RUN" else (Reason("test", f"step {i}"),)
+            bus.publish_command(Command(state, scale, reasons, since=start + 0.3 * i))
+            time.sleep(0.05)
+
+
+class Watcher:
+    """`monitor watch --json -v` as a subprocess; its stdout lines parsed in a thread."""
+
+    def __init__(self, port: int, cell: str) -> None:
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "monitor.cli.bus", "watch", "--cell", cell, "--json", "-v",
+             "--connect", f"tcp/127.0.0.1:{port}"],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        self.events: list[dict] = []
+        self.thread = threading.Thread(target=self._read, daemon=True)
+        self.thread.start()
+
+    def _read(self) -> None:
+        for line in self.proc.stdout:
+            self.events.append(json.loads(line))
+
+    def wait(self, pred, timeout: float = 10.0, start: int = 0) -> dict | None:
+        """First event from index ``start`` on that matches ``pred``."""
+        deadline = time.monotonic() + timeout
+        seen = start
+        while time.monotonic() < deadline:
+            while seen < len(self.events):
+                ev = self.events[seen]
+                seen += 1
+                if pred(ev):
+                    return ev
+            time.sleep(0.005)
+        return None
+
+    def stop(self) -> str:
+        self.proc.send_signal(signal.SIGINT)
+        try:
+            _, err = self.proc.communicate(timeout=10)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            _, err = self.proc.communicate()
+        return err
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.mark.slow
+def test_publisher_and_watcher_in_two_processes():
+    port, cell = free_port(), "wt"
+    ctx = multiprocessing.get_context("spawn")  # fork after zenoh.open breaks sessions
+    pub = ctx.Process(target=publisher_main, args=(port, cell), daemon=True)
+    pub.start()
+    watcher = Watcher(port, cell)
+    try:
+        # 1. the script arrives in order, with increasing seq, and the watcher follows it
+        final_run = watcher.wait(lambda e: e["event"] == "verdict" and e["state"] == "RUN"
+                                 and e["seq"] and e["seq"] > 3, timeout=20)
+        assert final_run is not None, watcher.events[-5:]
+        t_steady = time.monotonic()
+        time.sleep(2.2)  # heartbeats only
+        commands = [e for e in watcher.events if e["event"] == "command"]
+        assert all(e["rejected"] is None for e in commands)
+        seqs = [e["body"]["seq"] for e in commands]
+        assert seqs == sorted(seqs) and len(set(seqs)) == len(seqs)
+        changes = [e["body"]["state"] for e in commands if not e["body"]["heartbeat"]]
+        assert changes[:4] == ["RUN", "SLOW", "STOP", "RUN"]
+        verdict_states = [e["state"] for e in watcher.events if e["event"] == "verdict"]
+        assert verdict_states[verdict_states.index("RUN"):][:4] == ["RUN", "SLOW", "STOP", "RUN"]
+
+        # 2. heartbeat rate within 10 % of heartbeat_hz (receive side, steady RUN)
+        beats = [e["mono"] for e in commands if e["body"]["heartbeat"] and e["mono"] > t_steady]
+        assert len(beats) >= 15
+        rate = (len(beats) - 1) / (beats[-1] - beats[0])
+        assert abs(rate - HZ) <= 0.1 * HZ, f"heartbeat {rate:.2f} Hz"
+
+        # 3. the status queryable answers
+        with open_session(BusConfig(cell=cell, connect=(f"tcp/127.0.0.1:{port}",))) as s:
+            replies = list(s.get(BusKeys.of(f"workcell/{cell}/").status, timeout=3.0))
+        status = json.loads(replies[0].ok.payload.to_bytes())
+        assert status["state"] == "RUN" and status["config_hash"] == "h1"
+        assert status["instance"] == "mon-test" and status["heartbeats"] >= 15
+
+        # 4. a hung publisher (SIGSTOP: token stays until the lease) -> STOP by ttl
+        n = len(watcher.events)
+        os.kill(pub.pid, signal.SIGSTOP)
+        t_hang = time.monotonic()
+        stop = watcher.wait(lambda e: e["event"] == "verdict" and e["state"] == "STOP", start=n)
+        assert stop is not None and stop["code"] == "ttl", stop
+        assert stop["mono"] - t_hang <= TTL_MS / 1000 + 0.1
+        assert all(e["event"] != "verdict" for e in watcher.events[n:watcher.events.index(stop)])
+        n = len(watcher.events)
+        os.kill(pub.pid, signal.SIGCONT)
+        assert watcher.wait(lambda e: e["event"] == "verdict" and e["state"] == "RUN", start=n)
+
+        # 5. a killed publisher -> STOP within ttl + 100 ms (the liveliness token vanishes)
+        n = len(watcher.events)
+        pub.kill()
+        t_kill = time.monotonic()
+        stop = watcher.wait(lambda e: e["event"] == "verdict" and e["state"] == "STOP", start=n)
+        assert stop is not None and stop["code"] in ("liveliness", "ttl"), stop
+        assert stop["mono"] - t_kill <= TTL_MS / 1000 + 0.1
+    finally:
+        if pub.is_alive():
+            os.kill(pub.pid, signal.SIGCONT)
+            pub.kill()
+        pub.join(5)
+        err = watcher.stop()
+    assert watcher.proc.returncode == 0, err
+
+
+def test_watch_without_monitor_reports_stop_and_exits_cleanly():
+    port = free_port()
+    with open_session(BusConfig(cell="nobody", listen=(f"tcp/127.0.0.1:{port}",))):
+        out = subprocess.run(
+            [sys.executable, "-m", "monitor.cli.bus", "watch", "--cell", "nobody",
+             "--connect", f"tcp/127.0.0.1:{port}", "--duration", "0.5"],
+            capture_output=True, text=True, timeout=30)
+    assert out.returncode == 0, out.stderr
+    assert "STOP" in out.stdout and "no command received yet" in out.stdout
+
+
+def test_bus_cli_errors_are_one_line():
+    out = subprocess.run([sys.executable, "-m", "monitor.cli.bus", "watch", "--connect",
+                          "nonsense-endpoint"], capture_output=True, text=True, timeout=30)
+    assert out.returncode == 2
+    assert out.stderr.startswith("monitor: error: ") and out.stderr.count("\n") == 1
+    out = subprocess.run([sys.executable, "-m", "monitor.cli.bus", "router"],
+                         capture_output=True, text=True, timeout=30)
+    assert out.returncode == 2 and "--listen" in out.stderr
+
+
+def test_router_status_and_reset_commands_through_a_router():
+    """`monitor router` as the hub; the monitor and the CLI tools are clients of it."""
+    from monitor.bus import SafetyBus
+    from monitor.policy import Command
+
+    port = free_port()
+    router = subprocess.Popen(
+        [sys.executable, "-m", "monitor.cli.bus", "router", "--listen", f"tcp/127.0.0.1:{port}"],
+        stderr=subprocess.PIPE, text=True)
+    client = ["--cell", "rt", "--mode", "client", "--connect", f"tcp/127.0.0.1:{port}"]
+    try:
+        assert "listening" in router.stderr.readline()
+        cfg = BusConfig(cell="rt", instance="mon-rt", mode="client",
+                        connect=(f"tcp/127.0.0.1:{port}",))
+        with SafetyBus(cfg) as bus:
+            bus.publish_command(Command("RUN", 1.0, ()))
+            bus.update_status(fps=9.5)
+            out = subprocess.run([sys.executable, "-m", "monitor.cli.bus", "status", *client],
+                                 capture_output=True, text=True, timeout=30)
+            assert out.returncode == 0, out.stderr
+            status = json.loads(out.stdout)
+            assert status["instance"] == "mon-rt" and status["fps"] == 9.5
+            out = subprocess.run([sys.executable, "-m", "monitor.cli.bus", "reset", *client,
+                                  "--operator", "anna", "--note", "cell checked"],
+                                 capture_output=True, text=True, timeout=30)
+            assert out.returncode == 0, out.stderr
+            got = []
+            deadline = time.monotonic() + 5
+            while not got and time.monotonic() < deadline:
+                got = bus.poll_resets()
+                time.sleep(0.01)
+            assert [(r.operator, r.note) for r in got] == [("anna", "cell checked")]
+        # no monitor any more: status is a one-line error, exit 2
+        out = subprocess.run([sys.executable, "-m", "monitor.cli.bus", "status", *client,
+                              "--timeout", "0.5"], capture_output=True, text=True, timeout=30)
+        assert out.returncode == 2 and "no answer" in out.stderr
+    finally:
+        router.send_signal(signal.SIGTERM)
+        router.communicate(timeout=10)
+    assert router.returncode == 0
