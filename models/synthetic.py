@@ -130,8 +130,16 @@ def build_weights(p: SyntheticWeights) -> dict[str, tuple[np.ndarray, np.ndarray
     return w
 
 
-def build_model(p: SyntheticWeights | None = None) -> onnx.ModelProto:
-    """The ONNX graph of the seeds' Table A.9 (Darknet yolov3-tiny), opset 13."""
+def build_model(p: SyntheticWeights | None = None, input_size: int = INPUT_SIZE,
+                ) -> onnx.ModelProto:
+    """The ONNX graph of the seeds' Table A.9 (Darknet yolov3-tiny), opset 13.
+
+    ``input_size`` (a multiple of 32) changes only the input and grid sizes: the weights are
+    the same, so 320 or 256 trade accuracy on small persons for speed.
+    """
+    if input_size % 32 or input_size < 64:
+        raise ValueError(f"input size {input_size} is not a multiple of 32 (>= 64)")
+    g13, g26 = input_size // 32, input_size // 16
     p = p or SyntheticWeights()
     weights = build_weights(p)
     nodes: list[onnx.NodeProto] = []
@@ -180,9 +188,9 @@ def build_model(p: SyntheticWeights | None = None) -> onnx.ModelProto:
     graph = helper.make_graph(
         nodes, "tiny_yolov3_synthetic",
         [helper.make_tensor_value_info("images", TensorProto.FLOAT,
-                                       [1, 3, INPUT_SIZE, INPUT_SIZE])],
-        [helper.make_tensor_value_info("output_13", TensorProto.FLOAT, [1, 255, 13, 13]),
-         helper.make_tensor_value_info("output_26", TensorProto.FLOAT, [1, 255, 26, 26])],
+                                       [1, 3, input_size, input_size])],
+        [helper.make_tensor_value_info("output_13", TensorProto.FLOAT, [1, 255, g13, g13]),
+         helper.make_tensor_value_info("output_26", TensorProto.FLOAT, [1, 255, g26, g26])],
         inits)
     model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 13)],
                               producer_name="workcell-monitor", producer_version="1")
@@ -203,11 +211,12 @@ def build_model(p: SyntheticWeights | None = None) -> onnx.ModelProto:
     return model
 
 
-def write_model(path: str | Path, p: SyntheticWeights | None = None) -> str:
+def write_model(path: str | Path, p: SyntheticWeights | None = None,
+                input_size: int = INPUT_SIZE) -> str:
     """Write the model atomically; returns the file's SHA-256."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    data = build_model(p).SerializeToString(deterministic=True)
+    data = build_model(p, input_size).SerializeToString(deterministic=True)
     tmp = path.with_name(path.name + ".tmp")
     tmp.write_bytes(data)
     tmp.replace(path)

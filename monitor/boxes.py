@@ -56,15 +56,13 @@ def nms(boxes: np.ndarray, scores: np.ndarray, iou_threshold: float) -> np.ndarr
     if n == 0:
         return np.zeros((0,), np.int64)
     order = np.argsort(-scores, kind="stable")
-    iou = iou_matrix(boxes[order], boxes[order])
-    suppressed = np.zeros(n, bool)
-    keep = []
-    for i in range(n):  # O(N) python steps over an O(N^2) precomputed matrix; N is capped
-        if suppressed[i]:
-            continue
-        keep.append(i)
-        suppressed |= iou[i] > iou_threshold
-    return order[np.asarray(keep, np.int64)]
+    # conflict[i, j]: a better box j overlaps box i too much. Boxes without conflicts are kept
+    # outright; the greedy pass walks only the conflicted ones (few, for person boxes).
+    conflict = np.tril(iou_matrix(boxes[order], boxes[order]) > iou_threshold, k=-1)
+    kept = np.ones(n, bool)
+    for i in np.flatnonzero(conflict.any(axis=1)):
+        kept[i] = not (conflict[i] & kept).any()
+    return order[kept]
 
 
 def connected_groups(adjacent: np.ndarray) -> np.ndarray:
@@ -95,10 +93,11 @@ def merge_boxes(boxes: np.ndarray, scores: np.ndarray, iou_threshold: float = 0.
     """
     if len(boxes) == 0:
         return boxes.reshape(0, 4), scores.reshape(0)
-    adjacent = (iou_matrix(boxes, boxes) > iou_threshold) | \
-        (ios_matrix(boxes, boxes) > ios_threshold)
-    if touch_px >= 0:
-        adjacent |= gap_matrix(boxes, boxes) <= touch_px
+    if touch_px >= 0:  # overlapping boxes have gap 0, so this covers the IoU and IoS rules
+        adjacent = gap_matrix(boxes, boxes) <= touch_px
+    else:
+        adjacent = (iou_matrix(boxes, boxes) > iou_threshold) | \
+            (ios_matrix(boxes, boxes) > ios_threshold)
     labels = connected_groups(adjacent)
     k = labels.max() + 1
     merged = np.empty((k, 4), boxes.dtype)

@@ -19,6 +19,11 @@ Every payload is a UTF-8 JSON object with the envelope ``schema`` (e.g.
 ``mono`` (sender's monotonic clock, s), ``wall`` (sender's Unix time, s), ``ttl_ms``,
 ``config_hash``, ``instance`` and ``boot`` (the Zenoh session id: a new one after a restart).
 
+A subscriber that stops reading (hung controller, full TCP buffers) costs a command put at most
+``block_wait_ms`` (Zenoh's ``wait_before_close``); then Zenoh gives up on that link instead of
+stalling the monitor for its default 5 s. Puts that reach no subscriber and failed puts are counted
+and reported by the status queryable (``puts_unmatched``, ``put_errors``).
+
 Consumer rule (``CommandWatchdog``, shown by ``monitor watch``): the controller treats the cell
 as STOP unless it holds a command that arrived less than ``ttl_ms`` ago, whose ``seq`` is
 larger than the previous one of the same ``boot``, and whose monitor's liveliness token is
@@ -450,6 +455,7 @@ class SafetyBus:
                 "puts_unmatched": dict(self._counters["unmatched"]),
                 "put_errors": dict(self._counters["errors"]),
                 "resets_invalid": self._resets_invalid, "alerts_held": self._limiter.held(),
+                "fps": None,  # set by the service with update_status(fps=...)
                 **self._status_extra,
             }
 

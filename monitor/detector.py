@@ -110,29 +110,49 @@ class Detection:
 # ----------------------------------------------------------------------------- preprocessing
 
 
-def letterbox(image_bgr: np.ndarray, layout: ModelLayout, canvas: np.ndarray | None = None,
-              ) -> tuple[np.ndarray, Letterbox]:
-    """Resize keeping the aspect ratio into the model input; returns (NCHW/NHWC float32, box).
+class Letterboxer:
+    """Fits frames into the model input keeping the aspect ratio, reusing one uint8 canvas.
 
-    ``canvas`` (HxWx3 uint8, the input size) is reused between calls to avoid allocations.
+    The padding is painted only when the frame geometry changes, and only the image region of
+    the float tensor is converted, so a call costs one resize and one conversion of the visible
+    pixels. The returned tensor is reused by the next call.
     """
-    h, w = image_bgr.shape[:2]
-    iw, ih = layout.input_width, layout.input_height
-    scale = min(iw / w, ih / h)
-    nw, nh = max(1, round(w * scale)), max(1, round(h * scale))
-    px, py = ((iw - nw) // 2, (ih - nh) // 2) if layout.centered else (0, 0)
-    if canvas is None or canvas.shape != (ih, iw, 3):
-        canvas = np.empty((ih, iw, 3), np.uint8)
-    canvas[:] = layout.pad_value
-    cv2.resize(image_bgr, (nw, nh), dst=canvas[py:py + nh, px:px + nw],
-               interpolation=cv2.INTER_LINEAR)
-    if layout.input_nhwc:
-        rgb = cv2.cvtColor(canvas, cv2.COLOR_BGR2RGB) if layout.rgb else canvas
-        tensor = (rgb.astype(np.float32) * layout.scale)[None]
-    else:  # one C++ call: channel swap, scale, HWC -> NCHW
-        tensor = cv2.dnn.blobFromImage(canvas, layout.scale, swapRB=layout.rgb)
-    # cv2.resize into a view may reallocate when sizes differ by rounding: keep it exact.
-    return tensor, Letterbox(scale * 1.0, float(px), float(py))
+
+    def __init__(self, layout: ModelLayout) -> None:
+        self.layout = layout
+        self._canvas = np.full((layout.input_height, layout.input_width, 3), layout.pad_value,
+                               np.uint8)
+        self._geometry: tuple[int, int, int, int] | None = None
+        self._tensor = np.empty((1, 3, layout.input_height, layout.input_width), np.float32)
+
+    def __call__(self, image_bgr: np.ndarray) -> tuple[np.ndarray, Letterbox]:
+        """Returns (NCHW or NHWC float32 tensor, the letterbox)."""
+        layout = self.layout
+        h, w = image_bgr.shape[:2]
+        iw, ih = layout.input_width, layout.input_height
+        scale = min(iw / w, ih / h)
+        nw, nh = max(1, round(w * scale)), max(1, round(h * scale))
+        px, py = ((iw - nw) // 2, (ih - nh) // 2) if layout.centered else (0, 0)
+        if self._geometry != (nw, nh, px, py):
+            self._canvas[:] = layout.pad_value
+            self._tensor[:] = np.float32(layout.pad_value * layout.scale)
+            self._geometry = (nw, nh, px, py)
+        canvas = self._canvas
+        view = canvas[py:py + nh, px:px + nw]
+        cv2.resize(image_bgr, (nw, nh), dst=view, interpolation=cv2.INTER_LINEAR)
+        box = Letterbox(scale, float(px), float(py))
+        if layout.input_nhwc:
+            rgb = cv2.cvtColor(canvas, cv2.COLOR_BGR2RGB) if layout.rgb else canvas
+            return (rgb.astype(np.float32) * np.float32(layout.scale))[None], box
+        planes = view.transpose(2, 0, 1)  # HWC -> CHW view, BGR
+        np.multiply(planes[::-1] if layout.rgb else planes, np.float32(layout.scale),
+                    out=self._tensor[0, :, py:py + nh, px:px + nw], casting="unsafe")
+        return self._tensor, box
+
+
+def letterbox(image_bgr: np.ndarray, layout: ModelLayout) -> tuple[np.ndarray, Letterbox]:
+    """One-off letterbox (see :class:`Letterboxer`)."""
+    return Letterboxer(layout)(image_bgr)
 
 
 # ----------------------------------------------------------------------------- decoding
@@ -400,7 +420,7 @@ class Detector:
         self.session = open_session(model_path, self.config.threads)
         self.layout = inspect_model(self.session, self.config)
         self.output_names = [o.name for o in self.session.get_outputs()]
-        self._canvas: np.ndarray | None = None
+        self._letterbox = Letterboxer(self.layout)
         # Warm-up: the first run allocates; do it now, not on the first real frame.
         self.detect(np.full((self.layout.input_height, self.layout.input_width, 3), 114, np.uint8))
 
@@ -414,7 +434,7 @@ class Detector:
         if image_bgr is None or image_bgr.ndim != 3 or image_bgr.shape[2] != 3:
             raise InputError("frame is not a BGR image")
         t0 = time.perf_counter()
-        tensor, box = letterbox(image_bgr, self.layout, self._canvas)
+        tensor, box = self._letterbox(image_bgr)
         t1 = time.perf_counter()
         outputs = self.run_raw(tensor, image_bgr.shape[:2])
         t2 = time.perf_counter()

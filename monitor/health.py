@@ -6,11 +6,12 @@ warning) and which alerts this frame raised (a lasting change in a ``watch`` zon
 snapshot that outlines the change, and its clearing). "Lost" cannot be seen in a frame:
 ``check_lost(now)`` answers it between frames.
 
-All checks run on small grey copies of the frame (``analysis_width`` px wide, 320 by default,
-and twice that for sharpness), so together they cost about 1 ms per 1080p frame. Coordinates
-given to and returned by this module are pixels of the camera's full-resolution frame (``*_px``).
-Times are seconds on the caller's clock (monotonic, or the video's own clock in replay): ``now`` is
-passed in, never read here, so a replay gives the same answers every time.
+All checks run on a small copy of the frame (``analysis_width`` px wide, 320 by default; grey
+for the camera checks, colour for the watch zones), so together they cost about 1 ms per 1080p
+frame (``benchmarks/health.py``). Coordinates given to and returned by this module are pixels
+of the camera's full-resolution frame (``*_px``). Times are seconds on the caller's clock
+(monotonic, or the video's own clock in replay): ``now`` is passed in, never read here, so a
+replay gives the same answers every time.
 
 A reference image (taken at commissioning with ``monitor reference capture``) anchors three
 checks: "moved" compares the view with it by phase correlation, "defocused" compares sharpness
@@ -56,12 +57,14 @@ class HealthConfig:
     covered_contrast: float = 6.0  # std of grey levels below this: blinded, covered (no contrast)
     blinded_after_s: float = 0.0  # 0: blinded at the first such frame
     defocus_ratio: float = 0.45  # sharpness below this fraction of the reference's ...
+    # (sharpness: variance of the Laplacian / variance of the image, on the analysis image)
     defocus_after_s: float = 2.0  # ... for this long: camera_defocused (warning)
     moved_px: float = 8.0  # view shifted more than this against the reference ...
     moved_min_match: float = 0.2  # ... or phase-correlation peak below this (view replaced) ...
     moved_after_s: float = 0.5  # ... for this long: camera_moved
     moved_interval_s: float = 0.25  # run the moved check (0.6 ms) at most this often
-    scene_diff: float = 25.0  # grey levels a pixel must differ from a watch zone's background
+    scene_diff: float = 25.0  # levels (any colour channel) a pixel must differ from the zone's
+    # background, beyond its 3x3 neighbourhood and after matching the lighting
     scene_min_area_px: float = 400.0  # changed area (px²) that counts as a change (20x20 px)
     persist_time_s: float = 3.0  # a change must last this long to raise scene_change
     clear_time_s: float = 2.0  # warnings clear after the scene/sharpness is normal this long
@@ -478,8 +481,8 @@ class CameraHealth:
         elif shift > cfg.moved_px:
             self._moved_raw = True
             self._moved_reason = (f"{self.camera_id}: view shifted by {shift:.0f} px (dx "
-                                  f"{dx * self._scale:.0f}, dy {dy * self._scale:.0f}; limit "
-                                  f"{cfg.moved_px:g} px) against the reference")
+                                  f"{round(dx * self._scale)}, dy {round(dy * self._scale)}; "
+                                  f"limit {cfg.moved_px:g} px) against the reference")
         else:
             self._moved_raw = False
 
@@ -554,13 +557,16 @@ class CameraHealth:
         visible = free.ravel()  # np.compress: 5x cheaper than boolean indexing here
         gain, offset = _lighting(np.compress(visible, crop.reshape(-1, 3), axis=0).ravel(),
                                  np.compress(visible, bg.reshape(-1, 3), axis=0).ravel(), thr)
-        level = (crop - offset) / gain
+        level = cv2.addWeighted(crop, 1.0 / gain, crop, 0.0, -offset / gain)
         kernel = np.ones((3, 3), np.uint8)
-        out = (level < cv2.erode(bg, kernel) - thr) | (level > cv2.dilate(bg, kernel) + thr)
-        predicted = gain * bg + offset
-        clipped = (crop >= 250) & (predicted >= 250 - thr) | (crop <= 5) & (predicted <= 5 + thr)
-        out &= ~clipped
-        return free & (out[..., 0] | out[..., 1] | out[..., 2])
+        excess = np.maximum(cv2.erode(bg, kernel) - level, level - cv2.dilate(bg, kernel))
+        if crop.max() >= 250 or crop.min() <= 5:  # rare: only then look for clipped pixels
+            predicted = gain * bg + offset
+            excess[(crop >= 250) & (predicted >= 250 - thr)
+                   | (crop <= 5) & (predicted <= 5 + thr)] = 0.0
+        # channel by channel: numpy's reductions over a last axis of 3 are slow
+        excess = np.maximum(np.maximum(excess[..., 0], excess[..., 1]), excess[..., 2])
+        return free & (excess > thr)
 
     def _zone_step(self, zone: _Zone, changed_now: bool, changed: np.ndarray, area: float,
                    frame_bgr: np.ndarray, now: float) -> Alert | None:
@@ -638,13 +644,14 @@ def _lighting(current: np.ndarray, background: np.ndarray, tolerance: float) -> 
     use = (np.abs(diff - offset) < 2 * tolerance) & (current < 250) & (current > 5)
     if np.count_nonzero(use) < 30:
         return 1.0, offset
-    x, y = background[use], current[use]
-    x_mean, y_mean = float(x.mean()), float(y.mean())
-    var = float(np.mean((x - x_mean) ** 2))
+    x, y = background[use].astype(np.float64), current[use].astype(np.float64)
+    n = len(x)
+    x_mean, y_mean = x.sum() / n, y.sum() / n
+    var = float(np.dot(x, x)) / n - x_mean * x_mean  # dot products: cheap on small arrays
     if var < 25.0:  # a flat zone: the gain is not defined, an offset does
-        return 1.0, y_mean - x_mean
-    gain = min(max(float(np.mean((x - x_mean) * (y - y_mean))) / var, 0.5), 2.0)
-    return gain, y_mean - gain * x_mean
+        return 1.0, float(y_mean - x_mean)
+    gain = min(max((float(np.dot(x, y)) / n - x_mean * y_mean) / var, 0.5), 2.0)
+    return gain, float(y_mean - gain * x_mean)
 
 
 def _median(values: np.ndarray) -> float:

@@ -392,6 +392,24 @@ def test_zone_outside_the_image_is_refused():
         health.check(np.full((720, 1280, 3), 100, np.uint8), 0.0, NO_BOXES)
 
 
+def test_frame_size_change_is_refused(demo, reference):
+    health = checker(reference)
+    health.check(demo[0][0], 0.0, NO_BOXES)
+    with pytest.raises(InputError, match="frame size changed"):
+        health.check(cv2.resize(demo[1][0], (640, 360)), 0.1, NO_BOXES)
+
+
+def test_set_reference_accepts_a_change_at_run_time(demo, reference):
+    placed = [(with_object(image), boxes) for image, boxes in demo[45:150]]
+    health = checker(reference)
+    first = play(health, demo[:45] + placed[:60])
+    assert alerts(first) == [(90, SCENE_CHANGE)]
+    health.set_reference(with_object(DemoScene().background()))
+    later = play(health, placed[60:], start=105)
+    assert alerts(later) == [] and onsets(later) == []
+    assert {z.state for z in later[-1].zones} == {"normal"}
+
+
 def test_draw_health_outlines_the_change(demo, reference):
     placed = [(with_object(image), boxes) for image, boxes in demo[:60]]
     report = play(checker(reference), placed)[-1]

@@ -17,6 +17,7 @@ COMMAND_MODULES = (
     "monitor.cli.bus",
     "monitor.cli.zones",
     "monitor.cli.reference",
+    "monitor.cli.run",
 )
 
 

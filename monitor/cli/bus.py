@@ -191,10 +191,11 @@ def cmd_bridge_otus(args: argparse.Namespace) -> int:
     keys = BusKeys.of(bus.key_prefix)
     limits = PoseLimits(max_speed_m_s=args.max_speed, max_accel_m_s2=args.max_accel,
                         quaternion_tolerance=args.quaternion_tolerance)
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     try:
-        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         sock.bind((host, port))
     except OSError as exc:
+        sock.close()
         raise ConfigError(f"--listen {args.udp_listen}: cannot bind UDP: {exc.strerror}") from None
     limiter = AlertLimiter(AlertLimits(min_interval=args.alert_interval))
     seq = {"alert": 0}
@@ -213,7 +214,7 @@ def cmd_bridge_otus(args: argparse.Namespace) -> int:
             pubs[suffix].put(payload)
 
         def alert(bad: Rejection) -> None:
-            a = pose_alert(bad, bus.instance, time.time())
+            a = pose_alert(bad, bus.instance, time.monotonic())
             repeat = limiter.admit(a, time.monotonic())
             if repeat is None:
                 return

@@ -16,6 +16,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
     build = sub.add_parser("build", help="build the synthetic tiny-YOLOv3 model (deterministic)")
     build.add_argument("--out", type=Path, help="output .onnx (default: the model cache)")
+    build.add_argument("--input-size", type=int, default=416,
+                       help="model input size, a multiple of 32 (default 416, as in the seeds)")
     build.set_defaults(func=cmd_build)
 
     info = sub.add_parser("info", help="layout, input size, classes and parameter count")
@@ -35,7 +37,9 @@ def cmd_build(args: argparse.Namespace) -> int:
     from monitor.models import synthetic
 
     out = args.out or synthetic.default_model_path()
-    digest = synthetic.write_model(out)
+    if args.input_size % 32 or not 64 <= args.input_size <= 1024:
+        raise MonitorError(f"--input-size {args.input_size} is not a multiple of 32 in 64..1024")
+    digest = synthetic.write_model(out, input_size=args.input_size)
     print(f"wrote {out} (sha256 {digest})")
     return 0
 

@@ -34,8 +34,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     capture.add_argument("--source", required=True,
                          help="video file, image, camera index, rtsp:// URL or synthetic:demo")
     capture.add_argument("--out", required=True, type=Path,
-                         help="image file to write (PNG recommended); an existing directory "
-                         "gets <camera>.png")
+                         help="image file to write (PNG recommended); a directory (or a name "
+                         "without suffix) gets <camera>.png")
     capture.add_argument("--camera", default="cam0", help="camera id (default cam0)")
     capture.add_argument("--frames", type=int, default=15,
                          help="median of this many frames (default 15; 1 = a single frame)")
@@ -68,7 +68,7 @@ def capture_reference(source: str, camera_id: str, frames: int) -> tuple[np.ndar
 
 def write_image_atomic(path: Path, image: np.ndarray) -> None:
     """Encode by the file's suffix and replace ``path`` in one step (temp file + rename)."""
-    suffix = path.suffix.lower() or ".png"
+    suffix = path.suffix.lower()
     try:
         ok, buf = cv2.imencode(suffix, image)
     except cv2.error:
@@ -78,6 +78,7 @@ def write_image_atomic(path: Path, image: np.ndarray) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
+        os.fchmod(fd, 0o644)  # mkstemp makes 0600; the service may run as another user
         with os.fdopen(fd, "wb") as f:
             f.write(buf.tobytes())
             f.flush()
@@ -91,7 +92,7 @@ def write_image_atomic(path: Path, image: np.ndarray) -> None:
 
 def _capture(args: argparse.Namespace) -> int:
     out: Path = args.out
-    if out.is_dir():
+    if out.is_dir() or not out.suffix:
         out = out / f"{args.camera}.png"
     image, used = capture_reference(args.source, args.camera, args.frames)
     try:
