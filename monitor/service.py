@@ -1,0 +1,251 @@
+"""`monitor run`: the headless service beside the pose tracker.
+
+Start order: config (validated, nothing opened yet) -> model -> zones -> Zenoh bus -> pose
+subscriber -> frame grabber -> loop. Shutdown runs in reverse with bounded joins; the bus sends
+a last STOP (reason ``shutdown``) before it closes. SIGINT and SIGTERM stop the loop; exit 0.
+
+The loop never waits for a frame longer than ``service.tick_s``: without frames the policy still
+runs its timers, so a lost camera gives STOP within ``policy.frame_timeout``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import signal
+import statistics
+import sys
+import threading
+import time
+from collections import deque
+from pathlib import Path
+
+from monitor.bus import BusConfig, SafetyBus
+from monitor.config import DEMO_SOURCE, MonitorConfig, demo_cell_path, load_config
+from monitor.errors import ConfigError
+from monitor.pipeline import Pipeline, StepResult
+from monitor.types import Alert
+
+log = logging.getLogger("monitor")
+
+
+class _JsonFormatter(logging.Formatter):
+    def format(self, record: logging.LogRecord) -> str:
+        body = {"time": round(record.created, 3), "level": record.levelname.lower(),
+                "event": record.getMessage()}
+        body.update(getattr(record, "fields", {}))
+        return json.dumps(body, default=str)
+
+
+def setup_logging(as_json: bool) -> None:
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(_JsonFormatter() if as_json else
+                         logging.Formatter("%(asctime)s %(levelname)s %(message)s"))
+    log.handlers[:] = [handler]
+    log.setLevel(logging.INFO)
+    log.propagate = False
+
+
+def event(message: str, level: int = logging.INFO, **fields) -> None:
+    """One line per event; fields go into the JSON object (or after the message)."""
+    text = message if not fields else message + " " + " ".join(
+        f"{k}={v}" for k, v in fields.items())
+    log.log(level, text if not _json_logging() else message, extra={"fields": fields})
+
+
+def _json_logging() -> bool:
+    return any(isinstance(h.formatter, _JsonFormatter) for h in log.handlers)
+
+
+def bus_config_for(config: MonitorConfig, cell) -> BusConfig:
+    """The bus config with the active zone set's hash filled in."""
+    return dataclasses.replace(config.bus, config_hash=cell.config_hash if cell else "")
+
+
+class Metrics:
+    """Prometheus gauges and counters, served on 127.0.0.1:<port> when the port is set."""
+
+    def __init__(self, port: int, host: str) -> None:
+        from prometheus_client import CollectorRegistry, Counter, Gauge, start_http_server
+
+        self.registry = CollectorRegistry()
+        r = self.registry
+        self.fps = Gauge("monitor_fps", "processed frames per second", registry=r)
+        self.inference_ms = Gauge("monitor_inference_ms", "inference time of the last frame",
+                                  registry=r)
+        self.state = Gauge("monitor_state", "0 RUN, 1 SLOW, 2 STOP", registry=r)
+        self.dropped = Gauge("monitor_dropped_frames", "frames dropped by the grabber",
+                             registry=r)
+        self.alerts = Counter("monitor_alerts", "alerts raised", ["kind"], registry=r)
+        self.persons = Gauge("monitor_persons", "persons in the last frame", registry=r)
+        self.server = None
+        if port:
+            self.server, self._thread = start_http_server(port, addr=host, registry=r)
+
+    def close(self) -> None:
+        if self.server is not None:
+            self.server.shutdown()
+
+
+STATE_LEVEL = {"RUN": 0, "SLOW": 1, "STOP": 2}
+
+
+def build_pipeline(config: MonitorConfig):
+    """Model, zones, health checker and pipeline from a validated config (I/O: files only)."""
+    from monitor.detector import Detector
+    from monitor.health import CameraHealth, load_reference
+    from monitor.models import synthetic
+    from monitor.zones import load_cell, watch_regions
+
+    cam = config.camera
+    zones_file = config.zones.file
+    if zones_file is None and cam.source == DEMO_SOURCE:
+        zones_file = str(demo_cell_path())
+    cell = load_cell(zones_file) if zones_file else None
+    if cell is not None and cam.id not in cell.cameras:
+        raise ConfigError(f"camera {cam.id!r} is not in zone file {zones_file} "
+                          f"(has {', '.join(cell.cameras)})")
+    model = Path(config.model.path) if config.model.path else synthetic.ensure_model()
+    detector = Detector(model, config.detector)
+    reference = load_reference(cam.reference) if cam.reference else None
+    watch = watch_regions(cell, cam.id) if cell is not None else []
+    health = CameraHealth(config.health, cam.id, reference, watch)
+    expected = (cell.cameras[cam.id].width, cell.cameras[cam.id].height) if cell else None
+    return Pipeline(detector, cam.id, config.policy, cell, health), cell, expected
+
+
+def run_service(config_path: str | Path | None, log_json: bool = False,
+                duration: float | None = None, stop: threading.Event | None = None) -> int:
+    from monitor.frames import LatestFrameGrabber, SourceOptions, open_source
+
+    setup_logging(log_json)
+    config = load_config(config_path)
+    if log_json is False and config.service.log_json:
+        setup_logging(True)
+    stop = stop or threading.Event()
+    pipeline, cell, expected = build_pipeline(config)
+    event("started", config=str(config_path or "embedded demo"), camera=config.camera.id,
+          source=config.camera.source, zones=cell.label if cell else "none",
+          config_hash=cell.config_hash if cell else "")
+    if cell is None:
+        event("no zone file: persons are detected but cannot cause SLOW or STOP",
+              logging.WARNING)
+    previous = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    if threading.current_thread() is threading.main_thread():
+        for s in previous:
+            signal.signal(s, lambda *_: stop.set())
+    metrics = Metrics(config.service.metrics_port, config.service.metrics_host)
+    try:
+        with SafetyBus(bus_config_for(config, cell), alert_limits=config.alerts) as bus:
+            event("bus open", key_prefix=bus.config.key_prefix, zid=bus.boot,
+                  listen=",".join(bus.config.listen), connect=",".join(bus.config.connect))
+            pose = bus.pose_subscriber() if config.policy.separation_monitoring else None
+            if pose is not None:
+                pose.__enter__()
+            try:
+                source = open_source(config.camera.source, config.camera.id,
+                                     realtime=config.camera.realtime,
+                                     options=SourceOptions(loop=config.camera.loop), stop=stop)
+                grabber = LatestFrameGrabber(source, stop=stop, expected_size=expected).start()
+                try:
+                    _loop(config, pipeline, bus, grabber, pose, metrics, stop, duration)
+                finally:
+                    stop.set()
+                    if not grabber.stop(timeout=2.0):
+                        event("frame grabber did not stop in time", logging.WARNING)
+            finally:
+                if pose is not None:
+                    pose.__exit__(None, None, None)
+            event("shutting down: final STOP published")
+    finally:
+        metrics.close()
+        if threading.current_thread() is threading.main_thread():
+            for s, handler in previous.items():
+                signal.signal(s, handler)
+    event("stopped")
+    return 0
+
+
+def _loop(config: MonitorConfig, pipeline: Pipeline, bus: SafetyBus, grabber, pose, metrics,
+          stop: threading.Event, duration: float | None) -> None:
+    started = time.monotonic()
+    frame_times: deque[float] = deque(maxlen=30)
+    inference: deque[float] = deque(maxlen=30)
+    last_status = 0.0
+    was_connected = True
+    while not stop.is_set():
+        now = time.monotonic()
+        if duration is not None and now - started >= duration:
+            break
+        frame = grabber.get(timeout=config.service.tick_s)
+        now = time.monotonic()
+        resets = bus.poll_resets()
+        reset = resets[-1] if resets else None
+        pose_time = tool_pose = None
+        if pose is not None:
+            reading = pose.latest()
+            if reading is not None:
+                pose_time, tool_pose = reading.received, reading.tool_pose()
+            for rejection in pose.drain_rejections():
+                from monitor.alerts import pose_alert
+
+                _alert(bus, metrics, pose_alert(rejection, "pose", now))
+        connected = grabber.connected
+        if connected != was_connected:
+            status = grabber.status()
+            event("camera lost" if not connected else "camera reconnected",
+                  logging.WARNING if not connected else logging.INFO,
+                  camera=grabber.camera_id, error=status.last_error)
+            was_connected = connected
+        if frame is not None:
+            result = pipeline.process(frame.image, frame.info, now, tool_pose=tool_pose,
+                                      pose_time=pose_time, reset=reset)
+            frame_times.append(now)
+            inference.append(result.stage_ms.get("inference", 0.0))
+            bus.publish_detections(result.persons, result.zone_report,
+                                   frame=frame.info.seq, camera=frame.info.camera_id)
+        else:
+            result = pipeline.tick(now, pose_time=pose_time, reset=reset)
+        bus.publish_command(result.command)
+        if result.changed:
+            cmd = result.command
+            event(f"command {cmd.state}", logging.WARNING if cmd.state != "RUN" else logging.INFO,
+                  speed_scale=cmd.speed_scale, latched=cmd.latched,
+                  reasons="; ".join(r.message for r in cmd.reasons) or "-")
+        alerts = list(result.alerts)
+        if result.command.reset is not None:
+            from monitor.alerts import reset_alert
+
+            alerts.append(reset_alert(result.command.reset, pipeline.camera_id, now))
+        for alert in alerts:
+            _alert(bus, metrics, alert)
+        if now - last_status >= 1.0:
+            last_status = now
+            _status(bus, metrics, grabber, result, frame_times, inference)
+
+
+def _alert(bus: SafetyBus, metrics: Metrics, alert: Alert) -> None:
+    metrics.alerts.labels(alert.kind).inc()
+    if bus.publish_alert(alert):
+        event(f"alert {alert.kind}", logging.WARNING, severity=alert.severity,
+              message=alert.message)
+
+
+def _status(bus: SafetyBus, metrics: Metrics, grabber, result: StepResult, frame_times,
+            inference) -> None:
+    fps = 0.0
+    if len(frame_times) >= 2 and frame_times[-1] > frame_times[0]:
+        fps = (len(frame_times) - 1) / (frame_times[-1] - frame_times[0])
+    inf_ms = statistics.median(inference) if inference else 0.0
+    status = grabber.status()
+    bus.update_status(fps=round(fps, 2), inference_ms=round(inf_ms, 2),
+                      camera={"id": status.camera_id, "connected": status.connected,
+                              "dropped": status.dropped, "reconnects": status.reconnects,
+                              "last_error": status.last_error})
+    metrics.fps.set(fps)
+    metrics.inference_ms.set(inf_ms)
+    metrics.state.set(STATE_LEVEL[result.command.state])
+    metrics.dropped.set(status.dropped)
+    if result.persons is not None:
+        metrics.persons.set(len(result.persons))
