@@ -17,9 +17,10 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from monitor.detector import Detector, DetectorConfig, letterbox  # noqa: E402
-from monitor.models import synthetic  # noqa: E402
-from monitor.scene import random_frames  # noqa: E402
+from monitor.models import synthetic
+
+from monitor.detector import Detector, DetectorConfig, letterbox
+from monitor.scene import random_frames
 
 
 def bench(model: Path, threads: int, repeats: int, frame) -> dict[str, float]:

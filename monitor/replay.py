@@ -20,7 +20,7 @@ import numpy as np
 
 from monitor.detector import Detector
 from monitor.errors import InputError
-from monitor.frames import TruncatedVideoError, VideoFileReader
+from monitor.frames import VideoFileReader
 from monitor.health import CameraHealth, HealthConfig, draw_health
 from monitor.pipeline import Pipeline, StepResult
 from monitor.policy import RUN, SLOW, STOP, PolicyConfig, ResetRequest
