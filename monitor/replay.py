@@ -57,7 +57,7 @@ class ReplaySummary:
     alerts: dict[str, int] = field(default_factory=dict)
     fps_achieved: float = 0.0
     stage_ms_median: dict[str, float] = field(default_factory=dict)
-    health_ms_median: float = 0.0
+    faults: dict[str, int] = field(default_factory=dict)  # fault name -> frames it was active
     truncated: str | None = None
     zones: str | None = None
     outputs: dict[str, str] = field(default_factory=dict)
@@ -71,6 +71,8 @@ class ReplaySummary:
             ("first STOP", _when(self.first_stop)),
             ("command changes", str(self.command_changes)),
             ("alerts", ", ".join(f"{k} x{v}" for k, v in sorted(self.alerts.items())) or "none"),
+            ("faults", ", ".join(f"{k} in {v} frames" for k, v in sorted(self.faults.items()))
+             or "none"),
             ("frames per second", f"{self.fps_achieved:.1f}"),
             ("zones", self.zones or "none (persons cannot cause SLOW/STOP)"),
         ]
@@ -117,7 +119,10 @@ def annotate(image: np.ndarray, result: StepResult, cell: Cell | None, camera_id
     if result.health is not None:
         draw_health(out, result.health, watch)
     persons = result.persons
-    in_zone = {h.person: h.kind for h in result.zone_report.hits} if result.zone_report else {}
+    in_zone: dict[int, str] = {}
+    for hit in result.zone_report.hits if result.zone_report else ():
+        if in_zone.get(hit.person) != "protective":  # the worst zone colours the box
+            in_zone[hit.person] = hit.kind
     if persons is not None:
         for k, (x1, y1, x2, y2) in enumerate(persons.boxes_px):
             kind = in_zone.get(k)
@@ -170,7 +175,8 @@ def replay(video: str | Path, detector: Detector, cell: Cell | None, settings: R
     fps = reader.fps or 10.0
     writer = None
     stage_samples: dict[str, list[float]] = {}
-    alerts = Counter()
+    alerts: Counter[str] = Counter()
+    faults: Counter[str] = Counter()
     progress = _progress(reader.frame_count, settings.progress)
     start = time.perf_counter()
     prev: tuple[float, str] | None = None
@@ -204,6 +210,8 @@ def replay(video: str | Path, detector: Detector, cell: Cell | None, settings: R
                         summary.first_stop = {"frame": index, "time_s": _r(t)}
                     if state == SLOW and summary.first_slow is None:
                         summary.first_slow = {"frame": index, "time_s": _r(t)}
+                for fault in {f.name for f in result.faults}:
+                    faults[fault] += 1
                 for alert in result.alerts:
                     alerts[alert.kind] += 1
                     snap = None
@@ -235,6 +243,7 @@ def replay(video: str | Path, detector: Detector, cell: Cell | None, settings: R
     elapsed = time.perf_counter() - start
     summary.fps_achieved = round(summary.frames / elapsed, 2) if elapsed > 0 else 0.0
     summary.alerts = dict(alerts)
+    summary.faults = dict(faults)
     summary.stage_ms_median = {k: round(statistics.median(v), 3)
                                for k, v in stage_samples.items()}
     if reader.truncation is not None:

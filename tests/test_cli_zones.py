@@ -10,9 +10,9 @@ import cv2
 import numpy as np
 import pytest
 
+from monitor import cli
 from monitor import geometry as geo
 from monitor import zones as zn
-from monitor.cli import zones as cli
 
 DEMO = Path(__file__).resolve().parents[1] / "zones" / "demo-cell.yaml"
 ROOT = Path(__file__).resolve().parents[1]
@@ -21,7 +21,7 @@ ROOT = Path(__file__).resolve().parents[1]
 def run(*args: str, cwd: Path) -> subprocess.CompletedProcess:
     """One ``monitor zones ...`` command in a fresh process (the zone commands' own entry point,
     the same ``register`` the ``monitor`` command uses)."""
-    return subprocess.run([sys.executable, "-m", "monitor.cli.zones", "zones", *args], cwd=cwd,
+    return subprocess.run([sys.executable, "-m", "monitor", "zones", *args], cwd=cwd,
                           capture_output=True, text=True, timeout=60)
 
 

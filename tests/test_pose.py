@@ -224,7 +224,7 @@ def test_udp_to_zenoh_bridge_with_real_sockets():
         session.declare_subscriber(keys.pose + "/rejected", bad.append)
         session.declare_subscriber(keys.alert, alerts.append)
         proc = subprocess.Popen(
-            [sys.executable, "-m", "monitor.cli.bus", "bridge", "otus",
+            [sys.executable, "-m", "monitor", "bridge", "otus",
              "--listen", f"127.0.0.1:{uport}", "--cell", "bridgetest", "--mode", "peer",
              "--connect", f"tcp/127.0.0.1:{zport}"],
             stderr=subprocess.PIPE, text=True)

@@ -47,7 +47,7 @@ class Watcher:
 
     def __init__(self, port: int, cell: str) -> None:
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "monitor.cli.bus", "watch", "--cell", cell, "--json", "-v",
+            [sys.executable, "-m", "monitor", "watch", "--cell", cell, "--json", "-v",
              "--connect", f"tcp/127.0.0.1:{port}"],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         self.events: list[dict] = []
@@ -155,7 +155,7 @@ def test_watch_without_monitor_reports_stop_and_exits_cleanly():
     port = free_port()
     with open_session(BusConfig(cell="nobody", listen=(f"tcp/127.0.0.1:{port}",))):
         out = subprocess.run(
-            [sys.executable, "-m", "monitor.cli.bus", "watch", "--cell", "nobody",
+            [sys.executable, "-m", "monitor", "watch", "--cell", "nobody",
              "--connect", f"tcp/127.0.0.1:{port}", "--duration", "0.5"],
             capture_output=True, text=True, timeout=30)
     assert out.returncode == 0, out.stderr
@@ -163,11 +163,11 @@ def test_watch_without_monitor_reports_stop_and_exits_cleanly():
 
 
 def test_bus_cli_errors_are_one_line():
-    out = subprocess.run([sys.executable, "-m", "monitor.cli.bus", "watch", "--connect",
+    out = subprocess.run([sys.executable, "-m", "monitor", "watch", "--connect",
                           "nonsense-endpoint"], capture_output=True, text=True, timeout=30)
     assert out.returncode == 2
     assert out.stderr.startswith("monitor: error: ") and out.stderr.count("\n") == 1
-    out = subprocess.run([sys.executable, "-m", "monitor.cli.bus", "router"],
+    out = subprocess.run([sys.executable, "-m", "monitor", "router"],
                          capture_output=True, text=True, timeout=30)
     assert out.returncode == 2 and "--listen" in out.stderr
 
@@ -179,7 +179,7 @@ def test_router_status_and_reset_commands_through_a_router():
 
     port = free_port()
     router = subprocess.Popen(
-        [sys.executable, "-m", "monitor.cli.bus", "router", "--listen", f"tcp/127.0.0.1:{port}"],
+        [sys.executable, "-m", "monitor", "router", "--listen", f"tcp/127.0.0.1:{port}"],
         stderr=subprocess.PIPE, text=True)
     client = ["--cell", "rt", "--mode", "client", "--connect", f"tcp/127.0.0.1:{port}"]
     try:
@@ -189,12 +189,12 @@ def test_router_status_and_reset_commands_through_a_router():
         with SafetyBus(cfg) as bus:
             bus.publish_command(Command("RUN", 1.0, ()))
             bus.update_status(fps=9.5)
-            out = subprocess.run([sys.executable, "-m", "monitor.cli.bus", "status", *client],
+            out = subprocess.run([sys.executable, "-m", "monitor", "status", *client],
                                  capture_output=True, text=True, timeout=30)
             assert out.returncode == 0, out.stderr
             status = json.loads(out.stdout)
             assert status["instance"] == "mon-rt" and status["fps"] == 9.5
-            out = subprocess.run([sys.executable, "-m", "monitor.cli.bus", "reset", *client,
+            out = subprocess.run([sys.executable, "-m", "monitor", "reset", *client,
                                   "--operator", "anna", "--note", "cell checked"],
                                  capture_output=True, text=True, timeout=30)
             assert out.returncode == 0, out.stderr
@@ -205,7 +205,7 @@ def test_router_status_and_reset_commands_through_a_router():
                 time.sleep(0.01)
             assert [(r.operator, r.note) for r in got] == [("anna", "cell checked")]
         # no monitor any more: status is a one-line error, exit 2
-        out = subprocess.run([sys.executable, "-m", "monitor.cli.bus", "status", *client,
+        out = subprocess.run([sys.executable, "-m", "monitor", "status", *client,
                               "--timeout", "0.5"], capture_output=True, text=True, timeout=30)
         assert out.returncode == 2 and "no answer" in out.stderr
     finally:

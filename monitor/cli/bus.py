@@ -15,7 +15,7 @@ import socket
 import sys
 import threading
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator
 
 import zenoh
 
@@ -30,7 +30,7 @@ from monitor.bus import (
     open_session,
     reset_payload,
 )
-from monitor.errors import ConfigError, MonitorError
+from monitor.errors import ConfigError
 from monitor.pose import OtusBridge, PoseLimits, Rejection, parse_host_port
 
 
@@ -334,24 +334,3 @@ def register(subparsers) -> None:
     _add_zenoh_args(p)
     p.add_argument("--timeout", type=float, default=3.0)
     p.set_defaults(func=cmd_status)
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """Only the bus commands (for ``python -m monitor.cli.bus``)."""
-    parser = argparse.ArgumentParser(prog="monitor")
-    parser.add_argument("--debug", action="store_true", help="show tracebacks on errors")
-    register(parser.add_subparsers(dest="command", metavar="COMMAND", required=True))
-    args = parser.parse_args(argv)
-    try:
-        return int(args.func(args) or 0)
-    except MonitorError as exc:  # same contract as ``monitor``: one line, exit 2
-        if args.debug:
-            raise
-        print(f"monitor: error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        return 130
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -10,7 +10,6 @@ import argparse
 import csv
 import re
 import sys
-from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -487,25 +486,3 @@ def cmd_preview(args: argparse.Namespace) -> int:
 def cmd_hash(args: argparse.Namespace) -> int:
     print(zn.load_cell(args.file).config_hash)
     return 0
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """Run only the zone commands (``python -m monitor.cli.zones zones ...``), same behaviour as
-    ``monitor zones ...``."""
-    from monitor.errors import MonitorError
-
-    parser = argparse.ArgumentParser(prog="monitor")
-    parser.add_argument("--debug", action="store_true")
-    register(parser.add_subparsers(dest="command", required=True))
-    args = parser.parse_args(argv)
-    try:
-        return int(args.func(args) or 0)
-    except MonitorError as exc:
-        if args.debug:
-            raise
-        print(f"monitor: error: {exc}", file=sys.stderr)
-        return 2
-
-
-if __name__ == "__main__":
-    sys.exit(main())
