@@ -14,7 +14,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from monitor.detector import Detector
-from monitor.errors import MonitorError
 from monitor.health import CameraHealth, HealthReport
 from monitor.policy import (
     STOP,
@@ -28,6 +27,11 @@ from monitor.policy import (
 )
 from monitor.types import Alert, Fault, FrameInfo, Persons, ZoneReport
 from monitor.zones import Cell, check_persons
+
+
+def _one_line(exc: BaseException) -> str:
+    text = str(exc).strip()
+    return f"{type(exc).__name__}: {text.splitlines()[0]}" if text else type(exc).__name__
 
 
 @dataclass(frozen=True)
@@ -84,23 +88,26 @@ class Pipeline:
                 faults.append(Fault("detector_overflow", f"{detection.candidates} candidates "
                                     f"exceed top-k {self.detector.config.top_k}", True,
                                     "detector"))
-        except (MonitorError, RuntimeError, ValueError) as exc:  # onnxruntime raises these
-            detector_error = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        except Exception as exc:  # any failure of the detector is a STOP, never a crash or RUN
+            detector_error = _one_line(exc)
         t1 = time.perf_counter()
         report = None
         if self.prepared is not None and detector_error is None:
             try:
                 report = check_persons(self.prepared, self.camera_id, persons.boxes_px,
                                        tool_pose, tool_speed_mps)
-            except MonitorError as exc:
-                faults.append(Fault("zone_check_error", str(exc), True, "zones"))
+            except Exception as exc:  # the zone answer is unknown: fail towards STOP
+                faults.append(Fault("zone_check_error", _one_line(exc), True, "zones"))
         elif detector_error is None:
             report = ZoneReport()
         t2 = time.perf_counter()
         health = None
         if self.health is not None:
-            health = self.health.check(image, now, persons.boxes_px)
-            faults.extend(health.faults)
+            try:
+                health = self.health.check(image, now, persons.boxes_px)
+                faults.extend(health.faults)
+            except Exception as exc:  # health unknown: fail towards STOP
+                faults.append(Fault("health_check_error", _one_line(exc), True, self.camera_id))
         t3 = time.perf_counter()
         inputs = PolicyInputs(frame_time=frame.capture_time, zone_report=report,
                               faults=tuple(faults), detector_error=detector_error,

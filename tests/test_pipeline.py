@@ -1,0 +1,85 @@
+"""The pipeline fails towards STOP: detector errors, overflow, zone and health faults, silence."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from monitor.config import demo_cell_path
+from monitor.detector import Detector, DetectorConfig
+from monitor.health import CameraHealth, HealthConfig
+from monitor.pipeline import Pipeline
+from monitor.policy import PolicyConfig
+from monitor.scene import DemoScene, Figure, draw_figure
+from monitor.types import FrameInfo
+from monitor.zones import load_cell
+
+POLICY = PolicyConfig(clear_time=0.5, restart_interlock="auto")
+
+
+def frames(n: int, fps: float = 10.0):
+    scene = DemoScene()
+    background = scene.background()
+    for i in range(n):
+        img = background.copy()
+        img[::7, ::5] += np.uint8(i % 3)  # a live camera: consecutive frames differ
+        yield img, FrameInfo("cam0", i, i / fps, 1280, 720)
+
+
+@pytest.fixture()
+def pipeline(detector):
+    return Pipeline(detector, "cam0", POLICY, load_cell(demo_cell_path()),
+                    CameraHealth(HealthConfig(), "cam0"))
+
+
+def codes(result) -> set[str]:
+    return {r.code for r in result.command.reasons}
+
+
+def test_an_empty_cell_runs_after_clear_time(pipeline):
+    results = [pipeline.process(img, info, info.capture_time) for img, info in frames(10)]
+    assert results[0].command.state == "STOP"
+    assert results[-1].command.state == "RUN"
+
+
+def test_a_detector_error_is_a_stop_with_its_reason(pipeline):
+    for img, info in frames(10):
+        pipeline.process(img, info, info.capture_time)
+    grey = np.zeros((720, 1280), np.uint8)  # not a BGR image: the detector refuses it
+    result = pipeline.process(grey, FrameInfo("cam0", 10, 1.0, 1280, 720), 1.0)
+    assert result.command.state == "STOP"
+    assert "detector_error" in codes(result)
+
+
+def test_candidate_overflow_is_a_stop(synthetic_model):
+    detector = Detector(synthetic_model, DetectorConfig(top_k=3))
+    pipe = Pipeline(detector, "cam0", POLICY)
+    img = np.full((720, 1280, 3), 120, np.uint8)
+    draw_figure(img, Figure((640.0, 700.0), 600.0))
+    result = pipe.process(img, FrameInfo("cam0", 0, 0.0, 1280, 720), 0.0)
+    assert any(f.name == "detector_overflow" for f in result.faults)
+    assert result.command.state == "STOP"
+
+
+def test_silence_after_frames_is_a_stop_within_frame_timeout(pipeline):
+    for img, info in frames(10):
+        last = pipeline.process(img, info, info.capture_time)
+    assert last.command.state == "RUN"
+    t_last = 0.9
+    assert pipeline.tick(t_last + 0.3).command.state == "RUN"
+    late = pipeline.tick(t_last + POLICY.frame_timeout + 0.05)
+    assert late.command.state == "STOP"
+    assert "frame_timeout" in codes(late) or "fault" in codes(late)
+
+
+def test_a_person_in_the_protective_zone_stops_at_once(pipeline):
+    for img, info in frames(10):
+        pipeline.process(img, info, info.capture_time)
+    img = DemoScene().background()
+    feet = DemoScene().camera.project(np.array([[0.0, -0.8, 0.0], [0.0, -0.8, 1.75]]))
+    draw_figure(img, Figure((float(feet[0][0]), float(feet[0][1])),
+                            float(feet[0][1] - feet[1][1])))
+    result = pipeline.process(img, FrameInfo("cam0", 10, 1.0, 1280, 720), 1.0)
+    assert result.command.state == "STOP"
+    assert "protective_zone" in codes(result)
+    assert result.changed
