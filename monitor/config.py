@@ -10,7 +10,9 @@ nothing is opened, downloaded or built.
 from __future__ import annotations
 
 import dataclasses
+import math
 import tomllib
+import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -54,6 +56,13 @@ class ServiceConfig:
     log_json: bool = False
     tick_s: float = 0.05  # policy timers are evaluated at least this often without frames
 
+    def __post_init__(self) -> None:
+        if not 0 <= self.metrics_port <= 65535:
+            raise ConfigError(f"service.metrics_port: {self.metrics_port} is not a port "
+                              f"(0 = off, 1..65535)")
+        if not (math.isfinite(self.tick_s) and 0 < self.tick_s <= 1.0):
+            raise ConfigError(f"service.tick_s: must be within (0, 1] seconds, got {self.tick_s}")
+
 
 @dataclass(frozen=True)
 class MonitorConfig:
@@ -84,16 +93,40 @@ def build_section(name: str, data: Any, where: str) -> Any:
     if unknown:
         raise ConfigError(f"{where}: [{name}] unknown key {unknown[0]!r} "
                           f"(known: {', '.join(sorted(known))})")
-    if name == "camera" and isinstance(data.get("source"), int):
+    if name == "camera" and isinstance(data.get("source"), int) \
+            and not isinstance(data["source"], bool):
         data = {**data, "source": str(data["source"])}
+    # Strict per field: TOML has real types, so "1" or true where seconds are expected is a
+    # mistake, not something to coerce. Integers still pass as floats, arrays as tuples.
+    hints = typing.get_type_hints(cls)
+    values = {}
+    for key, value in data.items():
+        try:
+            values[key] = TypeAdapter(hints[key]).validate_python(_tuples(value), strict=True)
+        except ValidationError as exc:
+            err = exc.errors()[0]
+            loc = ".".join(str(p) for p in (key, *err["loc"]))
+            msg = err["msg"].replace("a valid tuple", "an array")
+            raise ConfigError(f"{where}: [{name}] {loc}: {msg} (got {_toml_type(value)})"
+                              ) from None
     try:
-        return TypeAdapter(cls).validate_python(data, strict=False)
-    except ValidationError as exc:
-        err = exc.errors()[0]
-        loc = ".".join(str(p) for p in err["loc"])
-        raise ConfigError(f"{where}: [{name}] {loc}: {err['msg']}") from None
+        return cls(**values)
     except ConfigError as exc:
         raise ConfigError(f"{where}: {exc}") from None
+
+
+def _tuples(value: Any) -> Any:
+    """TOML arrays (lists) as tuples, for the frozen dataclasses' tuple fields."""
+    return tuple(_tuples(v) for v in value) if isinstance(value, list) else value
+
+
+def _toml_type(value: Any) -> str:
+    """The TOML name of a value's type (never the value: it may be a password)."""
+    for kind, label in ((bool, "a boolean"), (int, "an integer"), (float, "a float"),
+                        (str, "a string"), (list, "an array"), (dict, "a table")):
+        if isinstance(value, kind):
+            return label
+    return type(value).__name__
 
 
 def parse_config(data: dict, where: str = "config") -> MonitorConfig:

@@ -24,8 +24,9 @@ from pathlib import Path
 from monitor.bus import BusConfig, SafetyBus
 from monitor.config import DEMO_SOURCE, MonitorConfig, demo_cell_path, load_config
 from monitor.errors import ConfigError
+from monitor.health import LOST
 from monitor.pipeline import Pipeline, StepResult
-from monitor.types import Alert
+from monitor.types import Alert, Fault
 
 log = logging.getLogger("monitor")
 
@@ -47,8 +48,9 @@ def setup_logging(as_json: bool) -> None:
     log.propagate = False
 
 
-def event(message: str, level: int = logging.INFO, **fields) -> None:
-    """One line per event; fields go into the JSON object (or after the message)."""
+def event(message: str, level: int = logging.INFO, /, **fields) -> None:
+    """One line per event; fields go into the JSON object (or after the message).
+    Positional-only, so a field may be called ``message`` (alerts have one)."""
     text = message if not fields else message + " " + " ".join(
         f"{k}={v}" for k, v in fields.items())
     log.log(level, text if not _json_logging() else message, extra={"fields": fields})
@@ -81,7 +83,11 @@ class Metrics:
         self.persons = Gauge("monitor_persons", "persons in the last frame", registry=r)
         self.server = None
         if port:
-            self.server, self._thread = start_http_server(port, addr=host, registry=r)
+            try:
+                self.server, self._thread = start_http_server(port, addr=host, registry=r)
+            except OSError as exc:
+                raise ConfigError(f"service.metrics_port: cannot serve metrics on "
+                                  f"{host}:{port}: {exc.strerror or exc}") from None
 
     def close(self) -> None:
         if self.server is not None:
@@ -179,6 +185,8 @@ def _loop(config: MonitorConfig, pipeline: Pipeline, bus: SafetyBus, grabber, po
         if duration is not None and now - started >= duration:
             break
         frame = grabber.get(timeout=config.service.tick_s)
+        if frame is None and not grabber.alive:  # the source ended: get() no longer waits
+            stop.wait(config.service.tick_s)
         now = time.monotonic()
         resets = bus.poll_resets()
         reset = resets[-1] if resets else None
@@ -198,16 +206,21 @@ def _loop(config: MonitorConfig, pipeline: Pipeline, bus: SafetyBus, grabber, po
                   logging.WARNING if not connected else logging.INFO,
                   camera=grabber.camera_id, error=status.last_error)
             was_connected = connected
+        # A loss the grabber has seen (read/open error, wrong size, end of stream) is a STOP
+        # cause at once, with the camera's own error; frame_timeout is only the backstop.
+        lost = grabber.last_error if not connected else ""
+        extra = (Fault(LOST, lost, True, grabber.camera_id),) if lost else ()
         if frame is not None:
             result = pipeline.process(frame.image, frame.info, now, tool_pose=tool_pose,
-                                      pose_time=pose_time, reset=reset)
+                                      pose_time=pose_time, reset=reset, extra_faults=extra)
             frame_times.append(now)
             inference.append(result.stage_ms.get("inference", 0.0))
-            bus.publish_detections(result.persons, result.zone_report,
-                                   frame=frame.info.seq, camera=frame.info.camera_id)
         else:
-            result = pipeline.tick(now, pose_time=pose_time, reset=reset)
-        bus.publish_command(result.command)
+            result = pipeline.tick(now, pose_time=pose_time, reset=reset, extra_faults=extra)
+        bus.publish_command(result.command)  # the safety message first, dashboards after
+        if frame is not None:
+            # the body's "frame" holds camera, seq, capture time and size (no override here)
+            bus.publish_detections(result.persons, result.zone_report)
         if result.changed:
             cmd = result.command
             event(f"command {cmd.state}", logging.WARNING if cmd.state != "RUN" else logging.INFO,

@@ -87,6 +87,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
     print(summary.table())
     print(f"outputs: {args.out}/ (events.jsonl, summary.json"
           + (", annotated.mp4)" if not args.no_video else ")"))
+    if summary.truncated:  # the readable part was processed; still a bad input: say so, exit 2
+        raise InputError(summary.truncated)
     return 0
 
 

@@ -1,0 +1,276 @@
+"""Whole-pipeline benchmark on a 1080p video at 416: throughput against bare inference, and the
+latency from frame capture to command published.
+
+Run: /work/venv/bin/python benchmarks/pipeline.py [--seconds 12] [--threads 2]
+
+The video is the demo walk (the person enters the warning and the protective zone) rendered at
+1280x720 and scaled to 1920x1080, with the demo cell's zones and calibration scaled to match, so
+zones, health and policy do their real work. Three passes in one run:
+
+1. Throughput, decode inline (as replay): per frame, read + decode the next frame and
+   ``Pipeline.process`` it (detector, zones, health, policy; no annotation, no bus), and a bare
+   ``session.run`` on the same input tensor, interleaved so both see the same machine load.
+   Target: pipeline fps / bare inference fps >= 0.95.
+2. Throughput, decode in a reader thread (as the live service's grabber): the same pipeline fed
+   from a 2-frame queue.
+3. Latency, live: the video paced at its frame rate through ``LatestFrameGrabber`` into the
+   service's own loop (``monitor.service._loop``) with a real ``SafetyBus`` on tcp/127.0.0.1 and a
+   subscriber session. Latency = when ``publish_command`` returned - the frame's capture stamp
+   (both monotonic); and, for commands that changed (the ones put on the wire at once), capture
+   to the subscriber's callback. Target: median <= median inference + 5 ms.
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+import logging
+import math
+import queue
+import socket
+import statistics
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from monitor.models import synthetic
+
+from monitor import service
+from monitor.bus import BusConfig, SafetyBus, open_session
+from monitor.config import MonitorConfig, demo_cell_path
+from monitor.detector import Detector, DetectorConfig, letterbox
+from monitor.frames import LatestFrameGrabber, PacedSource, VideoFileReader
+from monitor.health import CameraHealth, HealthConfig
+from monitor.pipeline import Pipeline
+from monitor.policy import PolicyConfig
+from monitor.scene import DemoScene, write_video
+from monitor.zones import Cell, parse_cell, read_cell_data, watch_regions
+
+SIZE = (1920, 1080)
+SCALE = 1.5  # 1280x720 -> 1920x1080
+
+
+def make_video(path: Path, seconds: float) -> int:
+    scene = DemoScene()
+    n = round(seconds * scene.fps)
+    frames = ((cv2.resize(img, SIZE, interpolation=cv2.INTER_LINEAR), t)
+              for img, t in itertools.islice(scene.frames(), n))
+    return len(write_video(path, frames, scene.fps))
+
+
+def cell_1080p(tmp: Path) -> Cell:
+    """The demo cell with its camera and image zones scaled to 1920x1080."""
+    data = read_cell_data(demo_cell_path())
+    for cam in data["cameras"]:
+        cam["width"], cam["height"] = SIZE
+        k = cam["calibration"]["camera_matrix"]
+        cam["calibration"]["camera_matrix"] = [[v * SCALE for v in k[0]], [v * SCALE for v in k[1]],
+                                               k[2]]
+    for zone in data["zones"]:
+        if "points_px" in zone:
+            zone["points_px"] = [[x * SCALE, y * SCALE] for x, y in zone["points_px"]]
+    return parse_cell(data, tmp / "demo-cell-1080p.yaml")
+
+
+def new_pipeline(detector: Detector, cell: Cell) -> Pipeline:
+    health = CameraHealth(HealthConfig(), "cam0", None, watch_regions(cell, "cam0"))
+    return Pipeline(detector, "cam0", PolicyConfig(), cell, health)
+
+
+def pct(values: list[float], q: float) -> float:
+    s = sorted(values)
+    return s[min(len(s) - 1, max(0, math.ceil(q * len(s)) - 1))]
+
+
+def throughput_inline(video: Path, detector: Detector, cell: Cell) -> dict:
+    pipeline = new_pipeline(detector, cell)
+    whole, bare, stages = [], [], {"read+decode": []}
+    persons = 0
+    with VideoFileReader(video, "cam0", expected_size=SIZE) as reader:
+        for k in itertools.count():
+            t0 = time.perf_counter()
+            frame = reader.read()
+            t1 = time.perf_counter()
+            if frame is None:
+                break
+            if k % 2:  # alternate the order: neither always runs right after the other
+                bare.append(_bare(detector, frame.image))
+            t2 = time.perf_counter()
+            result = pipeline.process(frame.image, frame.info, frame.info.capture_time)
+            t3 = time.perf_counter()
+            if not k % 2:
+                bare.append(_bare(detector, frame.image))
+            whole.append((t1 - t0 + t3 - t2) * 1e3)
+            stages["read+decode"].append((t1 - t0) * 1e3)
+            for s, v in result.stage_ms.items():
+                stages.setdefault(s, []).append(v)
+            persons += len(result.persons) if result.persons is not None else 0
+    return {"whole": whole, "bare": bare, "stages": stages, "persons": persons}
+
+
+def _bare(detector: Detector, image: np.ndarray) -> float:
+    tensor, _ = letterbox(image, detector.layout)  # the same input the pipeline feeds
+    feeds = {detector.layout.input_name: tensor}
+    t0 = time.perf_counter()
+    detector.session.run(detector.output_names, feeds)
+    return (time.perf_counter() - t0) * 1e3
+
+
+def throughput_threaded(video: Path, detector: Detector, cell: Cell) -> dict:
+    pipeline = new_pipeline(detector, cell)
+    frames: queue.Queue = queue.Queue(maxsize=2)
+
+    def reader_thread() -> None:
+        with VideoFileReader(video, "cam0", expected_size=SIZE) as reader:
+            for frame in reader:
+                frames.put(frame)
+        frames.put(None)
+
+    thread = threading.Thread(target=reader_thread, daemon=True)
+    thread.start()
+    start = time.perf_counter()
+    n = 0
+    while (frame := frames.get()) is not None:
+        pipeline.process(frame.image, frame.info, frame.info.capture_time)
+        n += 1
+    elapsed = time.perf_counter() - start
+    thread.join()
+    return {"frames": n, "ms_per_frame": elapsed * 1e3 / n}
+
+
+class _TimedPipeline(Pipeline):
+    """Remembers the capture stamp of the frame just processed, and its inference time."""
+
+    pending: float | None = None
+    inference: list[float]
+
+    def process(self, image, frame, now, **kwargs):
+        result = super().process(image, frame, now, **kwargs)
+        self.pending = frame.capture_time
+        self.inference.append(result.stage_ms.get("inference", 0.0))
+        return result
+
+
+class _TimedBus(SafetyBus):
+    """Records, per processed frame, when publish_command returned (monotonic)."""
+
+    def __init__(self, config: BusConfig, pipeline: _TimedPipeline) -> None:
+        super().__init__(config)
+        self.pipeline = pipeline
+        self.latency_ms: list[float] = []
+        self.capture_of_seq: dict[int, float] = {}
+
+    def publish_command(self, command):
+        seq = super().publish_command(command)
+        done = time.monotonic()
+        capture, self.pipeline.pending = self.pipeline.pending, None
+        if capture is not None:  # a step that processed a frame (not a timer tick)
+            self.latency_ms.append((done - capture) * 1e3)
+            if seq is not None:
+                self.capture_of_seq[seq] = capture
+        return seq
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def latency(video: Path, detector: Detector, cell: Cell, seconds: float) -> dict:
+    config = MonitorConfig()
+    health = CameraHealth(config.health, "cam0", None, watch_regions(cell, "cam0"))
+    pipeline = _TimedPipeline(detector, "cam0", config.policy, cell, health)
+    pipeline.inference = []
+    port = free_port()
+    bus_cfg = BusConfig(cell="bench", instance="bench", listen=(f"tcp/127.0.0.1:{port}",),
+                        config_hash=cell.config_hash)
+    received: list[tuple[float, int]] = []
+    stop = threading.Event()
+    with _TimedBus(bus_cfg, pipeline) as bus, open_session(
+            BusConfig(cell="bench", instance="sub", connect=(f"tcp/127.0.0.1:{port}",))) as sub:
+        sub.declare_subscriber(bus.keys.command, lambda s: received.append(
+            (time.monotonic(), json.loads(s.payload.to_bytes())["seq"])))
+        deadline = time.monotonic() + 5
+        while not bus._pub_command.matching_status.matching and time.monotonic() < deadline:
+            time.sleep(0.01)
+        source = PacedSource(VideoFileReader(video, "cam0"), stop=stop)
+        source.open()
+        grabber = LatestFrameGrabber(source, stop=stop, expected_size=SIZE).start()
+        try:
+            service._loop(config, pipeline, bus, grabber, None,
+                          service.Metrics(0, "127.0.0.1"), stop, seconds + 0.5)
+        finally:
+            stop.set()
+            grabber.stop()
+        time.sleep(0.2)  # the last puts arrive
+        wire = [(t - bus.capture_of_seq[seq]) * 1e3 for t, seq in received
+                if seq in bus.capture_of_seq]
+        return {"latency": bus.latency_ms, "wire": wire, "inference": pipeline.inference,
+                "dropped": grabber.dropped, "grabbed": grabber.grabbed}
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seconds", type=float, default=12.0,
+                        help="video length (the walk enters both zones by 6 s)")
+    parser.add_argument("--threads", type=int, default=2, help="onnxruntime intra-op threads")
+    args = parser.parse_args()
+    med = statistics.median
+    logging.getLogger("monitor").setLevel(logging.ERROR)  # the loop's event lines
+    with tempfile.TemporaryDirectory() as tmp_name:
+        tmp = Path(tmp_name)
+        video = tmp / "demo-1080p.mp4"
+        n = make_video(video, args.seconds)
+        cell = cell_1080p(tmp)
+        detector = Detector(synthetic.ensure_model(), DetectorConfig(threads=args.threads))
+        t = throughput_inline(video, detector, cell)
+        th = throughput_threaded(video, detector, cell)
+        lat = latency(video, detector, cell, args.seconds)
+
+    bare_ms, whole_ms = sum(t["bare"]) / n, sum(t["whole"]) / n
+    print(f"1080p video, {n} frames ({args.seconds:g} s, 15 fps), model input 416, "
+          f"{args.threads} threads, {t['persons']} person detections\n")
+    print("| throughput | ms per frame (mean) | median ms | fps | / bare inference |")
+    print("|---|---|---|---|---|")
+    print(f"| bare inference (session.run) | {bare_ms:.1f} | {med(t['bare']):.1f} "
+          f"| {1e3 / bare_ms:.1f} | 1.000 |")
+    print(f"| pipeline, decode inline (replay) | {whole_ms:.1f} | {med(t['whole']):.1f} "
+          f"| {1e3 / whole_ms:.1f} | {bare_ms / whole_ms:.3f} |")
+    print(f"| pipeline, decode in a thread (service) | {th['ms_per_frame']:.1f} | - "
+          f"| {1e3 / th['ms_per_frame']:.1f} | {bare_ms / th['ms_per_frame']:.3f} |")
+    print("\n| stage (inline pass) | median ms |")
+    print("|---|---|")
+    for stage in ("read+decode", "preprocess", "inference", "decode", "zones", "health",
+                  "policy"):
+        if stage in t["stages"]:
+            print(f"| {stage} | {med(t['stages'][stage]):.2f} |")
+    inf = med(lat["inference"])
+    lt, wire = lat["latency"], lat["wire"]
+    print("\n| latency, live (paced 15 fps, real SafetyBus) | n | median ms | p99 ms "
+          "| target |")
+    print("|---|---|---|---|---|")
+    print(f"| inference (session.run inside the pipeline) | {len(lat['inference'])} "
+          f"| {inf:.1f} | {pct(lat['inference'], 0.99):.1f} | |")
+    print(f"| capture -> publish_command returned | {len(lt)} | {med(lt):.1f} "
+          f"| {pct(lt, 0.99):.1f} | median <= {inf + 5:.1f} "
+          f"({'met' if med(lt) <= inf + 5 else 'missed'}) |")
+    if wire:
+        print(f"| capture -> received by a subscriber (changed commands) | {len(wire)} "
+              f"| {med(wire):.1f} | {pct(wire, 0.99):.1f} | |")
+    print(f"\ngrabber: {lat['grabbed']} frames grabbed, {lat['dropped']} dropped (newest wins); "
+          f"throughput target >= 0.95: {'met' if bare_ms / whole_ms >= 0.95 else 'missed'} "
+          f"inline, {'met' if bare_ms / th['ms_per_frame'] >= 0.95 else 'missed'} threaded")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,262 @@
+"""`monitor replay` on the demo scene (real video, real onnxruntime), checked against the scene's
+ground truth; determinism; and a one-line error for each bad input (as subprocesses)."""
+
+from __future__ import annotations
+
+import itertools
+import json
+import math
+import subprocess
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from monitor.config import demo_cell_path
+from monitor.pipeline import StepResult
+from monitor.policy import RUN, SLOW, STOP, PolicyConfig
+from monitor.replay import ReplaySettings, replay
+from monitor.scene import DemoScene, FrameTruth, write_video
+from monitor.zones import Cell, check_persons, load_cell
+from tests.test_frames import faststart
+
+# The demo walk sampled at 7.5 fps (`monitor demo` writes 15 fps): same path, camera and zones,
+# half the frames, so the two replays of this file stay within the suite's time budget.
+DEMO_FPS = 7.5
+# 8 s: the person stands inside the protective zone (the walk pauses there 7..10 s): refused.
+# 18 s: the person left the view at ~17 s: accepted.
+RESET_AT = (8.0, 18.0)
+# The detector's boxes are larger than the visible pixels by up to one cell of the 26x26 grid
+# (16 input px = 49 px of the 1280x720 frame). A box one cell too wide on one side moves its
+# bottom-centre ~25 px towards the zone; near the zone edges the feet move ~115 px/s, so the
+# detector can reach a zone up to ~0.22 s before the ground truth does. (A bottom edge one cell
+# too low places the person nearer the camera, which would delay entry from the camera side;
+# this walk enters the zones from the side, so the STOP is never later here.)
+# Allow 0.3 s of walking: k = ceil(0.3 s * fps) frames early.
+EARLY_FRAMES = math.ceil(0.3 * DEMO_FPS)
+CLEAR_TIME = PolicyConfig().clear_time
+
+
+def run_monitor(*args: str | Path, timeout: float = 120) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "monitor", *map(str, args)],
+                          capture_output=True, text=True, timeout=timeout)
+
+
+@dataclass(frozen=True)
+class Demo:
+    video: Path
+    truths: list[FrameTruth]
+    cell: Cell
+
+    def first_truth_frame(self, kind: str) -> int:
+        """First frame whose ground-truth (visible pixels) person box is in a zone of ``kind``."""
+        for t in self.truths:
+            boxes = np.array([p.box_px for p in t.persons], np.float64).reshape(-1, 4)
+            if any(h.kind == kind for h in check_persons(self.cell, "cam0", boxes).hits):
+                return t.index
+        raise AssertionError(f"the scene never enters a {kind} zone")
+
+
+@pytest.fixture(scope="session")
+def demo(tmp_path_factory: pytest.TempPathFactory) -> Demo:
+    scene = DemoScene(fps=DEMO_FPS)
+    video = tmp_path_factory.mktemp("demo") / "demo-scene.mp4"
+    truths = write_video(video, scene.frames(), scene.fps)
+    return Demo(video, truths, load_cell(demo_cell_path()))
+
+
+@pytest.fixture(scope="session")
+def cli_replay(demo: Demo, synthetic_model: Path, tmp_path_factory: pytest.TempPathFactory):
+    """`monitor replay` as a user runs it."""
+    out = tmp_path_factory.mktemp("replay-cli")
+    proc = run_monitor("replay", demo.video, "--zones", demo_cell_path(), "--model",
+                       synthetic_model, "--out", out, "--reset-at", *RESET_AT)
+    assert proc.returncode == 0, proc.stderr
+    return out, proc
+
+
+@pytest.fixture(scope="session")
+def steps(demo: Demo, detector, tmp_path_factory: pytest.TempPathFactory):
+    """The same replay in-process, keeping every step (not only the changes in events.jsonl)."""
+    out = tmp_path_factory.mktemp("replay-steps")
+    results: list[StepResult] = []
+    settings = ReplaySettings(out_dir=out, reset_at=RESET_AT, annotate=False, progress=False)
+    summary = replay(demo.video, detector, demo.cell, settings, publish=results.append)
+    return out, results, summary
+
+
+def commands(out: Path) -> list[dict]:
+    lines = (out / "events.jsonl").read_text().splitlines()
+    return [e for e in map(json.loads, lines) if e["type"] == "command"]
+
+
+def causes(event: dict) -> set[str]:
+    return {r["code"] for r in event["reasons"]} - {"startup", "clearing", "latched"}
+
+
+@pytest.mark.slow
+def test_slow_in_the_warning_zone_then_stop_at_the_first_frame_in_the_protective_zone(
+        demo, cli_replay):
+    out, proc = cli_replay
+    events = commands(out)
+    assert events[0]["state"] == STOP and causes(events[0]) == set()  # start-up STOP
+    first_slow = next(e for e in events if e["state"] == SLOW)
+    first_stop = next(e for e in events if e["state"] == STOP and causes(e))
+    # the first cause of all is the warning zone, then the protective zone: nothing spurious
+    assert next(e for e in events if causes(e)) is first_slow
+    assert causes(first_slow) == {"warning_zone"} and first_slow["speed_scale"] == 0.3
+    assert causes(first_stop) == {"protective_zone"} and first_stop["latched"]
+
+    truth_slow = demo.first_truth_frame("warning")
+    truth_stop = demo.first_truth_frame("protective")
+    assert truth_slow < truth_stop
+    assert truth_slow - EARLY_FRAMES <= first_slow["frame"] <= truth_slow
+    assert truth_stop - EARLY_FRAMES <= first_stop["frame"] <= truth_stop
+    assert first_stop["time_s"] == pytest.approx(first_stop["frame"] / DEMO_FPS, abs=1e-3)
+
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["first_slow"]["frame"] == first_slow["frame"]
+    assert summary["first_stop"]["frame"] == first_stop["frame"]
+    assert summary["frames"] == len(demo.truths) and summary["truncated"] is None
+    assert summary["duration_s"] == pytest.approx(len(demo.truths) / DEMO_FPS, abs=1e-3)
+    assert sum(summary["time_in"].values()) == pytest.approx(summary["duration_s"], abs=1e-3)
+    assert f"frame {first_stop['frame']}" in proc.stdout and "first STOP" in proc.stdout
+
+
+@pytest.mark.slow
+def test_every_frame_decides_at_once_and_run_needs_reset_and_clear_time(steps):
+    _, results, _ = steps
+    kinds = [{h.kind for h in r.zone_report.hits} for r in results]
+    for r, k in zip(results, kinds, strict=True):  # no debounce towards the safe side
+        if "protective" in k:
+            assert r.command.state == STOP
+        elif "warning" in k:
+            assert r.command.state in (SLOW, STOP)
+        if r.command.latched:
+            assert r.command.state == STOP
+
+    first_stop = next(i for i, k in enumerate(kinds) if "protective" in k)
+    resets = [(i, r.command.reset) for i, r in enumerate(results) if r.command.reset]
+    assert [round(results[i].now, 3) for i, _ in resets] == list(RESET_AT)
+    (i_refused, refused), (i_reset, accepted) = resets
+    assert not refused.accepted and "protective" in refused.message  # person still inside
+    assert accepted.accepted and i_reset > i_refused > first_stop
+    after = results[first_stop:]
+    first_run = first_stop + next(i for i, r in enumerate(after) if r.command.state == RUN)
+    assert all(r.command.state == STOP for r in results[first_stop:i_reset])
+    assert first_run >= i_reset
+    last_cause = max(i for i in range(first_run) if kinds[i])
+    assert results[first_run].now - results[last_cause].now >= CLEAR_TIME
+    assert all(r.command.state == RUN for r in results[first_run:])  # the person is gone
+
+
+@pytest.mark.slow
+def test_two_replays_write_identical_events(cli_replay, steps):
+    cli_out, _ = cli_replay
+    steps_out, results, summary = steps
+    first = (cli_out / "events.jsonl").read_bytes()
+    assert first == (steps_out / "events.jsonl").read_bytes()
+    assert first.count(b'"type": "command"') == sum(r.changed for r in results) >= 8
+    assert summary.command_changes == sum(r.changed for r in results)
+
+
+@pytest.mark.slow
+def test_annotated_video_has_every_frame(demo, cli_replay):
+    out, _ = cli_replay
+    cap = cv2.VideoCapture(str(out / "annotated.mp4"))
+    try:
+        assert cap.isOpened()
+        assert int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) == len(demo.truths)
+        assert (cap.get(cv2.CAP_PROP_FRAME_WIDTH), cap.get(cv2.CAP_PROP_FRAME_HEIGHT)) == (
+            1280, 720)
+    finally:
+        cap.release()
+
+
+# --- bad input: one line `monitor: error: ...`, exit 2, no traceback ----------------------------
+
+def assert_one_line_error(proc: subprocess.CompletedProcess, *needles: str) -> str:
+    assert proc.returncode == 2, (proc.returncode, proc.stderr)
+    assert "Traceback" not in proc.stderr
+    errors = [line for line in proc.stderr.splitlines() if line.startswith("monitor: error:")]
+    assert len(errors) == 1, proc.stderr
+    # FFmpeg/OpenCV may log before it; our message is the last line
+    assert proc.stderr.rstrip("\n").splitlines()[-1] == errors[0]
+    for needle in needles:
+        assert needle in errors[0], f"{needle!r} not in {errors[0]!r}"
+    return errors[0]
+
+
+def _clip(path: Path, frames: int, size: tuple[int, int] = (1280, 720)) -> Path:
+    scene = DemoScene(fps=DEMO_FPS)
+    clip = ((cv2.resize(img, size), t) for img, t in itertools.islice(scene.frames(), frames))
+    write_video(path, clip, DEMO_FPS)
+    return path
+
+
+def _text(tmp: Path) -> Path:
+    path = tmp / "notes.mp4"
+    path.write_text("this is a text file, not a video\n" * 10)
+    return path
+
+
+def _unknown_codec(tmp: Path) -> Path:
+    """A valid MP4 whose video track names a codec no decoder knows (fourcc and the MPEG-4
+    objectTypeIndication in 'esds' set to a user-private value)."""
+    data = bytearray(_clip(tmp / "clip.mp4", 3).read_bytes())
+    esds = data.find(b"esds")
+    config = data.find(b"\x04\x80\x80\x80", esds)  # DecoderConfigDescriptor
+    assert esds > 0 and config > esds
+    data[config + 5] = 0xC0
+    path = tmp / "codec.mp4"
+    path.write_bytes(bytes(data).replace(b"mp4v", b"xvq1"))
+    return path
+
+
+def _zero_frames(tmp: Path) -> Path:
+    path = tmp / "empty.mp4"
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), DEMO_FPS, (1280, 720))
+    writer.release()
+    return path
+
+
+@pytest.mark.parametrize(("make", "needles"), [
+    pytest.param(lambda tmp: tmp / "missing.mp4", ["missing.mp4", "no such file"], id="missing"),
+    pytest.param(_text, ["notes.mp4", "not a video"], id="not-a-video"),
+    pytest.param(_unknown_codec, ["codec.mp4", "codec", "cannot decode"], id="unknown-codec"),
+    pytest.param(_zero_frames, ["empty.mp4", "no frames"], id="zero-frames"),
+    pytest.param(lambda tmp: _clip(tmp / "small.mp4", 2, (640, 360)),
+                 ["small.mp4", "640x360", "1280x720", "zone file"], id="frame-size"),
+])
+def test_bad_video_is_a_one_line_error(tmp_path, synthetic_model, make, needles):
+    video = make(tmp_path)
+    proc = run_monitor("replay", video, "--zones", demo_cell_path(), "--model", synthetic_model,
+                       "--out", tmp_path / "out", "--no-video")
+    assert_one_line_error(proc, *needles)
+
+
+def test_missing_zone_file_is_a_one_line_error(tmp_path, synthetic_model):
+    video = _clip(tmp_path / "clip.mp4", 2)
+    proc = run_monitor("replay", video, "--zones", tmp_path / "cell.yaml", "--model",
+                       synthetic_model, "--out", tmp_path / "out")
+    assert_one_line_error(proc, "cell.yaml", "not found")
+
+
+def test_truncated_video_is_processed_up_to_the_break_then_reported(tmp_path, synthetic_model):
+    video = faststart(_clip(tmp_path / "cut.mp4", 20))  # index first: a cut keeps it
+    data = video.read_bytes()
+    video.write_bytes(data[:int(len(data) * 0.6)])
+    out = tmp_path / "out"
+    proc = run_monitor("replay", video, "--zones", demo_cell_path(), "--model", synthetic_model,
+                       "--out", out, "--no-video")
+    summary = json.loads((out / "summary.json").read_text())
+    read = summary["frames"]
+    assert 0 < read < 20
+    line = assert_one_line_error(proc, "cut.mp4", "truncated", f"broke at frame {read}",
+                                 f"t={read / DEMO_FPS:.3f} s", "of 20")
+    assert summary["truncated"] == line.removeprefix("monitor: error: ")
+    assert "truncated" in proc.stdout  # the summary table is printed first
+    assert len((out / "events.jsonl").read_text().splitlines()) >= 1

@@ -1,0 +1,334 @@
+"""`monitor run` as a real subprocess: commands over Zenoh (tcp/127.0.0.1, scouting off) to this
+test process, the status queryable, Prometheus, camera loss and recovery, SIGTERM/SIGINT, and
+one-line errors for a bad monitor.toml."""
+
+from __future__ import annotations
+
+import http.server
+import json
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+import urllib.request
+from collections.abc import Callable
+from pathlib import Path
+
+import cv2
+import pytest
+import zenoh
+
+from monitor.bus import BusConfig, BusKeys, open_session, reset_payload
+from monitor.config import demo_cell_path
+from monitor.policy import PolicyConfig
+from monitor.scene import DemoScene
+from monitor.zones import load_cell
+
+POLICY = PolicyConfig()
+TICK_S = 0.05  # service.tick_s default: timers run at least this often without frames
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def wait_for(cond: Callable[[], object], timeout: float, what: str, proc=None):
+    """Poll until ``cond()`` is truthy; fail with the service's log if it died or timed out."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        value = cond()
+        if value:
+            return value
+        if proc is not None and proc.poll() is not None:
+            raise AssertionError(f"service exited ({proc.returncode}) waiting for {what}: "
+                                 f"{proc.log()}")
+        time.sleep(0.02)
+    raise AssertionError(f"timed out waiting for {what}" + (f": {proc.log()}" if proc else ""))
+
+
+def summary_of(commands: list[dict]) -> list[tuple]:
+    """(seq, state, reason codes) at each change, for failure messages."""
+    out, prev = [], None
+    for c in commands:
+        key = (c["state"], tuple(r["code"] for r in c["reasons"]))
+        if key != prev:
+            out.append((c["seq"], *key))
+            prev = key
+    return out
+
+
+class Service:
+    """`monitor run --config <tmp>/monitor.toml --log-json` and a Zenoh peer in this process
+    connected to it, recording commands, detections and the liveliness token."""
+
+    def __init__(self, tmp: Path, model: Path, camera: str, extra: str = "") -> None:
+        self.bus_port, self.metrics_port = free_port(), free_port()
+        self.keys = BusKeys.of("workcell/t5/")
+        self.config = tmp / "monitor.toml"
+        self.config.write_text(
+            f'[camera]\nsource = "{camera}"\n'
+            f'[model]\npath = "{model}"\n'
+            f'[bus]\ncell = "t5"\ninstance = "svc-test"\n'
+            f'listen = ["tcp/127.0.0.1:{self.bus_port}"]\n'
+            f'[service]\nmetrics_port = {self.metrics_port}\n' + extra)
+        self.stderr_path = tmp / "service.log"
+        self.commands: list[dict] = []
+        self.detections: list[dict] = []
+        self.alive: list[bool] = []
+
+    def log(self) -> str:
+        return (f"received {summary_of(self.commands)[-12:]}; log: "
+                + self.stderr_path.read_text()[-2000:])
+
+    def poll(self):
+        return self.proc.poll()
+
+    def __enter__(self) -> Service:
+        self._err = self.stderr_path.open("w")
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "monitor", "run", "--config", str(self.config), "--log-json"],
+            stdout=subprocess.DEVNULL, stderr=self._err)
+        try:
+            wait_for(self._listening, 60, "the bus port", self)
+            cfg = BusConfig(cell="t5", instance="test-peer",
+                            connect=(f"tcp/127.0.0.1:{self.bus_port}",))
+            self.session = open_session(cfg)  # a second process: this test
+            s = self.session
+            s.declare_subscriber(self.keys.command, lambda x: self.commands.append(
+                json.loads(x.payload.to_bytes())))
+            s.declare_subscriber(self.keys.detections, lambda x: self.detections.append(
+                json.loads(x.payload.to_bytes())))
+            s.liveliness().declare_subscriber(
+                self.keys.alive + "/*", lambda x: self.alive.append(
+                    x.kind == zenoh.SampleKind.PUT), history=True)
+        except BaseException:
+            self._kill()
+            raise
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.session.close()
+        self._kill()
+
+    def _kill(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait(10)
+        self._err.close()
+
+    def _listening(self) -> bool:
+        with socket.socket() as s:
+            return s.connect_ex(("127.0.0.1", self.bus_port)) == 0
+
+    def stop(self, sig: int) -> int:
+        self.proc.send_signal(sig)
+        return self.proc.wait(20)
+
+    def next_command(self, start: int, pred: Callable[[dict], bool], timeout: float, what: str
+                     ) -> tuple[int, dict]:
+        """The first command at index >= ``start`` of the received list matching ``pred``."""
+        def find():
+            for i in range(start, len(self.commands)):
+                if pred(self.commands[i]):
+                    return i, self.commands[i]
+            return None
+        return wait_for(find, timeout, what, self)
+
+    def status(self) -> dict:
+        replies = list(self.session.get(self.keys.status, timeout=3.0))
+        assert len(replies) == 1 and replies[0].ok is not None
+        return json.loads(replies[0].ok.payload.to_bytes())
+
+
+def codes(command: dict) -> set[str]:
+    return {r["code"] for r in command["reasons"]}
+
+
+def test_sigterm_after_commands_over_zenoh_status_and_metrics(tmp_path, synthetic_model):
+    with Service(tmp_path, synthetic_model, "synthetic:demo") as svc:
+        # the demo scene: start-up STOP, RUN after clear_time, SLOW at ~3.4 s, STOP at ~5.5 s;
+        # this peer may connect late, so any decision after start-up shows the pipeline works
+        _, run = svc.next_command(0, lambda c: codes(c) - {"startup", "clearing"} or
+                                  c["state"] != "STOP", 60, "a decision after start-up")
+        assert run["instance"] == "svc-test" and run["schema"] == "workcell.safety.command/1"
+        assert run["config_hash"] == load_cell(demo_cell_path()).config_hash
+        assert wait_for(lambda: svc.alive == [True], 5, "the liveliness token")
+        wait_for(lambda: len(svc.detections) >= 3, 10, "detections", svc)
+        frame = svc.detections[-1]["frame"]
+        assert (frame["camera_id"], frame["width"], frame["height"]) == ("cam0", 1280, 720)
+
+        # the status is refreshed once a second; the first is taken before any frame
+        status = wait_for(lambda: (s := svc.status()).get("fps") and s, 10, "status", svc)
+        assert status["state"] in ("RUN", "SLOW", "STOP") and status["instance"] == "svc-test"
+        assert status["camera"]["connected"] and status["camera"]["id"] == "cam0"
+        assert status["inference_ms"] > 0 and status["boot"] == run["boot"]
+
+        url = f"http://127.0.0.1:{svc.metrics_port}/metrics"
+
+        def metrics() -> dict[str, float]:
+            text = urllib.request.urlopen(url, timeout=3).read().decode()
+            return {line.split()[0]: float(line.split()[1]) for line in text.splitlines()
+                    if line.startswith("monitor_")}
+        values = wait_for(lambda: (m := metrics()).get("monitor_fps") and m, 10, "metrics", svc)
+        assert values["monitor_state"] in (0.0, 1.0, 2.0)  # RUN, SLOW, STOP
+        assert values["monitor_inference_ms"] > 0 and "monitor_dropped_frames" in values
+
+        assert svc.stop(signal.SIGTERM) == 0
+        assert wait_for(lambda: svc.alive == [True, False], 5, "the token to vanish")
+        log = [json.loads(line) for line in svc.stderr_path.read_text().splitlines()]
+    seqs = [c["seq"] for c in svc.commands]
+    assert seqs == sorted(set(seqs)) and len(seqs) >= 10  # heartbeats and changes, in order
+    assert {c["boot"] for c in svc.commands} == {run["boot"]}
+    last = svc.commands[-1]
+    assert last["state"] == "STOP" and codes(last) == {"shutdown"} and not last["heartbeat"]
+    assert [e["event"] for e in log][-2:] == ["shutting down: final STOP published", "stopped"]
+
+
+# --- camera loss: an MJPEG camera on loopback that the test takes down and brings back --------
+
+class MjpegCamera:
+    """An HTTP MJPEG camera (multipart/x-mixed-replace, 15 fps) on 127.0.0.1. ``down()`` closes
+    the open streams and answers new requests with 503 until ``up()``."""
+
+    def __init__(self, frames: list[bytes]) -> None:
+        self.frames = frames
+        self.online = threading.Event()
+        self.online.set()
+        camera = self
+
+        class Handler(http.server.BaseHTTPRequestHandler):
+            def log_message(self, *args):
+                pass
+
+            def do_GET(self):
+                if not camera.online.is_set():
+                    self.send_error(503)
+                    return
+                self.send_response(200)
+                self.send_header("Content-Type", "multipart/x-mixed-replace; boundary=frame")
+                self.end_headers()
+                k = 0
+                try:
+                    while camera.online.is_set():
+                        jpeg = camera.frames[k % len(camera.frames)]
+                        self.wfile.write(b"--frame\r\nContent-Type: image/jpeg\r\n"
+                                         b"Content-Length: %d\r\n\r\n" % len(jpeg) + jpeg
+                                         + b"\r\n")
+                        k += 1
+                        time.sleep(1 / 15)
+                except OSError:  # the service closed the stream
+                    pass
+
+        self.server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+        self.server.daemon_threads = True
+        self.url = f"http://127.0.0.1:{self.server.server_address[1]}/cam.mjpg"
+        self.thread = threading.Thread(target=self.server.serve_forever, daemon=True)
+
+    def __enter__(self) -> MjpegCamera:
+        self.thread.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.online.clear()
+        self.server.shutdown()
+        self.server.server_close()
+
+
+def demo_jpegs(n: int = 10) -> list[bytes]:
+    """The demo cell without anyone in it (a person enters later), at 640x360."""
+    out = []
+    for _, (img, truth) in zip(range(n), DemoScene().frames(), strict=False):
+        assert not truth.persons
+        out.append(cv2.imencode(".jpg", cv2.resize(img, (640, 360)))[1].tobytes())
+    return out
+
+
+@pytest.mark.slow
+def test_camera_loss_stops_at_once_then_frames_reset_and_clear_time_give_run(
+        tmp_path, synthetic_model):
+    with MjpegCamera(demo_jpegs()) as camera, \
+            Service(tmp_path, synthetic_model, camera.url) as svc:  # no zone file: none apply
+        i_run, _ = svc.next_command(0, lambda c: c["state"] == "RUN", 60, "RUN")
+        wait_for(lambda: len(svc.detections) >= 3, 10, "detections", svc)
+
+        camera.online.clear()
+        i_stop, stop = svc.next_command(i_run, lambda c: c["state"] == "STOP", 10, "STOP")
+        time.sleep(0.2)  # detections go out after the command of their step
+        # the last frame processed before the STOP, on the service's clock (as the command's)
+        last = max(d["frame"]["capture_time"] for d in list(svc.detections)
+                   if d["frame"]["capture_time"] <= stop["mono"])
+        assert stop["mono"] - last <= POLICY.frame_timeout
+        lost = [r for r in stop["reasons"] if r.get("fault") == "camera_lost"]
+        assert lost and "stream lost" in lost[0]["message"] and camera.url in lost[0]["message"]
+        assert stop["latched"]
+
+        time.sleep(1.0)  # the camera stays away (the grabber retries with backoff)
+        assert all(c["state"] == "STOP" for c in svc.commands[i_stop:])
+        camera.online.set()
+        back = wait_for(lambda: [d["frame"]["capture_time"] for d in list(svc.detections)
+                                 if d["frame"]["capture_time"] > stop["mono"]],
+                        15, "frames after the reconnect", svc)[0]
+        # the operator resets as soon as the picture is back; RUN still waits for clear_time
+        i_reset = len(svc.commands)
+        svc.session.put(svc.keys.reset, reset_payload("tester", "r-1"))
+        _, outcome = svc.next_command(i_reset, lambda c: "reset" in c, 5, "the reset outcome")
+        assert outcome["reset"]["accepted"], outcome["reset"]
+        i_run2, run = svc.next_command(i_reset, lambda c: c["state"] == "RUN", 10, "RUN again")
+        assert all(c["state"] == "STOP" for c in svc.commands[i_stop:i_run2])
+        # the last STOP cause was seen at most one tick before the first frame came back
+        assert run["mono"] - back >= POLICY.clear_time - 2 * TICK_S
+        assert run["mono"] - outcome["mono"] > 0.5 * POLICY.clear_time  # not at the reset
+        assert svc.stop(signal.SIGINT) == 0  # SIGINT stops it like SIGTERM
+    last = svc.commands[-1]
+    assert last["state"] == "STOP" and codes(last) == {"shutdown"}
+
+
+# --- bad monitor.toml and files: one line, exit 2, no traceback -------------------------------
+
+def run_monitor(*args: str | Path) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "monitor", *map(str, args)],
+                          capture_output=True, text=True, timeout=60)
+
+
+def assert_one_line_error(proc: subprocess.CompletedProcess, *needles: str) -> None:
+    assert proc.returncode == 2, (proc.returncode, proc.stderr)
+    assert "Traceback" not in proc.stderr
+    lines = [line for line in proc.stderr.splitlines() if line.startswith("monitor: error:")]
+    assert len(lines) == 1 and proc.stderr.rstrip("\n").splitlines()[-1] == lines[0]
+    for needle in needles:
+        assert needle in lines[0], f"{needle!r} not in {lines[0]!r}"
+
+
+@pytest.mark.parametrize(("text", "needles"), [
+    pytest.param('[camera]\nsourc = "0"\n', ["unknown key 'sourc'"], id="unknown-key"),
+    pytest.param('[policy]\nclear_time = "1s"\n', ["[policy] clear_time", "valid number"],
+                 id="wrong-type"),
+    pytest.param('[zones]\nfile = "nowhere/cell.yaml"\n', ["nowhere/cell.yaml", "not found"],
+                 id="missing-zone-file"),
+    pytest.param('[camera]\nsource = "nowhere.mp4"\n[zones]\nfile = "{cell}"\n',
+                 ["nowhere.mp4", "no such file"], id="missing-video-source"),
+])
+def test_bad_config_refuses_to_start_with_one_line(tmp_path, synthetic_model, text, needles):
+    config = tmp_path / "monitor.toml"
+    config.write_text(f'[model]\npath = "{synthetic_model}"\n'
+                      + text.format(cell=demo_cell_path()))
+    proc = run_monitor("run", "--config", config, "--duration", "1")
+    assert_one_line_error(proc, *needles)
+
+
+def test_missing_config_file_and_taken_metrics_port(tmp_path, synthetic_model):
+    assert_one_line_error(run_monitor("run", "--config", tmp_path / "absent.toml"),
+                          "absent.toml", "no such config file")
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        config = tmp_path / "monitor.toml"
+        config.write_text(f'[model]\npath = "{synthetic_model}"\n'
+                          f'[bus]\nlisten = ["tcp/127.0.0.1:{free_port()}"]\n'
+                          f'[service]\nmetrics_port = {taken.getsockname()[1]}\n')
+        assert_one_line_error(run_monitor("run", "--config", config, "--duration", "1"),
+                              "service.metrics_port", str(taken.getsockname()[1]))
