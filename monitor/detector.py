@@ -93,6 +93,19 @@ class DetectorConfig:
     layout: str | None = None  # force a layout instead of detecting it
     anchors: tuple[tuple[float, float], ...] | None = None  # darknet: override anchors
     masks: tuple[tuple[int, ...], ...] | None = None  # darknet: override anchor masks
+    # How far a box's bottom edge may lie below the real feet, in cells of the finest output
+    # grid: the zone checks also test the feet this much higher (see zones.check_persons).
+    foot_uncertainty_cells: float = 1.0
+
+    def __post_init__(self) -> None:
+        from monitor.errors import ConfigError
+
+        if not 0.0 <= self.score_threshold <= 1.0:
+            raise ConfigError(f"detector.score_threshold: {self.score_threshold} not in [0, 1]")
+        if self.top_k < 1 or self.threads < 1 or self.input_size < 32:
+            raise ConfigError("detector.top_k, threads must be >= 1 and input_size >= 32")
+        if not 0.0 <= self.foot_uncertainty_cells <= 10.0:
+            raise ConfigError("detector.foot_uncertainty_cells: must be within [0, 10]")
 
 
 @dataclass(frozen=True)
@@ -423,6 +436,19 @@ class Detector:
         self._letterbox = Letterboxer(self.layout)
         # Warm-up: the first run allocates; do it now, not on the first real frame.
         self.detect(np.full((self.layout.input_height, self.layout.input_width, 3), 114, np.uint8))
+
+    def finest_stride_px(self) -> float:
+        """Input pixels per cell of the finest output grid (16 for tiny-YOLOv3 at 416)."""
+        if self.layout.kind == "darknet":
+            grids = [o.shape[1] if self.layout.heads_nhwc else o.shape[2]
+                     for o in self.session.get_outputs()]
+            return self.layout.input_height / max(grids)
+        return float(min(self.layout.strides))
+
+    def foot_uncertainty_px(self, frame_width: int, frame_height: int) -> float:
+        """``foot_uncertainty_cells`` finest-grid cells in frame pixels of this frame size."""
+        scale = min(self.layout.input_width / frame_width, self.layout.input_height / frame_height)
+        return self.config.foot_uncertainty_cells * self.finest_stride_px() / scale
 
     def run_raw(self, tensor: np.ndarray, frame_hw: tuple[int, int]) -> list[np.ndarray]:
         feeds = {self.layout.input_name: tensor}

@@ -94,8 +94,9 @@ class Pipeline:
         report = None
         if self.prepared is not None and detector_error is None:
             try:
-                report = check_persons(self.prepared, self.camera_id, persons.boxes_px,
-                                       tool_pose, tool_speed_mps)
+                report = check_persons(
+                    self.prepared, self.camera_id, persons.boxes_px, tool_pose, tool_speed_mps,
+                    self.detector.foot_uncertainty_px(frame.width, frame.height))
             except Exception as exc:  # the zone answer is unknown: fail towards STOP
                 faults.append(Fault("zone_check_error", _one_line(exc), True, "zones"))
         elif detector_error is None:

@@ -986,7 +986,8 @@ def tool_object(prep: PreparedCell, pose: geo.ToolPose) -> fcl.CollisionObject |
 
 def check_persons(cell: Cell | PreparedCell, camera_id: str, boxes_px: np.ndarray,
                   tool_pose: geo.ToolPose | None = None,
-                  tool_speed_mps: float | None = None) -> ZoneReport:
+                  tool_speed_mps: float | None = None,
+                  foot_uncertainty_px: float = 0.0) -> ZoneReport:
     """Which persons of one frame are in which zones, and how far the nearest is from the tool.
 
     ``boxes_px`` is (N, 4) x1, y1, x2, y2 in pixels of ``camera_id`` at full resolution.
@@ -1001,10 +1002,40 @@ def check_persons(cell: Cell | PreparedCell, camera_id: str, boxes_px: np.ndarra
     Z_d) to the tool placed at ``tool_pose`` (None without pose, tool, calibration or persons).
     ``required_separation_m`` is S_p (ISO/TS 15066, including Z_d) for ``tool_speed_mps``, or for
     ``separation.robot_speed_default_mps`` when the speed is unknown; None without a tool pose.
+    ``foot_uncertainty_px``: how far above the box's bottom edge the feet may really be (a
+    detector whose boxes err large, e.g. by one grid cell). The persons are then checked twice,
+    as detected and with the bottom edge raised by this much, and the answers are merged towards
+    danger: every hit of either, the smaller distance, masked only if masked in both. Without
+    it a box that reaches too low would place the person nearer the camera than they are, and
+    a STOP for someone entering from the camera's side would come late.
     Answers only: no timers, no state.
     """
     prep = cell if isinstance(cell, PreparedCell) else cell.prepared
-    return _check(prep, camera_id, boxes_px, tool_pose, tool_speed_mps)
+    report = _check(prep, camera_id, boxes_px, tool_pose, tool_speed_mps)
+    if foot_uncertainty_px <= 0 or len(boxes_px) == 0:
+        return report
+    raised = np.array(boxes_px, np.float64).reshape(-1, 4)
+    raised[:, 3] = np.maximum(raised[:, 3] - foot_uncertainty_px, raised[:, 1] + 1.0)
+    return merge_towards_danger(report, _check(prep, camera_id, raised, tool_pose,
+                                               tool_speed_mps))
+
+
+def merge_towards_danger(a: ZoneReport, b: ZoneReport) -> ZoneReport:
+    """Two answers for the same persons (different assumptions) as one, the worse of both."""
+    hits: dict[tuple[str, int], ZoneHit] = {}
+    for hit in (*a.hits, *b.hits):
+        key = (hit.zone_id, hit.person)
+        old = hits.get(key)
+        if old is None or (hit.distance_m is not None and old.distance_m is not None
+                           and hit.distance_m < old.distance_m):
+            hits[key] = hit
+    seps = [s for s in (a.tool_separation_m, b.tool_separation_m) if s is not None]
+    reqs = [s for s in (a.required_separation_m, b.required_separation_m) if s is not None]
+    return ZoneReport(hits=tuple(hits.values()),
+                      masked=tuple(sorted(set(a.masked) & set(b.masked))),
+                      tool_separation_m=min(seps) if seps else None,
+                      required_separation_m=max(reqs) if reqs else None,
+                      config_hash=a.config_hash)
 
 
 # read-only request settings shared by every query (FCL copies them per call)

@@ -12,7 +12,7 @@ from monitor.pipeline import Pipeline
 from monitor.policy import PolicyConfig
 from monitor.scene import DemoScene, Figure, draw_figure
 from monitor.types import FrameInfo
-from monitor.zones import load_cell
+from monitor.zones import check_persons, load_cell
 
 POLICY = PolicyConfig(clear_time=0.5, restart_interlock="auto")
 
@@ -83,3 +83,27 @@ def test_a_person_in_the_protective_zone_stops_at_once(pipeline):
     assert result.command.state == "STOP"
     assert "protective_zone" in codes(result)
     assert result.changed
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("path", [
+    pytest.param(((0.0, 0.0, -4.2), (6.0, 0.0, -0.4), (7.0, 0.0, -0.4)), id="from-the-camera"),
+    pytest.param(((0.0, -4.5, -0.3), (6.0, -0.2, -0.3), (7.0, -0.2, -0.3)), id="from-the-side"),
+])
+def test_stop_never_later_than_the_ground_truth(detector, path):
+    """Boxes that reach too low (one grid cell) must not delay a STOP, from any direction."""
+    cell = load_cell(demo_cell_path())
+    scene = DemoScene(fps=10.0, duration_s=7.0, path=path)
+    pipe = Pipeline(detector, "cam0", PolicyConfig(clear_time=0.5), cell)
+    truth_stop = seen_stop = None
+    for img, truth in scene.frames():
+        boxes = np.array([p.box_px for p in truth.persons], float).reshape(-1, 4)
+        report = check_persons(cell, "cam0", boxes)
+        if truth_stop is None and any(h.kind == "protective" for h in report.hits):
+            truth_stop = truth.index
+        result = pipe.process(img, FrameInfo("cam0", truth.index, truth.time_s, 1280, 720),
+                              truth.time_s)
+        if seen_stop is None and "protective_zone" in codes(result):
+            seen_stop = truth.index
+    assert truth_stop is not None and seen_stop is not None
+    assert seen_stop <= truth_stop

@@ -629,3 +629,31 @@ def test_mesh_zone_is_drawn_and_watched(tmp_path):
     frame = np.zeros((720, 1280, 3), np.uint8)
     out = zn.draw_zones(frame, cell, "cam0")
     assert np.any(out[int(px[0, 1]) - 40:int(px[0, 1]) + 40, int(px[0, 0]) - 60:int(px[0, 0]) + 60])
+
+
+def test_merge_towards_danger_keeps_every_hit_and_the_worse_values():
+    from monitor.types import ZoneHit, ZoneReport
+    from monitor.zones import merge_towards_danger
+
+    a = ZoneReport(hits=(ZoneHit("W", "warning", 0, 0.3, 0.4),), masked=(1, 2),
+                   tool_separation_m=1.2, required_separation_m=0.8, config_hash="h")
+    b = ZoneReport(hits=(ZoneHit("W", "warning", 0, 0.3, 0.0), ZoneHit("P", "protective", 0, 0.0)),
+                   masked=(2,), tool_separation_m=0.9, required_separation_m=0.8, config_hash="h")
+    m = merge_towards_danger(a, b)
+    assert {(h.zone_id, h.distance_m) for h in m.hits} == {("W", 0.0), ("P", None)}
+    assert m.masked == (2,)
+    assert m.tool_separation_m == 0.9 and m.required_separation_m == 0.8
+
+
+def test_foot_uncertainty_finds_a_person_whose_box_reaches_too_low():
+    from monitor.scene import DEMO_CAMERA
+
+    cell = zn.load_cell(DEMO)
+    # a person just in front of the protective floor square, seen from the camera
+    feet = np.array([[0.0, -1.45, 0.0]])
+    u, v = DEMO_CAMERA.project(feet)[0]
+    box = np.array([[u - 40, v - 250, u + 40, v]])
+    plain = zn.check_persons(cell, "cam0", box)
+    assert not any(h.kind == "protective" for h in plain.hits)
+    wary = zn.check_persons(cell, "cam0", box, foot_uncertainty_px=60.0)
+    assert any(h.kind == "protective" for h in wary.hits)
