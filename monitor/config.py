@@ -154,7 +154,27 @@ def load_config(path: str | Path | None) -> MonitorConfig:
         raise ConfigError(f"{path}: not valid TOML: {exc}") from None
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read: {exc.strerror}") from None
-    return parse_config(data, str(path))
+    return resolve_paths(parse_config(data, str(path)), path.parent)
+
+
+def resolve_paths(config: MonitorConfig, base: Path) -> MonitorConfig:
+    """Relative file paths in a config file are relative to that file, not to the working
+    directory (a service started by systemd has another one than the person who tested it)."""
+    from monitor.frames import source_kind
+
+    def fix(value: str | None) -> str | None:
+        return str(base / value) if value and not Path(value).is_absolute() else value
+
+    camera = config.camera
+    if source_kind(camera.source) in ("file", "image"):
+        camera = dataclasses.replace(camera, source=fix(camera.source))
+    camera = dataclasses.replace(camera, reference=fix(camera.reference))
+    bus = dataclasses.replace(config.bus, zenoh_config_file=fix(config.bus.zenoh_config_file),
+                              tls_root_ca=fix(config.bus.tls_root_ca),
+                              tls_cert=fix(config.bus.tls_cert), tls_key=fix(config.bus.tls_key))
+    return dataclasses.replace(
+        config, camera=camera, bus=bus, model=ModelConfig(fix(config.model.path)),
+        zones=ZonesConfig(fix(config.zones.file)))
 
 
 def demo_cell_path() -> Path:

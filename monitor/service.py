@@ -13,6 +13,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
+import math
 import signal
 import statistics
 import sys
@@ -190,11 +191,12 @@ def _loop(config: MonitorConfig, pipeline: Pipeline, bus: SafetyBus, grabber, po
         now = time.monotonic()
         resets = bus.poll_resets()
         reset = resets[-1] if resets else None
-        pose_time = tool_pose = None
+        pose_time = tool_pose = tool_speed = None
         if pose is not None:
             reading = pose.latest()
             if reading is not None:
                 pose_time, tool_pose = reading.received, reading.tool_pose()
+                tool_speed = math.hypot(*reading.sample.velocity_m_s)  # for S_p (ISO/TS 15066)
             for rejection in pose.drain_rejections():
                 from monitor.alerts import pose_alert
 
@@ -212,7 +214,8 @@ def _loop(config: MonitorConfig, pipeline: Pipeline, bus: SafetyBus, grabber, po
         extra = (Fault(LOST, lost, True, grabber.camera_id),) if lost else ()
         if frame is not None:
             result = pipeline.process(frame.image, frame.info, now, tool_pose=tool_pose,
-                                      pose_time=pose_time, reset=reset, extra_faults=extra)
+                                      tool_speed_mps=tool_speed, pose_time=pose_time,
+                                      reset=reset, extra_faults=extra)
             frame_times.append(now)
             inference.append(result.stage_ms.get("inference", 0.0))
         else:
@@ -241,8 +244,9 @@ def _loop(config: MonitorConfig, pipeline: Pipeline, bus: SafetyBus, grabber, po
 def _alert(bus: SafetyBus, metrics: Metrics, alert: Alert) -> None:
     metrics.alerts.labels(alert.kind).inc()
     if bus.publish_alert(alert):
-        event(f"alert {alert.kind}", logging.WARNING, severity=alert.severity,
-              message=alert.message)
+        level = {"info": logging.INFO, "critical": logging.ERROR}.get(alert.severity,
+                                                                     logging.WARNING)
+        event(f"alert {alert.kind}", level, severity=alert.severity, message=alert.message)
 
 
 def _status(bus: SafetyBus, metrics: Metrics, grabber, result: StepResult, frame_times,

@@ -181,3 +181,17 @@ def test_parse_config_names_where_the_data_came_from():
     with pytest.raises(ConfigError) as err:
         parse_config({"policy": {"clear_tme": 1}}, "inline")
     assert_one_line(err.value, "inline: [policy] unknown key 'clear_tme'", "clear_time")
+
+
+@pytest.mark.parametrize(("source", "expected"), [
+    ("video.mp4", "{dir}/video.mp4"), ("0", "0"), ("rtsp://10.0.0.2/s", "rtsp://10.0.0.2/s"),
+    ("synthetic:demo", "synthetic:demo"), ("/abs/cam.png", "/abs/cam.png")])
+def test_relative_paths_are_relative_to_the_config_file(tmp_path, source, expected):
+    (tmp_path / "monitor.toml").write_text(
+        f'[camera]\nsource = "{source}"\nreference = "ref.png"\n[zones]\nfile = "cell.yaml"\n'
+        '[bus]\nzenoh_config_file = "zenoh/peer.json5"\n')
+    config = load_config(tmp_path / "monitor.toml")
+    assert config.camera.source == expected.format(dir=tmp_path)
+    assert config.zones.file == str(tmp_path / "cell.yaml")
+    assert config.camera.reference == str(tmp_path / "ref.png")
+    assert config.bus.zenoh_config_file == str(tmp_path / "zenoh" / "peer.json5")
