@@ -96,6 +96,9 @@ class DetectorConfig:
     # How far a box's bottom edge may lie below the real feet, in cells of the finest output
     # grid: the zone checks also test the feet this much higher (see zones.check_persons).
     foot_uncertainty_cells: float = 1.0
+    # onnxruntime's workers spin after each run by default; on a 2-core box that steals the CPU
+    # the rest of the pipeline (video decode, health) needs right after inference.
+    spin_wait: bool = False
 
     def __post_init__(self) -> None:
         from monitor.errors import ConfigError
@@ -405,7 +408,7 @@ def _json(raw: str | None):
         return None
 
 
-def open_session(model_path: str | Path, threads: int):
+def open_session(model_path: str | Path, threads: int, spin_wait: bool = False):
     """An onnxruntime CPU session with full graph optimisation; ModelError on a bad file."""
     import onnxruntime as ort
 
@@ -417,6 +420,7 @@ def open_session(model_path: str | Path, threads: int):
     opts.intra_op_num_threads = max(1, threads)
     opts.inter_op_num_threads = 1
     opts.log_severity_level = 3
+    opts.add_session_config_entry("session.intra_op.allow_spinning", "1" if spin_wait else "0")
     try:
         return ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
     except Exception as exc:  # onnxruntime raises its own exception types for corrupt files
@@ -430,7 +434,7 @@ class Detector:
     def __init__(self, model_path: str | Path, config: DetectorConfig | None = None) -> None:
         self.config = config or DetectorConfig()
         self.model_path = Path(model_path)
-        self.session = open_session(model_path, self.config.threads)
+        self.session = open_session(model_path, self.config.threads, self.config.spin_wait)
         self.layout = inspect_model(self.session, self.config)
         self.output_names = [o.name for o in self.session.get_outputs()]
         self._letterbox = Letterboxer(self.layout)
