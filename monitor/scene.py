@@ -245,9 +245,9 @@ def _truth(visible: list[tuple[np.ndarray, Figure]], shape: tuple[int, int],
         box = _box_of(mask)
         if box is None:
             continue
-        full = _figure_mask((shape[0] + 0, shape[1] + 0), fig)
+        full = _figure_mask(shape, fig)
         full_box = _box_of(full) or box
-        total = max(1, int(_figure_mask(shape, fig).sum()))
+        total = max(1, int(full.sum()))
         out.append(PersonTruth(box, full_box, float(mask.sum()) / total,
                                floor[k] if floor else None))
     return tuple(out)
