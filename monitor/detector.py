@@ -195,12 +195,11 @@ def decode_darknet(heads: list[np.ndarray], layout: ModelLayout,
         gy, gx = head.shape[1:]
         mask = layout.masks[rank]
         head = head.reshape(len(mask), per, gy, gx)
-        obj = head[:, 4]
-        cls = head[:, 5 + layout.person_class]
-        score = _sigmoid(obj) * _sigmoid(cls)
-        a, y, x = np.nonzero(score > 1e-3)  # cheap pre-filter; the threshold comes later
+        # cheap pre-filter on the raw logits (sigmoid > 1e-3); the score threshold comes later
+        a, y, x = np.nonzero((head[:, 4] > -6.9) & (head[:, 5 + layout.person_class] > -6.9))
         if len(a) == 0:
             continue
+        score = _sigmoid(head[a, 4, y, x]) * _sigmoid(head[a, 5 + layout.person_class, y, x])
         sx, sy = layout.input_width / gx, layout.input_height / gy
         t = head[a, :4, y, x]
         anchors = np.asarray(layout.anchors, np.float32)[np.asarray(mask)[a]]
@@ -209,7 +208,7 @@ def decode_darknet(heads: list[np.ndarray], layout: ModelLayout,
         bw = anchors[:, 0] * np.exp(t[:, 2])
         bh = anchors[:, 1] * np.exp(t[:, 3])
         out_boxes.append(np.stack([cx - bw / 2, cy - bh / 2, cx + bw / 2, cy + bh / 2], 1))
-        out_scores.append(score[a, y, x])
+        out_scores.append(score)
     return _concat(out_boxes, out_scores)
 
 
