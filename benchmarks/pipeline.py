@@ -206,7 +206,7 @@ def latency(video: Path, detector: Detector, cell: Cell, seconds: float) -> dict
         source.open()
         grabber = LatestFrameGrabber(source, stop=stop, expected_size=SIZE).start()
         try:
-            service._loop(config, pipeline, bus, grabber, None,
+            service._loop(config, pipeline, bus, [grabber], None,
                           service.Metrics(0, "127.0.0.1"), stop, seconds + 0.5)
         finally:
             stop.set()

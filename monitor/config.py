@@ -66,7 +66,8 @@ class ServiceConfig:
 
 @dataclass(frozen=True)
 class MonitorConfig:
-    camera: CameraConfig = field(default_factory=CameraConfig)
+    # ``[camera]`` for one camera, ``[[camera]]`` (an array of tables) for several
+    cameras: tuple[CameraConfig, ...] = (CameraConfig(),)
     model: ModelConfig = field(default_factory=ModelConfig)
     zones: ZonesConfig = field(default_factory=ZonesConfig)
     detector: DetectorConfig = field(default_factory=DetectorConfig)
@@ -76,6 +77,11 @@ class MonitorConfig:
     alerts: AlertLimits = field(default_factory=AlertLimits)
     service: ServiceConfig = field(default_factory=ServiceConfig)
     source_file: str | None = None
+
+    @property
+    def camera(self) -> CameraConfig:
+        """The first (or only) camera."""
+        return self.cameras[0]
 
 
 _TYPES = {"camera": CameraConfig, "model": ModelConfig, "zones": ZonesConfig,
@@ -134,9 +140,20 @@ def parse_config(data: dict, where: str = "config") -> MonitorConfig:
     if unknown:
         raise ConfigError(f"{where}: unknown section [{unknown[0]}] "
                           f"(known: {', '.join(sorted(_TYPES))})")
-    sections = {name: build_section(name, data[name], where) for name in data}
+    sections = {name: build_section(name, data[name], where) for name in data
+                if name != "camera"}
     if "bus" not in sections:
         sections["bus"] = BusConfig(listen=DEMO_LISTEN)
+    if "camera" in data:
+        tables = data["camera"] if isinstance(data["camera"], list) else [data["camera"]]
+        if not tables:
+            raise ConfigError(f"{where}: [[camera]] is empty; name at least one camera")
+        cameras = tuple(build_section("camera", t, where) for t in tables)
+        ids = [c.id for c in cameras]
+        dup = next((i for i in ids if ids.count(i) > 1), None)
+        if dup is not None:
+            raise ConfigError(f"{where}: camera id {dup!r} is given twice")
+        sections["cameras"] = cameras
     return MonitorConfig(**sections, source_file=where)
 
 
@@ -165,16 +182,17 @@ def resolve_paths(config: MonitorConfig, base: Path) -> MonitorConfig:
     def fix(value: str | None) -> str | None:
         return str(base / value) if value and not Path(value).is_absolute() else value
 
-    camera = config.camera
-    if source_kind(camera.source) in ("file", "image"):
-        camera = dataclasses.replace(camera, source=fix(camera.source))
-    camera = dataclasses.replace(camera, reference=fix(camera.reference))
+    def fix_camera(camera: CameraConfig) -> CameraConfig:
+        if source_kind(camera.source) in ("file", "image"):
+            camera = dataclasses.replace(camera, source=fix(camera.source))
+        return dataclasses.replace(camera, reference=fix(camera.reference))
+
     bus = dataclasses.replace(config.bus, zenoh_config_file=fix(config.bus.zenoh_config_file),
                               tls_root_ca=fix(config.bus.tls_root_ca),
                               tls_cert=fix(config.bus.tls_cert), tls_key=fix(config.bus.tls_key))
     return dataclasses.replace(
-        config, camera=camera, bus=bus, model=ModelConfig(fix(config.model.path)),
-        zones=ZonesConfig(fix(config.zones.file)))
+        config, cameras=tuple(fix_camera(c) for c in config.cameras), bus=bus,
+        model=ModelConfig(fix(config.model.path)), zones=ZonesConfig(fix(config.zones.file)))
 
 
 def demo_cell_path() -> Path:

@@ -8,7 +8,9 @@ tool pose and reset requests, and publishes what comes out.
 
 from __future__ import annotations
 
+import functools
 import time
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -26,7 +28,7 @@ from monitor.policy import (
     step,
 )
 from monitor.types import Alert, Fault, FrameInfo, Persons, ZoneReport
-from monitor.zones import Cell, check_persons
+from monitor.zones import Cell, check_persons, merge_towards_danger
 
 
 def _one_line(exc: BaseException) -> str:
@@ -50,32 +52,66 @@ class StepResult:
     stage_ms: dict[str, float] = field(default_factory=dict)  # stage -> wall ms (not replayed)
 
 
+@dataclass
+class _Camera:
+    """What the pipeline remembers of one camera between steps."""
+
+    health: CameraHealth | None = None
+    frame_time: float | None = None  # capture time of its newest processed frame
+    report: ZoneReport | None = None  # zone answer of that frame (None: unknown)
+    faults: tuple[Fault, ...] = ()  # faults of that frame (health, detector, zones)
+    detector_error: str | None = None
+
+
 class Pipeline:
-    """Frame in, command out. Holds the policy state and the per-camera health checker.
+    """Frames in, command out. Holds the policy state and, per camera, its health checker and
+    its newest zone answer.
+
+    With several cameras, every decision uses the newest answer of *each* camera, merged
+    towards danger (a person one camera sees in a zone keeps the STOP while another camera's
+    frames come in), and the *oldest* of their frames is the one whose age the policy checks:
+    a camera that stops delivering makes the whole cell STOP, and a camera that has not yet
+    delivered a frame keeps it in STOP.
 
     ``cell`` may be None (no zones: persons never cause SLOW/STOP; say so to the user).
     """
 
-    def __init__(self, detector: Detector, camera_id: str, policy: PolicyConfig,
-                 cell: Cell | None = None, health: CameraHealth | None = None,
+    def __init__(self, detector: Detector, camera_id: str | Sequence[str], policy: PolicyConfig,
+                 cell: Cell | None = None,
+                 health: CameraHealth | Mapping[str, CameraHealth] | None = None,
                  zone_error: str | None = None) -> None:
+        ids = (camera_id,) if isinstance(camera_id, str) else tuple(camera_id)
+        if not ids:
+            raise ValueError("a pipeline needs at least one camera")
         self.detector = detector
-        self.camera_id = camera_id
+        self.camera_ids = ids
+        self.camera_id = ids[0]
         self.policy = policy
         self.cell = cell
         self.prepared = cell.prepared if cell is not None else None
-        self.health = health
+        if isinstance(health, CameraHealth):
+            health = {ids[0]: health}
+        self.cameras = {cid: _Camera((health or {}).get(cid)) for cid in ids}
         self.zone_error = zone_error
         self.state: PolicyState = initial_state()
         self.last_command: Command | None = None
+
+    @property
+    def health(self) -> CameraHealth | None:
+        """The first camera's health checker (single-camera use)."""
+        return self.cameras[self.camera_id].health
 
     def process(self, image: np.ndarray, frame: FrameInfo, now: float,
                 tool_pose=None, tool_speed_mps: float | None = None,
                 pose_time: float | None = None, reset: ResetRequest | None = None,
                 extra_faults: tuple[Fault, ...] = ()) -> StepResult:
         """Run every stage on one frame captured at ``frame.capture_time``; decide at ``now``."""
+        cam = self.cameras.get(frame.camera_id)
+        if cam is None:
+            raise ValueError(f"frame of unknown camera {frame.camera_id!r} "
+                             f"(known: {', '.join(self.camera_ids)})")
         stage: dict[str, float] = {}
-        faults: list[Fault] = list(extra_faults)
+        faults: list[Fault] = []
         detector_error = None
         persons = Persons.empty(frame)
         t0 = time.perf_counter()
@@ -95,7 +131,7 @@ class Pipeline:
         if self.prepared is not None and detector_error is None:
             try:
                 report = check_persons(
-                    self.prepared, self.camera_id, persons.boxes_px, tool_pose, tool_speed_mps,
+                    self.prepared, frame.camera_id, persons.boxes_px, tool_pose, tool_speed_mps,
                     self.detector.foot_uncertainty_px(frame.width, frame.height))
             except Exception as exc:  # the zone answer is unknown: fail towards STOP
                 faults.append(Fault("zone_check_error", _one_line(exc), True, "zones"))
@@ -103,36 +139,58 @@ class Pipeline:
             report = ZoneReport()
         t2 = time.perf_counter()
         health = None
-        if self.health is not None:
+        if cam.health is not None:
             try:
-                health = self.health.check(image, now, persons.boxes_px)
+                health = cam.health.check(image, now, persons.boxes_px)
                 faults.extend(health.faults)
             except Exception as exc:  # health unknown: fail towards STOP
-                faults.append(Fault("health_check_error", _one_line(exc), True, self.camera_id))
+                faults.append(Fault("health_check_error", _one_line(exc), True,
+                                    frame.camera_id))
         t3 = time.perf_counter()
-        inputs = PolicyInputs(frame_time=frame.capture_time, zone_report=report,
-                              faults=tuple(faults), detector_error=detector_error,
-                              pose_time=pose_time, zone_error=self.zone_error,
-                              reset_request=reset)
+        cam.frame_time, cam.report, cam.faults = frame.capture_time, report, tuple(faults)
+        cam.detector_error = detector_error
+        inputs = self._inputs(now, extra_faults, pose_time, reset, with_frame=True)
         command = self._decide(inputs, now)
         t4 = time.perf_counter()
         stage.update(detect=(t1 - t0) * 1e3, zones=(t2 - t1) * 1e3, health=(t3 - t2) * 1e3,
                      policy=(t4 - t3) * 1e3)
         return StepResult(now, command, self._changed(command), frame, persons, report, health,
-                          tuple(faults), health.alerts if health else (), stage)
+                          inputs.faults, health.alerts if health else (), stage)
 
     def tick(self, now: float, pose_time: float | None = None,
              reset: ResetRequest | None = None, extra_faults: tuple[Fault, ...] = ()) -> StepResult:
         """Evaluate timers with no new frame (frame timeout, clear time, resets, camera lost)."""
-        faults = list(extra_faults)
-        if self.health is not None:
-            lost = self.health.check_lost(now)
-            if lost is not None:
-                faults.append(lost)
-        inputs = PolicyInputs(frame_time=None, faults=tuple(faults), pose_time=pose_time,
-                              zone_error=self.zone_error, reset_request=reset)
+        inputs = self._inputs(now, extra_faults, pose_time, reset, with_frame=False)
         command = self._decide(inputs, now)
-        return StepResult(now, command, self._changed(command), faults=tuple(faults))
+        return StepResult(now, command, self._changed(command), faults=inputs.faults)
+
+    def _inputs(self, now: float, extra: tuple[Fault, ...], pose_time: float | None,
+                reset: ResetRequest | None, with_frame: bool) -> PolicyInputs:
+        """The policy's evidence: every camera's newest answer, merged towards danger."""
+        faults = list(extra)
+        reports, times, detector_error = [], [], None
+        for cid, cam in self.cameras.items():
+            faults.extend(cam.faults)
+            detector_error = detector_error or cam.detector_error
+            if cam.health is not None:
+                lost = cam.health.check_lost(now, cam.frame_time)
+                if lost is not None and cam.frame_time is not None:
+                    faults.append(lost)
+            if cam.frame_time is None:
+                if len(self.cameras) > 1:
+                    faults.append(Fault("camera_waiting", f"{cid}: no frame processed yet",
+                                        True, cid))
+                continue
+            times.append(cam.frame_time)
+            if cam.report is not None:
+                reports.append(cam.report)
+        report = functools.reduce(merge_towards_danger, reports) if reports else None
+        # the oldest camera's frame: a camera that falls behind or stops makes the cell STOP
+        frame_time = min(times) if with_frame and times else None
+        return PolicyInputs(frame_time=frame_time, zone_report=report if with_frame else None,
+                            faults=tuple(faults), detector_error=detector_error,
+                            pose_time=pose_time, zone_error=self.zone_error,
+                            reset_request=reset)
 
     def _decide(self, inputs: PolicyInputs, now: float) -> Command:
         self.state, command = step(self.state, inputs, now, self.policy)

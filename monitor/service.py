@@ -11,6 +11,7 @@ runs its timers, so a lost camera gives STOP within ``policy.frame_timeout``.
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import json
 import logging
 import math
@@ -105,21 +106,24 @@ def build_pipeline(config: MonitorConfig):
     from monitor.models import synthetic
     from monitor.zones import load_cell, watch_regions
 
-    cam = config.camera
     zones_file = config.zones.file
-    if zones_file is None and cam.source == DEMO_SOURCE:
+    if zones_file is None and all(c.source == DEMO_SOURCE for c in config.cameras):
         zones_file = str(demo_cell_path())
     cell = load_cell(zones_file) if zones_file else None
-    if cell is not None and cam.id not in cell.cameras:
-        raise ConfigError(f"camera {cam.id!r} is not in zone file {zones_file} "
-                          f"(has {', '.join(cell.cameras)})")
+    health, expected = {}, {}
+    for cam in config.cameras:
+        if cell is not None and cam.id not in cell.cameras:
+            raise ConfigError(f"camera {cam.id!r} is not in zone file {zones_file} "
+                              f"(has {', '.join(cell.cameras)})")
+        reference = load_reference(cam.reference) if cam.reference else None
+        watch = watch_regions(cell, cam.id) if cell is not None else []
+        health[cam.id] = CameraHealth(config.health, cam.id, reference, watch)
+        expected[cam.id] = (cell.cameras[cam.id].width, cell.cameras[cam.id].height) \
+            if cell else None
     model = Path(config.model.path) if config.model.path else synthetic.ensure_model()
-    detector = Detector(model, config.detector)
-    reference = load_reference(cam.reference) if cam.reference else None
-    watch = watch_regions(cell, cam.id) if cell is not None else []
-    health = CameraHealth(config.health, cam.id, reference, watch)
-    expected = (cell.cameras[cam.id].width, cell.cameras[cam.id].height) if cell else None
-    return Pipeline(detector, cam.id, config.policy, cell, health), cell, expected
+    detector = Detector(model, config.detector)  # one model, shared by the cameras in turn
+    pipeline = Pipeline(detector, [c.id for c in config.cameras], config.policy, cell, health)
+    return pipeline, cell, expected
 
 
 def run_service(config_path: str | Path | None, log_json: bool = False,
@@ -132,8 +136,9 @@ def run_service(config_path: str | Path | None, log_json: bool = False,
         setup_logging(True)
     stop = stop or threading.Event()
     pipeline, cell, expected = build_pipeline(config)
-    event("started", config=str(config_path or "embedded demo"), camera=config.camera.id,
-          source=config.camera.source, zones=cell.label if cell else "none",
+    event("started", config=str(config_path or "embedded demo"),
+          cameras=",".join(f"{c.id}={c.source}" for c in config.cameras),
+          zones=cell.label if cell else "none",
           config_hash=cell.config_hash if cell else "")
     if cell is None:
         event("no zone file: persons are detected but cannot cause SLOW or STOP",
@@ -151,16 +156,20 @@ def run_service(config_path: str | Path | None, log_json: bool = False,
             if pose is not None:
                 pose.__enter__()
             try:
-                source = open_source(config.camera.source, config.camera.id,
-                                     realtime=config.camera.realtime,
-                                     options=SourceOptions(loop=config.camera.loop), stop=stop)
-                grabber = LatestFrameGrabber(source, stop=stop, expected_size=expected).start()
+                grabbers = []
                 try:
-                    _loop(config, pipeline, bus, grabber, pose, metrics, stop, duration)
+                    for cam in config.cameras:
+                        source = open_source(cam.source, cam.id, realtime=cam.realtime,
+                                             options=SourceOptions(loop=cam.loop), stop=stop)
+                        grabbers.append(LatestFrameGrabber(
+                            source, stop=stop, expected_size=expected[cam.id]).start())
+                    _loop(config, pipeline, bus, grabbers, pose, metrics, stop, duration)
                 finally:
                     stop.set()
-                    if not grabber.stop(timeout=2.0):
-                        event("frame grabber did not stop in time", logging.WARNING)
+                    for grabber in reversed(grabbers):
+                        if not grabber.stop(timeout=2.0):
+                            event("frame grabber did not stop in time", logging.WARNING,
+                                  camera=grabber.camera_id)
             finally:
                 if pose is not None:
                     pose.__exit__(None, None, None)
@@ -174,20 +183,25 @@ def run_service(config_path: str | Path | None, log_json: bool = False,
     return 0
 
 
-def _loop(config: MonitorConfig, pipeline: Pipeline, bus: SafetyBus, grabber, pose, metrics,
-          stop: threading.Event, duration: float | None) -> None:
+def _loop(config: MonitorConfig, pipeline: Pipeline, bus: SafetyBus, grabbers: list, pose,
+          metrics, stop: threading.Event, duration: float | None) -> None:
+    """Cameras take turns (round robin); each wait is bounded, so timers run without frames."""
     started = time.monotonic()
     frame_times: deque[float] = deque(maxlen=30)
     inference: deque[float] = deque(maxlen=30)
     last_status = 0.0
-    was_connected = True
-    while not stop.is_set():
+    was_connected = {g.camera_id: True for g in grabbers}
+    wait = config.service.tick_s / len(grabbers)
+    for turn in itertools.count():
+        if stop.is_set():
+            break
         now = time.monotonic()
         if duration is not None and now - started >= duration:
             break
-        frame = grabber.get(timeout=config.service.tick_s)
+        grabber = grabbers[turn % len(grabbers)]
+        frame = grabber.get(timeout=wait)
         if frame is None and not grabber.alive:  # the source ended: get() no longer waits
-            stop.wait(config.service.tick_s)
+            stop.wait(wait)
         now = time.monotonic()
         resets = bus.poll_resets()
         reset = resets[-1] if resets else None
@@ -201,17 +215,19 @@ def _loop(config: MonitorConfig, pipeline: Pipeline, bus: SafetyBus, grabber, po
                 from monitor.alerts import pose_alert
 
                 _alert(bus, metrics, pose_alert(rejection, "pose", now))
-        connected = grabber.connected
-        if connected != was_connected:
-            status = grabber.status()
-            event("camera lost" if not connected else "camera reconnected",
-                  logging.WARNING if not connected else logging.INFO,
-                  camera=grabber.camera_id, error=status.last_error)
-            was_connected = connected
-        # A loss the grabber has seen (read/open error, wrong size, end of stream) is a STOP
+        # A loss a grabber has seen (read/open error, wrong size, end of stream) is a STOP
         # cause at once, with the camera's own error; frame_timeout is only the backstop.
-        lost = grabber.last_error if not connected else ""
-        extra = (Fault(LOST, lost, True, grabber.camera_id),) if lost else ()
+        extra = []
+        for g in grabbers:
+            connected = g.connected
+            if connected != was_connected[g.camera_id]:
+                event("camera lost" if not connected else "camera reconnected",
+                      logging.WARNING if not connected else logging.INFO,
+                      camera=g.camera_id, error=g.status().last_error)
+                was_connected[g.camera_id] = connected
+            if not connected and g.last_error:
+                extra.append(Fault(LOST, g.last_error, True, g.camera_id))
+        extra = tuple(extra)
         if frame is not None:
             result = pipeline.process(frame.image, frame.info, now, tool_pose=tool_pose,
                                       tool_speed_mps=tool_speed, pose_time=pose_time,
@@ -238,7 +254,7 @@ def _loop(config: MonitorConfig, pipeline: Pipeline, bus: SafetyBus, grabber, po
             _alert(bus, metrics, alert)
         if now - last_status >= 1.0:
             last_status = now
-            _status(bus, metrics, grabber, result, frame_times, inference)
+            _status(bus, metrics, grabbers, result, frame_times, inference)
 
 
 def _alert(bus: SafetyBus, metrics: Metrics, alert: Alert) -> None:
@@ -249,20 +265,20 @@ def _alert(bus: SafetyBus, metrics: Metrics, alert: Alert) -> None:
         event(f"alert {alert.kind}", level, severity=alert.severity, message=alert.message)
 
 
-def _status(bus: SafetyBus, metrics: Metrics, grabber, result: StepResult, frame_times,
+def _status(bus: SafetyBus, metrics: Metrics, grabbers: list, result: StepResult, frame_times,
             inference) -> None:
     fps = 0.0
     if len(frame_times) >= 2 and frame_times[-1] > frame_times[0]:
         fps = (len(frame_times) - 1) / (frame_times[-1] - frame_times[0])
     inf_ms = statistics.median(inference) if inference else 0.0
-    status = grabber.status()
-    bus.update_status(fps=round(fps, 2), inference_ms=round(inf_ms, 2),
-                      camera={"id": status.camera_id, "connected": status.connected,
-                              "dropped": status.dropped, "reconnects": status.reconnects,
-                              "last_error": status.last_error})
+    statuses = [g.status() for g in grabbers]
+    cameras = [{"id": s.camera_id, "connected": s.connected, "dropped": s.dropped,
+                "reconnects": s.reconnects, "last_error": s.last_error} for s in statuses]
+    bus.update_status(fps=round(fps, 2), inference_ms=round(inf_ms, 2), camera=cameras[0],
+                      cameras=cameras)
     metrics.fps.set(fps)
     metrics.inference_ms.set(inf_ms)
     metrics.state.set(STATE_LEVEL[result.command.state])
-    metrics.dropped.set(status.dropped)
+    metrics.dropped.set(sum(s.dropped for s in statuses))
     if result.persons is not None:
         metrics.persons.set(len(result.persons))

@@ -1,0 +1,127 @@
+"""Several cameras in one cell: answers merged towards danger, a silent camera is a STOP."""
+
+from __future__ import annotations
+
+import signal
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from monitor.config import demo_cell_path, parse_config
+from monitor.errors import ConfigError
+from monitor.pipeline import Pipeline
+from monitor.policy import PolicyConfig
+from monitor.scene import DemoScene, Figure, draw_figure
+from monitor.types import FrameInfo
+from monitor.zones import load_cell
+from tests.test_service import Service, codes, wait_for
+
+POLICY = PolicyConfig(clear_time=0.3, restart_interlock="auto", max_frame_age=0.3)
+
+
+def two_camera_cell(tmp: Path) -> Path:
+    """The demo cell with a second camera cam1 (same calibration: it sees the same scene)."""
+    data = yaml.safe_load(demo_cell_path().read_text())
+    cam1 = dict(data["cameras"][0], id="cam1")
+    data["cameras"].append(cam1)
+    path = tmp / "two-cameras.yaml"
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    return path
+
+
+def empty_frame(i: int) -> np.ndarray:
+    img = DemoScene().background()
+    img[::7, ::5] += np.uint8(i % 3)  # a live camera: consecutive frames differ
+    return img
+
+
+def person_in_protective_zone() -> np.ndarray:
+    img = DemoScene().background()
+    feet, head = DemoScene().camera.project(np.array([[0.0, -0.6, 0.0], [0.0, -0.6, 1.75]]))
+    draw_figure(img, Figure((float(feet[0]), float(feet[1])), float(feet[1] - head[1])))
+    return img
+
+
+@pytest.fixture()
+def pipeline(tmp_path, detector):
+    return Pipeline(detector, ["cam0", "cam1"], POLICY, load_cell(two_camera_cell(tmp_path)))
+
+
+def step(pipe: Pipeline, cam: str, i: int, t: float, image: np.ndarray):
+    return pipe.process(image, FrameInfo(cam, i, t, 1280, 720), t)
+
+
+def test_no_run_before_every_camera_has_delivered(pipeline):
+    for i in range(8):
+        result = step(pipeline, "cam0", i, i * 0.1, empty_frame(i))
+    assert result.command.state == "STOP"
+    assert any(f.name == "camera_waiting" and f.source == "cam1" for f in result.faults)
+
+
+def test_a_person_only_one_camera_sees_keeps_the_stop(pipeline):
+    t = 0.0
+    for i in range(8):  # both cameras see an empty cell: RUN
+        t += 0.05
+        result = step(pipeline, ("cam0", "cam1")[i % 2], i, t, empty_frame(i))
+    assert result.command.state == "RUN"
+    states = []
+    for i in range(8, 20):  # cam1 sees the person, cam0 does not (e.g. hidden from it)
+        t += 0.05
+        cam = ("cam0", "cam1")[i % 2]
+        image = person_in_protective_zone() if cam == "cam1" else empty_frame(i)
+        states.append(step(pipeline, cam, i, t, image).command.state)
+    first = states.index("STOP")
+    assert set(states[first:]) == {"STOP"}  # no flapping on cam0's empty frames
+    assert first <= 1
+
+
+def test_a_camera_that_falls_silent_stops_the_cell(pipeline):
+    t = 0.0
+    for i in range(10):
+        t += 0.05
+        result = step(pipeline, ("cam0", "cam1")[i % 2], i, t, empty_frame(i))
+    assert result.command.state == "RUN"
+    for i in range(10, 30):  # only cam0 delivers from now on
+        t += 0.05
+        result = step(pipeline, "cam0", i, t, empty_frame(i))
+        if result.command.state == "STOP":
+            break
+    assert result.command.state == "STOP"
+    assert "frame_stale" in codes_of(result) or "fault" in codes_of(result)
+    cam1_last = 0.05 * 10  # its last frame: i = 9
+    assert t - cam1_last <= POLICY.max_frame_age + 0.05 + 1e-9  # within one frame of the limit
+
+
+def codes_of(result) -> set[str]:
+    return {r.code for r in result.command.reasons}
+
+
+def test_config_names_several_cameras():
+    config = parse_config({"camera": [{"id": "cam0", "source": "0"},
+                                      {"id": "cam1", "source": "rtsp://127.0.0.1/s"}]})
+    assert [c.id for c in config.cameras] == ["cam0", "cam1"]
+    assert config.camera.id == "cam0"
+    with pytest.raises(ConfigError, match="given twice"):
+        parse_config({"camera": [{"id": "a"}, {"id": "a"}]}, "m.toml")
+    with pytest.raises(ConfigError, match="empty"):
+        parse_config({"camera": []}, "m.toml")
+
+
+@pytest.mark.slow
+def test_service_with_two_cameras(tmp_path, synthetic_model):
+    cell = two_camera_cell(tmp_path)
+    svc = Service(tmp_path, synthetic_model, "synthetic:demo")
+    text = svc.config.read_text().replace(
+        '[camera]\nsource = "synthetic:demo"\n',
+        '[[camera]]\nid = "cam0"\nsource = "synthetic:demo"\n'
+        '[[camera]]\nid = "cam1"\nsource = "synthetic:demo"\n')
+    svc.config.write_text(text + f'[zones]\nfile = "{cell}"\n')
+    with svc:
+        svc.next_command(0, lambda c: codes(c) - {"startup", "clearing"} or
+                         c["state"] != "STOP", 60, "a decision after start-up")
+        status = wait_for(lambda: (s := svc.status()).get("fps") and s, 10, "status", svc)
+        assert [c["id"] for c in status["cameras"]] == ["cam0", "cam1"]
+        assert all(c["connected"] for c in status["cameras"])
+        assert svc.stop(signal.SIGTERM) == 0
