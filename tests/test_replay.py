@@ -260,3 +260,50 @@ def test_truncated_video_is_processed_up_to_the_break_then_reported(tmp_path, sy
     assert summary["truncated"] == line.removeprefix("monitor: error: ")
     assert "truncated" in proc.stdout  # the summary table is printed first
     assert len((out / "events.jsonl").read_text().splitlines()) >= 1
+
+
+@pytest.mark.slow
+def test_replay_publish_sends_the_commands_over_zenoh(demo, synthetic_model, tmp_path):
+    """`--publish`: the replay's commands reach a subscriber in another process (this one)."""
+    import socket
+    import time
+
+    from monitor.bus import BusConfig, BusKeys, open_session
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    config = tmp_path / "monitor.toml"
+    config.write_text(f'[bus]\ncell = "rp"\nlisten = ["tcp/127.0.0.1:{port}"]\n'
+                      '[policy]\nrestart_interlock = "manual"\n')
+    received: list[dict] = []
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "monitor", "replay", str(demo.video), "--zones",
+         str(demo_cell_path()), "--model", str(synthetic_model), "--out", str(tmp_path / "o"),
+         "--publish", "--realtime", "--no-video", "--config", str(config)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline:  # wait until the replay listens
+            with socket.socket() as s:
+                if s.connect_ex(("127.0.0.1", port)) == 0:
+                    break
+            time.sleep(0.1)
+        session = open_session(BusConfig(cell="rp", instance="sub",
+                                         connect=(f"tcp/127.0.0.1:{port}",)))
+        try:
+            session.declare_subscriber(BusKeys.of("workcell/rp/").command,
+                                       lambda x: received.append(json.loads(
+                                           x.payload.to_bytes())))
+            _, err = proc.communicate(timeout=120)
+        finally:
+            session.close()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, err
+    states = [c["state"] for c in received]
+    assert "STOP" in states and len(received) >= 10
+    seqs = [c["seq"] for c in received]
+    assert seqs == sorted(seqs)
+    assert received[-1]["reasons"][0]["code"] == "shutdown"
