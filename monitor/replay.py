@@ -54,6 +54,7 @@ class ReplaySummary:
     first_stop: dict | None = None
     first_slow: dict | None = None
     command_changes: int = 0
+    resets: list[dict] = field(default_factory=list)  # time, accepted, message of each reset
     alerts: dict[str, int] = field(default_factory=dict)
     fps_achieved: float = 0.0
     stage_ms_median: dict[str, float] = field(default_factory=dict)
@@ -70,6 +71,7 @@ class ReplaySummary:
             ("first SLOW", _when(self.first_slow)),
             ("first STOP", _when(self.first_stop)),
             ("command changes", str(self.command_changes)),
+            ("resets", "; ".join(_reset_text(r) for r in self.resets) or "none"),
             ("alerts", ", ".join(f"{k} x{v}" for k, v in sorted(self.alerts.items())) or "none"),
             ("faults", ", ".join(f"{k} in {v} frames" for k, v in sorted(self.faults.items()))
              or "none"),
@@ -80,6 +82,11 @@ class ReplaySummary:
             rows.append(("truncated", self.truncated))
         width = max(len(k) for k, _ in rows)
         return "\n".join(f"{k:<{width}}  {v}" for k, v in rows)
+
+
+def _reset_text(reset: dict) -> str:
+    verdict = "accepted" if reset["accepted"] else reset["message"]
+    return f"{reset['time_s']:.2f} s {verdict}"
 
 
 def _when(event: dict | None) -> str:
@@ -201,6 +208,11 @@ def replay(video: str | Path, detector: Detector, cell: Cell | None, settings: R
                 n = len(result.persons) if result.persons is not None else 0
                 summary.frames_with_persons += int(n > 0)
                 summary.max_persons = max(summary.max_persons, n)
+                outcome = result.command.reset
+                if outcome is not None:
+                    summary.resets.append({"frame": index, "time_s": _r(t),
+                                           "accepted": outcome.accepted,
+                                           "message": outcome.message})
                 if result.changed:
                     summary.command_changes += 1
                     events.write(json.dumps(command_event(result, index)) + "\n")

@@ -307,3 +307,12 @@ def test_replay_publish_sends_the_commands_over_zenoh(demo, synthetic_model, tmp
     seqs = [c["seq"] for c in received]
     assert seqs == sorted(seqs)
     assert received[-1]["reasons"][0]["code"] == "shutdown"
+
+
+@pytest.mark.slow
+def test_summary_reports_each_reset(steps):
+    _, _, summary = steps
+    # RESET_AT: at 8 s the person is still inside (refused), at 18 s the cell is clear
+    assert [(r["time_s"], r["accepted"]) for r in summary.resets] == [(8.0, False), (18.0, True)]
+    assert "refused" in summary.resets[0]["message"] or "zone" in summary.resets[0]["message"]
+    assert "18.00 s accepted" in summary.table()
