@@ -20,6 +20,7 @@ which persons are in which zones and how far they are from the tool; it keeps no
 from __future__ import annotations
 
 import hashlib
+import io
 import itertools
 import json
 import math
@@ -339,6 +340,59 @@ def read_cell_data(path: str | os.PathLike) -> Any:
     return data
 
 
+def read_cell_document(path: str | os.PathLike) -> Any:
+    """The zone file as an editable round-trip document (ruamel.yaml): dict- and list-like, and
+    written back with its comments, key order and layout (``monitor zones`` edits use this)."""
+    from ruamel.yaml import YAML
+    from ruamel.yaml.error import YAMLError as RtError
+
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ConfigError(f"{p}: zone file not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{p}: cannot read zone file: {exc}") from None
+    try:
+        return YAML(typ="rt").load(text)  # refuses duplicate keys, like read_cell_data
+    except RtError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f":{mark.line + 1}:{mark.column + 1}" if mark is not None else ""
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise ConfigError(f"{p}{where}: YAML syntax error: {problem}") from None
+
+
+def _flow_leaves(node: Any) -> Any:
+    """New plain lists of numbers (points, matrices rows) in flow style: [x, y]."""
+    from ruamel.yaml.comments import CommentedSeq
+
+    if isinstance(node, dict):
+        for key in list(node):
+            node[key] = _flow_leaves(node[key])
+        return node
+    if isinstance(node, list):
+        items = [_flow_leaves(v) for v in node]
+        if isinstance(node, CommentedSeq):
+            node[:] = items
+            return node
+        seq = CommentedSeq(items)
+        if all(not isinstance(v, list | dict) for v in items):
+            seq.fa.set_flow_style()
+        return seq
+    return node
+
+
+def dump_cell_document(document: Any) -> str:
+    from ruamel.yaml import YAML
+
+    out = io.StringIO()
+    yaml_rt = YAML(typ="rt")
+    yaml_rt.width = 100
+    yaml_rt.indent(mapping=2, sequence=4, offset=2)  # "key:\n  - item", as zones/ files are
+    yaml_rt.dump(_flow_leaves(document), out)
+    return out.getvalue()
+
+
 def parse_cell(data: Any, path: str | os.PathLike | None = None) -> Cell:
     """Validate a zone file already parsed from YAML (a dict). Mesh paths are relative to the
     directory of ``path`` (the working directory without one)."""
@@ -402,17 +456,18 @@ _Dumper.add_representer(list, _represent_list)
 
 def dump_cell_yaml(cell_or_spec: Cell | CellSpec) -> str:
     header = ("# workcell-monitor zone file (format: zones/README.md). Written by "
-              "'monitor zones'; comments are not kept.\n")
+              "'monitor zones new'.\n")
     body = yaml.dump(cell_to_data(cell_or_spec), Dumper=_Dumper, sort_keys=False,
                      allow_unicode=True, width=100)
     return header + body
 
 
-def save_cell(cell: Cell, path: str | os.PathLike) -> None:
+def save_cell(cell: Cell, path: str | os.PathLike, document: Any = None) -> None:
     """Write the cell atomically: a temp file in the same directory is renamed over ``path``;
-    an existing file is first copied to ``path.bak``."""
+    an existing file is first copied to ``path.bak``. With ``document`` (from
+    :func:`read_cell_document`, already validated as ``cell``) the file keeps its comments."""
     target = Path(path)
-    text = dump_cell_yaml(cell)
+    text = dump_cell_document(document) if document is not None else dump_cell_yaml(cell)
     target.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
     try:
@@ -439,8 +494,10 @@ def save_cell(cell: Cell, path: str | os.PathLike) -> None:
 def write_cell_data(data: Any, path: str | os.PathLike) -> Cell:
     """Validate zone-file data and, only when valid, save it atomically to ``path`` (the
     previous file is kept as ``path.bak``). On a fault nothing is written."""
+    from ruamel.yaml.comments import CommentedMap
+
     cell = parse_cell(data, path)
-    save_cell(cell, path)
+    save_cell(cell, path, data if isinstance(data, CommentedMap) else None)
     return cell
 
 

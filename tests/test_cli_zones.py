@@ -203,3 +203,26 @@ def test_demo_file_validates_and_previews(tmp_path, monkeypatch, capsys):
     drawn = cv2.imread("p.png")
     assert np.any(drawn[1100 // 5, 1100] != 90)  # the shelf watch zone (x 1000..1200, y 220)
     assert np.any(drawn[600, 640] != 90)  # the warning area on the floor
+
+
+def test_edits_keep_the_files_comments_and_layout(tmp_path):
+    import difflib
+
+    f = tmp_path / "cell.yaml"
+    f.write_text(DEMO.read_text())
+    assert main("add", str(f), "door", "900,400 1000,400 1000,600 900,600", "--kind", "warning",
+                "--speed-scale", "0.5") == 0
+    diff = list(difflib.unified_diff(DEMO.read_text().splitlines(), f.read_text().splitlines(),
+                                     lineterm="", n=0))
+    removed = [ln for ln in diff[2:] if ln.startswith("-") and ln.strip("- ")]
+    assert removed == [], removed  # adding a zone only adds lines (blank lines may go)
+    assert (tmp_path / "cell.yaml.bak").read_text() == DEMO.read_text()
+    assert main("disable", str(f), "shelf-watch") == 0
+    text = f.read_text()
+    for comment in ("# person model: vertical cylinder standing on the floor",
+                    "# the seeds' calibrated offset of the tracker on the flange",
+                    "# look-at from eye (0, -6.0, 3.2) to target (0, 0, 0.8), up +z"):
+        assert comment in text
+    assert "- [900.0, 400.0]" in text  # points in flow style, one per line
+    cell = zn.load_cell(f)
+    assert cell.zone("door").kind == "warning" and not cell.zone("shelf-watch").enabled

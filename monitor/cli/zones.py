@@ -158,7 +158,7 @@ def _points(text: str, what: str, dims: int = 2) -> list[list[float]]:
 
 
 def _read(path: Path) -> dict:
-    data = zn.read_cell_data(path)
+    data = zn.read_cell_document(path)  # edits keep the file's comments and layout
     zn.parse_cell(data, path)  # refuse to edit a file that is already invalid
     return data
 
