@@ -13,6 +13,7 @@ import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
+import cv2
 import numpy as np
 
 from monitor.detector import Detector
@@ -29,6 +30,21 @@ from monitor.policy import (
 )
 from monitor.types import Alert, Fault, FrameInfo, Persons, ZoneReport
 from monitor.zones import Cell, check_persons, merge_towards_danger
+
+# Faults that are expected at start-up or say nothing a person must act on.
+QUIET_FAULTS = frozenset({"camera_waiting"})
+
+
+def _snapshot(image: np.ndarray | None, max_width: int = 1280) -> bytes | None:
+    """A JPEG of the frame (scaled to at most ``max_width``), or None."""
+    if image is None or image.ndim != 3:
+        return None
+    if image.shape[1] > max_width:
+        scale = max_width / image.shape[1]
+        image = cv2.resize(image, (max_width, round(image.shape[0] * scale)),
+                           interpolation=cv2.INTER_AREA)
+    ok, jpeg = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 85])
+    return jpeg.tobytes() if ok else None
 
 
 def _one_line(exc: BaseException) -> str:
@@ -93,6 +109,7 @@ class Pipeline:
             health = {ids[0]: health}
         self.cameras = {cid: _Camera((health or {}).get(cid)) for cid in ids}
         self.zone_error = zone_error
+        self._active_faults: dict[tuple[str, str], Fault] = {}  # (name, source) -> fault
         self.state: PolicyState = initial_state()
         self.last_command: Command | None = None
 
@@ -151,18 +168,46 @@ class Pipeline:
         cam.detector_error = detector_error
         inputs = self._inputs(now, extra_faults, pose_time, reset, with_frame=True)
         command = self._decide(inputs, now)
+        alerts = (*(health.alerts if health else ()),
+                  *self._fault_alerts(inputs.faults, detector_error, now, image))
         t4 = time.perf_counter()
         stage.update(detect=(t1 - t0) * 1e3, zones=(t2 - t1) * 1e3, health=(t3 - t2) * 1e3,
                      policy=(t4 - t3) * 1e3)
         return StepResult(now, command, self._changed(command), frame, persons, report, health,
-                          inputs.faults, health.alerts if health else (), stage)
+                          inputs.faults, alerts, stage)
 
     def tick(self, now: float, pose_time: float | None = None,
              reset: ResetRequest | None = None, extra_faults: tuple[Fault, ...] = ()) -> StepResult:
         """Evaluate timers with no new frame (frame timeout, clear time, resets, camera lost)."""
         inputs = self._inputs(now, extra_faults, pose_time, reset, with_frame=False)
         command = self._decide(inputs, now)
-        return StepResult(now, command, self._changed(command), faults=inputs.faults)
+        detector_error = next((c.detector_error for c in self.cameras.values()
+                               if c.detector_error), None)
+        return StepResult(now, command, self._changed(command), faults=inputs.faults,
+                          alerts=self._fault_alerts(inputs.faults, detector_error, now, None))
+
+    def _fault_alerts(self, faults: tuple[Fault, ...], detector_error: str | None, now: float,
+                      image: np.ndarray | None) -> tuple[Alert, ...]:
+        """An alert when a STOP fault appears (with a snapshot when there is a frame) and one
+        when it clears: a maintenance engineer learns that a camera went dark, not only the
+        robot controller."""
+        active = {(f.name, f.source): f for f in faults if f.stop and f.name not in QUIET_FAULTS}
+        if detector_error:
+            active[("detector_error", "detector")] = Fault("detector_error", detector_error,
+                                                           True, "detector")
+        alerts = []
+        for key, fault in active.items():
+            if key not in self._active_faults:
+                alerts.append(Alert(fault.name, "critical", fault.reason, fault.source, now,
+                                    snapshot_jpeg=_snapshot(image),
+                                    details={"fault": fault.name, "stop": True}))
+        for key, fault in self._active_faults.items():
+            if key not in active:
+                alerts.append(Alert(f"{fault.name}_cleared", "info",
+                                    f"{fault.name} cleared: {fault.reason}", fault.source, now,
+                                    details={"fault": fault.name}))
+        self._active_faults = active
+        return tuple(alerts)
 
     def _inputs(self, now: float, extra: tuple[Fault, ...], pose_time: float | None,
                 reset: ResetRequest | None, with_frame: bool) -> PolicyInputs:

@@ -107,3 +107,17 @@ def test_stop_never_later_than_the_ground_truth(detector, path):
             seen_stop = truth.index
     assert truth_stop is not None and seen_stop is not None
     assert seen_stop <= truth_stop
+
+
+def test_a_stop_fault_raises_one_alert_with_a_snapshot_and_one_when_it_clears(pipeline):
+    for img, info in frames(6):
+        assert pipeline.process(img, info, info.capture_time).alerts == ()
+    black = np.zeros((720, 1280, 3), np.uint8)  # a covered lens: camera_blinded
+    raised = [pipeline.process(black, FrameInfo("cam0", 6 + k, 0.6 + 0.1 * k, 1280, 720),
+                               0.6 + 0.1 * k).alerts for k in range(3)]
+    assert [a.kind for a in raised[0]] == ["camera_blinded"]
+    assert raised[0][0].severity == "critical" and raised[0][0].snapshot_jpeg[:2] == b"\xff\xd8"
+    assert raised[1] == () and raised[2] == ()  # once, not every frame
+    img, _ = next(frames(1))
+    cleared = pipeline.process(img, FrameInfo("cam0", 9, 0.9, 1280, 720), 0.9).alerts
+    assert [a.kind for a in cleared] == ["camera_blinded_cleared"]
