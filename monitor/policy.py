@@ -204,7 +204,8 @@ def _frame_causes(report: ZoneReport | None, config: PolicyConfig
     scale = 1.0
     if report is None:
         return (), (), 1.0
-    for hit in report.hits:
+    # a stable order (zone, person): the same causes in another order are no change to announce
+    for hit in sorted(report.hits, key=lambda h: (h.zone_id, h.person)):
         if hit.kind == "protective" or hit.speed_scale <= 0.0:
             stops.append(Reason("protective_zone", f"person {hit.person} in zone {hit.zone_id}",
                                 zone_id=hit.zone_id, person=hit.person,

@@ -374,3 +374,18 @@ def test_state_input_table(before, given, after):
     assert (cmd.speed_scale == 0.0) == (after == STOP)
     if after != RUN:
         assert cmd.reasons, "every non-RUN command says why"
+
+
+def test_the_same_hits_in_another_order_are_the_same_command():
+    from monitor.policy import PolicyInputs, initial_state, step
+    from monitor.types import ZoneHit, ZoneReport
+
+    a, b = ZoneHit("B", "protective", 0, 0.0), ZoneHit("A", "protective", 0, 0.0)
+    state, cfg = initial_state(), PolicyConfig()
+    commands = []
+    for k, hits in enumerate([(a, b), (a, b), (b, a)]):
+        state, cmd = step(state, PolicyInputs(frame_time=0.1 * k, zone_report=ZoneReport(hits)),
+                          0.1 * k, cfg)
+        commands.append(cmd)
+    assert [r.zone_id for r in commands[2].reasons if r.zone_id] == ["A", "B"]
+    assert commands[2].same_as(commands[1])  # nothing new to announce on the wire
