@@ -321,8 +321,9 @@ class _UniqueKeyLoader(yaml.SafeLoader):
         return super().construct_mapping(node, deep)
 
 
-def read_cell_data(path: str | os.PathLike) -> Any:
-    """The YAML data of a zone file, unvalidated; ConfigError when unreadable or not YAML."""
+def _read_yaml(path: str | os.PathLike, load: Any, errors: tuple[type[Exception], ...]) -> Any:
+    """Read a zone file and parse it with ``load(text)``; one-line ConfigError on any fault,
+    with the line and column of a YAML syntax error."""
     p = Path(path)
     try:
         text = p.read_text(encoding="utf-8")
@@ -331,13 +332,19 @@ def read_cell_data(path: str | os.PathLike) -> Any:
     except (OSError, UnicodeDecodeError) as exc:
         raise ConfigError(f"{p}: cannot read zone file: {exc}") from None
     try:
-        data = yaml.load(text, Loader=_UniqueKeyLoader)  # a SafeLoader: no arbitrary objects
-    except yaml.YAMLError as exc:
+        return load(text)
+    except errors as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f":{mark.line + 1}:{mark.column + 1}" if mark is not None else ""
         problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
         raise ConfigError(f"{p}{where}: YAML syntax error: {problem}") from None
-    return data
+
+
+def read_cell_data(path: str | os.PathLike) -> Any:
+    """The YAML data of a zone file, unvalidated; ConfigError when unreadable or not YAML."""
+    # a SafeLoader: no arbitrary objects; duplicate keys refused
+    return _read_yaml(path, lambda text: yaml.load(text, Loader=_UniqueKeyLoader),
+                      (yaml.YAMLError,))
 
 
 def read_cell_document(path: str | os.PathLike) -> Any:
@@ -346,20 +353,8 @@ def read_cell_document(path: str | os.PathLike) -> Any:
     from ruamel.yaml import YAML
     from ruamel.yaml.error import YAMLError as RtError
 
-    p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ConfigError(f"{p}: zone file not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{p}: cannot read zone file: {exc}") from None
-    try:
-        return YAML(typ="rt").load(text)  # refuses duplicate keys, like read_cell_data
-    except RtError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f":{mark.line + 1}:{mark.column + 1}" if mark is not None else ""
-        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
-        raise ConfigError(f"{p}{where}: YAML syntax error: {problem}") from None
+    # ruamel refuses duplicate keys too
+    return _read_yaml(path, YAML(typ="rt").load, (RtError,))
 
 
 def _flow_leaves(node: Any) -> Any:
