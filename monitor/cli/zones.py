@@ -266,15 +266,21 @@ def cmd_add(args: argparse.Namespace) -> int:
         zone["enabled"] = False
     zone.update(geom)
     if geom["shape"] == "polygon":
-        cams = [c.get("id") for c in data.get("cameras", [])]
-        zone["camera"] = args.camera or (cams[0] if len(cams) == 1 else None)
-        if zone["camera"] is None:
-            raise ConfigError(f"{args.file}: several cameras: say which with --camera")
+        zone["camera"] = _camera_for(data, args)
     _apply_options(zone, args)
     data.setdefault("zones", []).append(zone)
     _write(data, args.file)
     print(f"added zone {args.id} ({args.kind}, {geom['shape']})")
     return 0
+
+
+def _camera_for(data: dict, args: argparse.Namespace) -> str:
+    """The camera of a new image polygon: --camera, or the file's only camera."""
+    cams = [c.get("id") for c in data.get("cameras", [])]
+    camera = args.camera or (cams[0] if len(cams) == 1 else None)
+    if camera is None:
+        raise ConfigError(f"{args.file}: several cameras: say which with --camera")
+    return camera
 
 
 def cmd_edit(args: argparse.Namespace) -> int:
@@ -289,8 +295,7 @@ def cmd_edit(args: argparse.Namespace) -> int:
         if geom["shape"] == "polygon":
             zone.update(keep)
             if "camera" not in zone:
-                cams = [c.get("id") for c in data.get("cameras", [])]
-                zone["camera"] = args.camera or (cams[0] if len(cams) == 1 else None)
+                zone["camera"] = _camera_for(data, args)
     if args.kind is not None:
         zone["kind"] = args.kind
         if args.kind != "warning" and args.speed_scale is None:
