@@ -1,0 +1,216 @@
+"""Zone outlines in an image: watch regions and drawing."""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Iterable
+from typing import Any
+
+import cv2
+import numpy as np
+
+from monitor import geometry as geo
+from monitor.errors import ConfigError
+from monitor.zones.files import Cell
+from monitor.zones.schema import (
+    BoxZone,
+    CameraSpec,
+    CylinderZone,
+    ExtrudeZone,
+    MeshZone,
+    PolygonZone,
+)
+
+# --------------------------------------------------------------------------------------------
+# Outlines in an image: watch regions and drawing
+
+
+def volume_outline_m(z: Any, cell: Cell, segments: int = 32) -> list[np.ndarray]:
+    """Polylines (each (M, 3), metres) that draw a volume zone as a wireframe."""
+    if isinstance(z, ExtrudeZone | CylinderZone):
+        if isinstance(z, ExtrudeZone):
+            base = np.array(z.points_m, dtype=float)
+        else:
+            a = np.linspace(0, 2 * np.pi, segments, endpoint=False)
+            base = np.c_[z.center_m[0] + z.radius_m * np.cos(a),
+                         z.center_m[1] + z.radius_m * np.sin(a)]
+        return _prism_lines(base, z.z_min_m, z.z_max_m, vertical=isinstance(z, ExtrudeZone))
+    if isinstance(z, BoxZone):
+        c = _box_corners(z)
+        return _prism_lines(c[:4, :2], z.min_m[2], z.max_m[2])
+    verts, faces = cell.meshes[z.id]
+    edges = np.unique(np.sort(np.r_[faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]],
+                              axis=1), axis=0)
+    if len(edges) > 3000:  # a dense mesh: draw its bounding box instead
+        lo, hi = verts.min(axis=0), verts.max(axis=0)
+        base = np.array([[lo[0], lo[1]], [hi[0], lo[1]], [hi[0], hi[1]], [lo[0], hi[1]]])
+        return _prism_lines(base, lo[2], hi[2])
+    return [verts[e] for e in edges]
+
+
+def _prism_lines(base: np.ndarray, z0: float, z1: float, vertical: bool = True
+                 ) -> list[np.ndarray]:
+    ring = np.r_[base, base[:1]]
+    lines = [np.c_[ring, np.full(len(ring), z0)], np.c_[ring, np.full(len(ring), z1)]]
+    step = 1 if vertical else max(1, len(base) // 4)
+    lines += [np.array([[x, y, z0], [x, y, z1]]) for x, y in base[::step]]
+    return lines
+
+
+def _box_corners(z: BoxZone) -> np.ndarray:
+    lo, hi = np.array(z.min_m), np.array(z.max_m)
+    c = (lo + hi) / 2
+    half = (hi - lo) / 2
+    sx, sy = half[0], half[1]
+    base = np.array([[-sx, -sy], [sx, -sy], [sx, sy], [-sx, sy]])
+    rot = geo.rpy_to_matrix(0, 0, z.yaw_deg)[:2, :2]
+    xy = base @ rot.T + c[:2]
+    return np.r_[np.c_[xy, np.full(4, lo[2])], np.c_[xy, np.full(4, hi[2])]]
+
+
+def _project_lines(model: geo.CameraModel, lines: list[np.ndarray], samples: int = 24
+                   ) -> list[np.ndarray]:
+    """Project 3-D polylines; each segment is sampled so that lens distortion bends it, and
+    the parts behind the camera are dropped. Returns 2-D polylines in raw pixels."""
+    out = []
+    for line in lines:
+        t = np.linspace(0, 1, samples)[:, None]
+        pts = np.concatenate([a + t * (b - a) for a, b in itertools.pairwise(line)])
+        px, front = model.project(pts)
+        run: list[np.ndarray] = []
+        for p, ok in zip(px, front, strict=True):
+            if ok and np.all(np.isfinite(p)) and np.all(np.abs(p) < 1e6):
+                run.append(p)
+            elif run:
+                if len(run) > 1:
+                    out.append(np.array(run))
+                run = []
+        if len(run) > 1:
+            out.append(np.array(run))
+    return out
+
+
+def _volume_region_px(z: Any, cell: Cell, model: geo.CameraModel, cam: CameraSpec
+                      ) -> np.ndarray | None:
+    """Image outline (convex hull) of a volume zone, clipped to the image; None if unseen."""
+    lines = _project_lines(model, volume_outline_m(z, cell), samples=8)
+    if not lines:
+        return None
+    pts = np.concatenate(lines).astype(np.float32)
+    hull = cv2.convexHull(pts).reshape(-1, 2)
+    clipped = geo.clip_polygon_to_rect(hull, cam.width, cam.height)
+    if len(clipped) < 3 or abs(geo.polygon_signed_area(clipped)) < 1.0:
+        return None
+    return clipped
+
+
+def watch_regions(cell: Cell, camera_id: str) -> list[tuple[str, np.ndarray]]:
+    """Enabled ``watch`` zones seen by one camera: (zone id, polygon (K, 2) float32 pixels).
+
+    Image zones are returned as drawn; volume zones as the convex hull of their projection
+    through the camera's calibration, clipped to the image (homography-only cameras see the
+    floor footprint only). Volume zones out of view, or cameras without calibration, give none.
+    """
+    cam = cell.cameras.get(camera_id)
+    if cam is None:
+        raise ConfigError(f"{cell.label}: unknown camera '{camera_id}'")
+    model = cell.camera_models.get(camera_id)
+    out = []
+    for z in cell.zones:
+        if z.kind != "watch" or not z.enabled:
+            continue
+        if isinstance(z, PolygonZone):
+            if z.camera == camera_id:
+                out.append((z.id, np.array(z.points_px, dtype=np.float32)))
+        elif model is not None:
+            region = _volume_region_px(z, cell, model, cam)
+            if region is not None:
+                out.append((z.id, region.astype(np.float32)))
+    return out
+
+
+COLOURS_BGR = {
+    "protective": (40, 40, 230),
+    "warning": (0, 170, 255),
+    "mask": (170, 170, 170),
+    "watch": (230, 160, 30),
+}
+
+
+def draw_zones(frame_bgr: np.ndarray, cell: Cell, camera_id: str,
+               hit_zone_ids: Iterable[str] = ()) -> np.ndarray:
+    """A copy of the frame with the camera's zones drawn and labelled.
+
+    Image zones are filled (translucent) and outlined; volume zones are projected through the
+    calibration as wireframes with a filled floor footprint. Zones in ``hit_zone_ids`` are drawn
+    thicker and labelled HIT. A frame of another size than the camera is drawn scaled.
+    """
+    cam = cell.cameras.get(camera_id)
+    if cam is None:
+        raise ConfigError(f"{cell.label}: unknown camera '{camera_id}'")
+    img = np.ascontiguousarray(frame_bgr).copy()
+    if img.ndim == 2:
+        img = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
+    sx, sy = img.shape[1] / cam.width, img.shape[0] / cam.height
+    scale = np.array([sx, sy])
+    hit = set(hit_zone_ids)
+    model = cell.camera_models.get(camera_id)
+    fills = img.copy()
+    outlines: list[tuple[list[np.ndarray], tuple[int, int, int], int, str]] = []
+    # most important last, so that protective zones stay visible on top of warning areas
+    order = {"watch": 0, "mask": 1, "warning": 2, "protective": 3}
+    for z in sorted(cell.zones, key=lambda z: order[z.kind]):
+        if not z.enabled:
+            continue
+        colour = COLOURS_BGR[z.kind]
+        thick = 4 if z.id in hit else 2
+        if isinstance(z, PolygonZone):
+            if z.camera != camera_id:
+                continue
+            poly = np.array(z.points_px) * scale
+            cv2.fillPoly(fills, [_i32(poly)], colour, lineType=cv2.LINE_AA, shift=4)
+            outlines.append(([poly], colour, thick, z.id))
+        elif model is not None:
+            lines = [ln * scale for ln in _project_lines(model, volume_outline_m(z, cell))]
+            if not lines:
+                continue
+            region = _volume_floor_px(z, cell, model)
+            if region is not None:
+                cv2.fillPoly(fills, [_i32(region * scale)], colour, lineType=cv2.LINE_AA,
+                             shift=4)
+            outlines.append((lines, colour, thick, z.id))
+    cv2.addWeighted(fills, 0.35, img, 0.65, 0, dst=img)
+    for polys, colour, thick, zid in outlines:
+        closed = len(polys) == 1
+        cv2.polylines(img, [_i32(p) for p in polys], closed, colour, thick, cv2.LINE_AA, 4)
+        _label(img, polys, f"{zid}{' HIT' if zid in hit else ''}", colour)
+    return img
+
+
+def _volume_floor_px(z: Any, cell: Cell, model: geo.CameraModel) -> np.ndarray | None:
+    """Projected footprint of a volume at its lowest z (for the translucent fill)."""
+    lines = volume_outline_m(z, cell)
+    if isinstance(z, MeshZone):
+        return None
+    bottom = _project_lines(model, lines[:1], samples=8)
+    if len(bottom) != 1:
+        return None
+    return bottom[0]
+
+
+def _i32(p: np.ndarray) -> np.ndarray:
+    return np.round(np.asarray(p) * 16).astype(np.int32)
+
+
+def _label(img: np.ndarray, polys: list[np.ndarray], text: str, colour: tuple[int, int, int]
+           ) -> None:
+    pts = np.concatenate(polys)
+    near_top = pts[pts[:, 1] <= pts[:, 1].min() + 1.0]
+    top = near_top[int(np.argmin(near_top[:, 0]))]  # above the top-left-most outline point
+    x = int(np.clip(top[0], 2, max(2, img.shape[1] - 8 * len(text))))
+    y = int(np.clip(top[1] - 6, 14, img.shape[0] - 4))
+    font = cv2.FONT_HERSHEY_SIMPLEX
+    (w, th), _ = cv2.getTextSize(text, font, 0.5, 1)
+    cv2.rectangle(img, (x - 2, y - th - 4), (x + w + 2, y + 4), (0, 0, 0), -1)
+    cv2.putText(img, text, (x, y), font, 0.5, colour, 1, cv2.LINE_AA)
+

@@ -1,0 +1,250 @@
+"""Geometry of a cell built once for the per-frame queries (FCL objects, polygon edges)."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import cv2
+import fcl
+import numpy as np
+
+from monitor import geometry as geo
+from monitor.types import ZoneReport
+from monitor.zones.draw import _box_corners
+
+if TYPE_CHECKING:
+    from monitor.zones.files import Cell
+from monitor.zones.schema import (
+    BoxZone,
+    CameraSpec,
+    CylinderZone,
+    ExtrudeZone,
+    PolygonZone,
+    ToolBox,
+    ToolCylinder,
+    ToolSphere,
+)
+
+# --------------------------------------------------------------------------------------------
+# Prepared geometry for the per-frame query
+
+
+@dataclass(frozen=True, eq=False)
+class _ImageZones:
+    """Enabled image zones of one camera, stacked for one vectorised pass per frame."""
+
+    ids: tuple[str, ...]
+    kinds: tuple[str, ...]
+    scales: tuple[float, ...]
+    anchors: tuple[str, ...]
+    point_cols: np.ndarray  # zones decided by one anchor point
+    point_edges: geo._PolygonEdges
+    uses_centre: np.ndarray  # per point zone: anchor is the box centre
+    area_cols: np.ndarray  # zones decided by overlap area
+    area_min: np.ndarray  # per area zone: share needed (0 for any-overlap: > 0 pixels)
+    integrals: np.ndarray  # (A, H+1, W+1) int32 summed-area tables of the area zones
+    mask_cols: np.ndarray  # (Z,) bool
+    alert_cols: np.ndarray  # (Z,) bool: protective or warning
+    width: int
+    height: int
+
+    def inside(self, boxes: np.ndarray) -> np.ndarray:
+        """(N, Z) bool: box anchored in zone under each zone's anchor rule."""
+        n = len(boxes)
+        out = np.zeros((n, len(self.ids)), dtype=bool)
+        if len(self.point_cols):
+            pts = np.empty((n, 2))
+            pts[:, 0] = (boxes[:, 0] + boxes[:, 2]) * 0.5
+            pts[:, 1] = boxes[:, 3]
+            res = self.point_edges.contains(pts)
+            if self.uses_centre.any():
+                pts[:, 1] = (boxes[:, 1] + boxes[:, 3]) * 0.5
+                res = np.where(self.uses_centre, self.point_edges.contains(pts), res)
+            out[:, self.point_cols] = res
+        if len(self.area_cols):
+            lim = np.array([self.width, self.height, self.width, self.height])
+            edges = np.empty((n, 4))
+            edges[:, :2] = np.floor(boxes[:, :2])
+            edges[:, 2:] = np.ceil(boxes[:, 2:])
+            x1, y1, x2, y2 = np.clip(edges, 0, lim).astype(np.intp).T
+            box_area = (x2 - x1) * (y2 - y1)
+            t = self.integrals
+            covered = t[:, y2, x2] - t[:, y1, x2] - t[:, y2, x1] + t[:, y1, x1]  # (A, N)
+            need = np.maximum(self.area_min[:, None] * box_area[None], 1e-9)
+            out[:, self.area_cols] = ((covered >= need) & (box_area > 0)).T
+        return out
+
+
+@dataclass(frozen=True, eq=False)
+class _Volume:
+    id: str
+    kind: str
+    speed_scale: float
+    parts: tuple[fcl.CollisionObject, ...]
+    lo: np.ndarray  # axis-aligned bounds, metres
+    hi: np.ndarray
+    mesh: tuple[np.ndarray, np.ndarray] | None  # closed mesh: containment needs a ray test
+
+
+@dataclass(frozen=True, eq=False)
+class _Tool:
+    geometry: fcl.CollisionGeometry
+    local: np.ndarray  # 4x4 geometry placement in the tool frame
+    offset: np.ndarray  # 4x4 tool frame in the tracker frame
+    bound_centre: np.ndarray  # bounding sphere of the geometry, in the geometry's frame
+    bound_radius: float
+
+
+@dataclass(frozen=True, eq=False)
+class PreparedCell:
+    """Everything the per-frame query needs, built once from a Cell (FCL objects, stacked
+    polygon edges, summed-area tables). Read-only after construction."""
+
+    cell: Cell
+    image_zones: Mapping[str, _ImageZones]
+    volumes: tuple[_Volume, ...]
+    volume_lo: np.ndarray  # (V, 3)
+    volume_hi: np.ndarray
+    volume_alert: np.ndarray  # (V,) bool: protective or warning (not mask)
+    tool: _Tool | None
+    person: geo.PersonModel
+    separation: geo.SeparationParams
+    zone_cylinder: fcl.Cylinder  # person widened by Z_d, for zone checks
+    body_cylinder: fcl.Cylinder  # nominal person, for the tool distance
+    axis_cylinder: fcl.Cylinder  # 1 mm person axis, for mask volumes
+
+    def check(self, camera_id: str, boxes_px: np.ndarray, tool_pose: geo.ToolPose | None = None,
+              tool_speed_mps: float | None = None) -> ZoneReport:
+        from monitor.zones.check import _check  # check needs PreparedCell: import late
+
+        return _check(self, camera_id, boxes_px, tool_pose, tool_speed_mps)
+
+
+def prepare_cell(cell: Cell) -> PreparedCell:
+    """Build the per-frame geometry of a cell (use ``cell.prepared`` to build it once)."""
+    image: dict[str, _ImageZones] = {}
+    for cam_id, cam in cell.cameras.items():
+        zs = [z for z in cell.zones if isinstance(z, PolygonZone) and z.enabled
+              and z.camera == cam_id and z.kind != "watch"]
+        if zs:
+            image[cam_id] = _prepare_image_zones(zs, cam)
+    volumes = tuple(_prepare_volume(z, cell) for z in cell.zones
+                    if z.is_volume and z.enabled and z.kind != "watch")
+    p, s = cell.spec.person, cell.spec.separation
+    person = geo.PersonModel(p.radius_m, p.height_m, p.position_uncertainty_m)
+    return PreparedCell(
+        cell=cell,
+        image_zones=image,
+        volumes=volumes,
+        volume_lo=np.array([v.lo for v in volumes]).reshape(-1, 3),
+        volume_hi=np.array([v.hi for v in volumes]).reshape(-1, 3),
+        volume_alert=np.array([v.kind != "mask" for v in volumes], dtype=bool),
+        tool=_prepare_tool(cell),
+        person=person,
+        separation=geo.SeparationParams(
+            s.person_speed_mps, s.reaction_time_s, s.deceleration_mps2, s.intrusion_distance_m,
+            s.robot_uncertainty_m, s.robot_speed_default_mps),
+        zone_cylinder=fcl.Cylinder(person.zone_radius_m, person.height_m),
+        body_cylinder=fcl.Cylinder(person.radius_m, person.height_m),
+        axis_cylinder=fcl.Cylinder(0.001, person.height_m),
+    )
+
+
+def _prepare_image_zones(zs: list[PolygonZone], cam: CameraSpec) -> _ImageZones:
+    point = [k for k, z in enumerate(zs) if z.anchor in ("bottom-centre", "centre")]
+    area = [k for k, z in enumerate(zs) if z.anchor in ("any-overlap", "share")]
+    integrals = np.zeros((len(area), cam.height + 1, cam.width + 1), dtype=np.int32)
+    for a, k in enumerate(area):
+        mask = np.zeros((cam.height, cam.width), dtype=np.uint8)
+        # pixel (r, c) covers [c, c+1) x [r, r+1); fillPoly treats integer points as pixel
+        # centres, hence the half-pixel shift (4 fractional bits)
+        pts = np.round((np.array(zs[k].points_px) - 0.5) * 16).astype(np.int32)
+        cv2.fillPoly(mask, [pts], 1, lineType=cv2.LINE_8, shift=4)
+        integrals[a] = cv2.integral(mask, sdepth=cv2.CV_32S)
+    return _ImageZones(
+        ids=tuple(z.id for z in zs),
+        kinds=tuple(z.kind for z in zs),
+        scales=tuple(_scale(z) for z in zs),
+        anchors=tuple(z.anchor for z in zs),
+        point_cols=np.array(point, dtype=np.intp),
+        point_edges=geo._PolygonEdges.build([np.array(zs[k].points_px) for k in point]),
+        uses_centre=np.array([zs[k].anchor == "centre" for k in point], dtype=bool),
+        area_cols=np.array(area, dtype=np.intp),
+        area_min=np.array([zs[k].min_share or 0.0 for k in area], dtype=float),
+        integrals=integrals,
+        mask_cols=np.array([z.kind == "mask" for z in zs], dtype=bool),
+        alert_cols=np.array([z.kind in ("protective", "warning") for z in zs], dtype=bool),
+        width=cam.width,
+        height=cam.height,
+    )
+
+
+def _scale(z: Any) -> float:
+    return float(z.speed_scale) if z.kind == "warning" and z.speed_scale is not None else 0.0
+
+
+def _prepare_volume(z: Any, cell: Cell) -> _Volume:
+    mesh = None
+    if isinstance(z, ExtrudeZone):
+        pts = np.array(z.points_m, dtype=float)
+        parts = geo.fcl_prism_parts(pts, z.z_min_m, z.z_max_m)
+        lo = np.r_[pts.min(axis=0), z.z_min_m]
+        hi = np.r_[pts.max(axis=0), z.z_max_m]
+    elif isinstance(z, BoxZone):
+        parts = [geo.fcl_box(z.min_m, z.max_m, z.yaw_deg)]
+        corners = _box_corners(z)
+        lo, hi = corners.min(axis=0), corners.max(axis=0)
+    elif isinstance(z, CylinderZone):
+        parts = [geo.fcl_vertical_cylinder(z.center_m, z.radius_m, z.z_min_m, z.z_max_m)]
+        c = np.array(z.center_m)
+        lo = np.r_[c - z.radius_m, z.z_min_m]
+        hi = np.r_[c + z.radius_m, z.z_max_m]
+    else:
+        mesh = cell.meshes[z.id]
+        parts = [geo.fcl_mesh(*mesh)]
+        lo, hi = mesh[0].min(axis=0), mesh[0].max(axis=0)
+    return _Volume(z.id, z.kind, _scale(z), tuple(parts), np.asarray(lo, float),
+                   np.asarray(hi, float), mesh)
+
+
+def _prepare_tool(cell: Cell) -> _Tool | None:
+    t = cell.spec.tool
+    if t is None:
+        return None
+    offset = t.offset.tool_in_tracker()
+    local = np.eye(4)
+    centre = np.zeros(3)
+    if isinstance(t, ToolCylinder):
+        geom: fcl.CollisionGeometry = fcl.Cylinder(t.radius_m, t.length_m)
+        local[2, 3] = t.length_m / 2  # fcl cylinders are centred; ours starts at the origin
+        radius = math.hypot(t.radius_m, t.length_m / 2)
+    elif isinstance(t, ToolBox):
+        geom = fcl.Box(*t.size_m)
+        local[2, 3] = t.size_m[2] / 2
+        radius = float(np.linalg.norm(t.size_m)) / 2
+    elif isinstance(t, ToolSphere):
+        geom = fcl.Sphere(t.radius_m)
+        radius = t.radius_m
+    else:
+        verts, faces = cell.meshes["tool"]
+        model = fcl.BVHModel()
+        model.beginModel(len(verts), len(faces))
+        model.addSubModel(verts, faces)
+        model.endModel()
+        geom = model
+        centre = (verts.min(axis=0) + verts.max(axis=0)) / 2
+        radius = float(np.linalg.norm(verts - centre, axis=1).max())
+    return _Tool(geom, local, offset, centre, radius)
+
+
+def tool_object(prep: PreparedCell, pose: geo.ToolPose) -> fcl.CollisionObject | None:
+    """The tool's collision object placed at ``pose`` (cell frame), or None without a tool."""
+    if prep.tool is None:
+        return None
+    m = geo.tool_transform(pose, prep.tool.offset) @ prep.tool.local
+    return fcl.CollisionObject(prep.tool.geometry, fcl.Transform(m[:3, :3], m[:3, 3]))
+
+

@@ -1,0 +1,216 @@
+"""The zone file schema (YAML, ``version: 1``): pydantic models with unknown keys refused."""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from monitor import geometry as geo
+
+SCHEMA_VERSION = 1
+KINDS = ("protective", "warning", "mask", "watch")
+ANCHORS = ("bottom-centre", "centre", "any-overlap", "share")
+VOLUME_SHAPES = ("extrude", "box", "cylinder", "mesh")
+_ID = r"^[A-Za-z0-9][A-Za-z0-9_.-]*$"
+
+Vec2 = tuple[float, float]
+Vec3 = tuple[float, float, float]
+Mat3 = tuple[Vec3, Vec3, Vec3]
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+
+# --------------------------------------------------------------------------------------------
+# Schema
+
+
+class PinholeCalibration(_Strict):
+    """Intrinsics K, OpenCV distortion and extrinsics with ``x_cam = R @ x_cell + t``."""
+
+    type: Literal["pinhole"]
+    camera_matrix: Mat3
+    distortion: tuple[float, ...] = ()
+    rotation: Mat3
+    translation_m: Vec3
+
+
+class HomographyCalibration(_Strict):
+    """Image-to-floor point pairs ``[u_px, v_px, x_m, y_m]``; K and distortion, when given,
+    undistort the pixels first."""
+
+    type: Literal["homography"]
+    pairs: tuple[tuple[float, float, float, float], ...]
+    camera_matrix: Mat3 | None = None
+    distortion: tuple[float, ...] = ()
+
+
+Calibration = Annotated[PinholeCalibration | HomographyCalibration, Field(discriminator="type")]
+
+
+class CameraSpec(_Strict):
+    id: str = Field(pattern=_ID)
+    width: int = Field(gt=0, le=32768)
+    height: int = Field(gt=0, le=32768)
+    calibration: Calibration | None = None
+
+
+class _ZoneBase(_Strict):
+    id: str = Field(pattern=_ID)
+    name: str = ""
+    kind: Literal["protective", "warning", "mask", "watch"]
+    enabled: bool = True
+    speed_scale: float | None = Field(default=None, ge=0.0, lt=1.0)
+
+    @property
+    def is_volume(self) -> bool:
+        return False
+
+
+class PolygonZone(_ZoneBase):
+    """Image polygon of one camera, pixels at the camera's full resolution."""
+
+    shape: Literal["polygon"]
+    camera: str
+    points_px: tuple[Vec2, ...]
+    anchor: Literal["bottom-centre", "centre", "any-overlap", "share"] = "bottom-centre"
+    min_share: float | None = Field(default=None, gt=0.0, le=1.0)
+
+
+class _VolumeBase(_ZoneBase):
+    @property
+    def is_volume(self) -> bool:
+        return True
+
+
+class ExtrudeZone(_VolumeBase):
+    """Floor polygon (metres) extruded from ``z_min_m`` to ``z_max_m``."""
+
+    shape: Literal["extrude"]
+    points_m: tuple[Vec2, ...]
+    z_min_m: float
+    z_max_m: float
+
+
+class BoxZone(_VolumeBase):
+    """Box between two corners (metres), optionally turned by ``yaw_deg`` about its vertical."""
+
+    shape: Literal["box"]
+    min_m: Vec3
+    max_m: Vec3
+    yaw_deg: float = 0.0
+
+
+class CylinderZone(_VolumeBase):
+    """Vertical cylinder: floor centre, radius, z range (metres)."""
+
+    shape: Literal["cylinder"]
+    center_m: Vec2
+    radius_m: float = Field(gt=0.0)
+    z_min_m: float
+    z_max_m: float
+
+
+class MeshZone(_VolumeBase):
+    """Closed mesh file (STL/OBJ/PLY), path relative to the zone file, cell frame; ``scale``
+    converts its units to metres (0.001 for millimetres)."""
+
+    shape: Literal["mesh"]
+    file: str
+    scale: float = Field(default=1.0, gt=0.0)
+
+
+ZoneSpec = Annotated[
+    PolygonZone | ExtrudeZone | BoxZone | CylinderZone | MeshZone, Field(discriminator="shape")
+]
+
+
+class PersonSpec(_Strict):
+    """Person cylinder; ``position_uncertainty_m`` (Z_d) widens it for zone checks."""
+
+    radius_m: float = Field(default=0.3, gt=0.0, le=2.0)
+    height_m: float = Field(default=1.9, gt=0.0, le=3.0)
+    position_uncertainty_m: float = Field(default=0.1, ge=0.0, le=2.0)
+
+
+class SeparationSpec(_Strict):
+    """ISO/TS 15066 speed and separation parameters (see geometry.SeparationParams)."""
+
+    person_speed_mps: float = Field(default=1.6, ge=0.0, le=5.0)
+    reaction_time_s: float = Field(default=0.1, ge=0.0, le=5.0)
+    deceleration_mps2: float = Field(default=2.0, gt=0.0, le=100.0)
+    intrusion_distance_m: float = Field(default=0.2, ge=0.0, le=2.0)
+    robot_uncertainty_m: float = Field(default=0.02, ge=0.0, le=1.0)
+    robot_speed_default_mps: float = Field(default=1.0, ge=0.0, le=10.0)
+
+
+class ToolOffset(_Strict):
+    """Fixed mounting transform between the tracker body and the tool: translation
+    (millimetres, as the tracker calibration gives it) and roll/pitch/yaw in degrees about fixed
+    x, y, z. ``given_as`` says which way round the numbers are: ``tool_in_tracker`` (the tool
+    frame expressed in the tracker frame, applied as ``pose @ offset``) or ``tracker_in_tool``
+    (the tracker's mounting on the tool/flange, applied as ``pose @ inverse(offset)``)."""
+
+    translation_mm: Vec3 = (0.0, 0.0, 0.0)
+    rpy_deg: Vec3 = (0.0, 0.0, 0.0)
+    given_as: Literal["tool_in_tracker", "tracker_in_tool"] = "tool_in_tracker"
+
+    def tool_in_tracker(self) -> np.ndarray:
+        """4x4 transform of the tool frame in the tracker frame (metres)."""
+        m = geo.rigid(geo.rpy_to_matrix(*self.rpy_deg), np.array(self.translation_mm) / 1000.0)
+        return np.linalg.inv(m) if self.given_as == "tracker_in_tool" else m
+
+
+class _ToolBase(_Strict):
+    offset: ToolOffset = ToolOffset()
+
+
+class ToolCylinder(_ToolBase):
+    """Cylinder along the tool's +z axis, from the tool origin to ``length_m``."""
+
+    shape: Literal["cylinder"]
+    radius_m: float = Field(gt=0.0, le=5.0)
+    length_m: float = Field(gt=0.0, le=10.0)
+
+
+class ToolBox(_ToolBase):
+    """Box of ``size_m``, centred on the tool's z axis, from the tool origin along +z."""
+
+    shape: Literal["box"]
+    size_m: Vec3
+
+
+class ToolSphere(_ToolBase):
+    """Sphere centred on the tool origin."""
+
+    shape: Literal["sphere"]
+    radius_m: float = Field(gt=0.0, le=5.0)
+
+
+class ToolMesh(_ToolBase):
+    """Mesh file in the tool frame (path relative to the zone file); ``scale`` to metres."""
+
+    shape: Literal["mesh"]
+    file: str
+    scale: float = Field(default=1.0, gt=0.0)
+
+
+ToolSpec = Annotated[ToolCylinder | ToolBox | ToolSphere | ToolMesh, Field(discriminator="shape")]
+
+
+class CellSpec(_Strict):
+    """The whole zone file."""
+
+    version: Literal[1]
+    name: str = ""
+    description: str = ""
+    person: PersonSpec = PersonSpec()
+    separation: SeparationSpec = SeparationSpec()
+    tool: ToolSpec | None = None
+    cameras: tuple[CameraSpec, ...] = Field(min_length=1)
+    zones: tuple[ZoneSpec, ...] = ()
+
+
