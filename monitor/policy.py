@@ -107,6 +107,9 @@ class ResetRequest:
     time: float
     request_id: str = ""
     note: str = ""
+    # the operator has looked and confirms the cell is clear: releases holds of persons lost
+    # inside a zone (never a person who is seen); logged and alerted by the pipeline
+    confirm_clear: bool = False
 
 
 @dataclass(frozen=True)

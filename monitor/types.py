@@ -64,6 +64,9 @@ class ZoneHit:
     person: int  # row index in Persons
     speed_scale: float  # allowed speed fraction for warning zones; 0.0 for protective
     distance_m: float | None = None  # 0.0 when a volume overlaps; None for image zones
+    track_id: int | None = None  # persistent person id across frames (None: not tracked)
+    lost: bool = False  # held by a track lost inside the zone: not seen in this frame
+    lost_since: float | None = None  # when that track was last seen (s, same clock as frames)
 
 
 @dataclass(frozen=True)
@@ -74,6 +77,9 @@ class ZoneReport:
     masked: tuple[int, ...] = ()  # persons ignored because anchored inside a mask zone
     tool_separation_m: float | None = None  # smallest person-to-tool distance, None if unknown
     required_separation_m: float | None = None  # ISO/TS 15066 protective separation S_p
+    # largest fraction of the programmed robot speed that v_max(separation) allows
+    # (ISO/TS 15066 closed form): 0.0 means STOP, None means separation not evaluated
+    separation_speed_scale: float | None = None
     config_hash: str = ""
 
 
@@ -85,6 +91,7 @@ class Fault:
     reason: str
     stop: bool = True
     source: str = ""  # camera id, "pose", "detector", ...
+    latch: bool = False  # latches the STOP even with restart_interlock "auto" (a stall)
 
 
 @dataclass(frozen=True)
