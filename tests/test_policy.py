@@ -276,20 +276,54 @@ def test_tick_without_frame_never_clears_a_zone_cause():
     ], config=config, state=warmed(config, until=1.9)[0])
 
 
-def test_separation_below_required_stops_and_margin_slows():
-    def sep(t, d):
-        return PolicyInputs(frame_time=t - 0.02, pose_time=t - 0.01, zone_report=ZoneReport(
-            tool_separation_m=d, required_separation_m=0.8))
+def _sep(t, d=None, req=None, scale=None):
+    return PolicyInputs(frame_time=t - 0.02, pose_time=t - 0.01, zone_report=ZoneReport(
+        tool_separation_m=d, required_separation_m=req, separation_speed_scale=scale))
 
+
+def test_separation_below_required_stops():
     state = warmed(SEP)[0]
     state, cmds = run([
-        (1.1, sep(1.1, 2.0), RUN, 1.0, []),
-        (1.2, sep(1.2, 1.1), SLOW, SEP.separation_slow_scale, ["separation_margin"]),
-        (1.3, sep(1.3, 0.5), STOP, 0.0, ["separation"]),
+        (1.1, _sep(1.1, 2.0, 0.8), RUN, 1.0, []),
+        (1.2, _sep(1.2, 0.5, 0.8), STOP, 0.0, ["separation"]),
     ], config=SEP, state=state)
     stop_reason = next(r for r in cmds[-1].reasons if r.code == "separation")
     assert stop_reason.distance_m == pytest.approx(0.5)
     assert stop_reason.required_m == pytest.approx(0.8)
+
+
+@pytest.mark.parametrize(("d", "req"), [
+    pytest.param(float("nan"), 0.8, id="separation_nan"),
+    pytest.param(float("inf"), 0.8, id="separation_inf"),
+    pytest.param(2.0, float("nan"), id="required_nan"),
+    pytest.param(2.0, float("inf"), id="required_inf"),
+])
+def test_non_finite_separation_stops(d, req):
+    _state, cmd = step(warmed(SEP)[0], _sep(1.1, d, req), 1.1, SEP)
+    assert cmd.state == STOP and "separation" in [r.code for r in cmd.reasons]
+
+
+@pytest.mark.parametrize("scale", [0.0, -0.1, float("nan")])
+def test_separation_speed_scale_zero_or_nan_stops(scale):
+    _state, cmd = step(warmed(SEP)[0], _sep(1.1, 1.0, 0.8, scale), 1.1, SEP)
+    assert cmd.state == STOP and "separation" in [r.code for r in cmd.reasons]
+
+
+def test_separation_speed_scale_slows_at_that_scale_and_lowest_wins():
+    state = warmed(SEP)[0]
+    run([
+        (1.1, _sep(1.1, 1.5, 0.8, 1.0), RUN, 1.0, []),
+        (1.2, _sep(1.2, 1.2, 0.8, 0.45), SLOW, 0.45, ["separation_speed"]),
+        (1.3, _sep(1.3, 1.3, 0.8, 0.7), SLOW, 0.45, ["separation_speed"]),  # rises late
+        (2.2, _sep(2.2, 1.3, 0.8, 0.7), SLOW, 0.7, ["separation_speed"]),
+    ], config=SEP, state=state)
+    # with a warning zone: the lower of both
+    for zone_scale, sep_scale, want in ((0.3, 0.6, 0.3), (0.8, 0.4, 0.4)):
+        inputs = PolicyInputs(frame_time=1.08, pose_time=1.09, zone_report=ZoneReport(
+            hits=(warn(scale=zone_scale),), tool_separation_m=1.2, required_separation_m=0.8,
+            separation_speed_scale=sep_scale))
+        _s, cmd = step(warmed(SEP)[0], inputs, 1.1, SEP)
+        assert (cmd.state, cmd.speed_scale) == (SLOW, pytest.approx(want))
 
 
 def test_reasons_carry_zone_person_distance_and_fault_names():
@@ -317,7 +351,7 @@ def test_replay_is_deterministic():
 
 @pytest.mark.parametrize("kwargs", [
     {"restart_interlock": "sometimes"}, {"clear_time": 0}, {"frame_timeout": -1},
-    {"max_frame_age": float("nan")}, {"separation_slow_scale": 1.5},
+    {"max_frame_age": float("nan")}, {"reset_max_age": float("inf")},
 ])
 def test_bad_config_is_a_config_error(kwargs):
     with pytest.raises(ConfigError):

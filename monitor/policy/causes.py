@@ -1,0 +1,126 @@
+"""Evidence -> named causes: the first half of a policy step (pure).
+
+Every check is written so that NaN, infinity or a missing value falls on the STOP side:
+``not (age <= limit)`` rather than ``age > limit``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from monitor.policy.model import PolicyConfig, PolicyInputs, Reason
+from monitor.types import Fault, ZoneHit, ZoneReport
+
+# codes of the zone (per-frame) STOP causes; the rest are fail-safe causes of the step itself
+ZONE_STOP_CODES = frozenset({"protective_zone", "person_lost", "separation"})
+
+
+@dataclass(frozen=True)
+class FrameCauses:
+    """What one frame's zone report asks for: STOP causes, SLOW causes and the SLOW speed."""
+
+    stops: tuple[Reason, ...] = ()
+    slows: tuple[Reason, ...] = ()
+    scale: float = 1.0
+
+
+def _person(hit: ZoneHit) -> int:
+    """The tracked person's id when there is one (stable across frames), else the row."""
+    return hit.track_id if hit.track_id is not None else hit.person
+
+
+def _hit_reason(hit: ZoneHit, stop: bool) -> Reason:
+    who = _person(hit)
+    if hit.lost:
+        when = "" if hit.lost_since is None else f" at {hit.lost_since:.1f} s"
+        return Reason("person_lost" if stop else "warning_zone",
+                      f"person {who} lost inside {hit.zone_id}{when}",
+                      zone_id=hit.zone_id, person=who, distance_m=hit.distance_m)
+    return Reason("protective_zone" if stop else "warning_zone", f"person {who} in {hit.zone_id}",
+                  zone_id=hit.zone_id, person=who, distance_m=hit.distance_m)
+
+
+def frame_causes(report: ZoneReport | None) -> FrameCauses:
+    """The causes one frame's zone report shows (None: zones not evaluated, nothing shown)."""
+    if report is None:
+        return FrameCauses()
+    stops: list[Reason] = []
+    slows: list[Reason] = []
+    scale = 1.0
+    # a stable order (zone, person): the same causes in another order are no change to announce
+    for hit in sorted(report.hits, key=lambda h: (h.zone_id, _person(h), h.lost)):
+        # a warning zone whose scale is 0 (or NaN) allows no motion: it is a STOP
+        stop = hit.kind == "protective" or not hit.speed_scale > 0.0
+        (stops if stop else slows).append(_hit_reason(hit, stop))
+        if not stop:
+            scale = min(scale, hit.speed_scale)
+    sep, req = report.tool_separation_m, report.required_separation_m
+    # no person near the tool gives no separation: nothing to compare (the zone check says so)
+    if sep is not None and req is not None and (
+            not (math.isfinite(sep) and math.isfinite(req)) or sep < req):
+        stops.append(Reason("separation", f"separation {_m(sep)} < required {_m(req)}",
+                            distance_m=sep, required_m=req))
+    v = report.separation_speed_scale
+    if v is not None:
+        if not v > 0.0:  # 0, negative or NaN: v_max allows no motion
+            stops.append(Reason("separation", f"separation speed scale {v:.2f}: "
+                                "no robot speed is safe at this separation",
+                                distance_m=sep, required_m=req))
+        elif v < 1.0:
+            slows.append(Reason("separation_speed", f"separation allows {v:.2f} of the "
+                                "programmed speed", distance_m=sep, required_m=req))
+            scale = min(scale, v)
+    return FrameCauses(tuple(stops), tuple(slows), min(scale, 1.0))
+
+
+def _m(value: float | None) -> str:
+    return "unknown" if value is None else f"{value:.3f} m"
+
+
+def _older_than(now: float, then: float, limit: float) -> bool:
+    """True unless ``then`` is a finite time at most ``limit`` before ``now`` (NaN -> True)."""
+    return not (abs(now - then) <= limit)
+
+
+def fail_safe_causes(inputs: PolicyInputs, now: float, config: PolicyConfig,
+                     prev_frame: float | None, has_frame: bool) -> tuple[Reason, ...]:
+    """STOP causes of this step that do not come from a zone report: start-up, silence,
+    staleness, errors and STOP faults. ``prev_frame``: ``now`` of the last earlier step with
+    a frame."""
+    causes: list[Reason] = []
+    if prev_frame is None:  # this step's frame (if any) is the first: start-up STOP holds
+        causes.append(Reason("startup", "first frame: watching the cell for clear_time"
+                             if has_frame else "no frame processed yet"))
+    elif not has_frame and _older_than(now, prev_frame, config.frame_timeout):
+        causes.append(Reason("frame_timeout", f"no frame for {now - prev_frame:.3f} s "
+                             f"(> {config.frame_timeout} s)"))
+    if has_frame and _older_than(now, inputs.frame_time, config.max_frame_age):
+        causes.append(Reason("frame_stale", f"frame is {now - inputs.frame_time:.3f} s old "
+                             f"(> {config.max_frame_age} s)"))
+    if inputs.detector_error:
+        causes.append(Reason("detector_error", inputs.detector_error, fault="detector_error",
+                             source="detector"))
+    if inputs.zone_error:
+        causes.append(Reason("zone_invalid", inputs.zone_error, fault="zone_invalid",
+                             source="zones"))
+    if config.separation_monitoring:
+        if inputs.pose_time is None:
+            causes.append(Reason("pose_stale", "no tool pose received", fault="pose_stale",
+                                 source="pose"))
+        elif _older_than(now, inputs.pose_time, config.pose_timeout):
+            causes.append(Reason("pose_stale", f"tool pose is {now - inputs.pose_time:.3f} s "
+                                 f"old (> {config.pose_timeout} s)", fault="pose_stale",
+                                 source="pose"))
+    causes.extend(fault_reason(f) for f in inputs.faults if stops(f))
+    return tuple(causes)
+
+
+def stops(fault: Fault) -> bool:
+    """A latching fault is a STOP fault even if it forgot to say so."""
+    return fault.stop or fault.latch
+
+
+def fault_reason(fault: Fault) -> Reason:
+    return Reason("fault", f"{fault.name}: {fault.reason}", fault=fault.name,
+                  source=fault.source or None)

@@ -1,0 +1,178 @@
+"""The policy's state machine: causes in, next state and command out (pure, clock passed in).
+
+One step: (1) evidence -> causes (``causes.py``); (2) latch; (3) reset arbitration;
+(4) clear timers on logical time; (5) the transition to the next phase; (6) speed window;
+(7) the command. Each is a small pure function below.
+"""
+
+from __future__ import annotations
+
+import math
+
+from monitor.policy.causes import FrameCauses, fail_safe_causes, frame_causes
+from monitor.policy.model import (
+    LEVEL_OF,
+    RUN,
+    RUN_CLEAR,
+    SLOW_ACTIVE,
+    SLOW_CLEARING,
+    STOP,
+    STOP_ACTIVE,
+    STOP_CLEARING,
+    STOP_LATCHED,
+    Command,
+    Latch,
+    PolicyConfig,
+    PolicyInputs,
+    PolicyState,
+    Reason,
+    ResetOutcome,
+    ResetRequest,
+)
+from monitor.types import Fault
+
+_STOP_PHASES = frozenset({STOP_ACTIVE, STOP_CLEARING, STOP_LATCHED})
+CONFIRM_CLEAR_HINT = ("wait until the person is seen leaving, or `monitor reset --confirm-clear` "
+                      "after looking")
+
+
+def latch(current: Latch | None, stop_causes: tuple[Reason, ...], faults: tuple[Fault, ...],
+          now: float, config: PolicyConfig) -> Latch | None:
+    """The latch after this step's causes. Manual interlock: any STOP cause but the start-up
+    one latches (that one too with ``startup_requires_reset``). A fault with ``latch=True``
+    latches always. An existing latch keeps its first cause."""
+    if current is not None:
+        return current
+    latching = [f for f in faults if f.latch]
+    if latching:
+        f = latching[0]
+        return Latch("fault", f"{f.name}: {f.reason}", now)
+    if config.restart_interlock != "manual":
+        return None
+    for r in stop_causes:
+        if r.code != "startup" or config.startup_requires_reset:
+            return Latch(r.code, r.message, now, r.zone_id, r.person)
+    return None
+
+
+def arbitrate_reset(req: ResetRequest | None, stop_causes: tuple[Reason, ...],
+                    current: Latch | None, now: float, config: PolicyConfig
+                    ) -> tuple[ResetOutcome | None, Latch | None]:
+    """Accept a reset only when it is fresh, the STOP is latched and no STOP cause holds."""
+    if req is None:
+        return None, current
+    age = now - req.time
+    if not (abs(age) <= config.reset_max_age):
+        return ResetOutcome(req.operator, False, f"refused: request is {age:.1f} s old",
+                            req.request_id), current
+    if stop_causes:
+        text = "; ".join(r.message for r in stop_causes)
+        if any(r.code == "person_lost" for r in stop_causes):
+            text += f" ({CONFIRM_CLEAR_HINT})"
+        return ResetOutcome(req.operator, False, "refused: " + text, req.request_id), current
+    if current is None:
+        return ResetOutcome(req.operator, False, "nothing to reset: not latched",
+                            req.request_id), None
+    return ResetOutcome(req.operator, True, "reset accepted", req.request_id), None
+
+
+def has_cleared(seen: float | None, now: float, config: PolicyConfig) -> bool:
+    """True when the cause last seen at ``seen`` has been absent for ``clear_time``."""
+    return seen is None or now - seen >= config.clear_time
+
+
+def next_phase(prev: str, has_stop: bool, has_slow: bool, stop_cleared: bool,
+               slow_cleared: bool, latched: bool) -> str:
+    """The transition: enter at once, leave STOP only unlatched and after clear_time, leave
+    SLOW only after clear_time."""
+    if has_stop:
+        return STOP_ACTIVE
+    if prev in _STOP_PHASES:
+        if latched:
+            return STOP_LATCHED
+        if not stop_cleared:
+            return STOP_CLEARING
+    if has_slow:
+        return SLOW_ACTIVE
+    if prev != RUN_CLEAR and not slow_cleared:
+        return SLOW_CLEARING
+    return RUN_CLEAR
+
+
+def speed_window(window: tuple[tuple[float, float], ...], wanted: float, now: float,
+                 config: PolicyConfig) -> tuple[tuple[tuple[float, float], ...], float]:
+    """Keep (time, wanted scale) of the last clear_time; the lowest one applies, so a lower
+    scale applies at once and a higher one only after clear_time."""
+    kept = (*(e for e in window if now - e[0] < config.clear_time), (now, wanted))
+    return kept, min(s for _, s in kept)
+
+
+def _clearing(seen: float | None, now: float, config: PolicyConfig) -> Reason:
+    gone = now - seen if seen is not None else 0.0
+    return Reason("clearing", f"causes absent for {gone:.3f} s of {config.clear_time} s")
+
+
+def step(state: PolicyState, inputs: PolicyInputs, now: float,
+         config: PolicyConfig) -> tuple[PolicyState, Command]:
+    """Advance the policy by one step at time ``now`` (seconds, monotonic)."""
+    if not math.isfinite(now):
+        raise ValueError(f"policy.step: now={now!r} is not finite")
+    has_frame = inputs.frame_time is not None
+    # no new frame is no evidence of a clear cell: carry the last frame's zone causes
+    seen = frame_causes(inputs.zone_report) if has_frame else FrameCauses(
+        state.frame_stops, state.frame_slows, state.frame_scale)
+    stop_causes = fail_safe_causes(inputs, now, config, state.last_frame, has_frame)
+    # zone causes first: the person is what an operator must act on
+    stop_causes = seen.stops + stop_causes
+    slow_causes = seen.slows
+
+    latched_by = latch(state.latched_by, stop_causes, inputs.faults, now, config)
+    reset, latched_by = arbitrate_reset(inputs.reset_request, stop_causes, latched_by, now,
+                                        config)
+    stop_seen = now if stop_causes else state.stop_seen
+    slow_seen = now if (stop_causes or slow_causes) else state.slow_seen
+    stop_cleared = has_cleared(stop_seen, now, config)
+    phase = next_phase(state.phase, bool(stop_causes), bool(slow_causes), stop_cleared,
+                       has_cleared(slow_seen, now, config), latched_by is not None)
+    level = LEVEL_OF[phase]
+    if level != STOP:  # (a latch is only ever set with a STOP cause; never carry one out)
+        latched_by = None
+
+    reasons = {
+        STOP_ACTIVE: stop_causes,
+        SLOW_ACTIVE: slow_causes,
+        RUN_CLEAR: (),
+    }.get(phase, state.hold_reasons)
+    if phase in (STOP_CLEARING, STOP_LATCHED) and not stop_cleared:
+        reasons += (_clearing(stop_seen, now, config),)
+    elif phase == SLOW_CLEARING:
+        reasons += (_clearing(slow_seen, now, config),)
+    if latched_by is not None:
+        reasons += (Reason("latched", "STOP latched: waiting for an operator reset"),)
+
+    wanted = 0.0 if stop_causes else (seen.scale if slow_causes else 1.0)
+    window, lowest = speed_window(state.scale_window, wanted, now, config)
+    speed = {STOP: 0.0, RUN: 1.0}.get(level, lowest)
+
+    since = now if (state.since is None or level != state.state) else state.since
+    hold = {STOP_ACTIVE: stop_causes, SLOW_ACTIVE: slow_causes, RUN_CLEAR: ()}.get(
+        phase, state.hold_reasons)
+    reset_possible = latched_by is not None and not stop_causes
+    possible_since = (state.reset_possible_since if state.reset_possible_since is not None
+                      else now) if reset_possible else None
+    new_state = PolicyState(
+        phase=phase, since=since, latched_by=latched_by, stop_seen=stop_seen,
+        slow_seen=slow_seen, scale_window=window,
+        last_frame=now if has_frame else state.last_frame,
+        frame_stops=seen.stops,
+        frame_slows=seen.slows, frame_scale=seen.scale, hold_reasons=hold,
+        last_reset=reset or state.last_reset, reset_possible_since=possible_since,
+    )
+    command = Command(
+        state=level, speed_scale=speed, reasons=reasons, since=since,
+        latched=latched_by is not None, reset=reset, latched_by=latched_by,
+        reset_possible=reset_possible, reset_possible_since=possible_since,
+        clear_for_s=None if stop_causes or stop_seen is None else now - stop_seen,
+        phase=phase,
+    )
+    return new_state, command

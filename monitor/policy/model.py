@@ -1,0 +1,246 @@
+"""The policy's data: configuration, evidence in, command out, and the state between steps.
+
+Times are seconds on the clock passed to ``step`` (monotonic live, the video's clock in replay).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from monitor.errors import ConfigError
+from monitor.types import Fault, ZoneReport
+
+RUN, SLOW, STOP = "RUN", "SLOW", "STOP"
+
+# The machine's states (``PolicyState.phase``). Each maps onto one command level.
+RUN_CLEAR = "RUN"  # no cause, nothing clearing
+SLOW_ACTIVE = "SLOW_ACTIVE"  # a SLOW cause is present
+SLOW_CLEARING = "SLOW_CLEARING"  # SLOW causes gone, waiting clear_time
+STOP_ACTIVE = "STOP_ACTIVE"  # a STOP cause is present
+STOP_CLEARING = "STOP_CLEARING"  # STOP causes gone, waiting clear_time (not latched)
+STOP_LATCHED = "STOP_LATCHED"  # STOP causes gone, waiting for an operator reset
+PHASES = (RUN_CLEAR, SLOW_ACTIVE, SLOW_CLEARING, STOP_ACTIVE, STOP_CLEARING, STOP_LATCHED)
+LEVEL_OF = {RUN_CLEAR: RUN, SLOW_ACTIVE: SLOW, SLOW_CLEARING: SLOW, STOP_ACTIVE: STOP,
+            STOP_CLEARING: STOP, STOP_LATCHED: STOP}
+
+
+@dataclass(frozen=True)
+class PolicyConfig:
+    """Policy timing and limits. Times in seconds."""
+
+    clear_time: float = 1.0  # a cause must be absent this long before the level drops
+    restart_interlock: str = "manual"  # "manual": STOP latches until reset; "auto": no latch
+    frame_timeout: float = 0.5  # no frame processed for this long -> STOP
+    max_frame_age: float = 0.3  # frame captured longer ago than this at decision time -> STOP
+    pose_timeout: float = 0.1  # newest accepted pose older than this -> STOP (separation on)
+    separation_monitoring: bool = False  # use the tool pose and ISO/TS 15066 separation
+    reset_max_age: float = 2.0  # a reset request older than this (since arrival) is ignored
+    startup_requires_reset: bool = False  # manual interlock also latches the start-up STOP
+
+    def __post_init__(self) -> None:
+        if self.restart_interlock not in ("manual", "auto"):
+            raise ConfigError(
+                f"policy.restart_interlock: {self.restart_interlock!r} is not 'manual' or 'auto'"
+            )
+        for name in ("clear_time", "frame_timeout", "max_frame_age", "pose_timeout",
+                     "reset_max_age"):
+            value = getattr(self, name)
+            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+                raise ConfigError(f"policy.{name}: must be a positive number of seconds, "
+                                  f"got {value!r}")
+
+
+@dataclass(frozen=True)
+class Reason:
+    """Why the command is what it is. ``code`` is a stable name for machines.
+
+    STOP codes: ``protective_zone``, ``person_lost`` (a tracked person lost inside a protective
+    zone), ``separation`` (closer than S_p, or a separation speed scale of 0 or unknown),
+    ``fault``, ``detector_error``, ``frame_timeout``, ``frame_stale``, ``pose_stale``,
+    ``zone_invalid``, ``startup``. SLOW codes: ``warning_zone``, ``separation_speed``
+    (v_max(separation) below the programmed speed). Bookkeeping: ``clearing`` (cause gone,
+    waiting ``clear_time``), ``latched`` (waiting for a reset), ``shutdown`` and ``stalled``
+    (added by the bus). ``person`` is the track id when the person is tracked, else the row.
+    """
+
+    code: str
+    message: str
+    zone_id: str | None = None
+    person: int | None = None
+    distance_m: float | None = None
+    required_m: float | None = None
+    fault: str | None = None
+    source: str | None = None
+
+    def key(self) -> tuple:
+        """Identity of the cause, without the values that change every frame."""
+        return (self.code, self.zone_id, self.person, self.fault, self.source)
+
+    def to_dict(self) -> dict:
+        return {k: v for k, v in self.__dict__.items() if v is not None}
+
+
+@dataclass(frozen=True)
+class Latch:
+    """The cause that latched the STOP, and when (s)."""
+
+    code: str
+    message: str
+    at: float
+    zone_id: str | None = None
+    person: int | None = None
+
+    def to_dict(self) -> dict:
+        return {"code": self.code, "message": self.message, "zone_id": self.zone_id,
+                "person": self.person, "at": self.at}
+
+
+@dataclass(frozen=True)
+class ResetRequest:
+    """An operator's request to release a latched STOP (from ``safety/reset``).
+
+    ``time`` is when it arrived, on the monitor's monotonic clock (not the sender's clock).
+    """
+
+    operator: str
+    time: float
+    request_id: str = ""
+    note: str = ""
+    # the operator has looked and confirms the cell is clear: releases holds of persons lost
+    # inside a zone (never a person who is seen); logged and alerted by the pipeline
+    confirm_clear: bool = False
+
+
+@dataclass(frozen=True)
+class ResetOutcome:
+    """What happened to a reset request in this step."""
+
+    operator: str
+    accepted: bool
+    message: str
+    request_id: str = ""
+
+
+@dataclass(frozen=True)
+class PolicyInputs:
+    """Evidence for one step.
+
+    ``frame_time``: capture time (s, monotonic) of the frame processed in this step, or None when
+    the step only evaluates timers. ``zone_report``: zone answer for that frame (None = no frame,
+    or zones not evaluated). ``pose_time``: receive time (s, monotonic) of the newest accepted
+    tool pose, None if none yet. ``zone_error``: set when the zone file is invalid.
+    """
+
+    frame_time: float | None = None
+    zone_report: ZoneReport | None = None
+    faults: tuple[Fault, ...] = ()
+    detector_error: str | None = None
+    pose_time: float | None = None
+    zone_error: str | None = None
+    reset_request: ResetRequest | None = None
+
+
+@dataclass(frozen=True)
+class Command:
+    """What the robot controller should do. ``speed_scale`` is 1.0 for RUN, 0.0 for STOP.
+
+    ``reset_possible``: latched and no STOP cause now (a reset would be accepted);
+    ``reset_possible_since`` when that became true; ``clear_for_s`` how long the cell has shown
+    no STOP cause (None while one holds).
+    """
+
+    state: str
+    speed_scale: float
+    reasons: tuple[Reason, ...] = ()
+    since: float = 0.0  # when this state was entered (s, same clock as ``now``)
+    latched: bool = False  # STOP waits for an operator reset
+    reset: ResetOutcome | None = None  # outcome of a reset request handled in this step
+    latched_by: Latch | None = None
+    reset_possible: bool = False
+    reset_possible_since: float | None = None
+    clear_for_s: float | None = None
+    phase: str = ""  # the machine's state (``PHASES``); empty for commands made elsewhere
+
+    def same_as(self, other: Command | None) -> bool:
+        """True when nothing a controller or operator acts on changed: same state, speed,
+        latch, reset possibility and reasons by (code, zone, person, fault). Messages,
+        distances and ``clear_for_s`` that move every frame do not count; the heartbeat
+        carries their newest values."""
+        return (
+            other is not None
+            and self.state == other.state
+            and self.speed_scale == other.speed_scale
+            and self.latched == other.latched
+            and self.reset_possible == other.reset_possible
+            and [r.key() for r in self.reasons] == [r.key() for r in other.reasons]
+        )
+
+    def describe(self) -> str:
+        """One line for an operator, e.g. ``LATCHED by person 0 in robot-protective at 5.5 s;
+        cell clear for 2.3 s: reset possible``."""
+        causes = [r for r in self.reasons if r.code not in ("clearing", "latched")]
+        if self.latched:
+            if self.reset_possible and self.latched_by is not None:
+                clear = self.clear_for_s or 0.0
+                return (f"LATCHED by {self.latched_by.message} at {self.latched_by.at:.1f} s; "
+                        f"cell clear for {clear:.1f} s: reset possible")
+            return "LATCHED: " + ("; ".join(r.message for r in causes) or "waiting for a reset")
+        if self.state == RUN:
+            return "RUN"
+        head = STOP if self.state == STOP else f"SLOW x{self.speed_scale:.2f}"
+        text = "; ".join(r.message for r in causes) or "no cause given"
+        if any(r.code == "clearing" for r in self.reasons):
+            text += " (clearing)"
+        return f"{head}: {text}"
+
+    def to_dict(self) -> dict:
+        out = {
+            "state": self.state,
+            "speed_scale": self.speed_scale,
+            "reasons": [r.to_dict() for r in self.reasons],
+            "since": self.since,
+            "latched": self.latched,
+            "reset_possible": self.reset_possible,
+            "clear_for_s": self.clear_for_s,
+        }
+        if self.latched_by is not None:
+            out["latched_by"] = self.latched_by.to_dict()
+        if self.reset_possible_since is not None:
+            out["reset_possible_since"] = self.reset_possible_since
+        if self.reset is not None:
+            out["reset"] = dict(self.reset.__dict__)
+        return out
+
+
+@dataclass(frozen=True)
+class PolicyState:
+    """Everything the policy remembers between steps."""
+
+    phase: str = STOP_ACTIVE
+    since: float | None = None  # when the current level was entered; None until the first step
+    latched_by: Latch | None = None  # None: not latched
+    stop_seen: float | None = None  # last time a STOP cause was present
+    slow_seen: float | None = None  # last time any SLOW or STOP cause was present
+    scale_window: tuple[tuple[float, float], ...] = ()  # (time, wanted scale), last clear_time
+    last_frame: float | None = None  # ``now`` of the last step that processed a frame
+    frame_stops: tuple[Reason, ...] = ()  # zone STOP causes of the last frame, carried over
+    frame_slows: tuple[Reason, ...] = ()  # zone SLOW causes of the last frame, carried over
+    frame_scale: float = 1.0  # speed scale asked by the last frame's SLOW causes
+    hold_reasons: tuple[Reason, ...] = ()  # causes of the current level, shown while clearing
+    last_reset: ResetOutcome | None = None
+    reset_possible_since: float | None = None
+
+    @property
+    def state(self) -> str:
+        """The command level (RUN / SLOW / STOP) of the current phase."""
+        return LEVEL_OF[self.phase]
+
+    @property
+    def latched(self) -> bool:
+        return self.latched_by is not None
+
+
+def initial_state() -> PolicyState:
+    """STOP with reason ``startup``: nothing is known until frames arrive."""
+    return PolicyState(hold_reasons=(Reason("startup", "no frame processed yet"),))
