@@ -423,3 +423,237 @@ def test_the_same_hits_in_another_order_are_the_same_command():
         commands.append(cmd)
     assert [r.zone_id for r in commands[2].reasons if r.zone_id] == ["A", "B"]
     assert commands[2].same_as(commands[1])  # nothing new to announce on the wire
+
+
+# --- lost persons, latching faults, the latched state told honestly ------------------------------
+
+
+def lost(zone: str = "robot-protective", track: int = 3, since: float = 8.1,
+         kind: str = "protective", scale: float = 0.0) -> ZoneHit:
+    return ZoneHit(zone, kind, 0, scale, None, track_id=track, lost=True, lost_since=since)
+
+
+def test_person_lost_in_protective_zone_stops_and_refuses_reset_with_confirm_clear_hint():
+    _state, cmds = run([
+        (8.2, frame(8.2, lost()), STOP, 0.0, ["person_lost", "latched"]),
+        (8.3, frame(8.3, lost(), reset_request=reset(8.3)), STOP, 0.0, ["person_lost"]),
+        (8.4, tick(), STOP, 0.0, ["person_lost"]),  # carried over without a frame
+    ], state=warmed(until=8.1)[0])
+    cause = next(r for r in cmds[0].reasons if r.code == "person_lost")
+    assert cause.message == "person 3 lost inside robot-protective at 8.1 s"
+    assert (cause.zone_id, cause.person) == ("robot-protective", 3)
+    refused = cmds[1].reset
+    assert not refused.accepted
+    assert "person 3 lost inside robot-protective" in refused.message
+    assert "monitor reset --confirm-clear" in refused.message
+    assert cmds[1].describe() == "LATCHED: person 3 lost inside robot-protective at 8.1 s"
+    assert not cmds[1].reset_possible and cmds[1].clear_for_s is None
+
+
+def test_person_lost_in_warning_zone_keeps_slow():
+    _s, cmd = step(warmed()[0], frame(1.1, lost("W1", kind="warning", scale=0.4)), 1.1, MANUAL)
+    assert (cmd.state, cmd.speed_scale) == (SLOW, pytest.approx(0.4))
+    assert [r.code for r in cmd.reasons] == ["warning_zone"]
+    assert "lost inside W1" in cmd.reasons[0].message
+
+
+@pytest.mark.parametrize("scale", [0.0, float("nan")])
+def test_warning_zone_with_speed_scale_zero_or_nan_stops(scale):
+    _s, cmd = step(warmed(AUTO)[0], frame(1.1, warn(scale=scale)), 1.1, AUTO)
+    assert cmd.state == STOP and cmd.speed_scale == 0.0
+    assert [r.code for r in cmd.reasons] == ["protective_zone"]
+
+
+def test_latching_fault_latches_even_with_auto_interlock():
+    stall = Fault("monitor_stalled", "no step for 2 s", True, "service", latch=True)
+    _state, cmds = run([
+        (1.1, frame(1.1, faults=(stall,)), STOP, 0.0, ["fault", "latched"]),
+        (1.2, frame(1.2), STOP, 0.0, ["latched"]),
+        (3.0, frame(3.0), STOP, 0.0, ["latched"]),  # clear for long: still latched
+        (3.1, frame(3.1, reset_request=reset(3.1)), RUN, 1.0, []),
+    ], config=AUTO, state=warmed(AUTO)[0])
+    assert cmds[0].latched_by.code == "fault" and "monitor_stalled" in cmds[0].latched_by.message
+    # a latch fault that forgot stop=True still stops
+    _s, cmd = step(warmed(AUTO)[0], frame(1.1, faults=(Fault("x", "y", False, latch=True),)),
+                   1.1, AUTO)
+    assert cmd.state == STOP and cmd.latched
+
+
+def test_auto_interlock_does_not_latch_ordinary_causes():
+    _s, cmd = step(warmed(AUTO)[0], frame(1.1, prot()), 1.1, AUTO)
+    assert cmd.state == STOP and not cmd.latched and cmd.latched_by is None
+
+
+def test_latched_state_says_by_whom_how_long_clear_and_when_reset_became_possible():
+    state, cmds = run([
+        (5.5, frame(5.5, prot("robot-protective", 0)), STOP, 0.0, ["latched"]),
+        (5.6, frame(5.6, prot("robot-protective", 0)), STOP, 0.0, ["latched"]),
+        (5.7, frame(5.7), STOP, 0.0, ["latched"]),
+        (6.5, frame(6.5), STOP, 0.0, ["latched"]),
+        (8.0, frame(8.0), STOP, 0.0, ["latched"]),
+    ], state=warmed(until=5.4)[0])
+    first, still, possible, later, much_later = cmds
+    assert first.latched_by.to_dict() == {"code": "protective_zone", "at": 5.5,
+                                          "message": "person 0 in robot-protective",
+                                          "zone_id": "robot-protective", "person": 0}
+    assert first.describe() == "LATCHED: person 0 in robot-protective"
+    assert not first.reset_possible and first.clear_for_s is None
+    assert still.same_as(first)
+    assert possible.reset_possible and possible.reset_possible_since == 5.7
+    assert possible.clear_for_s == pytest.approx(0.1)
+    assert not possible.same_as(still)  # the moment a reset becomes possible is news
+    assert later.same_as(possible)  # still clearing, still possible: nothing new
+    assert not much_later.same_as(later)  # clear_time over: the "clearing" reason went
+    assert much_later.reset_possible_since == 5.7
+    assert much_later.clear_for_s == pytest.approx(2.4)
+    assert much_later.describe() == ("LATCHED by person 0 in robot-protective at 5.5 s; "
+                                     "cell clear for 2.4 s: reset possible")
+    d = much_later.to_dict()
+    assert d["latched_by"]["person"] == 0 and d["reset_possible"] is True
+    assert d["clear_for_s"] == pytest.approx(2.4) and d["reset_possible_since"] == 5.7
+    # the clear_for value moving every frame is no change to announce
+    _s, again = step(state, frame(8.1), 8.1, MANUAL)
+    assert again.same_as(much_later) and again.clear_for_s != much_later.clear_for_s
+
+
+def test_describe_run_slow_stop():
+    assert step(warmed()[0], frame(1.1), 1.1, MANUAL)[1].describe() == "RUN"
+    assert step(warmed()[0], frame(1.1, warn("W1", 0.4)), 1.1, MANUAL)[1].describe() == \
+        "SLOW x0.40: person 0 in W1"
+    assert step(warmed(AUTO)[0], frame(1.1, prot("Z1")), 1.1, AUTO)[1].describe() == \
+        "STOP: person 0 in Z1"
+
+
+@pytest.mark.parametrize("bad", [float("nan"), float("inf"), -float("inf")])
+def test_non_finite_times_are_stale(bad):
+    _s, cmd = step(warmed(SEP)[0], PolicyInputs(frame_time=bad, zone_report=ZoneReport(),
+                                                pose_time=1.09), 1.1, SEP)
+    assert cmd.state == STOP and "frame_stale" in [r.code for r in cmd.reasons]
+    _s, cmd = step(warmed(SEP)[0], PolicyInputs(frame_time=1.08, zone_report=ZoneReport(),
+                                                pose_time=bad), 1.1, SEP)
+    assert cmd.state == STOP and "pose_stale" in [r.code for r in cmd.reasons]
+    state = warmed()[0]
+    state, _ = step(state, frame(1.1, prot()), 1.1, MANUAL)
+    _s, cmd = step(state, frame(3.0, reset_request=ResetRequest("op", bad)), 3.0, MANUAL)
+    assert cmd.state == STOP and not cmd.reset.accepted and "old" in cmd.reset.message
+
+
+def test_frame_from_the_future_is_stale():
+    _s, cmd = step(warmed(AUTO)[0], PolicyInputs(frame_time=5.0, zone_report=ZoneReport()), 1.1,
+                   AUTO)
+    assert cmd.state == STOP and "frame_stale" in [r.code for r in cmd.reasons]
+
+
+def test_now_must_be_finite():
+    with pytest.raises(ValueError, match="not finite"):
+        step(initial_state(), tick(), float("nan"), MANUAL)
+
+
+# --- every (phase, input) pair, and each timer's expiry -----------------------------------------
+
+_LATCH_FAULT = Fault("monitor_stalled", "stalled", True, "service", latch=True)
+_MORE_INPUTS = {
+    **_INPUTS,
+    "lost": lambda t: frame(t, lost(since=t - 0.5)),
+    "latch_fault": lambda t: frame(t, faults=(_LATCH_FAULT,)),
+    "stale_frame": lambda t: PolicyInputs(frame_time=t - 1.0, zone_report=ZoneReport()),
+    "detector_error": lambda t: frame(t, detector_error="boom"),
+}
+
+
+def _phase_state(phase: str, config: PolicyConfig):
+    """(state, time) in the named phase of the machine."""
+    state, _ = warmed(config)
+    steps = {
+        "RUN": [],
+        "SLOW_ACTIVE": [(1.1, frame(1.1, warn()))],
+        "SLOW_CLEARING": [(1.1, frame(1.1, warn())), (1.2, frame(1.2))],
+        "STOP_ACTIVE": [(1.1, frame(1.1, prot()))],
+        "STOP_CLEARING": [(1.1, frame(1.1, prot())), (1.2, frame(1.2))],
+        "STOP_LATCHED": [(1.1, frame(1.1, prot())), (1.2, frame(1.2)), (1.6, frame(1.6)),
+                         (2.0, frame(2.0)), (2.2, frame(2.2))],
+    }[phase]
+    t = 1.0
+    for t, inputs in steps:
+        state, _ = step(state, inputs, t, config)
+    assert state.phase == phase
+    return state, t
+
+
+_PHASE_TABLE_MANUAL = {  # phase before -> input -> phase after (0.1 s later), manual interlock
+    "RUN": dict(clear="RUN", warning="SLOW_ACTIVE", protective="STOP_ACTIVE",
+                stop_fault="STOP_ACTIVE", tick="RUN", reset="RUN", lost="STOP_ACTIVE",
+                latch_fault="STOP_ACTIVE", stale_frame="STOP_ACTIVE",
+                detector_error="STOP_ACTIVE"),
+    "SLOW_ACTIVE": dict(clear="SLOW_CLEARING", warning="SLOW_ACTIVE", protective="STOP_ACTIVE",
+                        stop_fault="STOP_ACTIVE", tick="SLOW_ACTIVE", reset="SLOW_CLEARING",
+                        lost="STOP_ACTIVE", latch_fault="STOP_ACTIVE",
+                        stale_frame="STOP_ACTIVE", detector_error="STOP_ACTIVE"),
+    "SLOW_CLEARING": dict(clear="SLOW_CLEARING", warning="SLOW_ACTIVE",
+                          protective="STOP_ACTIVE", stop_fault="STOP_ACTIVE",
+                          tick="SLOW_CLEARING", reset="SLOW_CLEARING", lost="STOP_ACTIVE",
+                          latch_fault="STOP_ACTIVE", stale_frame="STOP_ACTIVE",
+                          detector_error="STOP_ACTIVE"),
+    "STOP_ACTIVE": dict(clear="STOP_LATCHED", warning="STOP_LATCHED", protective="STOP_ACTIVE",
+                        stop_fault="STOP_ACTIVE", tick="STOP_ACTIVE", reset="STOP_CLEARING",
+                        lost="STOP_ACTIVE", latch_fault="STOP_ACTIVE",
+                        stale_frame="STOP_ACTIVE", detector_error="STOP_ACTIVE"),
+    "STOP_LATCHED": dict(clear="STOP_LATCHED", warning="STOP_LATCHED",
+                         protective="STOP_ACTIVE", stop_fault="STOP_ACTIVE",
+                         tick="STOP_LATCHED", reset="RUN", lost="STOP_ACTIVE",
+                         latch_fault="STOP_ACTIVE", stale_frame="STOP_ACTIVE",
+                         detector_error="STOP_ACTIVE"),
+}
+_PHASE_TABLE_AUTO = {
+    "STOP_ACTIVE": dict(clear="STOP_CLEARING", warning="STOP_CLEARING",
+                        protective="STOP_ACTIVE", tick="STOP_ACTIVE", reset="STOP_CLEARING",
+                        latch_fault="STOP_ACTIVE"),
+    "STOP_CLEARING": dict(clear="STOP_CLEARING", warning="STOP_CLEARING",
+                          protective="STOP_ACTIVE", tick="STOP_CLEARING",
+                          reset="STOP_CLEARING", lost="STOP_ACTIVE", stop_fault="STOP_ACTIVE",
+                          latch_fault="STOP_ACTIVE", stale_frame="STOP_ACTIVE"),
+}
+
+
+@pytest.mark.parametrize(("config", "before", "given", "after"), [
+    pytest.param(cfg, b, i, a, id=f"{name}-{b}-{i}")
+    for name, cfg, table in (("manual", MANUAL, _PHASE_TABLE_MANUAL),
+                             ("auto", AUTO, _PHASE_TABLE_AUTO))
+    for b, row in table.items() for i, a in row.items()
+])
+def test_phase_input_table(config, before, given, after):
+    state, t = _phase_state(before, config)
+    state, cmd = step(state, _MORE_INPUTS[given](t + 0.1), round(t + 0.1, 6), config)
+    assert cmd.phase == after == state.phase
+    assert (cmd.speed_scale == 0.0) == (cmd.state == STOP)
+    assert cmd.latched == (after == "STOP_LATCHED" or (
+        after == "STOP_ACTIVE" and (config is MANUAL or given == "latch_fault")
+    ) or (before == "STOP_LATCHED" and after == "STOP_ACTIVE"))
+    if given == "latch_fault":
+        assert cmd.latched
+
+
+@pytest.mark.parametrize(("phase", "config", "after_clear", "expiry"), [
+    pytest.param("SLOW_CLEARING", MANUAL, "RUN", 1.1 + 1.0, id="slow_clear_time"),
+    pytest.param("STOP_CLEARING", AUTO, "RUN", 1.1 + 1.0, id="stop_clear_time"),
+])
+def test_each_clear_timer_expires_exactly_at_clear_time(phase, config, after_clear, expiry):
+    state, _t = _phase_state(phase, config)
+    s1, before = step(state, frame(expiry - 0.001), expiry - 0.001, config)
+    assert before.phase == phase
+    _s, at = step(s1, frame(expiry), expiry, config)
+    assert at.phase == after_clear
+
+
+def test_frame_timeout_and_reset_age_expire_at_their_limits():
+    state, _ = warmed(AUTO)  # last frame at 1.0
+    _s, cmd = step(state, tick(), 1.0 + AUTO.frame_timeout, AUTO)
+    assert cmd.state == RUN
+    _s, cmd = step(state, tick(), 1.0 + AUTO.frame_timeout + 0.001, AUTO)
+    assert "frame_timeout" in [r.code for r in cmd.reasons]
+    state, _ = step(warmed()[0], frame(1.1, prot()), 1.1, MANUAL)
+    state, _ = step(state, frame(2.2), 2.2, MANUAL)
+    _s, cmd = step(state, frame(4.2, reset_request=reset(2.2)), 4.2, MANUAL)
+    assert cmd.reset.accepted  # exactly reset_max_age old: still fresh
+    _s, cmd = step(state, frame(4.21, reset_request=reset(2.2)), 4.21, MANUAL)
+    assert not cmd.reset.accepted and cmd.state == STOP
