@@ -1,0 +1,176 @@
+"""Mutation testing of the safety core with mutmut 3: do the tests notice a deliberate bug?
+
+For each target (a module of the safety core and the fast tests that cover it) the project is
+copied to a scratch folder with a ``[tool.mutmut]`` section written for that target, mutmut runs
+there (the worktree is never touched), and a table prints killed / survived / equivalent per
+target. Equivalent mutants (a change no test can see because behaviour is identical) are named
+in ``EQUIVALENT`` below with the reason; docs/policy.md lists them too.
+
+    .venv/bin/python benchmarks/mutation.py                  # every target
+    .venv/bin/python benchmarks/mutation.py policy watchdog  # some targets
+    .venv/bin/python benchmarks/mutation.py policy --survivors  # print each survivor's diff
+
+Slow (minutes per target on two cores): a benchmark, never part of the test suite. Needs the
+``test`` extra plus ``mutmut>=3.2``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+@dataclass(frozen=True)
+class Target:
+    name: str
+    files: tuple[str, ...]  # files mutmut mutates (globs relative to the project)
+    tests: tuple[str, ...]  # pytest selection: the fast tests that cover them
+    functions: str = ""  # regex on mutant names: only these count (e.g. one class of a file)
+
+
+TARGETS = {
+    t.name: t for t in (
+        Target("policy", ("monitor/policy/*",),
+               ("tests/test_policy.py", "tests/test_policy_properties.py",
+                "tests/test_safety_mutants.py")),
+        Target("watchdog", ("monitor/bus.py",),
+               ("tests/test_safety_mutants.py", "-k", "watchdog"), r"CommandWatchdog"),
+        Target("zone_check", ("monitor/zones/check.py",),
+               ("tests/test_zones.py", "tests/test_safety_mutants.py", "-m", "not slow")),
+        Target("pipeline", ("monitor/pipeline.py",),
+               ("tests/test_pipeline.py", "tests/test_safety_mutants.py", "-m", "not slow")),
+        Target("detector_decode", ("monitor/boxes.py",),
+               ("tests/test_boxes.py", "tests/test_safety_mutants.py", "-m", "not slow")),
+        Target("health", ("monitor/health.py",),
+               ("tests/test_health.py", "tests/test_safety_mutants.py", "-m", "not slow")),
+    )
+}
+
+# mutant name -> why no test can tell it from the original (the behaviour is the same)
+EQUIVALENT: dict[str, str] = {}
+
+_SKIP = {".git", ".venv", "mutants", "__pycache__", ".pytest_cache", ".hypothesis",
+         ".ruff_cache", "workcell_monitor.egg-info"}
+
+
+def _copy_project(dest: Path) -> None:
+    for item in ROOT.iterdir():
+        if item.name in _SKIP:
+            continue
+        if item.is_dir():
+            shutil.copytree(item, dest / item.name,
+                            ignore=shutil.ignore_patterns(*_SKIP, "*.onnx"))
+        else:
+            shutil.copy2(item, dest / item.name)
+
+
+def _toml_list(values: tuple[str, ...]) -> str:
+    return "[" + ", ".join(f'"{v}"' for v in values) + "]"
+
+
+def _configure(dest: Path, target: Target) -> None:
+    text = (dest / "pyproject.toml").read_text()
+    text = re.sub(r"(?ms)^\[tool\.mutmut\].*?(?=^\[|\Z)", "", text)
+    text += (
+        "\n[tool.mutmut]\n"
+        'source_paths = ["monitor/"]\n'
+        f"only_mutate = {_toml_list(target.files)}\n"
+        f"pytest_add_cli_args_test_selection = {_toml_list(target.tests)}\n"
+        'pytest_add_cli_args = ["-x", "-q", "-p", "no:cacheprovider"]\n'
+        "use_git_change_detection = false\n"
+    )
+    (dest / "pyproject.toml").write_text(text)
+
+
+def _results(workdir: Path, mutmut: str) -> dict[str, str]:
+    out = subprocess.run([mutmut, "results", "--all", "true"], cwd=workdir,
+                         capture_output=True, text=True, check=False).stdout
+    found = {}
+    for line in out.splitlines():
+        name, sep, status = line.strip().rpartition(": ")
+        if sep and name:
+            found[name] = status
+    return found
+
+
+def run_target(target: Target, mutmut: str, show_survivors: bool, keep: bool,
+               examples: str) -> dict[str, int]:
+    work = Path(tempfile.mkdtemp(prefix=f"mutation-{target.name}-"))
+    try:
+        _copy_project(work)
+        _configure(work, target)
+        env = {**os.environ, "POLICY_PROPERTY_EXAMPLES": examples}
+        t0 = time.perf_counter()
+        subprocess.run([mutmut, "run", "--max-children", "2"], cwd=work, env=env,
+                       stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, check=False)
+        seconds = time.perf_counter() - t0
+        results = {n: s for n, s in _results(work, mutmut).items()
+                   if re.search(target.functions, n)}
+        counts = {"mutants": len(results), "killed": 0, "survived": 0, "equivalent": 0,
+                  "no tests": 0, "timeout": 0, "other": 0, "seconds": round(seconds)}
+        survivors = []
+        for name, status in sorted(results.items()):
+            if status == "survived" and name in EQUIVALENT:
+                counts["equivalent"] += 1
+            elif status in counts:
+                counts[status] += 1
+                if status in ("survived", "no tests"):
+                    survivors.append(name)
+            else:
+                counts["other"] += 1
+        for name in survivors:
+            print(f"  {target.name}: {results[name]}: {name}")
+            if show_survivors:
+                diff = subprocess.run([mutmut, "show", name], cwd=work, capture_output=True,
+                                      text=True, check=False).stdout
+                print("    " + diff.replace("\n", "\n    "))
+        return counts
+    finally:
+        if keep:
+            print(f"  kept {work}")
+        else:
+            shutil.rmtree(work, ignore_errors=True)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("targets", nargs="*", default=[],
+                        help=f"targets to run (default: all): {', '.join(TARGETS)}")
+    parser.add_argument("--survivors", action="store_true", help="print each survivor's diff")
+    parser.add_argument("--keep", action="store_true", help="keep the scratch folders")
+    parser.add_argument("--examples", default="60",
+                        help="hypothesis sequences per property test run (default 60)")
+    args = parser.parse_args(argv)
+    unknown = [t for t in args.targets if t not in TARGETS]
+    if unknown:
+        parser.error(f"unknown target {unknown[0]!r} (targets: {', '.join(TARGETS)})")
+    mutmut = shutil.which("mutmut", path=str(Path(sys.executable).parent)) or "mutmut"
+    rows = []
+    for name in args.targets or list(TARGETS):
+        counts = run_target(TARGETS[name], mutmut, args.survivors, args.keep, args.examples)
+        judged = counts["mutants"] - counts["equivalent"]
+        # a mutant that makes the tests hang is noticed too
+        score = (100.0 * (counts["killed"] + counts["timeout"]) / judged if judged
+                 else float("nan"))
+        rows.append((name, counts, score))
+    print(f"\n{'target':16} {'mutants':>8} {'killed':>7} {'survived':>9} {'equiv':>6} "
+          f"{'no tests':>9} {'timeout':>8} {'score %':>8} {'time s':>7}")
+    for name, c, score in rows:
+        print(f"{name:16} {c['mutants']:8} {c['killed']:7} {c['survived']:9} "
+              f"{c['equivalent']:6} {c['no tests']:9} {c['timeout']:8} {score:8.1f} "
+              f"{c['seconds']:7}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
