@@ -305,7 +305,7 @@ def test_protective_separation_by_hand():
     assert geo.protective_separation_m(0.0, p, 0.1) == pytest.approx(0.16 + 0.32)
 
 
-@pytest.mark.parametrize("d", [0.6, 1.0, 2.0, 5.0])
+@pytest.mark.parametrize("d", [2.4, 3.0, 4.0, 6.0])
 def test_max_robot_speed_inverts_the_separation(d):
     p = geo.SeparationParams()
     v = geo.max_robot_speed_mps(d, p, 0.1)

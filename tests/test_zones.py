@@ -441,7 +441,7 @@ def test_tool_separation_matches_closed_form():
     rep = zn.check_persons(cell, "cam0", boxes, tool_pose=pose, tool_speed_mps=0.5)
     expected = math.hypot(2.01355, 0.00182) - 0.3 - 0.05  # nominal person radius, no Z_d
     assert rep.tool_separation_m == pytest.approx(expected, abs=1e-3)
-    sep = geo.SeparationParams()
+    sep = cell.prepared.separation  # the demo file sets T_r and C itself
     assert rep.required_separation_m == pytest.approx(
         geo.protective_separation_m(0.5, sep, 0.1))
     # unknown speed: the configured default speed

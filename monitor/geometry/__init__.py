@@ -47,10 +47,17 @@ from monitor.geometry.poses import (
     tool_transform,
 )
 from monitor.geometry.separation import (
+    DEFAULT_REACTION_TIME_S,
+    WHOLE_BODY_INTRUSION_M,
     PersonModel,
+    ReactionBudget,
     SeparationParams,
+    describe_separation,
+    intrusion_distance_m,
     max_robot_speed_mps,
     protective_separation_m,
+    reaction_time_s,
+    separation_speed_scale,
 )
 from monitor.geometry.shapes import (
     fcl_box,
@@ -61,9 +68,12 @@ from monitor.geometry.shapes import (
 )
 
 __all__ = [
+    "DEFAULT_REACTION_TIME_S",
+    "WHOLE_BODY_INTRUSION_M",
     "CameraModel",
     "GeometryError",
     "PersonModel",
+    "ReactionBudget",
     "SeparationParams",
     "ToolPose",
     "_PolygonEdges",
@@ -73,11 +83,13 @@ __all__ = [
     "_orient",
     "apply_homography",
     "clip_polygon_to_rect",
+    "describe_separation",
     "fcl_box",
     "fcl_mesh",
     "fcl_prism_parts",
     "fcl_vertical_cylinder",
     "fit_homography",
+    "intrusion_distance_m",
     "is_convex",
     "look_at",
     "max_robot_speed_mps",
@@ -88,9 +100,11 @@ __all__ = [
     "polygon_signed_area",
     "protective_separation_m",
     "quaternion_to_matrix",
+    "reaction_time_s",
     "reprojection_errors_px",
     "rigid",
     "rpy_to_matrix",
+    "separation_speed_scale",
     "tool_transform",
     "triangulate_polygon",
 ]

@@ -112,20 +112,13 @@ class CameraModel:
         m = k @ np.c_[r[:, 0], r[:, 1], t]
         if abs(np.linalg.det(m)) < 1e-12 * np.abs(m).max() ** 3:
             raise GeometryError("camera centre lies on the floor plane: no floor homography")
+        # (x, y, 1) = depth * inv(m) @ (u, v, 1) with depth = camera z of the floor point:
+        # keeping inv(m) unnormalised (only a positive scale) makes w = 1 / depth, so w > 0
+        # exactly for floor points in front of the camera, at any pitch (the horizon is w = 0)
         h = np.linalg.inv(m)
+        scale = abs(h[2, 2]) if abs(h[2, 2]) > 1e-12 * np.abs(h).max() else np.abs(h).max()
         dist = None if distortion is None else np.asarray(distortion, dtype=float).reshape(-1)
-        model = cls(width, height, k, dist, r, t, h / h[2, 2] if h[2, 2] else h, 1.0)
-        # w = depth of the floor point / scale; pick the sign of a floor point in front
-        centre = -r.T @ t
-        ahead = centre + r.T @ np.array([0.0, 0.0, 1.0])
-        target = np.array([ahead[0], ahead[1], 0.0])
-        px, front = model.project(target[None])
-        if front[0]:
-            _, w = apply_homography(model.homography, px)
-            sign = 1.0 if w[0] > 0 else -1.0
-        else:  # camera looks up; floor visible only below the horizon, take the generic sign
-            sign = 1.0
-        return cls(width, height, k, dist, r, t, model.homography, sign)
+        return cls(width, height, k, dist, r, t, h / scale, 1.0)
 
     @classmethod
     def from_homography(cls, width: int, height: int, homography: np.ndarray,
@@ -137,6 +130,10 @@ class CameraModel:
         kk = None if k is None else np.asarray(k, dtype=float)
         model = cls(width, height, kk, dist, None, None, np.asarray(homography, float), 1.0)
         _, w = apply_homography(model.homography, model.undistort_px(image_px))
+        if np.any(w > 0) and np.any(w < 0):
+            raise GeometryError("the horizon of this homography runs between the calibration "
+                                "points: some pixels would map behind the camera (check the "
+                                "point pairs)")
         sign = 1.0 if np.median(w) > 0 else -1.0
         return cls(width, height, kk, dist, None, None, model.homography, sign)
 
@@ -162,6 +159,23 @@ class CameraModel:
         xy, w = apply_homography(self.homography, self.undistort_px(px))
         valid = (w * self.w_sign > 0) & np.all(np.isfinite(xy), axis=1)
         return xy, valid
+
+    def horizon_row_px(self, column_px: float | None = None) -> float | None:
+        """Image row (undistorted pixels) of the horizon at ``column_px`` (the image centre by
+        default): pixels on the floor side of it meet the floor in front of the camera, the
+        others never do. None when the horizon is vertical in the image (a camera rolled 90
+        degrees) or at infinity (a camera looking straight down). The line is where the third
+        row of the floor homography gives w = 0; which side sees the floor is ``w_sign``."""
+        u = self.width / 2 if column_px is None else float(column_px)
+        h31, h32, h33 = (float(x) for x in self.homography[2])
+        if abs(h32) < 1e-15 * max(abs(h31), abs(h33), 1e-300):
+            return None
+        return -(h31 * u + h33) / h32
+
+    def floor_is_below_horizon(self) -> bool:
+        """True when the floor lies below the horizon row (image y grows downwards), the usual
+        upright camera; False for an upside-down camera."""
+        return bool(self.homography[2, 1] * self.w_sign > 0)
 
     def project(self, points_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Cell points (N, 3) -> raw pixels (N, 2) and a mask of points in front of the camera.
