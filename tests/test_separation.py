@@ -319,3 +319,35 @@ def test_pipeline_stops_for_a_lying_pose_stream(detector):
     assert result.command.state == "STOP"
     assert "separation" in {r.code for r in result.command.reasons}
     assert result.zone_report.separation_speed_scale == 0.0
+
+
+# ---------------------------------------------------------------------------- horizon
+
+
+@pytest.mark.parametrize("pitch", [5, 10, 15])
+def test_a_box_above_the_horizon_of_a_tilted_camera_touches_every_volume(pitch):
+    """Camera tilted up: a person whose box bottom is above the horizon cannot be placed on the
+    floor, so they are in every protective and warning volume and touch the tool."""
+    data = zn.read_cell_data(demo_cell_path())
+    p = math.radians(pitch)
+    fwd = np.array([0.0, math.cos(p), math.sin(p)])
+    right = np.array([1.0, 0.0, 0.0])
+    r = np.stack([right, np.cross(fwd, right), fwd])
+    eye = np.array([0.0, -6.0, 3.0])
+    cal = data["cameras"][0]["calibration"]
+    cal["rotation"] = r.tolist()
+    cal["translation_m"] = (-r @ eye).tolist()
+    data["zones"] = [z for z in data["zones"] if z["shape"] != "polygon"]
+    cell = zn.parse_cell(data, demo_cell_path())
+    horizon = cell.camera_models["cam0"].horizon_row_px()
+    assert 360 < horizon < 720
+    above = np.array([[600.0, horizon - 200, 680.0, horizon - 20]])
+    below = np.array([[600.0, 500.0, 680.0, 719.0]]) if horizon < 690 else None
+    pose = geo.ToolPose((5.0, 5.0, 1.0), (0.0, 0.0, 0.0, 1.0), 0.0)
+    rep = zn.check_persons(cell, "cam0", above, tool_pose=pose, tool_speed_mps=0.0)
+    volumes = {z["id"] for z in data["zones"] if z["kind"] in ("protective", "warning")}
+    assert {h.zone_id for h in rep.hits} == volumes
+    assert rep.tool_separation_m == 0.0 and rep.separation_speed_scale == 0.0
+    if below is not None:
+        xy, valid = cell.camera_models["cam0"].pixel_to_floor(np.array([[640.0, 719.0]]))
+        assert valid[0] and xy[0, 1] > -6.0  # floor in front of the camera, not behind it
