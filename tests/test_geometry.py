@@ -199,6 +199,56 @@ def test_pixels_above_the_horizon_are_invalid():
     assert valid.tolist() == [False, True]
 
 
+def pitched_camera(height_m: float, pitch_deg: float, roll_deg: float = 0.0,
+                   yaw_deg: float = 0.0) -> tuple[geo.CameraModel, np.ndarray, np.ndarray]:
+    """A camera at (0, 0, height) looking along +y, pitched up by ``pitch_deg`` (negative:
+    down), then rolled about its axis and turned about the vertical. Returns it, K and R."""
+    k = np.array([[800.0, 0, 640], [0, 800.0, 360], [0, 0, 1]])
+    p = math.radians(pitch_deg)
+    fwd = np.array([0.0, math.cos(p), math.sin(p)])
+    right = np.array([1.0, 0.0, 0.0])
+    down = np.cross(fwd, right)
+    r = np.stack([right, down, fwd])  # cell -> camera
+    roll = geo.rpy_to_matrix(0, 0, roll_deg)  # about the camera's z (forward) axis
+    r = roll @ r @ geo.rpy_to_matrix(0, 0, -yaw_deg)
+    eye = np.array([0.0, 0.0, height_m])
+    return geo.CameraModel.pinhole(1280, 720, k, None, r, -r @ eye), k, r
+
+
+@pytest.mark.parametrize("pitch", [-60, -45, -20, -5, 0, 5, 20, 30, 40])
+@pytest.mark.parametrize("height", [1.0, 2.5, 4.0])
+def test_pixel_to_floor_validity_agrees_with_a_ray_plane_reference(pitch, height):
+    """Cameras tilted up used to get made-up floor points in the sky and none on the floor."""
+    rng = np.random.default_rng(int(height * 100 + pitch + 1000))
+    roll, yaw = rng.uniform(-15, 15), rng.uniform(-180, 180)
+    cam, k, r = pitched_camera(height, pitch, roll, yaw)
+    px = np.c_[rng.uniform(0, 1280, 3000), rng.uniform(0, 720, 3000)]
+    rays = (np.linalg.inv(k) @ np.c_[px, np.ones(len(px))].T).T @ r  # R^T d, cell frame
+    rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+    clear = np.abs(rays[:, 2]) > 1e-6  # rays grazing the horizon may go either way
+    ref_valid = rays[:, 2] < 0
+    xy, valid = cam.pixel_to_floor(px)
+    np.testing.assert_array_equal(valid[clear], ref_valid[clear])
+    hit = ref_valid & clear & (rays[:, 2] < -0.05)
+    s = height / -rays[hit, 2]
+    ref_xy = np.array([0.0, 0.0]) + s[:, None] * rays[hit, :2]
+    np.testing.assert_allclose(xy[hit], ref_xy, rtol=1e-7, atol=1e-7 * height)
+    row = cam.horizon_row_px()
+    if row is not None and 0 < row < 720 and abs(roll) < 1e-9:
+        assert valid[px[:, 1] > row + 1].all()
+
+
+@pytest.mark.parametrize("pitch", [20, 30, 40])
+def test_horizon_row_of_an_upward_camera(pitch):
+    cam, _, _ = pitched_camera(2.0, pitch)
+    # a level-rolled camera pitched up by p sees the horizon p degrees below the centre row
+    expected = 360 + 800 * math.tan(math.radians(pitch))
+    assert cam.horizon_row_px() == pytest.approx(expected, rel=1e-9)
+    assert cam.floor_is_below_horizon()
+    _, valid = cam.pixel_to_floor(np.array([[640, expected - 5], [640, expected + 5]]))
+    assert valid.tolist() == [False, True]
+
+
 # ---------------------------------------------------------------------------- FCL vs closed forms
 
 
@@ -305,7 +355,7 @@ def test_protective_separation_by_hand():
     assert geo.protective_separation_m(0.0, p, 0.1) == pytest.approx(0.16 + 0.32)
 
 
-@pytest.mark.parametrize("d", [0.6, 1.0, 2.0, 5.0])
+@pytest.mark.parametrize("d", [2.4, 3.0, 4.0, 6.0])
 def test_max_robot_speed_inverts_the_separation(d):
     p = geo.SeparationParams()
     v = geo.max_robot_speed_mps(d, p, 0.1)

@@ -12,6 +12,7 @@ from monitor.errors import ConfigError
 from monitor.types import ZoneHit, ZoneReport
 from monitor.zones.files import Cell
 from monitor.zones.prepare import PreparedCell, _Volume, tool_object
+from monitor.zones.separation import evaluate_separation
 
 # --------------------------------------------------------------------------------------------
 # The per-frame query
@@ -35,6 +36,8 @@ def check_persons(cell: Cell | PreparedCell, camera_id: str, boxes_px: np.ndarra
     Z_d) to the tool placed at ``tool_pose`` (None without pose, tool, calibration or persons).
     ``required_separation_m`` is S_p (ISO/TS 15066, including Z_d) for ``tool_speed_mps``, or for
     ``separation.robot_speed_default_mps`` when the speed is unknown; None without a tool pose.
+    ``separation_speed_scale`` is min(1, v_max(separation) / programmed speed), 0 when the tool
+    is already faster than v_max (``monitor.zones.separation``, docs/separation.md).
     ``foot_uncertainty_px``: how far above the box's bottom edge the feet may really be (a
     detector whose boxes err large, e.g. by one grid cell). The persons are then checked twice,
     as detected and with the bottom edge raised by this much, and the answers are merged towards
@@ -64,10 +67,12 @@ def merge_towards_danger(a: ZoneReport, b: ZoneReport) -> ZoneReport:
             hits[key] = hit
     seps = [s for s in (a.tool_separation_m, b.tool_separation_m) if s is not None]
     reqs = [s for s in (a.required_separation_m, b.required_separation_m) if s is not None]
+    scales = [s for s in (a.separation_speed_scale, b.separation_speed_scale) if s is not None]
     return ZoneReport(hits=tuple(hits.values()),
                       masked=tuple(sorted(set(a.masked) & set(b.masked))),
                       tool_separation_m=min(seps) if seps else None,
                       required_separation_m=max(reqs) if reqs else None,
+                      separation_speed_scale=min(scales) if scales else None,
                       config_hash=a.config_hash)
 
 
@@ -138,20 +143,16 @@ def _check(prep: PreparedCell, camera_id: str, boxes_px: np.ndarray,
             hits.extend(ZoneHit(v.id, v.kind, int(i), v.speed_scale, None)
                         for v in prep.volumes if v.kind != "mask" for i in lost)
 
-    separation = None
-    required = None
-    if tool_pose is not None and prep.tool is not None:
-        speed = prep.separation.robot_speed_default_mps if tool_speed_mps is None \
-            else float(tool_speed_mps)
-        required = geo.protective_separation_m(speed, prep.separation,
-                                               prep.person.position_uncertainty_m)
-        if model is not None and active.any():
-            separation = _tool_separation(prep, tool_pose, centres, located, active)
+    sep = evaluate_separation(
+        prep, tool_pose, tool_speed_mps,
+        lambda: _tool_separation(prep, tool_pose, centres, located, active)
+        if model is not None and active.any() else None)
     return ZoneReport(
         hits=tuple(hits),
         masked=tuple(np.flatnonzero(masked).tolist()),
-        tool_separation_m=separation,
-        required_separation_m=required,
+        tool_separation_m=sep.separation_m,
+        required_separation_m=sep.required_m,
+        separation_speed_scale=sep.speed_scale,
         config_hash=cell.config_hash,
     )
 

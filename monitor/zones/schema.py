@@ -137,14 +137,24 @@ class PersonSpec(_Strict):
 
 
 class SeparationSpec(_Strict):
-    """ISO/TS 15066 speed and separation parameters (see geometry.SeparationParams)."""
+    """ISO/TS 15066 speed and separation parameters (see geometry.SeparationParams and
+    docs/separation.md).
+
+    ``reaction_time_s`` (T_r) defaults to the sum of the default monitor configuration's
+    delays (0.8 s, ``geometry.reaction_time_s``); ``monitor run`` uses the larger of it and the
+    value computed from its own configuration. ``intrusion_distance_m`` (C) defaults to the
+    ISO 13855 whole-body value 0.85 m (detection capability > 40 mm: a person detector).
+    ``programmed_speed_mps`` is the robot's programmed tool speed: the command's speed scale is
+    v_max(separation) / programmed speed, so RUN only where v_max allows all of it.
+    """
 
     person_speed_mps: float = Field(default=1.6, ge=0.0, le=5.0)
-    reaction_time_s: float = Field(default=0.1, ge=0.0, le=5.0)
+    reaction_time_s: float = Field(default=geo.DEFAULT_REACTION_TIME_S, ge=0.0, le=5.0)
     deceleration_mps2: float = Field(default=2.0, gt=0.0, le=100.0)
-    intrusion_distance_m: float = Field(default=0.2, ge=0.0, le=2.0)
+    intrusion_distance_m: float = Field(default=geo.WHOLE_BODY_INTRUSION_M, ge=0.0, le=2.0)
     robot_uncertainty_m: float = Field(default=0.02, ge=0.0, le=1.0)
     robot_speed_default_mps: float = Field(default=1.0, ge=0.0, le=10.0)
+    programmed_speed_mps: float = Field(default=1.0, gt=0.0, le=10.0)
 
 
 class ToolOffset(_Strict):
