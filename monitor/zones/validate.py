@@ -101,6 +101,10 @@ def _check_spec(spec: CellSpec, base: Path
     models: dict[str, geo.CameraModel] = {}
     meshes: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     errors += _check_unique_ids(spec)
+    lo, hi = spec.person.height_range_m
+    if not 0.3 <= lo < hi <= 3.0:
+        errors.append(f"person: height_range_m [{lo:g}, {hi:g}] must be increasing within "
+                      "[0.3, 3.0] m")
     cams = {c.id: c for c in spec.cameras}
     for cam in spec.cameras:
         faults, model = _check_calibration(cam)
@@ -158,6 +162,8 @@ def _check_unique_ids(spec: CellSpec) -> list[str]:
 
 
 def _check_kind_fields(z: Any) -> Iterable[str]:
+    if z.kind == "occluder" and not z.is_volume:
+        yield "an occluder is a cell volume (box, extrude, cylinder or mesh), not an image polygon"
     if z.kind == "warning" and z.speed_scale is None:
         yield "warning zone needs speed_scale (allowed speed fraction, 0 <= s < 1)"
     if z.kind != "warning" and z.speed_scale is not None:
