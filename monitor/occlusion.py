@@ -29,7 +29,7 @@ that lies there.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import cv2
@@ -200,35 +200,53 @@ def occluder_outline_px(points_m: np.ndarray, model: geo.CameraModel) -> np.ndar
     return cv2.convexHull(px.astype(np.float32)).reshape(-1, 2).astype(float)
 
 
+@dataclass(frozen=True)
+class PolygonSegments:
+    """Edges of several image polygons, stacked, for vertical-segment tests."""
+
+    inside: geo._PolygonEdges  # the even-odd point test of the same polygons
+    ax: np.ndarray
+    ay: np.ndarray
+    bx: np.ndarray
+    by: np.ndarray
+    starts: np.ndarray  # index of the first edge of each polygon
+
+    @classmethod
+    def build(cls, polygons: Sequence[np.ndarray]) -> PolygonSegments:
+        ps = [np.asarray(p, float).reshape(-1, 2) for p in polygons]
+        if not ps:
+            z = np.zeros(0)
+            return cls(geo._PolygonEdges.build([]), z, z, z, z, np.zeros(0, dtype=np.intp))
+        a = np.concatenate(ps)
+        b = np.concatenate([np.roll(p, -1, axis=0) for p in ps])
+        starts = np.cumsum([0] + [len(p) for p in ps[:-1]]).astype(np.intp)
+        return cls(geo._PolygonEdges.build(ps), a[:, 0], a[:, 1], b[:, 0], b[:, 1], starts)
+
+    @property
+    def count(self) -> int:
+        return len(self.starts)
+
+
 def segments_hit_polygons(u: np.ndarray, y0: np.ndarray, y1: np.ndarray,
-                          edges: geo._PolygonEdges) -> np.ndarray:
+                          polys: PolygonSegments) -> np.ndarray:
     """(N, Z) bool: the vertical pixel segment x = u, y0 <= y <= y1 touches polygon z."""
-    n = len(u)
-    out = edges.contains(np.c_[u, y0]) | edges.contains(np.c_[u, y1])
-    if edges.count == 0 or n == 0:
+    u, y0, y1 = (np.asarray(v, float).reshape(-1) for v in (u, y0, y1))
+    out = polys.inside.contains(np.c_[u, y0]) | polys.inside.contains(np.c_[u, y1])
+    if polys.count == 0 or len(u) == 0:
         return out
-    # an edge that crosses the column x = u between y0 and y1 (non-vertical in x)
-    x0 = edges.x0
-    y_a = edges.y0
-    slope = edges.dx_dy
-    # edge end points: recover x1 from the edge's y span and slope (x0 + (y1 - y0) * slope)
-    y_b = np.where(np.isclose(edges.ylo, y_a), edges.yhi, edges.ylo)
-    x_b = x0 + (y_b - y_a) * slope
-    horizontal = edges.ylo == edges.yhi
-    lo_x, hi_x = np.minimum(x0, x_b), np.maximum(x0, x_b)
-    uu = u[:, None]
-    spans = (lo_x <= uu) & (uu <= hi_x)
+    uu, lo, hi = u[:, None], y0[:, None], y1[:, None]
+    ax, ay, bx, by = polys.ax, polys.ay, polys.bx, polys.by
+    spans = (np.minimum(ax, bx) <= uu) & (uu <= np.maximum(ax, bx))
+    dx = bx - ax
+    vertical = dx == 0
     with np.errstate(divide="ignore", invalid="ignore"):
-        inv = np.where(slope != 0, 1.0 / np.where(slope != 0, slope, 1.0), np.inf)
-        y_cross = np.where(horizontal, y_a, y_a + (uu - x0) * inv)
-    # vertical edges (slope 0, not horizontal) lie on one column: touching if in the y range
-    vertical = (~horizontal) & (slope == 0)
-    touch_v = vertical & np.isclose(x0, uu) & (edges.ylo <= y1[:, None]) \
-        & (edges.yhi >= y0[:, None])
-    cross = spans & ~vertical & (y_cross >= y0[:, None]) & (y_cross <= y1[:, None])
-    hit = cross | touch_v
-    starts = edges.starts
-    return out | (np.add.reduceat(hit.astype(np.int32), starts, axis=1) > 0)
+        t = np.where(vertical, 0.0, (uu - ax) / np.where(vertical, 1.0, dx))
+    y_cross = ay + t * (by - ay)
+    cross = spans & ~vertical & (y_cross >= lo) & (y_cross <= hi)
+    # an edge on the column itself: touching when the y ranges overlap
+    on = vertical & (ax == uu) & (np.minimum(ay, by) <= hi) & (np.maximum(ay, by) >= lo)
+    hit = (cross | on).astype(np.int32)
+    return out | (np.add.reduceat(hit, polys.starts, axis=1) > 0)
 
 
 # --------------------------------------------------------------------------------------------
@@ -258,3 +276,108 @@ def shadowed(floor_xy_m: np.ndarray, model: geo.CameraModel, occluders_contain,
     line = centre[None, None, :] + t * (heads[:, None, :] - centre[None, None, :])
     blocked = occluders_contain(line.reshape(-1, 3)).reshape(n, samples).any(axis=1)
     return out | blocked
+
+
+def points_in_volume(z, points_m: np.ndarray,
+                     meshes: Mapping[str, tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
+    """(M,) bool: cell points inside a volume zone spec (box, extrude, cylinder, mesh)."""
+    p = np.asarray(points_m, float).reshape(-1, 3)
+    shape = z.shape
+    if shape == "box":
+        lo, hi = np.array(z.min_m), np.array(z.max_m)
+        c = (lo + hi) / 2
+        rot = geo.rpy_to_matrix(0, 0, z.yaw_deg)[:2, :2]
+        local = (p[:, :2] - c[:2]) @ rot  # rotate back into the box frame
+        half = (hi - lo)[:2] / 2
+        return np.all(np.abs(local) <= half, axis=1) & (p[:, 2] >= lo[2]) & (p[:, 2] <= hi[2])
+    if shape == "extrude":
+        inside = geo.points_in_polygon(p[:, :2], np.array(z.points_m, float))
+        return inside & (p[:, 2] >= z.z_min_m) & (p[:, 2] <= z.z_max_m)
+    if shape == "cylinder":
+        c = np.array(z.center_m)
+        return (np.hypot(p[:, 0] - c[0], p[:, 1] - c[1]) <= z.radius_m) \
+            & (p[:, 2] >= z.z_min_m) & (p[:, 2] <= z.z_max_m)
+    verts, faces = meshes[z.id]
+    lo, hi = verts.min(axis=0), verts.max(axis=0)
+    out = np.all((p >= lo) & (p <= hi), axis=1)
+    if out.any():
+        out[out] = geo.points_in_mesh(p[out], verts, faces)
+    return out
+
+
+def shadowed_by(occluders: Sequence, meshes: Mapping[str, tuple[np.ndarray, np.ndarray]],
+                floor_xy_m: np.ndarray, model: geo.CameraModel, min_height_m: float
+                ) -> np.ndarray:
+    """``shadowed`` for the occluder zone specs ``occluders`` of a cell."""
+    def contain(points: np.ndarray) -> np.ndarray:
+        out = np.zeros(len(points), dtype=bool)
+        for z in occluders:
+            out |= points_in_volume(z, points, meshes)
+        return out
+
+    return shadowed(floor_xy_m, model, contain if occluders else None, min_height_m)
+
+
+def standable(occluders: Sequence, meshes: Mapping[str, tuple[np.ndarray, np.ndarray]],
+              floor_xy_m: np.ndarray) -> np.ndarray:
+    """(N,) bool: floor points not inside an occluder's footprint (nobody stands in a bench;
+    a conveyor with room beneath is declared from its underside, z_min_m > 0)."""
+    pts = np.c_[np.asarray(floor_xy_m, float).reshape(-1, 2), np.full(len(floor_xy_m), 0.01)]
+    out = np.ones(len(pts), dtype=bool)
+    for z in occluders:
+        out &= ~points_in_volume(z, pts, meshes)
+    return out
+
+
+def shadow_mask(cell, camera_id: str, floor_xy_m: np.ndarray) -> np.ndarray:
+    """(N,) bool: floor points in the shadow of ``camera_id`` (see the module docstring)."""
+    occluders = [z for z in cell.zones if z.is_volume and z.enabled and z.kind == "occluder"]
+    model = cell.camera_models[camera_id]
+    return shadowed_by(occluders, cell.meshes, floor_xy_m, model,
+                       cell.spec.person.height_range_m[0])
+
+
+def unobserved_floor(zone, occluders: Sequence, models: Mapping[str, geo.CameraModel],
+                     meshes: Mapping[str, tuple[np.ndarray, np.ndarray]], min_height_m: float,
+                     step_m: float = 0.1) -> tuple[float, np.ndarray]:
+    """Floor of a volume zone (sampled every ``step_m``) that no camera observes: a person of
+    the minimum height standing there is hidden from every calibrated camera. Returns (area in
+    m², (K, 2) sample points); points inside an occluder's footprint do not count."""
+    z_mid = _zone_mid_height(zone, meshes)
+    lo, hi = _zone_floor_bounds(zone, meshes)
+    xs = np.arange(lo[0] + step_m / 2, hi[0], step_m)
+    ys = np.arange(lo[1] + step_m / 2, hi[1], step_m)
+    if not len(xs) or not len(ys):
+        return 0.0, np.zeros((0, 2))
+    gx, gy = np.meshgrid(xs, ys)
+    pts = np.c_[gx.ravel(), gy.ravel()]
+    pts = pts[points_in_volume(zone, np.c_[pts, np.full(len(pts), z_mid)], meshes)]
+    pts = pts[standable(occluders, meshes, pts)]
+    unseen = np.ones(len(pts), dtype=bool)
+    for model in models.values():
+        unseen &= shadowed_by(occluders, meshes, pts, model, min_height_m)
+    return float(unseen.sum()) * step_m * step_m, pts[unseen]
+
+
+def _zone_floor_bounds(z, meshes) -> tuple[np.ndarray, np.ndarray]:
+    if z.shape == "box":
+        lo, hi = np.array(z.min_m[:2]), np.array(z.max_m[:2])
+        c, r = (lo + hi) / 2, float(np.hypot(*(hi - lo))) / 2
+        return (c - r, c + r) if z.yaw_deg else (lo, hi)
+    if z.shape == "extrude":
+        p = np.array(z.points_m, float)
+        return p.min(axis=0), p.max(axis=0)
+    if z.shape == "cylinder":
+        c = np.array(z.center_m)
+        return c - z.radius_m, c + z.radius_m
+    v = meshes[z.id][0]
+    return v[:, :2].min(axis=0), v[:, :2].max(axis=0)
+
+
+def _zone_mid_height(z, meshes) -> float:
+    if z.shape == "box":
+        return (z.min_m[2] + z.max_m[2]) / 2
+    if z.shape in ("extrude", "cylinder"):
+        return (z.z_min_m + z.z_max_m) / 2
+    v = meshes[z.id][0]
+    return float(v[:, 2].min() + v[:, 2].max()) / 2

@@ -12,7 +12,7 @@ import fcl
 import numpy as np
 
 from monitor import geometry as geo
-from monitor.occlusion import occluder_outline_px, segments_hit_polygons
+from monitor.occlusion import PolygonSegments, occluder_outline_px, segments_hit_polygons
 from monitor.types import ZoneReport
 from monitor.zones.draw import _box_corners
 
@@ -43,6 +43,7 @@ class _ImageZones:
     anchors: tuple[str, ...]
     point_cols: np.ndarray  # zones decided by one anchor point
     point_edges: geo._PolygonEdges
+    point_segments: PolygonSegments  # the same polygons, for feet ranges
     uses_centre: np.ndarray  # per point zone: anchor is the box centre
     area_cols: np.ndarray  # zones decided by overlap area
     area_min: np.ndarray  # per area zone: share needed (0 for any-overlap: > 0 pixels)
@@ -69,7 +70,7 @@ class _ImageZones:
             if feet_px is None:
                 res = self.point_edges.contains(pts)
             else:
-                res = segments_hit_polygons(*feet_px, self.point_edges)
+                res = segments_hit_polygons(*feet_px, self.point_segments)
             if self.uses_centre.any():
                 pts[:, 1] = (boxes[:, 1] + boxes[:, 3]) * 0.5
                 res = np.where(self.uses_centre, self.point_edges.contains(pts), res)
@@ -212,6 +213,7 @@ def _prepare_image_zones(zs: list[PolygonZone], cam: CameraSpec) -> _ImageZones:
         anchors=tuple(z.anchor for z in zs),
         point_cols=np.array(point, dtype=np.intp),
         point_edges=geo._PolygonEdges.build([np.array(zs[k].points_px) for k in point]),
+        point_segments=PolygonSegments.build([np.array(zs[k].points_px) for k in point]),
         uses_centre=np.array([zs[k].anchor == "centre" for k in point], dtype=bool),
         area_cols=np.array(area, dtype=np.intp),
         area_min=np.array([zs[k].min_share or 0.0 for k in area], dtype=float),
