@@ -240,3 +240,22 @@ def test_non_finite_box_is_an_input_error():
 
     with pytest.raises(InputError, match="non-finite"):
         zn.check_persons(zn.load_cell(DEMO), "cam0", np.array([[0, 0, np.nan, 10]]))
+
+
+def test_preview_draws_the_shadow_behind_an_occluder():
+    data = with_bench(demo_data(), 2.2, y=(-2.0, -1.6), x=(-0.5, 0.5), zone_id="cabinet")
+    cell = zn.parse_cell(data)
+    from monitor.zones.draw import shadow_image
+
+    mask = shadow_image(cell, "cam0", 1280, 720)
+    # the floor just behind the cabinet, and not the floor in front of it
+    behind = DEMO_CAMERA.project(np.array([[0.0, -1.2, 0.0]]))[0]
+    front = DEMO_CAMERA.project(np.array([[0.0, -2.5, 0.0]]))[0]
+    assert mask[int(behind[1]), int(behind[0])]
+    assert not mask[int(front[1]), int(front[0])]
+    assert shadow_image(zn.load_cell(DEMO), "cam0", 1280, 720) is None
+    frame = np.full((720, 1280, 3), 128, np.uint8)
+    drawn = zn.draw_zones(frame, cell, "cam0")
+    assert not np.array_equal(drawn[int(behind[1]), int(behind[0])],
+                              zn.draw_zones(frame, zn.load_cell(DEMO), "cam0")[
+                                  int(behind[1]), int(behind[0])])
