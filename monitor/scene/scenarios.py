@@ -41,9 +41,12 @@ class Scenario:
     needs: tuple[str, ...] = ()  # pipeline features the scenario relies on ("tracker", "masks")
     extra_zones: tuple[dict, ...] = ()
     check_false_stops: bool = True
+    declare_occluders: bool = True  # False: the zone file leaves the fixtures out
 
     def zone_data(self) -> dict:
         data = zone_data(self.scene, PROTECTIVE)
+        if not self.declare_occluders:
+            data["zones"] = [z for z in data["zones"] if z["kind"] != "occluder"]
         data["zones"] += [dict(z) for z in self.extra_zones]
         return data
 
