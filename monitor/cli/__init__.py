@@ -19,6 +19,7 @@ COMMAND_MODULES = (
     "monitor.cli.zones",
     "monitor.cli.reference",
     "monitor.cli.run",
+    "monitor.cli.eval",
 )
 
 

@@ -8,7 +8,8 @@ import fcl
 import numpy as np
 
 from monitor import geometry as geo
-from monitor.errors import ConfigError
+from monitor import occlusion as occ
+from monitor.errors import ConfigError, InputError
 from monitor.types import ZoneHit, ZoneReport
 from monitor.zones.files import Cell
 from monitor.zones.prepare import PreparedCell, _Volume, tool_object
@@ -21,59 +22,71 @@ from monitor.zones.separation import evaluate_separation
 def check_persons(cell: Cell | PreparedCell, camera_id: str, boxes_px: np.ndarray,
                   tool_pose: geo.ToolPose | None = None,
                   tool_speed_mps: float | None = None,
-                  foot_uncertainty_px: float = 0.0) -> ZoneReport:
+                  foot_uncertainty_px: float = 0.0,
+                  foot_band_px: tuple[float, float] | None = None) -> ZoneReport:
     """Which persons of one frame are in which zones, and how far the nearest is from the tool.
 
     ``boxes_px`` is (N, 4) x1, y1, x2, y2 in pixels of ``camera_id`` at full resolution.
-    Persons anchored in a mask zone are listed in ``masked`` and ignored otherwise. Image zones
-    use each zone's anchor rule; volume zones place the box's bottom-centre on the floor through
-    the camera's calibration and test a vertical cylinder (person radius + Z_d, person height)
-    with FCL: a hit has ``distance_m`` 0.0. A person whose bottom-centre does not meet the floor
-    (at or above the horizon) cannot be placed; to fail safe it hits every protective and
-    warning volume zone with ``distance_m`` None and counts as touching the tool.
+
+    Each box is placed on the floor as a *range* of positions (``monitor.occlusion``): with the
+    feet in view, between ``foot_band_px`` = (lo, hi) pixels above the box's bottom edge (the
+    detector's box-bottom error; ``foot_uncertainty_px`` alone means (0, that)); with the feet
+    possibly hidden (box bottom on an occluder's outline or the image edge, or box shorter than
+    a person of the zone file's lowest ``person.height_range_m``), from the head over that height
+    range. Volume zones test the person cylinder (radius + Z_d, person height) swept along the
+    range with FCL: a hit has ``distance_m`` 0.0. Image zones with the bottom-centre anchor count
+    the box when any point of the feet's pixel range is inside. A person who cannot be placed
+    (feet range reaching the horizon) hits every protective and warning volume zone with
+    ``distance_m`` None and counts as touching the tool (fail safe).
+
+    Mask zones are not applied here: masking happens before boxes are merged (the pipeline's
+    rule), so ``masked`` stays empty.
 
     ``tool_separation_m`` is the smallest distance from a nominal person cylinder (radius, no
-    Z_d) to the tool placed at ``tool_pose`` (None without pose, tool, calibration or persons).
-    ``required_separation_m`` is S_p (ISO/TS 15066, including Z_d) for ``tool_speed_mps``, or for
-    ``separation.robot_speed_default_mps`` when the speed is unknown; None without a tool pose.
-    ``separation_speed_scale`` is min(1, v_max(separation) / programmed speed), 0 when the tool
-    is already faster than v_max (``monitor.zones.separation``, docs/separation.md).
-    ``foot_uncertainty_px``: how far above the box's bottom edge the feet may really be (a
-    detector whose boxes err large, e.g. by one grid cell). The persons are then checked twice,
-    as detected and with the bottom edge raised by this much, and the answers are merged towards
-    danger: every hit of either, the smaller distance, masked only if masked in both. Without
-    it a box that reaches too low would place the person nearer the camera than they are, and
-    a STOP for someone entering from the camera's side would come late.
-    Answers only: no timers, no state.
+    Z_d) anywhere on its range to the tool placed at ``tool_pose`` (None without pose, tool,
+    calibration or persons). ``required_separation_m`` is S_p (ISO/TS 15066, including Z_d) for
+    ``tool_speed_mps``, or for ``separation.robot_speed_default_mps`` when the speed is unknown;
+    None without a tool pose. ``separation_speed_scale`` is min(1, v_max(separation) /
+    programmed speed), 0 when the tool is already faster than v_max
+    (``monitor.zones.separation``, docs/separation.md). Answers only: no timers, no state.
     """
     prep = cell if isinstance(cell, PreparedCell) else cell.prepared
-    report = _check(prep, camera_id, boxes_px, tool_pose, tool_speed_mps)
-    if foot_uncertainty_px <= 0 or len(boxes_px) == 0:
-        return report
-    raised = np.array(boxes_px, np.float64).reshape(-1, 4)
-    raised[:, 3] = np.maximum(raised[:, 3] - foot_uncertainty_px, raised[:, 1] + 1.0)
-    return merge_towards_danger(report, _check(prep, camera_id, raised, tool_pose,
-                                               tool_speed_mps))
+    band = foot_band_px if foot_band_px is not None else (0.0, max(foot_uncertainty_px, 0.0))
+    return _check(prep, camera_id, boxes_px, tool_pose, tool_speed_mps, band)
 
 
 def merge_towards_danger(a: ZoneReport, b: ZoneReport) -> ZoneReport:
-    """Two answers for the same persons (different assumptions) as one, the worse of both."""
-    hits: dict[tuple[str, int], ZoneHit] = {}
+    """Two answers for the same persons (different assumptions or cameras) as one, the worse
+    of both: every hit (a lost-person hold wins over a seen one for the same zone and person,
+    then the smaller distance), the smaller tool separation and separation speed scale, the
+    larger required separation; masked only if masked in both."""
+    hits: dict[tuple[str, int, int | None], ZoneHit] = {}
     for hit in (*a.hits, *b.hits):
-        key = (hit.zone_id, hit.person)
+        key = (hit.zone_id, hit.person, hit.track_id)
         old = hits.get(key)
-        if old is None or (hit.distance_m is not None and old.distance_m is not None
-                           and hit.distance_m < old.distance_m):
+        if old is None or _worse(hit, old):
             hits[key] = hit
     seps = [s for s in (a.tool_separation_m, b.tool_separation_m) if s is not None]
     reqs = [s for s in (a.required_separation_m, b.required_separation_m) if s is not None]
     scales = [s for s in (a.separation_speed_scale, b.separation_speed_scale) if s is not None]
+    # NaN means "unknown": it must win (the policy STOPs on it), min() would drop it
+    scale = None
+    if scales:
+        scale = math.nan if any(math.isnan(s) for s in scales) else min(scales)
     return ZoneReport(hits=tuple(hits.values()),
                       masked=tuple(sorted(set(a.masked) & set(b.masked))),
                       tool_separation_m=min(seps) if seps else None,
                       required_separation_m=max(reqs) if reqs else None,
-                      separation_speed_scale=min(scales) if scales else None,
+                      separation_speed_scale=scale,
                       config_hash=a.config_hash)
+
+
+def _worse(new: ZoneHit, old: ZoneHit) -> bool:
+    if new.lost != old.lost:
+        return new.lost
+    if old.distance_m is None:
+        return False
+    return new.distance_m is None or new.distance_m < old.distance_m
 
 
 # read-only request settings shared by every query (FCL copies them per call)
@@ -82,79 +95,117 @@ _DREQ = fcl.DistanceRequest()
 
 
 def _check(prep: PreparedCell, camera_id: str, boxes_px: np.ndarray,
-           tool_pose: geo.ToolPose | None, tool_speed_mps: float | None) -> ZoneReport:
+           tool_pose: geo.ToolPose | None, tool_speed_mps: float | None,
+           band_px: tuple[float, float] = (0.0, 0.0)) -> ZoneReport:
     cell = prep.cell
     if camera_id not in cell.cameras:
         raise ConfigError(f"{cell.label}: unknown camera '{camera_id}' "
                           f"(cameras: {', '.join(sorted(cell.cameras))})")
     boxes = np.asarray(boxes_px, dtype=np.float64).reshape(-1, 4)
+    if not np.all(np.isfinite(boxes)):
+        raise InputError(f"camera '{camera_id}': non-finite person box coordinates")
     n = len(boxes)
-    masked = np.zeros(n, dtype=bool)
     hits: list[ZoneHit] = []
-    img = prep.image_zones.get(camera_id)
-    inside = img.inside(boxes) if img is not None and n else None
-    if inside is not None and img.mask_cols.any():
-        masked |= inside[:, img.mask_cols].any(axis=1)
-
+    cam = cell.cameras[camera_id]
     model = cell.camera_models.get(camera_id)
-    locate = model is not None and n > 0 and (bool(prep.volumes) or tool_pose is not None)
-    if locate:
-        bottom = np.empty((n, 2))
-        bottom[:, 0] = (boxes[:, 0] + boxes[:, 2]) * 0.5
-        bottom[:, 1] = boxes[:, 3]
-        floor, located = model.pixel_to_floor(bottom)
-        centres = np.empty((n, 3))
-        centres[:, :2] = floor
-        centres[:, 2] = prep.person.height_m / 2
-    else:
-        floor, located, centres = np.zeros((n, 2)), np.zeros(n, dtype=bool), np.zeros((n, 3))
-    h = prep.person.height_m
-
-    if locate and prep.volumes:
-        # mask volumes first: a masked person takes part in nothing else
-        for k, v in enumerate(prep.volumes):
-            if v.kind == "mask":
-                for i in np.flatnonzero(located & ~masked & _aabb(prep, k, floor, 0.001)):
-                    obj = fcl.CollisionObject(prep.axis_cylinder, fcl.Transform(centres[i]))
-                    if _overlaps(obj, v, centres[i], 0.001, h):
-                        masked[i] = True
-
-    if inside is not None:
-        cols, rows = np.nonzero((inside & ~masked[:, None] & img.alert_cols).T)
+    lo, hi = float(band_px[0]), float(max(band_px))
+    place = None
+    if model is not None and n:
+        place = occ.place_persons(boxes, model, cam.width, cam.height, band_px=(lo, hi),
+                                  height_range_m=prep.height_range_m,
+                                  occluder_outlines_px=prep.occluder_outlines.get(camera_id, ()))
+    img = prep.image_zones.get(camera_id)
+    if img is not None and n:
+        if place is not None:
+            feet = (place.feet_u_px, place.feet_top_px, place.feet_bottom_px)
+        else:
+            u = (boxes[:, 0] + boxes[:, 2]) * 0.5
+            top = np.maximum(boxes[:, 3] - hi, boxes[:, 1] + 1.0)
+            feet = (u, top, np.maximum(boxes[:, 3] - lo, top))
+        inside = img.inside(boxes, feet)
+        cols, rows = np.nonzero((inside & img.alert_cols).T)
         hits.extend(ZoneHit(img.ids[c], img.kinds[c], int(i), img.scales[c], None)
                     for c, i in zip(cols.tolist(), rows.tolist(), strict=True))
 
-    active = ~masked
-    if locate and prep.volumes:
-        r = prep.person.zone_radius_m
-        near = _aabb_all(prep, floor, r) & (located & active)[:, None] & prep.volume_alert
-        objs: dict[int, fcl.CollisionObject] = {}
-        ks, rows = np.nonzero(near.T)
-        for k, i in zip(ks.tolist(), rows.tolist(), strict=True):
-            v = prep.volumes[k]
-            obj = objs.get(i)
-            if obj is None:
-                obj = objs[i] = fcl.CollisionObject(prep.zone_cylinder,
-                                                    fcl.Transform(centres[i]))
-            if _overlaps(obj, v, centres[i], r, h):
-                hits.append(ZoneHit(v.id, v.kind, i, v.speed_scale, 0.0))
-        lost = np.flatnonzero(~located & active)
-        if len(lost):  # cannot be placed on the floor: inside every volume (fail safe)
-            hits.extend(ZoneHit(v.id, v.kind, int(i), v.speed_scale, None)
-                        for v in prep.volumes if v.kind != "mask" for i in lost)
+    if place is not None and prep.volumes:
+        hits.extend(_volume_hits(prep, place))
 
-    sep = evaluate_separation(
-        prep, tool_pose, tool_speed_mps,
-        lambda: _tool_separation(prep, tool_pose, centres, located, active)
-        if model is not None and active.any() else None)
+    def measure() -> float | None:
+        if place is None or not len(place.located):
+            return None
+        centres, located, slack = _sample_ranges(prep, place)
+        return max(_tool_separation(prep, tool_pose, centres, located,
+                                    np.ones(len(centres), dtype=bool)) - slack, 0.0)
+
+    sep = evaluate_separation(prep, tool_pose, tool_speed_mps, measure)
     return ZoneReport(
         hits=tuple(hits),
-        masked=tuple(np.flatnonzero(masked).tolist()),
+        masked=(),
         tool_separation_m=sep.separation_m,
         required_separation_m=sep.required_m,
         separation_speed_scale=sep.speed_scale,
         config_hash=cell.config_hash,
     )
+
+
+def _volume_hits(prep: PreparedCell, place: occ.Placement) -> list[ZoneHit]:
+    """Protective and warning volumes that the swept person cylinder of each person touches."""
+    r, h = prep.person.zone_radius_m, prep.person.height_m
+    out: list[ZoneHit] = []
+    lo_xy = np.minimum(place.near_m, place.far_m)
+    hi_xy = np.maximum(place.near_m, place.far_m)
+    near = _aabb_all(prep, lo_xy, hi_xy, r) & place.located[:, None] & prep.volume_alert
+    shapes: dict[int, list[fcl.CollisionObject]] = {}
+    ks, rows = np.nonzero(near.T)
+    for k, i in zip(ks.tolist(), rows.tolist(), strict=True):
+        v = prep.volumes[k]
+        objs = shapes.get(i)
+        if objs is None:
+            objs = shapes[i] = _swept_person(prep, place.near_m[i], place.far_m[i])
+        if _overlaps(objs, v, place.near_m[i], place.far_m[i], r, h):
+            out.append(ZoneHit(v.id, v.kind, i, v.speed_scale, 0.0))
+    lost = np.flatnonzero(~place.located)
+    # cannot be placed on the floor: inside every protective and warning volume (fail safe)
+    out.extend(ZoneHit(v.id, v.kind, int(i), v.speed_scale, None)
+               for v in prep.volumes if v.kind in ("protective", "warning") for i in lost)
+    return out
+
+
+def _swept_person(prep: PreparedCell, a: np.ndarray, b: np.ndarray
+                  ) -> list[fcl.CollisionObject]:
+    """The zone cylinder swept from floor point ``a`` to ``b``: one cylinder, or a box between
+    two end cylinders (exactly the swept volume)."""
+    r, h = prep.person.zone_radius_m, prep.person.height_m
+    d = b - a
+    length = float(np.hypot(*d))
+    ends = [np.r_[a, h / 2]]
+    if length < 1e-4:
+        return [fcl.CollisionObject(prep.zone_cylinder, fcl.Transform(ends[0]))]
+    ends.append(np.r_[b, h / 2])
+    yaw = math.atan2(d[1], d[0])
+    rot = geo.rpy_to_matrix(0.0, 0.0, math.degrees(yaw))
+    mid = np.r_[(a + b) / 2, h / 2]
+    objs = [fcl.CollisionObject(fcl.Box(length, 2 * r, h), fcl.Transform(rot, mid))]
+    objs += [fcl.CollisionObject(prep.zone_cylinder, fcl.Transform(e)) for e in ends]
+    return objs
+
+
+def _sample_ranges(prep: PreparedCell, place: occ.Placement, step_m: float = 0.1
+                   ) -> tuple[np.ndarray, np.ndarray, float]:
+    """Person centres along every range, at most ``step_m`` apart, their located flags, and
+    the slack (half a step) to take off a distance so that it stays a lower bound."""
+    centres, located = [], []
+    ranged = False
+    for i in range(len(place.located)):
+        a, b = place.near_m[i], place.far_m[i]
+        length = float(np.hypot(*(b - a))) if place.located[i] else 0.0
+        k = max(1, math.ceil(length / step_m))
+        ranged |= length > 1e-4
+        t = np.linspace(0.0, 1.0, k + 1)[:, None]
+        pts = a + t * (b - a)
+        centres.append(np.c_[pts, np.full(len(pts), prep.person.height_m / 2)])
+        located.append(np.full(len(pts), bool(place.located[i])))
+    return np.concatenate(centres), np.concatenate(located), step_m / 2 if ranged else 0.0
 
 
 def _tool_separation(prep: PreparedCell, pose: geo.ToolPose, centres: np.ndarray,
@@ -204,7 +255,7 @@ def volume_distances(cell: Cell | PreparedCell, camera_id: str, boxes_px: np.nda
         centre = np.array([floor[i, 0], floor[i, 1], h / 2])
         obj = fcl.CollisionObject(prep.zone_cylinder, fcl.Transform(centre))
         for k, v in enumerate(vols):
-            if _overlaps(obj, v, centre, r, h):
+            if _overlaps([obj], v, floor[i], floor[i], r, h):
                 out[i, k] = 0.0
             else:
                 out[i, k] = min(float(fcl.distance(obj, p, _DREQ, fcl.DistanceResult()))
@@ -212,33 +263,32 @@ def volume_distances(cell: Cell | PreparedCell, camera_id: str, boxes_px: np.nda
     return tuple(v.id for v in vols), out
 
 
-def _aabb(prep: PreparedCell, k: int, floor: np.ndarray, r: float) -> np.ndarray:
-    lo, hi = prep.volume_lo[k], prep.volume_hi[k]
-    return ((floor[:, 0] + r >= lo[0]) & (floor[:, 0] - r <= hi[0])
-            & (floor[:, 1] + r >= lo[1]) & (floor[:, 1] - r <= hi[1])
-            & (prep.person.height_m >= lo[2]) & (hi[2] >= 0.0))
-
-
-def _aabb_all(prep: PreparedCell, floor: np.ndarray, r: float) -> np.ndarray:
-    """(N, V) bool: person bounding box overlaps the zone's bounding box (broad phase)."""
+def _aabb_all(prep: PreparedCell, lo_xy: np.ndarray, hi_xy: np.ndarray, r: float) -> np.ndarray:
+    """(N, V) bool: a person range's bounding box overlaps the zone's (broad phase)."""
     lo, hi = prep.volume_lo[None], prep.volume_hi[None]
-    f = floor[:, None, :]
-    return (np.all(f + r >= lo[..., :2], axis=2) & np.all(f - r <= hi[..., :2], axis=2)
+    return (np.all(hi_xy[:, None, :] + r >= lo[..., :2], axis=2)
+            & np.all(lo_xy[:, None, :] - r <= hi[..., :2], axis=2)
             & (prep.person.height_m >= lo[..., 2]) & (hi[..., 2] >= 0.0))
 
 
-def _overlaps(obj: fcl.CollisionObject, v: _Volume, centre: np.ndarray, r: float,
-              h: float) -> bool:
-    for part in v.parts:
-        if fcl.collide(obj, part, _REQ, fcl.CollisionResult()):
-            return True
+def _overlaps(objs: list[fcl.CollisionObject], v: _Volume, a: np.ndarray, b: np.ndarray,
+              r: float, h: float) -> bool:
+    for obj in objs:
+        for part in v.parts:
+            if fcl.collide(obj, part, _REQ, fcl.CollisionResult()):
+                return True
     if v.mesh is None:
         return False
-    # FCL tests mesh surfaces only: with no surface contact the cylinder is wholly inside
-    # or wholly outside the closed mesh (or the mesh is inside the cylinder)
-    if geo.points_in_mesh(centre[None], *v.mesh)[0]:
+    # FCL tests mesh surfaces only: with no surface contact the swept cylinder is wholly
+    # inside or wholly outside the closed mesh (or the mesh is inside the swept cylinder)
+    if geo.points_in_mesh(np.r_[a, h / 2][None], *v.mesh)[0]:
         return True
     p = v.mesh[0][0]
-    return bool(np.hypot(p[0] - centre[0], p[1] - centre[1]) <= r and 0.0 <= p[2] <= h)
+    return bool(_point_segment_distance(p[:2], a, b) <= r and 0.0 <= p[2] <= h)
 
 
+def _point_segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
+    d = b - a
+    den = float(d @ d)
+    t = 0.0 if den == 0 else min(max(float((p - a) @ d) / den, 0.0), 1.0)
+    return float(np.hypot(*(a + t * d - p)))

@@ -134,7 +134,9 @@ COLOURS_BGR = {
     "warning": (0, 170, 255),
     "mask": (170, 170, 170),
     "watch": (230, 160, 30),
+    "occluder": (120, 90, 60),
 }
+SHADOW_BGR = (60, 20, 60)
 
 
 def draw_zones(frame_bgr: np.ndarray, cell: Cell, camera_id: str,
@@ -158,7 +160,7 @@ def draw_zones(frame_bgr: np.ndarray, cell: Cell, camera_id: str,
     fills = img.copy()
     outlines: list[tuple[list[np.ndarray], tuple[int, int, int], int, str]] = []
     # most important last, so that protective zones stay visible on top of warning areas
-    order = {"watch": 0, "mask": 1, "warning": 2, "protective": 3}
+    order = {"watch": 0, "mask": 1, "occluder": 2, "warning": 3, "protective": 4}
     for z in sorted(cell.zones, key=lambda z: order[z.kind]):
         if not z.enabled:
             continue
@@ -179,12 +181,41 @@ def draw_zones(frame_bgr: np.ndarray, cell: Cell, camera_id: str,
                 cv2.fillPoly(fills, [_i32(region * scale)], colour, lineType=cv2.LINE_AA,
                              shift=4)
             outlines.append((lines, colour, thick, z.id))
+    if model is not None:
+        shadow = shadow_image(cell, camera_id, img.shape[1], img.shape[0])
+        if shadow is not None:
+            fills[shadow] = SHADOW_BGR
     cv2.addWeighted(fills, 0.35, img, 0.65, 0, dst=img)
     for polys, colour, thick, zid in outlines:
         closed = len(polys) == 1
         cv2.polylines(img, [_i32(p) for p in polys], closed, colour, thick, cv2.LINE_AA, 4)
         _label(img, polys, f"{zid}{' HIT' if zid in hit else ''}", colour)
     return img
+
+
+def shadow_image(cell: Cell, camera_id: str, width: int, height: int, step_px: int = 8
+                 ) -> np.ndarray | None:
+    """(height, width) bool: image pixels whose floor point lies in the camera's shadow behind
+    the cell's occluders (monitor/occlusion.py), or None without occluders or calibration.
+    Evaluated every ``step_px`` pixels of the camera and scaled to ``width`` x ``height``."""
+    from monitor.occlusion import shadow_mask, standable  # occlusion imports prepare: late
+
+    occluders = [z for z in cell.zones if z.is_volume and z.enabled and z.kind == "occluder"]
+    model = cell.camera_models.get(camera_id)
+    cam = cell.cameras[camera_id]
+    if not occluders or model is None:
+        return None
+    us = np.arange(step_px / 2, cam.width, step_px)
+    vs = np.arange(step_px / 2, cam.height, step_px)
+    gu, gv = np.meshgrid(us, vs)
+    floor, ok = model.pixel_to_floor(np.c_[gu.ravel(), gv.ravel()])
+    mask = np.zeros(len(floor), dtype=bool)
+    idx = np.flatnonzero(ok)
+    if len(idx):
+        pts = floor[idx]
+        mask[idx] = shadow_mask(cell, camera_id, pts) & standable(occluders, cell.meshes, pts)
+    small = mask.reshape(len(vs), len(us)).astype(np.uint8)
+    return cv2.resize(small, (width, height), interpolation=cv2.INTER_NEAREST).astype(bool)
 
 
 def _volume_floor_px(z: Any, cell: Cell, model: geo.CameraModel) -> np.ndarray | None:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import cv2
@@ -12,6 +12,7 @@ import fcl
 import numpy as np
 
 from monitor import geometry as geo
+from monitor.occlusion import PolygonSegments, occluder_outline_px, segments_hit_polygons
 from monitor.types import ZoneReport
 from monitor.zones.draw import _box_corners
 
@@ -42,6 +43,7 @@ class _ImageZones:
     anchors: tuple[str, ...]
     point_cols: np.ndarray  # zones decided by one anchor point
     point_edges: geo._PolygonEdges
+    point_segments: PolygonSegments  # the same polygons, for feet ranges
     uses_centre: np.ndarray  # per point zone: anchor is the box centre
     area_cols: np.ndarray  # zones decided by overlap area
     area_min: np.ndarray  # per area zone: share needed (0 for any-overlap: > 0 pixels)
@@ -51,15 +53,24 @@ class _ImageZones:
     width: int
     height: int
 
-    def inside(self, boxes: np.ndarray) -> np.ndarray:
-        """(N, Z) bool: box anchored in zone under each zone's anchor rule."""
+    def inside(self, boxes: np.ndarray,
+               feet_px: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+        """(N, Z) bool: box anchored in zone under each zone's anchor rule.
+
+        ``feet_px`` = (u, top, bottom): the image rows the feet may be on (see
+        ``monitor.occlusion.Placement``); a bottom-centre zone then counts the box when any
+        point of that vertical segment is inside. Without it the box's bottom edge is used.
+        """
         n = len(boxes)
         out = np.zeros((n, len(self.ids)), dtype=bool)
         if len(self.point_cols):
             pts = np.empty((n, 2))
             pts[:, 0] = (boxes[:, 0] + boxes[:, 2]) * 0.5
             pts[:, 1] = boxes[:, 3]
-            res = self.point_edges.contains(pts)
+            if feet_px is None:
+                res = self.point_edges.contains(pts)
+            else:
+                res = segments_hit_polygons(*feet_px, self.point_segments)
             if self.uses_centre.any():
                 pts[:, 1] = (boxes[:, 1] + boxes[:, 3]) * 0.5
                 res = np.where(self.uses_centre, self.point_edges.contains(pts), res)
@@ -115,6 +126,10 @@ class PreparedCell:
     zone_cylinder: fcl.Cylinder  # person widened by Z_d, for zone checks
     body_cylinder: fcl.Cylinder  # nominal person, for the tool distance
     axis_cylinder: fcl.Cylinder  # 1 mm person axis, for mask volumes
+    occluders: tuple[_Volume, ...] = ()  # fixtures that can hide a person
+    # per camera: image outlines (convex hulls, raw pixels) of the occluders it sees
+    occluder_outlines: Mapping[str, tuple[np.ndarray, ...]] = field(default_factory=dict)
+    height_range_m: tuple[float, float] = (1.0, 2.0)
 
     def check(self, camera_id: str, boxes_px: np.ndarray, tool_pose: geo.ToolPose | None = None,
               tool_speed_mps: float | None = None) -> ZoneReport:
@@ -132,7 +147,13 @@ def prepare_cell(cell: Cell) -> PreparedCell:
         if zs:
             image[cam_id] = _prepare_image_zones(zs, cam)
     volumes = tuple(_prepare_volume(z, cell) for z in cell.zones
-                    if z.is_volume and z.enabled and z.kind != "watch")
+                    if z.is_volume and z.enabled and z.kind not in ("watch", "occluder"))
+    occ_zones = [z for z in cell.zones if z.is_volume and z.enabled and z.kind == "occluder"]
+    occluders = tuple(_prepare_volume(z, cell) for z in occ_zones)
+    outlines: dict[str, tuple[np.ndarray, ...]] = {}
+    for cam_id, model in cell.camera_models.items():
+        hulls = [occluder_outline_px(occluder_corners_m(z, cell), model) for z in occ_zones]
+        outlines[cam_id] = tuple(h for h in hulls if h is not None)
     p, s = cell.spec.person, cell.spec.separation
     person = geo.PersonModel(p.radius_m, p.height_m, p.position_uncertainty_m)
     return PreparedCell(
@@ -150,7 +171,28 @@ def prepare_cell(cell: Cell) -> PreparedCell:
         zone_cylinder=fcl.Cylinder(person.zone_radius_m, person.height_m),
         body_cylinder=fcl.Cylinder(person.radius_m, person.height_m),
         axis_cylinder=fcl.Cylinder(0.001, person.height_m),
+        occluders=occluders,
+        occluder_outlines=outlines,
+        height_range_m=tuple(p.height_range_m),
     )
+
+
+def occluder_corners_m(z: Any, cell: Cell, segments: int = 24) -> np.ndarray:
+    """Points (M, 3) whose convex hull contains a volume (corners; a cylinder's rims)."""
+    if isinstance(z, ExtrudeZone):
+        base = np.array(z.points_m, dtype=float)
+        return np.r_[np.c_[base, np.full(len(base), z.z_min_m)],
+                     np.c_[base, np.full(len(base), z.z_max_m)]]
+    if isinstance(z, BoxZone):
+        return _box_corners(z)
+    if isinstance(z, CylinderZone):
+        a = np.linspace(0, 2 * np.pi, segments, endpoint=False)
+        # the polygon's corners lie outside the circle, so the hull contains it
+        r = z.radius_m / np.cos(np.pi / segments)
+        ring = np.c_[z.center_m[0] + r * np.cos(a), z.center_m[1] + r * np.sin(a)]
+        return np.r_[np.c_[ring, np.full(segments, z.z_min_m)],
+                     np.c_[ring, np.full(segments, z.z_max_m)]]
+    return np.asarray(cell.meshes[z.id][0], dtype=float)
 
 
 def _prepare_image_zones(zs: list[PolygonZone], cam: CameraSpec) -> _ImageZones:
@@ -171,6 +213,7 @@ def _prepare_image_zones(zs: list[PolygonZone], cam: CameraSpec) -> _ImageZones:
         anchors=tuple(z.anchor for z in zs),
         point_cols=np.array(point, dtype=np.intp),
         point_edges=geo._PolygonEdges.build([np.array(zs[k].points_px) for k in point]),
+        point_segments=PolygonSegments.build([np.array(zs[k].points_px) for k in point]),
         uses_centre=np.array([zs[k].anchor == "centre" for k in point], dtype=bool),
         area_cols=np.array(area, dtype=np.intp),
         area_min=np.array([zs[k].min_share or 0.0 for k in area], dtype=float),

@@ -10,7 +10,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from monitor import geometry as geo
 
 SCHEMA_VERSION = 1
-KINDS = ("protective", "warning", "mask", "watch")
+KINDS = ("protective", "warning", "mask", "watch", "occluder")
 ANCHORS = ("bottom-centre", "centre", "any-overlap", "share")
 VOLUME_SHAPES = ("extrude", "box", "cylinder", "mesh")
 _ID = r"^[A-Za-z0-9][A-Za-z0-9_.-]*$"
@@ -61,7 +61,7 @@ class CameraSpec(_Strict):
 class _ZoneBase(_Strict):
     id: str = Field(pattern=_ID)
     name: str = ""
-    kind: Literal["protective", "warning", "mask", "watch"]
+    kind: Literal["protective", "warning", "mask", "watch", "occluder"]
     enabled: bool = True
     speed_scale: float | None = Field(default=None, ge=0.0, lt=1.0)
 
@@ -134,6 +134,9 @@ class PersonSpec(_Strict):
     radius_m: float = Field(default=0.3, gt=0.0, le=2.0)
     height_m: float = Field(default=1.9, gt=0.0, le=3.0)
     position_uncertainty_m: float = Field(default=0.1, ge=0.0, le=2.0)
+    # heights a person's head may be at (crouching .. tall): a box whose feet may be hidden is
+    # placed from its top over this whole range (monitor/occlusion.py)
+    height_range_m: tuple[float, float] = (1.0, 2.0)
 
 
 class SeparationSpec(_Strict):

@@ -11,6 +11,7 @@ import numpy as np
 from pydantic import ValidationError
 
 from monitor import geometry as geo
+from monitor.occlusion import unobserved_floor
 from monitor.zones.schema import (
     BoxZone,
     CameraSpec,
@@ -101,6 +102,10 @@ def _check_spec(spec: CellSpec, base: Path
     models: dict[str, geo.CameraModel] = {}
     meshes: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     errors += _check_unique_ids(spec)
+    lo, hi = spec.person.height_range_m
+    if not 0.3 <= lo < hi <= 3.0:
+        errors.append(f"person: height_range_m [{lo:g}, {hi:g}] must be increasing within "
+                      "[0.3, 3.0] m")
     cams = {c.id: c for c in spec.cameras}
     for cam in spec.cameras:
         faults, model = _check_calibration(cam)
@@ -139,7 +144,28 @@ def _check_spec(spec: CellSpec, base: Path
         if not has_image and not (has_volume and cam.calibration is not None):
             warnings.append(f"camera '{cam.id}': no enabled protective or warning zone applies "
                             "to it (uncalibrated cameras see image zones only)")
+    if not errors:
+        warnings += _check_unobserved(spec, models, meshes)
     return errors, warnings, models, meshes
+
+
+def _check_unobserved(spec: CellSpec, models: Mapping[str, geo.CameraModel],
+                      meshes: Mapping[str, tuple[np.ndarray, np.ndarray]]) -> list[str]:
+    """Protective or warning floor that a person of the minimum height could stand on wholly
+    hidden from every camera, behind the declared occluders (monitor/occlusion.py)."""
+    occluders = [z for z in spec.zones if z.is_volume and z.enabled and z.kind == "occluder"]
+    if not occluders or not models:
+        return []
+    out = []
+    for z in spec.zones:
+        if not (z.is_volume and z.enabled and z.kind in ("protective", "warning")):
+            continue
+        area, _ = unobserved_floor(z, occluders, models, meshes, spec.person.height_range_m[0])
+        if area > 0:
+            out.append(f"zone '{z.id}': about {area:.2f} m² of its floor is unobserved by every "
+                       "camera (a person of the minimum height there is hidden behind "
+                       "occluders): add a camera or move the occluder")
+    return out
 
 
 def _check_unique_ids(spec: CellSpec) -> list[str]:
@@ -158,6 +184,8 @@ def _check_unique_ids(spec: CellSpec) -> list[str]:
 
 
 def _check_kind_fields(z: Any) -> Iterable[str]:
+    if z.kind == "occluder" and not z.is_volume:
+        yield "an occluder is a cell volume (box, extrude, cylinder or mesh), not an image polygon"
     if z.kind == "warning" and z.speed_scale is None:
         yield "warning zone needs speed_scale (allowed speed fraction, 0 <= s < 1)"
     if z.kind != "warning" and z.speed_scale is not None:

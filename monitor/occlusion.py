@@ -1,0 +1,383 @@
+"""A hidden person is still a person: where on the floor a box may stand, and what cameras miss.
+
+Pure functions, no state. Coordinates: ``*_px`` raw pixels of one camera at full resolution,
+``*_m`` cell metres (z up, floor at z = 0).
+
+**Placement.** A person box gives a *range* of floor positions along the camera's viewing
+direction, from ``near_m`` (nearer the camera) to ``far_m``:
+
+* feet visible: the feet lie between ``band_hi_px`` and ``band_lo_px`` above the box's bottom
+  edge (the detector's measured box-bottom error; the synthetic model's cell-aligned boxes reach
+  0..1 grid cell below the feet, a trained export's are tighter);
+* feet may be hidden (the box bottom lies on the image outline of a known occluder, or on the
+  image edge, or the box is shorter than a person of ``height_range_m[0]`` standing where its
+  bottom says): the head (box top) is placed on every height in ``height_range_m`` and the feet
+  may be anywhere from under the lowest head to under the highest, but never farther than the
+  visible bottom allows.
+
+The zone check then tests the person cylinder swept along that segment (a stadium on the floor,
+extruded to the person height), so every position the evidence allows is tested: a person behind
+a bench is found in the protective zone even though the box bottom lies on the bench top.
+
+**Shadows.** A floor point is in a camera's *shadow* when a person of the minimum height
+(``height_range_m[0]``) standing there would be wholly hidden from that camera: the sight line
+from the camera to the top of their head passes through an occluder, or that head is outside the
+image or behind the camera. Persons whose head shows are placed from the head (above); persons in
+a shadow of every camera cannot be seen at all, and ``zones validate`` warns about zone floor
+that lies there.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from monitor import geometry as geo
+
+# How close (pixels) a box bottom must come to an occluder outline or the image edge for the
+# feet to count as possibly hidden, besides the detector's foot band.
+EDGE_TOLERANCE_PX = 3.0
+# Synthetic model (tiny-YOLOv3 layout, 416 input): box bottom minus true feet, measured on the
+# demo scene and random frames (123 persons in clear view, benchmarks/scenarios.py): 0.8 .. 49.4
+# px at 1280x720 where one grid cell is 49.2 px, i.e. 0 .. 1 cell, median 0.43 cell.
+SYNTHETIC_FOOT_BAND_CELLS = (0.0, 1.0)
+
+
+@dataclass(frozen=True)
+class Placement:
+    """Floor positions a frame's persons may stand on (parallel arrays, one row per box).
+
+    ``near_m``/``far_m`` (N, 2): ends of the segment of possible feet positions (equal when the
+    answer is a point). ``located`` (N,): False when the box cannot be put on the floor at all
+    (its feet range reaches the horizon): such a person must count as everywhere.
+    ``hidden`` (N,): the feet may be hidden, the range comes from the head. ``feet_top_px`` and
+    ``feet_bottom_px`` (N,): image rows between which the feet may be (for image zones with the
+    bottom-centre anchor); ``feet_u_px`` (N,) the column.
+    """
+
+    near_m: np.ndarray
+    far_m: np.ndarray
+    located: np.ndarray
+    hidden: np.ndarray
+    feet_u_px: np.ndarray
+    feet_top_px: np.ndarray
+    feet_bottom_px: np.ndarray
+
+    @property
+    def length_m(self) -> np.ndarray:
+        return np.hypot(*(self.far_m - self.near_m).T)
+
+
+def camera_centre_m(model: geo.CameraModel) -> np.ndarray | None:
+    """Camera centre in the cell frame, or None for a homography-only calibration."""
+    if model.rotation is None or model.translation_m is None:
+        return None
+    return -model.rotation.T @ model.translation_m
+
+
+def pixel_rays(model: geo.CameraModel, px: np.ndarray) -> np.ndarray:
+    """Unit viewing directions (N, 3) in the cell frame of raw pixels (pinhole cameras only)."""
+    und = model.undistort_px(px)
+    k = model.camera_matrix
+    d_cam = np.c_[(und[:, 0] - k[0, 2]) / k[0, 0], (und[:, 1] - k[1, 2]) / k[1, 1],
+                  np.ones(len(und))]
+    d = d_cam @ model.rotation  # R^T d_cam, row-wise
+    return d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+def feet_may_be_hidden(boxes_px: np.ndarray, model: geo.CameraModel | None, width: int,
+                       height: int, occluder_outlines_px: Sequence[np.ndarray] = (),
+                       min_height_m: float = 1.0, band_hi_px: float = 0.0) -> np.ndarray:
+    """(N,) bool: the feet of each box may be hidden, by the image edge, an occluder, or
+    because the box is shorter than a person of ``min_height_m`` at the floor point its bottom
+    implies (a pinhole calibration is needed for the last two)."""
+    boxes = np.asarray(boxes_px, float).reshape(-1, 4)
+    tol = EDGE_TOLERANCE_PX
+    hidden = boxes[:, 3] >= height - tol
+    if not len(boxes):
+        return hidden
+    u = (boxes[:, 0] + boxes[:, 2]) * 0.5
+    reach = max(tol, band_hi_px)
+    for outline in occluder_outlines_px:
+        poly = np.asarray(outline, np.float32).reshape(-1, 1, 2)
+        for i in np.flatnonzero(~hidden):
+            # the visible bottom sits on (or just above, by the box error) the occluder's outline
+            for y in (boxes[i, 3], boxes[i, 3] + reach):
+                if cv2.pointPolygonTest(poly, (float(u[i]), float(y)), True) >= -tol:
+                    hidden[i] = True
+                    break
+    if model is not None and model.can_project_3d:
+        floor, ok = model.pixel_to_floor(np.c_[u, boxes[:, 3]])
+        pts = np.r_[np.c_[floor, np.zeros(len(u))], np.c_[floor, np.full(len(u), min_height_m)]]
+        px, front = model.project(pts)
+        n = len(u)
+        expected = px[:n, 1] - px[n:, 1]
+        short = ok & front[:n] & front[n:] & (boxes[:, 3] - boxes[:, 1] < expected)
+        hidden |= short
+    return hidden
+
+
+def place_persons(boxes_px: np.ndarray, model: geo.CameraModel, width: int, height: int, *,
+                  band_px: tuple[float, float] = (0.0, 0.0),
+                  height_range_m: tuple[float, float] = (1.0, 2.0),
+                  occluder_outlines_px: Sequence[np.ndarray] = ()) -> Placement:
+    """Where each box's person may stand (see the module docstring).
+
+    ``band_px`` = (lo, hi): the feet lie ``lo`` .. ``hi`` pixels above the box's bottom edge.
+    """
+    boxes = np.asarray(boxes_px, float).reshape(-1, 4)
+    n = len(boxes)
+    lo, hi = float(band_px[0]), float(max(band_px))
+    u = (boxes[:, 0] + boxes[:, 2]) * 0.5
+    y_far = np.maximum(boxes[:, 3] - hi, boxes[:, 1] + 1.0)
+    y_near = np.maximum(boxes[:, 3] - lo, y_far)
+    both, ok = model.pixel_to_floor(np.r_[np.c_[u, y_far], np.c_[u, y_near]])
+    far, near = both[:n].copy(), both[n:].copy()
+    located = ok[:n] & ok[n:]
+    bottom_px = y_near.copy()
+    hidden = feet_may_be_hidden(boxes, model, width, height, occluder_outlines_px,
+                                height_range_m[0], hi)
+    centre = camera_centre_m(model)
+    todo = np.flatnonzero(hidden)
+    if centre is None or not len(todo):
+        return Placement(near, far, located, hidden, u, y_far, bottom_px)
+    h_min, h_max = height_range_m
+    c_xy = centre[:2]
+    # the head is at the box top, or up to the band lower (a box may reach above the head too)
+    heads = np.r_[np.c_[u[todo], boxes[todo, 1]], np.c_[u[todo], boxes[todo, 1] + hi]]
+    rays = pixel_rays(model, heads)
+    m = len(todo)
+    for j, i in enumerate(todo.tolist()):
+        cands = []  # floor points under the head at each end of the height range
+        unbounded = False  # a level or rising sight line: the head may be arbitrarily far
+        for d in (rays[j], rays[m + j]):
+            if d[2] > -1e-9 and h_max > centre[2]:
+                unbounded = True
+            if abs(d[2]) < 1e-9:
+                continue
+            for h in (h_min, h_max):
+                s = (h - centre[2]) / d[2]
+                if s > 0:
+                    cands.append(centre[:2] + s * d[:2])
+        if unbounded and not located[i]:
+            continue  # neither the head nor the feet bound it: stays unplaceable (everywhere)
+        if not cands and not unbounded:
+            continue  # no height in the range fits the head: keep the feet-based answer
+        dist = [float(np.hypot(*(p - c_xy))) for p in cands]
+        head_near = cands[int(np.argmin(dist))] if cands else c_xy.copy()
+        d_near = min(dist) if cands else 0.0
+        d_vis = float(np.hypot(*(far[i] - c_xy))) if located[i] else np.inf
+        d_far = np.inf if unbounded else max(dist)
+        head_far = far[i] if unbounded else cands[int(np.argmax(dist))]
+        # the feet are hidden below the visible bottom: never farther than it allows
+        if d_far <= d_vis:
+            new_near, new_far = head_near, head_far
+        elif d_near <= d_vis:
+            new_near, new_far = head_near, far[i].copy()
+        else:  # the head says nearer than the box bottom allows: cover both
+            new_near, new_far = far[i].copy(), head_near
+        if not located[i] or float(np.hypot(*(new_near - c_xy))) < \
+                float(np.hypot(*(near[i] - c_xy))):
+            near[i] = new_near
+        far[i] = new_far
+        located[i] = True
+        px, front = model.project(np.array([[near[i, 0], near[i, 1], 0.0]]))
+        bottom_px[i] = max(bottom_px[i], float(px[0, 1])) if front[0] else float(height)
+    return Placement(near, far, located, hidden, u, y_far, bottom_px)
+
+
+def occluder_outline_px(points_m: np.ndarray, model: geo.CameraModel) -> np.ndarray | None:
+    """Image outline (convex hull, raw pixels) of an occluder given by its corner points, or
+    None when it is behind the camera or the camera cannot project heights."""
+    if not model.can_project_3d:
+        return None
+    px, front = model.project(np.asarray(points_m, float).reshape(-1, 3))
+    if not front.all():
+        return None
+    return cv2.convexHull(px.astype(np.float32)).reshape(-1, 2).astype(float)
+
+
+@dataclass(frozen=True)
+class PolygonSegments:
+    """Edges of several image polygons, stacked, for vertical-segment tests."""
+
+    inside: geo._PolygonEdges  # the even-odd point test of the same polygons
+    ax: np.ndarray
+    ay: np.ndarray
+    bx: np.ndarray
+    by: np.ndarray
+    starts: np.ndarray  # index of the first edge of each polygon
+
+    @classmethod
+    def build(cls, polygons: Sequence[np.ndarray]) -> PolygonSegments:
+        ps = [np.asarray(p, float).reshape(-1, 2) for p in polygons]
+        if not ps:
+            z = np.zeros(0)
+            return cls(geo._PolygonEdges.build([]), z, z, z, z, np.zeros(0, dtype=np.intp))
+        a = np.concatenate(ps)
+        b = np.concatenate([np.roll(p, -1, axis=0) for p in ps])
+        starts = np.cumsum([0] + [len(p) for p in ps[:-1]]).astype(np.intp)
+        return cls(geo._PolygonEdges.build(ps), a[:, 0], a[:, 1], b[:, 0], b[:, 1], starts)
+
+    @property
+    def count(self) -> int:
+        return len(self.starts)
+
+
+def segments_hit_polygons(u: np.ndarray, y0: np.ndarray, y1: np.ndarray,
+                          polys: PolygonSegments) -> np.ndarray:
+    """(N, Z) bool: the vertical pixel segment x = u, y0 <= y <= y1 touches polygon z."""
+    u, y0, y1 = (np.asarray(v, float).reshape(-1) for v in (u, y0, y1))
+    out = polys.inside.contains(np.c_[u, y0]) | polys.inside.contains(np.c_[u, y1])
+    if polys.count == 0 or len(u) == 0:
+        return out
+    uu, lo, hi = u[:, None], y0[:, None], y1[:, None]
+    ax, ay, bx, by = polys.ax, polys.ay, polys.bx, polys.by
+    spans = (np.minimum(ax, bx) <= uu) & (uu <= np.maximum(ax, bx))
+    dx = bx - ax
+    vertical = dx == 0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.where(vertical, 0.0, (uu - ax) / np.where(vertical, 1.0, dx))
+    y_cross = ay + t * (by - ay)
+    cross = spans & ~vertical & (y_cross >= lo) & (y_cross <= hi)
+    # an edge on the column itself: touching when the y ranges overlap
+    on = vertical & (ax == uu) & (np.minimum(ay, by) <= hi) & (np.maximum(ay, by) >= lo)
+    hit = (cross | on).astype(np.int32)
+    return out | (np.add.reduceat(hit, polys.starts, axis=1) > 0)
+
+
+# --------------------------------------------------------------------------------------------
+# Shadows
+
+
+def shadowed(floor_xy_m: np.ndarray, model: geo.CameraModel, occluders_contain,
+             min_height_m: float, samples: int = 48) -> np.ndarray:
+    """(N,) bool: floor points in this camera's shadow (see the module docstring).
+
+    ``occluders_contain(points (M, 3)) -> (M,) bool`` says which cell points lie inside any
+    occluder. The sight line from the camera to each head top is sampled ``samples`` times
+    (and its ends excluded); a camera without a pinhole calibration sees no heights, so every
+    point counts as shadowed only when its head top is outside the image.
+    """
+    pts = np.asarray(floor_xy_m, float).reshape(-1, 2)
+    n = len(pts)
+    heads = np.c_[pts, np.full(n, min_height_m)]
+    px, front = model.project(heads)
+    inside = front & (px[:, 0] >= 0) & (px[:, 0] < model.width) & (px[:, 1] >= 0) \
+        & (px[:, 1] < model.height)
+    out = ~inside
+    centre = camera_centre_m(model)
+    if centre is None or occluders_contain is None or not n:
+        return out
+    t = (np.arange(1, samples + 1) / (samples + 1))[None, :, None]
+    line = centre[None, None, :] + t * (heads[:, None, :] - centre[None, None, :])
+    blocked = occluders_contain(line.reshape(-1, 3)).reshape(n, samples).any(axis=1)
+    return out | blocked
+
+
+def points_in_volume(z, points_m: np.ndarray,
+                     meshes: Mapping[str, tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
+    """(M,) bool: cell points inside a volume zone spec (box, extrude, cylinder, mesh)."""
+    p = np.asarray(points_m, float).reshape(-1, 3)
+    shape = z.shape
+    if shape == "box":
+        lo, hi = np.array(z.min_m), np.array(z.max_m)
+        c = (lo + hi) / 2
+        rot = geo.rpy_to_matrix(0, 0, z.yaw_deg)[:2, :2]
+        local = (p[:, :2] - c[:2]) @ rot  # rotate back into the box frame
+        half = (hi - lo)[:2] / 2
+        return np.all(np.abs(local) <= half, axis=1) & (p[:, 2] >= lo[2]) & (p[:, 2] <= hi[2])
+    if shape == "extrude":
+        inside = geo.points_in_polygon(p[:, :2], np.array(z.points_m, float))
+        return inside & (p[:, 2] >= z.z_min_m) & (p[:, 2] <= z.z_max_m)
+    if shape == "cylinder":
+        c = np.array(z.center_m)
+        return (np.hypot(p[:, 0] - c[0], p[:, 1] - c[1]) <= z.radius_m) \
+            & (p[:, 2] >= z.z_min_m) & (p[:, 2] <= z.z_max_m)
+    verts, faces = meshes[z.id]
+    lo, hi = verts.min(axis=0), verts.max(axis=0)
+    out = np.all((p >= lo) & (p <= hi), axis=1)
+    if out.any():
+        out[out] = geo.points_in_mesh(p[out], verts, faces)
+    return out
+
+
+def shadowed_by(occluders: Sequence, meshes: Mapping[str, tuple[np.ndarray, np.ndarray]],
+                floor_xy_m: np.ndarray, model: geo.CameraModel, min_height_m: float
+                ) -> np.ndarray:
+    """``shadowed`` for the occluder zone specs ``occluders`` of a cell."""
+    def contain(points: np.ndarray) -> np.ndarray:
+        out = np.zeros(len(points), dtype=bool)
+        for z in occluders:
+            out |= points_in_volume(z, points, meshes)
+        return out
+
+    return shadowed(floor_xy_m, model, contain if occluders else None, min_height_m)
+
+
+def standable(occluders: Sequence, meshes: Mapping[str, tuple[np.ndarray, np.ndarray]],
+              floor_xy_m: np.ndarray) -> np.ndarray:
+    """(N,) bool: floor points not inside an occluder's footprint (nobody stands in a bench;
+    a conveyor with room beneath is declared from its underside, z_min_m > 0)."""
+    pts = np.c_[np.asarray(floor_xy_m, float).reshape(-1, 2), np.full(len(floor_xy_m), 0.01)]
+    out = np.ones(len(pts), dtype=bool)
+    for z in occluders:
+        out &= ~points_in_volume(z, pts, meshes)
+    return out
+
+
+def shadow_mask(cell, camera_id: str, floor_xy_m: np.ndarray) -> np.ndarray:
+    """(N,) bool: floor points in the shadow of ``camera_id`` (see the module docstring)."""
+    occluders = [z for z in cell.zones if z.is_volume and z.enabled and z.kind == "occluder"]
+    model = cell.camera_models[camera_id]
+    return shadowed_by(occluders, cell.meshes, floor_xy_m, model,
+                       cell.spec.person.height_range_m[0])
+
+
+def unobserved_floor(zone, occluders: Sequence, models: Mapping[str, geo.CameraModel],
+                     meshes: Mapping[str, tuple[np.ndarray, np.ndarray]], min_height_m: float,
+                     step_m: float = 0.1) -> tuple[float, np.ndarray]:
+    """Floor of a volume zone (sampled every ``step_m``) that no camera observes: a person of
+    the minimum height standing there is hidden from every calibrated camera. Returns (area in
+    m², (K, 2) sample points); points inside an occluder's footprint do not count."""
+    z_mid = _zone_mid_height(zone, meshes)
+    lo, hi = _zone_floor_bounds(zone, meshes)
+    xs = np.arange(lo[0] + step_m / 2, hi[0], step_m)
+    ys = np.arange(lo[1] + step_m / 2, hi[1], step_m)
+    if not len(xs) or not len(ys):
+        return 0.0, np.zeros((0, 2))
+    gx, gy = np.meshgrid(xs, ys)
+    pts = np.c_[gx.ravel(), gy.ravel()]
+    pts = pts[points_in_volume(zone, np.c_[pts, np.full(len(pts), z_mid)], meshes)]
+    pts = pts[standable(occluders, meshes, pts)]
+    unseen = np.ones(len(pts), dtype=bool)
+    for model in models.values():
+        unseen &= shadowed_by(occluders, meshes, pts, model, min_height_m)
+    return float(unseen.sum()) * step_m * step_m, pts[unseen]
+
+
+def _zone_floor_bounds(z, meshes) -> tuple[np.ndarray, np.ndarray]:
+    if z.shape == "box":
+        lo, hi = np.array(z.min_m[:2]), np.array(z.max_m[:2])
+        c, r = (lo + hi) / 2, float(np.hypot(*(hi - lo))) / 2
+        return (c - r, c + r) if z.yaw_deg else (lo, hi)
+    if z.shape == "extrude":
+        p = np.array(z.points_m, float)
+        return p.min(axis=0), p.max(axis=0)
+    if z.shape == "cylinder":
+        c = np.array(z.center_m)
+        return c - z.radius_m, c + z.radius_m
+    v = meshes[z.id][0]
+    return v[:, :2].min(axis=0), v[:, :2].max(axis=0)
+
+
+def _zone_mid_height(z, meshes) -> float:
+    if z.shape == "box":
+        return (z.min_m[2] + z.max_m[2]) / 2
+    if z.shape in ("extrude", "cylinder"):
+        return (z.z_min_m + z.z_max_m) / 2
+    v = meshes[z.id][0]
+    return float(v[:, 2].min() + v[:, 2].max()) / 2

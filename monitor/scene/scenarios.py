@@ -1,0 +1,266 @@
+"""The scenario suite: hidden, crouching, crossing persons run through the real pipeline.
+
+Each ``Scenario`` is a ``CellScene`` (640x360, 10 fps, a few seconds) with its zone file (a
+2 x 2 m protective box around the robot, a 5 x 5 m warning square, the scene's fixtures as
+occluders). ``run_scenario`` renders it, feeds every frame to ``monitor.pipeline.Pipeline``
+with the real detector and sends a reset request every 0.5 s, then scores the commands against
+the ground truth:
+
+* **missed-STOP frames**: a person's true cylinder (zone-file radius) overlaps the protective
+  zone's floor and the command is not STOP. Must be 0.
+* **resets accepted while inside**: must be 0.
+* **first STOP**: when the STOP that holds at the ground-truth entry began; it must not be
+  later than the entry.
+* **false-STOP frames**: STOP although every person present is in clear view (>= 95 % of the
+  figure visible) and more than 1 m outside the protective floor, and has been for the
+  policy's clear time plus one reset period.
+
+Scenarios that need the pipeline's person tracker or masks before merging carry
+``needs`` (e.g. "tracker"): they may fail on a branch without them.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+
+from monitor.scene.cell import Block, CellScene, CutOut, Walker, zone_data
+
+RESET_PERIOD_S = 0.5
+CLEAR_VIEW_FRACTION = 0.95
+OUTSIDE_MARGIN_M = 1.0
+PROTECTIVE = ((-1.0, -1.0), (1.0, 1.0))
+
+
+@dataclass(frozen=True)
+class Scenario:
+    name: str
+    description: str
+    scene: CellScene
+    needs: tuple[str, ...] = ()  # pipeline features the scenario relies on ("tracker", "masks")
+    extra_zones: tuple[dict, ...] = ()
+    check_false_stops: bool = True
+    declare_occluders: bool = True  # False: the zone file leaves the fixtures out
+
+    def zone_data(self) -> dict:
+        data = zone_data(self.scene, PROTECTIVE)
+        if not self.declare_occluders:
+            data["zones"] = [z for z in data["zones"] if z["kind"] != "occluder"]
+        data["zones"] += [dict(z) for z in self.extra_zones]
+        return data
+
+
+@dataclass(frozen=True)
+class FrameScore:
+    time_s: float
+    state: str
+    inside: bool  # ground truth: a person overlaps the protective zone
+    clear_outside: bool  # every person in clear view and > 1 m outside (for long enough)
+    reset_accepted: bool | None  # None: no reset handled in this frame
+
+
+@dataclass(frozen=True)
+class ScenarioResult:
+    name: str
+    frames: int
+    entry_s: float | None  # first frame with a person inside the protective zone
+    first_stop_s: float | None  # start of the STOP that holds at the entry
+    missed_stop_frames: int
+    false_stop_frames: int
+    resets_accepted_inside: int
+    resets_refused_inside: int
+    resets_accepted_outside: int
+    needs: tuple[str, ...] = ()
+    scores: tuple[FrameScore, ...] = field(default=(), repr=False)
+
+    @property
+    def ok(self) -> bool:
+        late = (self.entry_s is not None and (self.first_stop_s is None
+                                              or self.first_stop_s > self.entry_s + 1e-9))
+        return (self.missed_stop_frames == 0 and self.resets_accepted_inside == 0
+                and not late and self.false_stop_frames == 0)
+
+
+def _rect_distance(p: tuple[float, float], rect=PROTECTIVE) -> float:
+    (x0, y0), (x1, y1) = rect
+    dx = max(x0 - p[0], 0.0, p[0] - x1)
+    dy = max(y0 - p[1], 0.0, p[1] - y1)
+    return math.hypot(dx, dy)
+
+
+def _walk(*points: tuple[float, float, float], **kw) -> Walker:
+    return Walker(tuple(points), **kw)
+
+
+def _bench(height_m: float) -> Block:
+    return Block("bench", (-1.2, -1.6, 0.0), (1.2, -1.05, height_m))
+
+
+def scenarios(fps: float = 10.0) -> list[Scenario]:
+    """The suite (short scenes; ``benchmarks/scenarios.py`` runs them longer)."""
+    out = []
+    for h in (0.8, 0.95, 1.15, 1.3):
+        out.append(Scenario(
+            f"bench-{h:.2f}",
+            f"walks behind a {h:.2f} m bench into the protective zone (legs hidden), stays, "
+            "leaves",
+            CellScene((_walk((0.0, -2.4, -0.3), (2.0, -0.3, -0.6), (4.0, -0.3, -0.6),
+                             (6.0, -2.4, -0.3)),), (_bench(h),), fps=fps, duration_s=6.0)))
+    out.append(Scenario(
+        "crate-crouch", "crouches behind a 0.7 m crate and moves into the protective zone",
+        CellScene((_walk((0.0, -2.4, -0.7), (2.5, -0.1, -0.6), (4.5, -0.1, -0.6),
+                         (6.0, -2.4, -0.7), posture="crouching"),),
+                  (Block("crate", (-0.5, -1.5, 0.0), (0.5, -1.1, 0.7), (60, 80, 150)),),
+                  fps=fps, duration_s=6.0)))
+    out.append(Scenario(
+        "robot-base", "walks behind the robot base (0.9 m) and stands there",
+        CellScene((_walk((0.0, 2.4, 1.6), (2.5, 0.2, 0.55), (4.5, 0.2, 0.55),
+                         (6.0, 2.4, 1.6)),),
+                  (Block("robot-base", (-0.35, -0.35, 0.0), (0.35, 0.35, 0.9), (90, 90, 90)),),
+                  fps=fps, duration_s=6.0)))
+    out.append(Scenario(
+        "kneeling", "kneels inside the protective zone in clear view",
+        CellScene((_walk((0.0, 2.4, -0.6), (2.0, 0.6, -0.6), (5.0, 0.6, -0.6),
+                         posture="kneeling"),), fps=fps, duration_s=5.0)))
+    out.append(Scenario(
+        "running", "runs straight through the protective zone",
+        CellScene((_walk((0.0, -2.6, -2.2), (2.6, 2.6, 1.2), (4.0, 2.6, 1.2), running=True),),
+                  fps=fps, duration_s=4.0)))
+    out.append(Scenario(
+        "clear-view-outside", "walks around the protective zone, 1.3 m outside, in clear view "
+        "(camera side and sides)",
+        CellScene((_walk((0.0, -2.3, 0.5), (2.0, -2.3, -2.3), (4.0, 2.3, -2.3),
+                         (6.0, 2.3, 0.5)),), fps=fps, duration_s=6.0)))
+    out.append(Scenario(
+        "two-persons", "one person stays inside, the other leaves past them towards the camera",
+        CellScene((_walk((0.0, -0.2, -0.3)),
+                   _walk((0.0, 0.4, 0.6), (1.0, 0.4, 0.6), (4.0, -0.4, -2.4), (6.0, -0.4, -2.4))),
+                  fps=fps, duration_s=6.0),
+        needs=("tracker",)))
+    out.append(Scenario(
+        "masked-cutout", "walks behind a masked person-coloured cut-out into the protective "
+        "zone",
+        CellScene((_walk((0.0, 2.4, -1.9), (2.5, 0.5, -0.5), (4.5, 0.5, -0.5)),),
+                  cutouts=(CutOut((1.9, -1.9)),), fps=fps, duration_s=5.0),
+        needs=("masks", "tracker"),
+        extra_zones=({"id": "cutout-mask", "kind": "mask", "shape": "cylinder",
+                      "center_m": [1.9, -1.9], "radius_m": 0.35, "z_min_m": 0.0,
+                      "z_max_m": 2.0},)))
+    return out
+
+
+def behind_scenarios(fps: float = 10.0) -> list[Scenario]:
+    """Clear-view walks behind the protective zone (far side from the camera) at 1.0 .. 1.6 m:
+    where the synthetic model's one-cell box error is about 1.1 m of floor (benchmark only)."""
+    return [Scenario(f"behind-{d:.1f}m", f"walks across {d:.1f} m behind the protective zone",
+                     CellScene((_walk((0.0, -2.4, 1.0 + d), (4.0, 2.4, 1.0 + d)),), fps=fps,
+                               duration_s=4.0))
+            for d in (1.0, 1.3, 1.6)]
+
+
+def run_scenario(scenario: Scenario, detector, policy=None,
+                 on_frame: Callable[[int], None] | None = None) -> ScenarioResult:
+    """Render the scenario, run every frame through the real pipeline, score the commands."""
+    from monitor.pipeline import Pipeline
+    from monitor.policy import STOP, PolicyConfig, ResetRequest
+    from monitor.types import FrameInfo
+    from monitor.zones import parse_cell
+
+    cell = parse_cell(scenario.zone_data())
+    policy = policy or PolicyConfig()
+    cam = scenario.scene.camera
+    pipe = Pipeline(detector, cam.camera_id, policy, cell)
+    radius = cell.spec.person.radius_m
+    grace = policy.clear_time + RESET_PERIOD_S + 0.2
+    scores: list[FrameScore] = []
+    next_reset = RESET_PERIOD_S
+    last_near = -math.inf  # last time a person was not clearly outside
+    stop_since = None
+    entry = first_stop = None
+    for k, (img, truth) in enumerate(scenario.scene.frames()):
+        t = truth.time_s
+        reset = None
+        if t + 1e-9 >= next_reset:
+            reset = ResetRequest("eval", t, request_id=f"{scenario.name}-{k}")
+            next_reset += RESET_PERIOD_S
+        frame = FrameInfo(cam.camera_id, k, t, cam.width, cam.height)
+        res = pipe.process(img, frame, t, reset=reset)
+        inside = any(_rect_distance(p.floor_m) < radius for p in truth.persons)
+        clear = all(p.visible_fraction >= CLEAR_VIEW_FRACTION and p.full_box_px is not None
+                    and _in_image(p.full_box_px, cam.width, cam.height)
+                    and _rect_distance(p.floor_m) > OUTSIDE_MARGIN_M for p in truth.persons)
+        if not clear:
+            last_near = t
+        state = res.command.state
+        if state == STOP and stop_since is None:
+            stop_since = t
+        elif state != STOP:
+            stop_since = None
+        if inside and entry is None:
+            entry = t
+            first_stop = stop_since
+        outcome = res.command.reset
+        scores.append(FrameScore(t, state, inside, clear and t - last_near >= grace
+                                 and t >= grace,
+                                 None if outcome is None else outcome.accepted))
+        if on_frame is not None:
+            on_frame(k)
+    return ScenarioResult(
+        scenario.name, len(scores), entry, first_stop,
+        missed_stop_frames=sum(s.inside and s.state != STOP for s in scores),
+        false_stop_frames=sum(s.clear_outside and s.state == STOP for s in scores)
+        if scenario.check_false_stops else 0,
+        resets_accepted_inside=sum(s.inside and s.reset_accepted is True for s in scores),
+        resets_refused_inside=sum(s.inside and s.reset_accepted is False for s in scores),
+        resets_accepted_outside=sum(not s.inside and s.reset_accepted is True for s in scores),
+        needs=scenario.needs, scores=tuple(scores))
+
+
+def _in_image(box: tuple[int, int, int, int], width: int, height: int) -> bool:
+    return box[0] > 0 and box[1] > 0 and box[2] < width and box[3] < height
+
+
+def format_table(results: Iterable[ScenarioResult]) -> str:
+    """One row per scenario, fixed-width columns."""
+    head = ("scenario", "frames", "GT entry s", "first STOP s", "missed STOP", "false STOP",
+            "resets in: acc/ref", "resets out acc", "needs", "result")
+    rows = [head]
+    for r in results:
+        rows.append((r.name, str(r.frames), _s(r.entry_s), _s(r.first_stop_s),
+                     str(r.missed_stop_frames), str(r.false_stop_frames),
+                     f"{r.resets_accepted_inside}/{r.resets_refused_inside}",
+                     str(r.resets_accepted_outside), ",".join(r.needs) or "-",
+                     "ok" if r.ok else "FAIL"))
+    widths = [max(len(row[i]) for row in rows) for i in range(len(head))]
+    lines = ["  ".join(c.ljust(w) for c, w in zip(row, widths, strict=True)).rstrip()
+             for row in rows]
+    lines.insert(1, "  ".join("-" * w for w in widths))
+    return "\n".join(lines)
+
+
+def _s(v: float | None) -> str:
+    return "-" if v is None else f"{v:.1f}"
+
+
+def scenario_names() -> list[str]:
+    return [s.name for s in scenarios()] + [s.name for s in behind_scenarios()]
+
+
+def select(names: Iterable[str] | None, fps: float = 10.0) -> list[Scenario]:
+    """The named scenarios (all of the suite when ``names`` is empty)."""
+    pool = {s.name: s for s in (*scenarios(fps), *behind_scenarios(fps))}
+    names = list(names or [])
+    if not names:
+        return scenarios(fps)
+    unknown = [n for n in names if n not in pool]
+    if unknown:
+        from monitor.errors import ConfigError
+
+        raise ConfigError(f"unknown scenario {', '.join(unknown)} (known: "
+                          f"{', '.join(pool)})")
+    return [pool[n] for n in names]
+
+
+__all__ = ["Scenario", "ScenarioResult", "behind_scenarios", "format_table", "run_scenario",
+           "scenarios", "select"]

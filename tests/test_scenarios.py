@@ -1,0 +1,78 @@
+"""The scenario suite through the real pipeline (synthetic model, zone check, policy, resets).
+
+Every scenario must have: no frame without STOP while ground truth has a person in the
+protective zone, no reset accepted then, the STOP no later than the entry, and no STOP for
+persons in clear view more than 1 m outside. 5 fps keeps the run short; ``monitor eval
+scenarios`` and ``benchmarks/scenarios.py`` run them at 10 fps.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import pytest
+
+from monitor.scene import scenarios as sc
+
+FPS = 5.0
+NEEDS_H1 = pytest.mark.xfail(reason="needs h1 tracker/masks", strict=False)
+
+
+def _by_name(name: str) -> sc.Scenario:
+    return sc.select([name], FPS)[0]
+
+
+def _assert_safe(r: sc.ScenarioResult) -> None:
+    table = sc.format_table([r])
+    assert r.missed_stop_frames == 0, table
+    assert r.resets_accepted_inside == 0, table
+    if r.entry_s is not None:
+        assert r.first_stop_s is not None and r.first_stop_s <= r.entry_s, table
+    assert r.false_stop_frames == 0, table
+
+
+def test_legs_hidden_behind_a_waist_high_bench(detector):
+    r = sc.run_scenario(_by_name("bench-1.15"), detector)
+    _assert_safe(r)
+    assert r.entry_s is not None and r.resets_refused_inside > 0
+    assert r.resets_accepted_outside > 0  # the cell is released once the person is out
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", [
+    "bench-0.80", "bench-0.95", "bench-1.30", "crate-crouch", "robot-base", "kneeling",
+    "running", "clear-view-outside",
+    pytest.param("two-persons", marks=NEEDS_H1),
+    pytest.param("masked-cutout", marks=NEEDS_H1),
+])
+def test_scenario(detector, name):
+    r = sc.run_scenario(_by_name(name), detector)
+    _assert_safe(r)
+
+
+@pytest.mark.slow
+def test_without_the_occluder_declared_the_bench_case_is_missed(detector):
+    # the suite can fail: the same scene with the bench left out of the zone file
+    s = dataclasses.replace(_by_name("bench-1.15"), declare_occluders=False)
+    r = sc.run_scenario(s, detector)
+    assert r.missed_stop_frames > 0, sc.format_table([r])
+
+
+def test_scoring_counts_a_missed_stop_and_an_accepted_reset():
+    frames = (sc.FrameScore(0.0, "RUN", True, False, True),
+              sc.FrameScore(0.1, "STOP", True, False, False),
+              sc.FrameScore(0.2, "STOP", False, True, None))
+    r = sc.ScenarioResult("x", 3, 0.0, None, 1, 1, 1, 1, 0, scores=frames)
+    assert not r.ok
+    assert "FAIL" in sc.format_table([r])
+    good = sc.ScenarioResult("y", 3, 0.5, 0.4, 0, 0, 0, 2, 1)
+    assert good.ok and "ok" in sc.format_table([good])
+    late = dataclasses.replace(good, first_stop_s=0.6)
+    assert not late.ok
+
+
+def test_unknown_scenario_is_a_config_error():
+    from monitor.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="unknown scenario nope"):
+        sc.select(["nope"])
