@@ -217,7 +217,8 @@ def test_zone_check_stops_where_the_reference_says_stop(stream, points):
     boxes = np.array([floor_box(cell, -1.0, -3.0)])
     rep = zn.check_persons(cell, "cam0", boxes, tool_pose=tool_pose_beside(-1.0, -3.0, 1.15),
                            tool_speed_mps=speed)
-    assert 1.05 < rep.tool_separation_m < 1.25
+    # about 1.15 m; the placement may put a short box's person up to ~0.15 m nearer (feet range)
+    assert 0.95 < rep.tool_separation_m < 1.25
     p, z_d = prep.separation, prep.person.position_uncertainty_m
     assert rep.required_separation_m == pytest.approx(reference_sp(speed, p, z_d))
     assert rep.required_separation_m > rep.tool_separation_m  # the reference says STOP
