@@ -166,7 +166,7 @@ def test_a_person_merged_into_a_neighbour_walking_out_keeps_the_zone(merged):
     run = Run()
     for _ in range(3):
         upd = run.frame(person(760, w=70), person(880, w=70))  # B inside, A just outside
-    b, a = upd.track_ids
+    b, _a = upd.track_ids
     assert seen(upd) == {("stop", b)}
     # one box over both; its bottom-centre is outside the zone (x > 800)
     for _ in range(3):
