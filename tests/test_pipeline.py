@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import pytest
 
@@ -128,21 +130,28 @@ def test_a_stop_fault_raises_one_alert_with_a_snapshot_and_one_when_it_clears(pi
 MANUAL = PolicyConfig(clear_time=0.5, restart_interlock="manual")
 
 
+@functools.cache
+def _empty_frame() -> np.ndarray:
+    return DemoScene().background()
+
+
+@functools.cache
 def _inside_frame() -> np.ndarray:
     """The demo background with a person standing inside the protective zone."""
-    img = DemoScene().background()
+    img = _empty_frame().copy()
     feet = DemoScene().camera.project(np.array([[0.0, -0.8, 0.0], [0.0, -0.8, 1.75]]))
     draw_figure(img, Figure((float(feet[0][0]), float(feet[0][1])),
                             float(feet[0][1] - feet[1][1])))
     return img
 
 
-@pytest.mark.parametrize("gap", [1, 3, 10], ids=lambda g: f"hidden_{g}_frames")
+@pytest.mark.parametrize("gap", [1, 3, pytest.param(10, marks=pytest.mark.slow)],
+                         ids=lambda g: f"hidden_{g}_frames")
 def test_a_hidden_person_keeps_the_stop_and_refuses_resets(detector, gap):
     from monitor.policy import ResetRequest
 
     pipe = Pipeline(detector, "cam0", MANUAL, load_cell(demo_cell_path()))
-    empty, inside = DemoScene().background(), _inside_frame()
+    empty, inside = _empty_frame(), _inside_frame()
     fps, seq = 10.0, 0
 
     def step(img, reset=None):
@@ -151,9 +160,8 @@ def test_a_hidden_person_keeps_the_stop_and_refuses_resets(detector, gap):
         seq += 1
         return pipe.process(img, FrameInfo("cam0", seq - 1, t, 1280, 720), t, reset=reset)
 
-    for _ in range(8):
-        assert step(empty).command.state == "RUN" or seq < 6
-    for _ in range(3):
+    step(empty)
+    for _ in range(2):
         seen = step(inside)
     assert seen.command.state == "STOP" and seen.command.latched
     (tid,) = seen.track_ids
@@ -172,7 +180,7 @@ def test_a_hidden_person_keeps_the_stop_and_refuses_resets(detector, gap):
     back = step(inside)  # seen again: the same person, a seen hit
     assert back.track_ids == (tid,)
     assert not any(h.lost for h in back.zone_report.hits)
-    for _ in range(5):  # gone for good: the hold stays until an operator looks
+    for _ in range(2):  # gone for good: the hold stays until an operator looks
         gone = step(empty)
         assert gone.command.state == "STOP"
     t = seq / fps
@@ -182,7 +190,7 @@ def test_a_hidden_person_keeps_the_stop_and_refuses_resets(detector, gap):
     assert [d["track_id"] for d in alert.details["dropped"]] == [tid]
     assert not any(h.lost for h in confirmed.zone_report.hits)
     assert confirmed.command.reset is not None and confirmed.command.reset.accepted
-    after = [step(empty).command.state for _ in range(8)]
+    after = [step(empty).command.state for _ in range(6)]
     assert after[-1] == "RUN"
 
 
@@ -206,7 +214,7 @@ def test_a_person_hidden_between_frames_is_held_across_ticks(detector):
     pipe = Pipeline(detector, "cam0", PolicyConfig(clear_time=0.5, restart_interlock="auto",
                                                    frame_timeout=5.0),
                     load_cell(demo_cell_path()))
-    inside, empty = _inside_frame(), DemoScene().background()
+    inside, empty = _inside_frame(), _empty_frame()
     for i in range(3):
         pipe.process(inside, FrameInfo("cam0", i, i / 10, 1280, 720), i / 10)
     pipe.process(empty, FrameInfo("cam0", 3, 0.3, 1280, 720), 0.3)
