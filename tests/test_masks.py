@@ -150,3 +150,22 @@ def test_volume_masks_count_through_their_image_outline():
     assert rule.keep(np.array([inner, reaching])).tolist() == [False, True]
     half = MaskRule.for_camera(cell, "cam0", W // 2, H // 2, 0.0)  # a smaller stream
     assert half.keep(np.array([inner]) / 2).tolist() == [False]
+
+
+def test_zones_validate_warns_about_a_mask_near_a_protective_zone(tmp_path, capsys):
+    import yaml
+
+    from monitor.cli import main
+
+    path = tmp_path / "cell.yaml"
+    path.write_text(yaml.safe_dump({
+        "version": 1, "name": "near", "cameras": [{"id": "cam0", "width": W, "height": H}],
+        "zones": [
+            {"id": "cutout", "kind": "mask", "shape": "polygon", "camera": "cam0",
+             "points_px": [[400, 300], [560, 300], [560, 650], [400, 650]]},
+            {"id": "stop", "kind": "protective", "shape": "polygon", "camera": "cam0",
+             "points_px": [[600, 200], [1000, 200], [1000, 700], [600, 700]]}]}))
+    assert main(["zones", "validate", str(path)]) == 0
+    err = capsys.readouterr().err
+    assert "warning: mask zone 'cutout' is within a person's width of protective zone 'stop'" \
+        in err

@@ -135,7 +135,7 @@ def mask_warnings(cell: Cell, person_width_px: float | None = None) -> list[str]
                     continue
                 if (grown & _raster([apoly], cam.width, cam.height)).any():
                     seen.add((mz.id, az.id))
-                    out.append(f"{cell.label}: mask zone '{mz.id}' is within a person's width "
+                    out.append(f"mask zone '{mz.id}' is within a person's width "
                                f"of {az.kind} zone '{az.id}' in camera '{camera_id}': a person "
                                "there may be hidden; draw the mask tight around the object")
     return out
