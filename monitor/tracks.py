@@ -215,6 +215,10 @@ class PersonTracker:
         n = len(boxes)
         rows_to_id = self._associate(boxes, np.asarray(persons.scores, np.float64))
         row_zones = self._row_zones(report, n)
+        floors: list[np.ndarray | None] = [None] * n
+        if self.to_floor is not None and n:
+            xy, located = self.to_floor(_bottom_centre(boxes))
+            floors = [np.asarray(xy[i], np.float64) if located[i] else None for i in range(n)]
 
         seen_now = set(rows_to_id)
         ended = []
@@ -223,11 +227,11 @@ class PersonTracker:
             if rec is None:
                 rec = self._records[tid] = _Record(tid, boxes[row].copy(), now)
                 rec.zones = row_zones[row] if row_zones is not None else ()
-                self._place(rec, boxes[row], now, first=True)
+                self._place(rec, boxes[row], floors[row], now, first=True)
                 continue
             if rec.lost and rec.held:
                 ended.append(rec.hold())
-            self._place(rec, boxes[row], now, first=False)
+            self._place(rec, boxes[row], floors[row], now, first=False)
             rec.prev_zones = rec.zones
             if row_zones is not None:
                 rec.zones = row_zones[row]
@@ -306,7 +310,8 @@ class PersonTracker:
                 per_row[h.person].append(HeldZone(h.zone_id, h.kind, float(h.speed_scale)))
         return [_union(tuple(z)) for z in per_row]
 
-    def _place(self, rec: _Record, box: np.ndarray, now: float, first: bool) -> None:
+    def _place(self, rec: _Record, box: np.ndarray, floor: np.ndarray | None, now: float,
+               first: bool) -> None:
         """Move a record to its new box; update image and floor velocities."""
         a = self.config.velocity_smoothing
         dt = now - rec.last_seen
@@ -314,11 +319,6 @@ class PersonTracker:
             old_c = (rec.box[:2] + rec.box[2:]) * 0.5
             new_c = (box[:2] + box[2:]) * 0.5
             rec.velocity = a * (new_c - old_c) / dt + (1 - a) * rec.velocity
-        floor = None
-        if self.to_floor is not None:
-            xy, located = self.to_floor(_bottom_centre(box[None]))
-            if bool(located[0]):
-                floor = np.asarray(xy[0], np.float64)
         if floor is not None and rec.floor is not None and not first and dt > 0:
             sample = (floor - rec.floor) / dt
             rec.floor_velocity = sample if rec.floor_velocity is None else \
