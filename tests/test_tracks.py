@@ -216,3 +216,29 @@ def test_floor_velocity_from_a_calibration():
     assert track.floor_m == pytest.approx((2.9, 6.0))
     assert track.floor_velocity_mps[0] == pytest.approx(1.0, rel=0.05)
     assert track.velocity_pxps[0] == pytest.approx(100.0, rel=0.05)
+
+
+def test_a_person_seen_for_one_frame_only_is_held():
+    """The library confirms a new track only on its second frame; the hold must not wait."""
+    run = Run()
+    for _ in range(5):
+        run.frame(person(250))  # someone else, so the newcomer is not in the first frame
+    one = run.frame(person(250), person(650))
+    newcomer = one.track_ids[1]
+    gone = run.frame(person(250))
+    assert held(gone) == {("stop", newcomer)}
+
+
+def test_tracking_is_deterministic():
+    def replay():
+        run = Run()
+        out = []
+        for i in range(30):
+            boxes = [person(300 + 20 * i), person(900 - 20 * i, bottom=650)]
+            if i % 7 == 3:
+                boxes = boxes[:1]
+            upd = run.frame(*boxes)
+            out.append((upd.track_ids, upd.report.hits))
+        return out
+
+    assert replay() == replay()
