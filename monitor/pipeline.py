@@ -133,6 +133,17 @@ class Pipeline:
         model = self.cell.camera_models.get(camera_id) if self.cell is not None else None
         return model.pixel_to_floor if model is not None else None
 
+    def _zones_of(self, frame: FrameInfo, tool_pose, tool_speed_mps):
+        """The zone check for other boxes of this frame's camera (a lost person's path)."""
+        if self.prepared is None:
+            return None
+        foot = self.detector.foot_uncertainty_px(frame.width, frame.height)
+
+        def zones_of(boxes_px: np.ndarray) -> ZoneReport:
+            return check_persons(self.prepared, frame.camera_id, boxes_px, tool_pose,
+                                 tool_speed_mps, foot)
+        return zones_of
+
     def mask_rule(self, frame: FrameInfo) -> MaskRule | None:
         """The mask rule of the frame's camera at its size (None: no mask zones)."""
         if self.cell is None:
@@ -207,7 +218,8 @@ class Pipeline:
         if detector_error is None and cam.tracker is not None:
             try:
                 update = cam.tracker.update(persons, report, frame.capture_time,
-                                            (frame.width, frame.height))
+                                            (frame.width, frame.height),
+                                            self._zones_of(frame, tool_pose, tool_speed_mps))
                 report, track_ids = update.report, update.track_ids
                 for hold in update.started:
                     log.info("%s: %s", frame.camera_id, hold.describe())

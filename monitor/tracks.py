@@ -42,6 +42,8 @@ HOLD_KINDS = frozenset({"protective", "warning"})
 
 # pixels (N, 2) -> (floor xy metres (N, 2), located (N,) bool): a camera's calibration
 ToFloor = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
+# boxes (N, 4) px -> the zone check's answer for them (for extrapolated positions)
+ZonesOf = Callable[[np.ndarray], ZoneReport]
 
 
 @dataclass(frozen=True)
@@ -56,6 +58,8 @@ class TrackerConfig:
     exit_speed_pxps: float = 5.0  # outward speed at the edge that counts as leaving the view
     forget_after_s: float = 60.0  # lost tracks without a hold are forgotten after this long
     velocity_smoothing: float = 0.5  # weight of the newest velocity sample (0..1]
+    predict_s: float = 1.0  # a lost person's path is extrapolated this far (0: not at all)
+    predict_steps: int = 4  # points checked along that path
 
 
 @dataclass(frozen=True)
@@ -203,13 +207,15 @@ class PersonTracker:
 
     # ---------------------------------------------------------------------------------------
     def update(self, persons: Persons, report: ZoneReport | None, now: float,
-               frame_size: tuple[int, int]) -> TrackUpdate:
+               frame_size: tuple[int, int], zones_of: ZonesOf | None = None) -> TrackUpdate:
         """Associate this frame's persons with the tracks; return their ids and the report
         with track ids on the seen hits plus one lost hit per held zone.
 
         ``report`` is the zone answer for ``persons`` (None: unknown; each track then keeps
         the zones of its previous sighting). ``now`` is the frame's capture time;
-        ``frame_size`` its (width, height).
+        ``frame_size`` its (width, height). ``zones_of`` (the zone check for other boxes) lets
+        a track lost while walking towards a zone hold the zones on its path for the next
+        ``predict_s`` (hidden behind the robot base on the way in).
         """
         boxes = np.asarray(persons.boxes_px, np.float64).reshape(-1, 4)
         n = len(boxes)
@@ -242,7 +248,7 @@ class PersonTracker:
             if rec.track_id in seen_now or rec.lost:
                 continue
             rec.lost = True
-            rec.held = self._hold_zones(rec, boxes, rows_to_id, frame_size)
+            rec.held = self._hold_zones(rec, boxes, rows_to_id, frame_size, zones_of)
             if rec.held:
                 started.append(rec.hold())
 
@@ -330,7 +336,8 @@ class PersonTracker:
         rec.last_seen = now
 
     def _hold_zones(self, rec: _Record, boxes: np.ndarray, ids: list[int],
-                    frame_size: tuple[int, int]) -> tuple[HeldZone, ...]:
+                    frame_size: tuple[int, int], zones_of: ZonesOf | None = None
+                    ) -> tuple[HeldZone, ...]:
         """The zones a track lost in this frame keeps occupied (empty: none)."""
         merged_into: tuple[HeldZone, ...] = ()
         merged = False
@@ -346,7 +353,21 @@ class PersonTracker:
                 merged_into = _union(merged_into, other.prev_zones)
         if not merged and self._leaving_view(rec, frame_size):
             return ()
-        return _union(rec.zones, merged_into) if (rec.zones or merged_into) else ()
+        return _union(rec.zones, merged_into, self._zones_ahead(rec, zones_of))
+
+    def _zones_ahead(self, rec: _Record, zones_of: ZonesOf | None) -> tuple[HeldZone, ...]:
+        """Zones on the lost person's extrapolated path (image velocity, ``predict_s``)."""
+        cfg = self.config
+        if zones_of is None or cfg.predict_s <= 0 or cfg.predict_steps < 1:
+            return ()
+        if not np.all(np.isfinite(rec.velocity)) or not np.any(rec.velocity):
+            return ()
+        steps = np.arange(1, cfg.predict_steps + 1) * (cfg.predict_s / cfg.predict_steps)
+        shift = steps[:, None] * rec.velocity[None, :]
+        ahead = rec.box[None, :] + np.concatenate([shift, shift], axis=1)
+        report = zones_of(ahead)
+        rows = self._row_zones(report, len(ahead))
+        return _union(*rows) if rows else ()
 
     def _leaving_view(self, rec: _Record, frame_size: tuple[int, int]) -> bool:
         """Box at the image border and moving outwards across it."""

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import pytest
 
@@ -242,3 +244,27 @@ def test_tracking_is_deterministic():
         return out
 
     assert replay() == replay()
+
+
+def test_a_person_lost_walking_into_the_zone_holds_it():
+    """Seen outside, walking towards the protective zone, hidden on the way in (behind the
+    robot base): the zones on the extrapolated path are held."""
+    run = Run()
+    zones_of = functools.partial(zn.check_persons, CELL, "cam0")
+    for i in range(6):  # right of the zone, walking left at 200 px/s
+        t = run.seq / run.fps
+        boxes = np.array([person(1000 - 20 * i)], np.float32)
+        upd = run.tracker.update(Persons(boxes, np.array([0.9], np.float32)),
+                                 zn.check_persons(CELL, "cam0", boxes), t, (W, H), zones_of)
+        run.seq += 1
+    assert seen(upd) == set()
+    gone = run.tracker.update(Persons.empty(), ZoneReport(), run.seq / run.fps, (W, H),
+                              zones_of)
+    assert held(gone) == {("stop", upd.track_ids[0])}
+    # walking away from the zone and vanishing: nothing ahead
+    away = PersonTracker()
+    for i in range(6):
+        boxes = np.array([person(900 + 20 * i)], np.float32)
+        away.update(Persons(boxes, np.array([0.9], np.float32)),
+                    zn.check_persons(CELL, "cam0", boxes), i / 10, (W, H), zones_of)
+    assert away.update(Persons.empty(), ZoneReport(), 0.6, (W, H), zones_of).report.hits == ()
