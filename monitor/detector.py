@@ -24,6 +24,7 @@ from __future__ import annotations
 import contextlib
 import json
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -33,6 +34,9 @@ import numpy as np
 from monitor import boxes as box_ops
 from monitor.errors import InputError, ModelError
 from monitor.types import FrameInfo, Persons
+
+# raw boxes (N, 4) in frame pixels -> keep flags (N,): applied before NMS and merging
+PreMerge = Callable[[np.ndarray], np.ndarray]
 
 LAYOUTS = ("darknet", "yolov5", "yolov8", "end2end", "zoo", "yolox")
 # Darknet defaults: tiny-YOLOv3 (2 heads) and YOLOv3 (3 heads); coarse head first.
@@ -459,7 +463,10 @@ class Detector:
             feeds["image_shape"] = np.array([frame_hw], np.float32)
         return self.session.run(self.output_names, feeds)
 
-    def detect_timed(self, image_bgr: np.ndarray, frame: FrameInfo | None = None) -> Detection:
+    def detect_timed(self, image_bgr: np.ndarray, frame: FrameInfo | None = None,
+                     pre_merge: PreMerge | None = None) -> Detection:
+        """Detect persons; ``pre_merge(raw boxes in frame pixels) -> keep mask`` drops raw
+        boxes before NMS and merging (mask zones: a masked look-alike never joins a person)."""
         if image_bgr is None or image_bgr.ndim != 3 or image_bgr.shape[2] != 3:
             raise InputError("frame is not a BGR image")
         t0 = time.perf_counter()
@@ -467,7 +474,8 @@ class Detector:
         t1 = time.perf_counter()
         outputs = self.run_raw(tensor, image_bgr.shape[:2])
         t2 = time.perf_counter()
-        persons, candidates, overflow = self.postprocess(outputs, box, image_bgr.shape[:2], frame)
+        persons, candidates, overflow = self.postprocess(outputs, box, image_bgr.shape[:2], frame,
+                                                         pre_merge)
         t3 = time.perf_counter()
         return Detection(persons, (t1 - t0) * 1e3, (t2 - t1) * 1e3, (t3 - t2) * 1e3,
                          candidates, overflow)
@@ -476,8 +484,10 @@ class Detector:
         return self.detect_timed(image_bgr, frame).persons
 
     def postprocess(self, outputs: list[np.ndarray], box: Letterbox, frame_hw: tuple[int, int],
-                    frame: FrameInfo | None) -> tuple[Persons, int, bool]:
-        """Decode, threshold, cap, NMS, merge, undo the letterbox. Pure given the outputs."""
+                    frame: FrameInfo | None, pre_merge: PreMerge | None = None
+                    ) -> tuple[Persons, int, bool]:
+        """Decode, threshold, cap, (pre_merge), NMS, merge, undo the letterbox. Pure given the
+        outputs."""
         cfg, layout = self.config, self.layout
         boxes, scores = decode(outputs, layout)
         keep = scores >= cfg.score_threshold
@@ -487,6 +497,12 @@ class Detector:
         if overflow:
             top = np.argpartition(-scores, cfg.top_k)[:cfg.top_k]
             boxes, scores = boxes[top], scores[top]
+        if pre_merge is not None and len(boxes):
+            in_frame = boxes if layout.kind == "zoo" else box.to_frame(boxes)
+            keep = np.asarray(pre_merge(np.asarray(in_frame, np.float32)), bool).reshape(-1)
+            if len(keep) != len(boxes):
+                raise ValueError(f"pre_merge returned {len(keep)} flags for {len(boxes)} boxes")
+            boxes, scores = boxes[keep], scores[keep]
         kept = box_ops.nms(boxes, scores, cfg.nms_iou)
         boxes, scores = box_ops.merge_boxes(boxes[kept], scores[kept], cfg.merge_iou,
                                             cfg.merge_ios, cfg.merge_touch_px)

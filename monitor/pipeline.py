@@ -1,5 +1,10 @@
 """One processing step per frame: detect, merge, zones and geometry, health, policy.
 
+Persons are tracked per camera (``monitor.tracks``): a person lost inside a protective or
+warning zone keeps it occupied (``ZoneHit(lost=True)``) until seen again or until an operator's
+``confirm_clear`` reset. Mask zones act on the detector's raw boxes before merging
+(``monitor.zones.masks``), so a masked look-alike never swallows a real person.
+
 The same ``Pipeline`` serves the live service and replay; only the clock differs (monotonic
 seconds live, the video's own timestamps in replay), and it is always passed in, so replay is
 deterministic. I/O (cameras, Zenoh, files) stays outside: the caller hands in frames, the newest
@@ -9,9 +14,10 @@ tool pose and reset requests, and publishes what comes out.
 from __future__ import annotations
 
 import functools
+import logging
 import time
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
@@ -28,8 +34,12 @@ from monitor.policy import (
     initial_state,
     step,
 )
+from monitor.tracks import Hold, PersonTracker, TrackerConfig
 from monitor.types import Alert, Fault, FrameInfo, Persons, ZoneReport
 from monitor.zones import Cell, check_persons, merge_towards_danger
+from monitor.zones.masks import MaskRule
+
+log = logging.getLogger(__name__)
 
 # Faults that are expected at start-up or say nothing a person must act on.
 QUIET_FAULTS = frozenset({"camera_waiting"})
@@ -66,6 +76,8 @@ class StepResult:
     faults: tuple[Fault, ...] = ()
     alerts: tuple[Alert, ...] = ()
     stage_ms: dict[str, float] = field(default_factory=dict)  # stage -> wall ms (not replayed)
+    track_ids: tuple[int, ...] = ()  # persistent person id per row of ``persons``
+    masked_boxes: int = 0  # raw detector boxes suppressed by mask zones in this frame
 
 
 @dataclass
@@ -77,6 +89,7 @@ class _Camera:
     report: ZoneReport | None = None  # zone answer of that frame (None: unknown)
     faults: tuple[Fault, ...] = ()  # faults of that frame (health, detector, zones)
     detector_error: str | None = None
+    tracker: PersonTracker | None = None
 
 
 class Pipeline:
@@ -95,7 +108,8 @@ class Pipeline:
     def __init__(self, detector: Detector, camera_id: str | Sequence[str], policy: PolicyConfig,
                  cell: Cell | None = None,
                  health: CameraHealth | Mapping[str, CameraHealth] | None = None,
-                 zone_error: str | None = None) -> None:
+                 zone_error: str | None = None, tracking: TrackerConfig | None = None
+                 ) -> None:
         ids = (camera_id,) if isinstance(camera_id, str) else tuple(camera_id)
         if not ids:
             raise ValueError("a pipeline needs at least one camera")
@@ -107,11 +121,45 @@ class Pipeline:
         self.prepared = cell.prepared if cell is not None else None
         if isinstance(health, CameraHealth):
             health = {ids[0]: health}
-        self.cameras = {cid: _Camera((health or {}).get(cid)) for cid in ids}
+        self.cameras = {cid: _Camera((health or {}).get(cid), tracker=PersonTracker(
+            tracking, self._to_floor(cid))) for cid in ids}
+        self._mask_rules: dict[tuple[str, int, int], MaskRule] = {}
         self.zone_error = zone_error
         self._active_faults: dict[tuple[str, str], Fault] = {}  # (name, source) -> fault
         self.state: PolicyState = initial_state()
         self.last_command: Command | None = None
+
+    def _to_floor(self, camera_id: str):
+        model = self.cell.camera_models.get(camera_id) if self.cell is not None else None
+        return model.pixel_to_floor if model is not None else None
+
+    def _zones_of(self, frame: FrameInfo, tool_pose, tool_speed_mps):
+        """The zone check for other boxes of this frame's camera (a lost person's path)."""
+        if self.prepared is None:
+            return None
+        foot = self.detector.foot_uncertainty_px(frame.width, frame.height)
+
+        def zones_of(boxes_px: np.ndarray) -> ZoneReport:
+            return check_persons(self.prepared, frame.camera_id, boxes_px, tool_pose,
+                                 tool_speed_mps, foot)
+        return zones_of
+
+    def mask_rule(self, frame: FrameInfo) -> MaskRule | None:
+        """The mask rule of the frame's camera at its size (None: no mask zones)."""
+        if self.cell is None:
+            return None
+        key = (frame.camera_id, frame.width, frame.height)
+        if key not in self._mask_rules:
+            margin = self.detector.foot_uncertainty_px(frame.width, frame.height)
+            self._mask_rules[key] = MaskRule.for_camera(self.cell, frame.camera_id, frame.width,
+                                                        frame.height, margin)
+        rule = self._mask_rules[key]
+        return rule if rule.active else None
+
+    @property
+    def holds(self) -> dict[str, tuple[Hold, ...]]:
+        """Per camera, the lost persons keeping zones occupied."""
+        return {cid: cam.tracker.holds for cid, cam in self.cameras.items() if cam.tracker}
 
     @property
     def health(self) -> CameraHealth | None:
@@ -131,9 +179,21 @@ class Pipeline:
         faults: list[Fault] = []
         detector_error = None
         persons = Persons.empty(frame)
+        masked = 0
+        rule = None
         t0 = time.perf_counter()
         try:
-            detection = self.detector.detect_timed(image, frame)
+            rule = self.mask_rule(frame)
+            if rule is None:
+                detection = self.detector.detect_timed(image, frame)
+            else:
+                def pre_merge(boxes: np.ndarray) -> np.ndarray:
+                    nonlocal masked
+                    keep = rule.keep(boxes)
+                    masked += int(len(keep) - keep.sum())
+                    return keep
+
+                detection = self.detector.detect_timed(image, frame, pre_merge=pre_merge)
             persons = detection.persons
             stage.update(preprocess=detection.preprocess_ms, inference=detection.inference_ms,
                          decode=detection.decode_ms)
@@ -154,6 +214,17 @@ class Pipeline:
                 faults.append(Fault("zone_check_error", _one_line(exc), True, "zones"))
         elif detector_error is None:
             report = ZoneReport()
+        track_ids: tuple[int, ...] = ()
+        if detector_error is None and cam.tracker is not None:
+            try:
+                update = cam.tracker.update(persons, report, frame.capture_time,
+                                            (frame.width, frame.height),
+                                            self._zones_of(frame, tool_pose, tool_speed_mps))
+                report, track_ids = update.report, update.track_ids
+                for hold in update.started:
+                    log.info("%s: %s", frame.camera_id, hold.describe())
+            except Exception as exc:  # tracks unknown: a lost person may be missing, STOP
+                faults.append(Fault("tracking_error", _one_line(exc), True, frame.camera_id))
         t2 = time.perf_counter()
         health = None
         if cam.health is not None:
@@ -166,25 +237,49 @@ class Pipeline:
         t3 = time.perf_counter()
         cam.frame_time, cam.report, cam.faults = frame.capture_time, report, tuple(faults)
         cam.detector_error = detector_error
+        cleared = self._confirm_clear(reset, now)
         inputs = self._inputs(now, extra_faults, pose_time, reset, with_frame=True)
         command = self._decide(inputs, now)
-        alerts = (*(health.alerts if health else ()),
+        alerts = (*cleared, *(health.alerts if health else ()),
                   *self._fault_alerts(inputs.faults, detector_error, now, image))
         t4 = time.perf_counter()
         stage.update(detect=(t1 - t0) * 1e3, zones=(t2 - t1) * 1e3, health=(t3 - t2) * 1e3,
                      policy=(t4 - t3) * 1e3)
-        return StepResult(now, command, self._changed(command), frame, persons, report, health,
-                          inputs.faults, alerts, stage)
+        return StepResult(now, command, self._changed(command), frame, persons, cam.report,
+                          health, inputs.faults, alerts, stage, track_ids, masked)
 
     def tick(self, now: float, pose_time: float | None = None,
              reset: ResetRequest | None = None, extra_faults: tuple[Fault, ...] = ()) -> StepResult:
         """Evaluate timers with no new frame (frame timeout, clear time, resets, camera lost)."""
+        cleared = self._confirm_clear(reset, now)
         inputs = self._inputs(now, extra_faults, pose_time, reset, with_frame=False)
         command = self._decide(inputs, now)
         detector_error = next((c.detector_error for c in self.cameras.values()
                                if c.detector_error), None)
         return StepResult(now, command, self._changed(command), faults=inputs.faults,
-                          alerts=self._fault_alerts(inputs.faults, detector_error, now, None))
+                          alerts=(*cleared, *self._fault_alerts(inputs.faults, detector_error,
+                                                                now, None)))
+
+    def _confirm_clear(self, reset: ResetRequest | None, now: float) -> tuple[Alert, ...]:
+        """An operator looked and confirms the cell clear: drop every hold of a *lost* person
+        (seen persons keep their hits), before the policy judges the reset as usual."""
+        if reset is None or not reset.confirm_clear:
+            return ()
+        dropped: list[tuple[str, Hold]] = []
+        for cid, cam in self.cameras.items():
+            if cam.tracker is None:
+                continue
+            dropped.extend((cid, h) for h in cam.tracker.drop_holds())
+            if cam.report is not None:
+                cam.report = replace(cam.report, hits=tuple(h for h in cam.report.hits
+                                                            if not h.lost))
+        what = "; ".join(f"{cid}: {h.describe()}" for cid, h in dropped) or "no lost persons held"
+        message = f"operator {reset.operator} confirmed the cell clear: dropped {what}"
+        log.warning(message)
+        return (Alert("confirm_clear", "warning", message, "pipeline", now, details={
+            "operator": reset.operator, "request_id": reset.request_id, "note": reset.note,
+            "dropped": [{"camera": cid, "track_id": h.track_id, "lost_since": h.lost_since,
+                         "zones": [z.zone_id for z in h.zones]} for cid, h in dropped]}),)
 
     def _fault_alerts(self, faults: tuple[Fault, ...], detector_error: str | None, now: float,
                       image: np.ndarray | None) -> tuple[Alert, ...]:

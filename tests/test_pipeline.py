@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import pytest
 
@@ -121,3 +123,100 @@ def test_a_stop_fault_raises_one_alert_with_a_snapshot_and_one_when_it_clears(pi
     img, _ = next(frames(1))
     cleared = pipeline.process(img, FrameInfo("cam0", 9, 0.9, 1280, 720), 0.9).alerts
     assert [a.kind for a in cleared] == ["camera_blinded_cleared"]
+
+
+# ---------------------------------------------------------------- tracked and lost persons
+
+MANUAL = PolicyConfig(clear_time=0.5, restart_interlock="manual")
+
+
+@functools.cache
+def _empty_frame() -> np.ndarray:
+    return DemoScene().background()
+
+
+@functools.cache
+def _inside_frame() -> np.ndarray:
+    """The demo background with a person standing inside the protective zone."""
+    img = _empty_frame().copy()
+    feet = DemoScene().camera.project(np.array([[0.0, -0.8, 0.0], [0.0, -0.8, 1.75]]))
+    draw_figure(img, Figure((float(feet[0][0]), float(feet[0][1])),
+                            float(feet[0][1] - feet[1][1])))
+    return img
+
+
+@pytest.mark.parametrize("gap", [1, 3, pytest.param(10, marks=pytest.mark.slow)],
+                         ids=lambda g: f"hidden_{g}_frames")
+def test_a_hidden_person_keeps_the_stop_and_refuses_resets(detector, gap):
+    from monitor.policy import ResetRequest
+
+    pipe = Pipeline(detector, "cam0", MANUAL, load_cell(demo_cell_path()))
+    empty, inside = _empty_frame(), _inside_frame()
+    fps, seq = 10.0, 0
+
+    def step(img, reset=None):
+        nonlocal seq
+        t = seq / fps
+        seq += 1
+        return pipe.process(img, FrameInfo("cam0", seq - 1, t, 1280, 720), t, reset=reset)
+
+    step(empty)
+    for _ in range(2):
+        seen = step(inside)
+    assert seen.command.state == "STOP" and seen.command.latched
+    (tid,) = seen.track_ids
+    assert {(h.zone_id, h.track_id, h.lost) for h in seen.zone_report.hits} >= {
+        ("robot-protective", tid, False)}
+    hidden_at = seen.now
+    for k in range(gap):  # the person is erased from the frames: hidden, not gone
+        t = seq / fps
+        r = step(empty, ResetRequest("alice", t, f"r{k}"))
+        assert r.command.state == "STOP"
+        assert r.command.reset is not None and not r.command.reset.accepted
+        lost = [h for h in r.zone_report.hits if h.lost]
+        assert "robot-protective" in {h.zone_id for h in lost if h.kind == "protective"}
+        assert {(h.track_id, h.lost_since) for h in lost} == {(tid, hidden_at)}
+        assert len(r.persons) == 0
+    back = step(inside)  # seen again: the same person, a seen hit
+    assert back.track_ids == (tid,)
+    assert not any(h.lost for h in back.zone_report.hits)
+    for _ in range(2):  # gone for good: the hold stays until an operator looks
+        gone = step(empty)
+        assert gone.command.state == "STOP"
+    t = seq / fps
+    confirmed = step(empty, ResetRequest("bob", t, "c1", confirm_clear=True))
+    (alert,) = [a for a in confirmed.alerts if a.kind == "confirm_clear"]
+    assert alert.severity == "warning" and "bob" in alert.message
+    assert [d["track_id"] for d in alert.details["dropped"]] == [tid]
+    assert not any(h.lost for h in confirmed.zone_report.hits)
+    assert confirmed.command.reset is not None and confirmed.command.reset.accepted
+    after = [step(empty).command.state for _ in range(6)]
+    assert after[-1] == "RUN"
+
+
+def test_confirm_clear_keeps_the_stop_of_a_seen_person(detector):
+    from monitor.policy import ResetRequest
+
+    pipe = Pipeline(detector, "cam0", MANUAL, load_cell(demo_cell_path()))
+    inside = _inside_frame()
+    for i in range(4):
+        r = pipe.process(inside, FrameInfo("cam0", i, i / 10, 1280, 720), i / 10)
+    r = pipe.process(inside, FrameInfo("cam0", 4, 0.4, 1280, 720), 0.4,
+                     reset=ResetRequest("bob", 0.4, "c1", confirm_clear=True))
+    assert r.command.state == "STOP" and not r.command.reset.accepted
+    assert any(h.kind == "protective" and not h.lost for h in r.zone_report.hits)
+    (alert,) = [a for a in r.alerts if a.kind == "confirm_clear"]
+    assert alert.details["dropped"] == []
+
+
+def test_a_person_hidden_between_frames_is_held_across_ticks(detector):
+    """No frame for a while (tick only): the hold is part of the camera's last answer."""
+    pipe = Pipeline(detector, "cam0", PolicyConfig(clear_time=0.5, restart_interlock="auto",
+                                                   frame_timeout=5.0),
+                    load_cell(demo_cell_path()))
+    inside, empty = _inside_frame(), _empty_frame()
+    for i in range(3):
+        pipe.process(inside, FrameInfo("cam0", i, i / 10, 1280, 720), i / 10)
+    pipe.process(empty, FrameInfo("cam0", 3, 0.3, 1280, 720), 0.3)
+    assert [len(h) for h in pipe.holds.values()] == [1]
+    assert pipe.tick(1.5).command.state == "STOP"

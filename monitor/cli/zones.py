@@ -374,6 +374,10 @@ def cmd_validate(args: argparse.Namespace) -> int:
     if errors:
         return 2
     cell = zn.parse_cell(data, args.file)
+    from monitor.zones.masks import mask_warnings  # h1: masks near alert zones
+
+    for w in mask_warnings(cell):
+        print(f"{args.file}: warning: {w}", file=sys.stderr)
     active = sum(1 for z in cell.zones if z.enabled)
     print(f"{args.file}: ok: {len(cell.zones)} zones ({active} enabled), "
           f"{len(cell.cameras)} cameras, config hash {cell.config_hash}")

@@ -1,0 +1,379 @@
+"""Tracked persons and object permanence: a person lost inside a zone keeps that zone occupied.
+
+Detectors miss people: behind the robot base for a frame, merged into a neighbour's box, hidden
+by a part carried past the camera. A per-frame zone answer would then read "clear" exactly when
+a reset or a RUN is most dangerous. So persons are tracked across frames (ByteTrack from
+``supervision``: association by box overlap with a Kalman motion model), and a track that is
+lost **while inside or touching a protective or warning zone** becomes a *hold*: every frame,
+the camera's zone report carries ``ZoneHit(..., track_id=k, lost=True, lost_since=t)`` for each
+zone that person was last seen in, until
+
+* the person is seen again (the tracker re-associates the track, or a new person appears near
+  where the lost one was last seen: generous on purpose, it is the same person or someone
+  standing where they stood, and the seen person's own hits now count), or
+* an operator confirms the cell clear (``ResetRequest(confirm_clear=True)``; see
+  ``PersonTracker.drop_holds``).
+
+A track lost *outside* every zone (it walked out of the zone first) or leaving the view (its
+box at the image edge, moving outwards) holds nothing. A person whose box merges with a
+neighbour's is not "seen outside": when a lost track's last box lies largely inside a seen box,
+the hold covers the zones of both persons before the merge (the tracker cannot tell which of the
+two the merged box follows).
+
+Everything here is deterministic: no wall clock, the frame's capture time is passed in.
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from monitor.boxes import ios_matrix
+from monitor.types import Persons, ZoneHit, ZoneReport
+
+with warnings.catch_warnings():  # ByteTrack announces its move to the `trackers` package
+    warnings.simplefilter("ignore", FutureWarning)
+    import supervision as sv
+
+HOLD_KINDS = frozenset({"protective", "warning"})
+
+# pixels (N, 2) -> (floor xy metres (N, 2), located (N,) bool): a camera's calibration
+ToFloor = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
+# boxes (N, 4) px -> the zone check's answer for them (for extrapolated positions)
+ZonesOf = Callable[[np.ndarray], ZoneReport]
+
+
+@dataclass(frozen=True)
+class TrackerConfig:
+    """Settings of the person tracker (defaults suit 10-30 fps cameras)."""
+
+    lost_track_buffer: int = 30  # frames ByteTrack keeps a lost track for re-association
+    matching_threshold: float = 0.8  # ByteTrack's association cost limit (1 - IoU, fused)
+    near_factor: float = 1.0  # a new person within this many box widths re-finds a lost one
+    merge_ios: float = 0.3  # a lost box this much inside a seen box: merged into it
+    edge_margin_px: float = 8.0  # a box this close to the image border is "at the edge"
+    exit_speed_pxps: float = 5.0  # outward speed at the edge that counts as leaving the view
+    forget_after_s: float = 60.0  # lost tracks without a hold are forgotten after this long
+    velocity_smoothing: float = 0.5  # weight of the newest velocity sample (0..1]
+    predict_s: float = 1.0  # a lost person's path is extrapolated this far (0: not at all)
+    predict_steps: int = 4  # points checked along that path
+
+
+@dataclass(frozen=True)
+class HeldZone:
+    zone_id: str
+    kind: str
+    speed_scale: float
+
+
+@dataclass(frozen=True)
+class Track:
+    """One person's track as of the newest update (a snapshot; the tracker keeps its own)."""
+
+    track_id: int
+    box_px: tuple[float, float, float, float]  # last seen box
+    last_seen: float  # capture time of the last frame the person was seen in
+    velocity_pxps: tuple[float, float]  # image velocity of the box centre
+    floor_m: tuple[float, float] | None = None  # bottom-centre on the floor (calibrated camera)
+    floor_velocity_mps: tuple[float, float] | None = None
+    zones: tuple[HeldZone, ...] = ()  # protective/warning zones hit at the last sighting
+    lost: bool = False
+    held: tuple[HeldZone, ...] = ()  # zones this lost track keeps occupied
+
+
+@dataclass(frozen=True)
+class Hold:
+    """A lost person keeping zones occupied."""
+
+    track_id: int
+    zones: tuple[HeldZone, ...]
+    lost_since: float
+    box_px: tuple[float, float, float, float]
+
+    def describe(self) -> str:
+        names = ", ".join(z.zone_id for z in self.zones)
+        return f"person {self.track_id} lost inside {names} at {self.lost_since:.1f} s"
+
+
+@dataclass(frozen=True)
+class TrackUpdate:
+    """What one frame did to the tracks."""
+
+    track_ids: tuple[int, ...]  # per row of the frame's Persons
+    report: ZoneReport | None  # the zone report with track ids and the holds' lost hits
+    started: tuple[Hold, ...] = ()  # holds that began in this frame
+    ended: tuple[Hold, ...] = ()  # holds ended because the person was seen again
+
+
+@dataclass
+class _Record:
+    track_id: int
+    box: np.ndarray  # (4,) float64
+    last_seen: float
+    velocity: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    floor: np.ndarray | None = None
+    floor_velocity: np.ndarray | None = None
+    zones: tuple[HeldZone, ...] = ()
+    prev_zones: tuple[HeldZone, ...] = ()  # zones of the sighting before the last one
+    lost: bool = False
+    held: tuple[HeldZone, ...] = ()
+
+    def snapshot(self) -> Track:
+        floor = None if self.floor is None else (float(self.floor[0]), float(self.floor[1]))
+        fvel = None if self.floor_velocity is None else (float(self.floor_velocity[0]),
+                                                        float(self.floor_velocity[1]))
+        return Track(self.track_id, _box_tuple(self.box), self.last_seen,
+                     (float(self.velocity[0]), float(self.velocity[1])), floor, fvel,
+                     self.zones, self.lost, self.held)
+
+    def hold(self) -> Hold:
+        return Hold(self.track_id, self.held, self.last_seen, _box_tuple(self.box))
+
+
+def _box_tuple(box: np.ndarray) -> tuple[float, float, float, float]:
+    return (float(box[0]), float(box[1]), float(box[2]), float(box[3]))
+
+
+def _bottom_centre(boxes: np.ndarray) -> np.ndarray:
+    return np.stack([(boxes[:, 0] + boxes[:, 2]) * 0.5, boxes[:, 3]], axis=1)
+
+
+def _union(*groups: tuple[HeldZone, ...]) -> tuple[HeldZone, ...]:
+    out: dict[str, HeldZone] = {}
+    for group in groups:
+        for z in group:
+            old = out.get(z.zone_id)
+            if old is None or z.speed_scale < old.speed_scale:
+                out[z.zone_id] = z
+    return tuple(sorted(out.values(), key=lambda z: z.zone_id))
+
+
+def lost_person_index(track_id: int) -> int:
+    """The ``ZoneHit.person`` of a lost person's hit: negative (no row in this frame's
+    ``Persons``) and distinct per track, so merging reports keeps every hold."""
+    return -1 - track_id
+
+
+class PersonTracker:
+    """Persistent person ids for one camera, and the holds of persons lost inside zones.
+
+    ``to_floor`` (a camera calibration's ``pixel_to_floor``) adds floor positions and
+    velocities to the tracks; without it tracks are image-only.
+    """
+
+    def __init__(self, config: TrackerConfig | None = None, to_floor: ToFloor | None = None
+                 ) -> None:
+        self.config = config or TrackerConfig()
+        self.to_floor = to_floor
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", FutureWarning)
+            # activation threshold 0: every detection the detector reports gets a track
+            self._byte = sv.ByteTrack(track_activation_threshold=0.0,
+                                      lost_track_buffer=self.config.lost_track_buffer,
+                                      minimum_matching_threshold=self.config.matching_threshold,
+                                      frame_rate=30, minimum_consecutive_frames=1)
+        self._records: dict[int, _Record] = {}
+        self._by_byte_id: dict[int, int] = {}  # ByteTrack's id -> our track id
+        self._next_id = 1
+
+    # ---------------------------------------------------------------------------------------
+    @property
+    def tracks(self) -> tuple[Track, ...]:
+        return tuple(r.snapshot() for r in sorted(self._records.values(),
+                                                  key=lambda r: r.track_id))
+
+    @property
+    def holds(self) -> tuple[Hold, ...]:
+        return tuple(r.hold() for r in sorted(self._records.values(), key=lambda r: r.track_id)
+                     if r.lost and r.held)
+
+    def held_hits(self) -> tuple[ZoneHit, ...]:
+        """One ``lost=True`` hit per held zone of every lost person."""
+        return tuple(ZoneHit(z.zone_id, z.kind, lost_person_index(h.track_id), z.speed_scale,
+                             None, h.track_id, True, h.lost_since)
+                     for h in self.holds for z in h.zones)
+
+    def drop_holds(self) -> tuple[Hold, ...]:
+        """An operator confirmed the cell clear: every lost person stops holding zones (seen
+        persons are untouched). Returns the holds dropped."""
+        dropped = self.holds
+        for r in self._records.values():
+            if r.lost:
+                r.held = ()
+        return dropped
+
+    # ---------------------------------------------------------------------------------------
+    def update(self, persons: Persons, report: ZoneReport | None, now: float,
+               frame_size: tuple[int, int], zones_of: ZonesOf | None = None) -> TrackUpdate:
+        """Associate this frame's persons with the tracks; return their ids and the report
+        with track ids on the seen hits plus one lost hit per held zone.
+
+        ``report`` is the zone answer for ``persons`` (None: unknown; each track then keeps
+        the zones of its previous sighting). ``now`` is the frame's capture time;
+        ``frame_size`` its (width, height). ``zones_of`` (the zone check for other boxes) lets
+        a track lost while walking towards a zone hold the zones on its path for the next
+        ``predict_s`` (hidden behind the robot base on the way in).
+        """
+        boxes = np.asarray(persons.boxes_px, np.float64).reshape(-1, 4)
+        n = len(boxes)
+        rows_to_id = self._associate(boxes, np.asarray(persons.scores, np.float64))
+        row_zones = self._row_zones(report, n)
+        floors: list[np.ndarray | None] = [None] * n
+        if self.to_floor is not None and n:
+            xy, located = self.to_floor(_bottom_centre(boxes))
+            floors = [np.asarray(xy[i], np.float64) if located[i] else None for i in range(n)]
+
+        seen_now = set(rows_to_id)
+        ended = []
+        for row, tid in enumerate(rows_to_id):
+            rec = self._records.get(tid)
+            if rec is None:
+                rec = self._records[tid] = _Record(tid, boxes[row].copy(), now)
+                rec.zones = row_zones[row] if row_zones is not None else ()
+                self._place(rec, boxes[row], floors[row], now, first=True)
+                continue
+            if rec.lost and rec.held:
+                ended.append(rec.hold())
+            self._place(rec, boxes[row], floors[row], now, first=False)
+            rec.prev_zones = rec.zones
+            if row_zones is not None:
+                rec.zones = row_zones[row]
+            rec.lost, rec.held = False, ()
+
+        started = []
+        for rec in self._records.values():
+            if rec.track_id in seen_now or rec.lost:
+                continue
+            rec.lost = True
+            rec.held = self._hold_zones(rec, boxes, rows_to_id, frame_size, zones_of)
+            if rec.held:
+                started.append(rec.hold())
+
+        for tid in [t for t, r in self._records.items() if r.lost and not r.held
+                    and now - r.last_seen > self.config.forget_after_s]:
+            del self._records[tid]
+
+        out = None
+        if report is not None:
+            seen_hits = tuple(replace(h, track_id=rows_to_id[h.person])
+                              if 0 <= h.person < n else h for h in report.hits)
+            out = replace(report, hits=seen_hits + self.held_hits())
+        return TrackUpdate(tuple(rows_to_id), out, tuple(started), tuple(ended))
+
+    # ---------------------------------------------------------------------------------------
+    def _associate(self, boxes: np.ndarray, scores: np.ndarray) -> list[int]:
+        """Our track id for every row: ByteTrack's association first; rows it leaves without
+        an id (a new person's first frames) or gives a new id re-find a track that is not
+        seen in this frame near where it was last seen, or start a new one."""
+        n = len(boxes)
+        byte_ids = np.full(n, -1, np.int64)
+        if n:
+            dets = sv.Detections(xyxy=boxes.astype(np.float32), confidence=scores.astype(
+                np.float32), data={"row": np.arange(n)})
+            tracked = self._byte.update_with_detections(dets)
+            if len(tracked):
+                byte_ids[np.asarray(tracked.data["row"], int)] = tracked.tracker_id
+        else:
+            self._byte.update_with_detections(sv.Detections.empty())
+
+        ids: list[int | None] = [None] * n
+        for row in range(n):
+            tid = self._by_byte_id.get(int(byte_ids[row]))
+            if tid is not None and tid not in ids:
+                ids[row] = tid
+        free = [r for r in self._records.values() if r.track_id not in ids]
+        rows = [row for row in range(n) if ids[row] is None]
+        if rows and free:
+            # nearest pairs first, each row and each track used once
+            bc_rows = _bottom_centre(boxes[rows])
+            bc_free = _bottom_centre(np.stack([r.box for r in free]))
+            dist = np.linalg.norm(bc_rows[:, None, :] - bc_free[None, :, :], axis=2)
+            width = np.maximum((boxes[rows, 2] - boxes[rows, 0])[:, None],
+                               np.array([r.box[2] - r.box[0] for r in free])[None, :])
+            near = dist <= self.config.near_factor * np.maximum(width, 1.0)
+            for flat in np.argsort(dist, axis=None, kind="stable"):
+                i, j = divmod(int(flat), len(free))
+                if near[i, j] and ids[rows[i]] is None and free[j].track_id not in ids:
+                    ids[rows[i]] = free[j].track_id
+        for row in range(n):
+            if ids[row] is None:
+                ids[row] = self._next_id
+                self._next_id += 1
+            if byte_ids[row] >= 0:
+                self._by_byte_id[int(byte_ids[row])] = ids[row]
+        return [int(t) for t in ids]
+
+    def _row_zones(self, report: ZoneReport | None, n: int
+                   ) -> list[tuple[HeldZone, ...]] | None:
+        if report is None:
+            return None
+        per_row: list[list[HeldZone]] = [[] for _ in range(n)]
+        for h in report.hits:
+            if 0 <= h.person < n and not h.lost and h.kind in HOLD_KINDS:
+                per_row[h.person].append(HeldZone(h.zone_id, h.kind, float(h.speed_scale)))
+        return [_union(tuple(z)) for z in per_row]
+
+    def _place(self, rec: _Record, box: np.ndarray, floor: np.ndarray | None, now: float,
+               first: bool) -> None:
+        """Move a record to its new box; update image and floor velocities."""
+        a = self.config.velocity_smoothing
+        dt = now - rec.last_seen
+        if not first and dt > 0:
+            old_c = (rec.box[:2] + rec.box[2:]) * 0.5
+            new_c = (box[:2] + box[2:]) * 0.5
+            rec.velocity = a * (new_c - old_c) / dt + (1 - a) * rec.velocity
+        if floor is not None and rec.floor is not None and not first and dt > 0:
+            sample = (floor - rec.floor) / dt
+            rec.floor_velocity = sample if rec.floor_velocity is None else \
+                a * sample + (1 - a) * rec.floor_velocity
+        elif floor is None:
+            rec.floor_velocity = None
+        rec.floor = floor
+        rec.box = box.copy()
+        rec.last_seen = now
+
+    def _hold_zones(self, rec: _Record, boxes: np.ndarray, ids: list[int],
+                    frame_size: tuple[int, int], zones_of: ZonesOf | None = None
+                    ) -> tuple[HeldZone, ...]:
+        """The zones a track lost in this frame keeps occupied (empty: none)."""
+        merged_into: tuple[HeldZone, ...] = ()
+        merged = False
+        if len(boxes):
+            inside = ios_matrix(rec.box[None], boxes)[0]
+            # share of the lost box covered by each seen box (ios uses the smaller box)
+            lost_area = max((rec.box[2] - rec.box[0]) * (rec.box[3] - rec.box[1]), 1e-9)
+            seen_area = (boxes[:, 2] - boxes[:, 0]) * (boxes[:, 3] - boxes[:, 1])
+            cover = inside * np.minimum(lost_area, seen_area) / lost_area
+            for row in np.flatnonzero(cover >= self.config.merge_ios).tolist():
+                merged = True
+                other = self._records[ids[row]]
+                merged_into = _union(merged_into, other.prev_zones)
+        if not merged and self._leaving_view(rec, frame_size):
+            return ()
+        return _union(rec.zones, merged_into, self._zones_ahead(rec, zones_of))
+
+    def _zones_ahead(self, rec: _Record, zones_of: ZonesOf | None) -> tuple[HeldZone, ...]:
+        """Zones on the lost person's extrapolated path (image velocity, ``predict_s``)."""
+        cfg = self.config
+        if zones_of is None or cfg.predict_s <= 0 or cfg.predict_steps < 1:
+            return ()
+        if not np.all(np.isfinite(rec.velocity)) or not np.any(rec.velocity):
+            return ()
+        steps = np.arange(1, cfg.predict_steps + 1) * (cfg.predict_s / cfg.predict_steps)
+        shift = steps[:, None] * rec.velocity[None, :]
+        ahead = rec.box[None, :] + np.concatenate([shift, shift], axis=1)
+        report = zones_of(ahead)
+        rows = self._row_zones(report, len(ahead))
+        return _union(*rows) if rows else ()
+
+    def _leaving_view(self, rec: _Record, frame_size: tuple[int, int]) -> bool:
+        """Box at the image border and moving outwards across it."""
+        w, h = frame_size
+        m, v = self.config.edge_margin_px, self.config.exit_speed_pxps
+        x1, y1, x2, y2 = rec.box
+        vx, vy = rec.velocity
+        return bool((x1 <= m and vx <= -v) or (x2 >= w - m and vx >= v)
+                    or (y1 <= m and vy <= -v) or (y2 >= h - m and vy >= v))

@@ -1,0 +1,171 @@
+"""Mask zones never hide a person: whole boxes only, before merging."""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+
+from monitor import zones as zn
+from monitor.pipeline import Pipeline
+from monitor.policy import PolicyConfig
+from monitor.scene import Figure, draw_figure
+from monitor.types import FrameInfo
+from monitor.zones.masks import MaskRule, mask_warnings
+
+W, H = 1280, 720
+GREY = 120
+CUTOUT = Figure((520.0, 640.0), 360.0)  # a person-coloured cut-out in front
+PERSON = Figure((660.0, 560.0), 300.0)  # a real person just behind it, to its right
+
+
+def test_a_box_wholly_inside_a_tight_mask_is_suppressed():
+    rule = MaskRule([np.array([[100, 100], [300, 100], [300, 500], [100, 500]])], W, H, 0.0)
+    keep = rule.keep(np.array([[100, 100, 300, 500],  # exactly the mask
+                               [150, 200, 250, 400],  # inside
+                               [150, 200, 302, 400],  # two pixels out: kept
+                               [600, 100, 700, 300]]))  # elsewhere
+    assert keep.tolist() == [False, False, True, True]
+
+
+def test_the_box_error_margin_suppresses_a_cut_out_but_not_a_box_reaching_out():
+    rule = MaskRule([np.array([[100, 100], [300, 100], [300, 500], [100, 500]])], W, H, 50.0)
+    keep = rule.keep(np.array([[60, 80, 340, 540],  # the cut-out's box, one cell too large
+                               [200, 100, 360, 500],  # reaches 60 px out: a person there
+                               [250, 450, 330, 620]]))  # below the mask
+    assert keep.tolist() == [False, True, True]
+
+
+def test_non_convex_masks_and_odd_boxes():
+    ell = np.array([[0, 0], [400, 0], [400, 100], [100, 100], [100, 400], [0, 400]])
+    rule = MaskRule([ell], W, H, 0.0)
+    keep = rule.keep(np.array([[10, 10, 390, 90],  # in the top bar
+                               [10, 10, 390, 390],  # spans the notch: not wholly inside
+                               [np.nan, 0, 10, 10],  # not finite: never suppressed
+                               [50, 50, 50, 50]]))  # empty box: never suppressed
+    assert keep.tolist() == [False, True, True, True]
+
+
+def test_no_masks_keep_everything():
+    rule = MaskRule([], W, H, 50.0)
+    assert not rule.active
+    assert rule.keep(np.zeros((3, 4))).tolist() == [True, True, True]
+
+
+def _pixels(fig: Figure) -> tuple[int, int, int, int]:
+    img = np.zeros((H, W, 3), np.uint8)
+    draw_figure(img, fig)
+    ys, xs = np.nonzero(img.any(axis=2))
+    return int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1
+
+
+def _cell(mask_grow_px: int = 0) -> zn.Cell:
+    """A tight mask around the cut-out (grown by ``mask_grow_px``) and a protective image zone
+    right of it, where the real person stands."""
+    x1, y1, x2, y2 = _pixels(CUTOUT)
+    g = mask_grow_px
+    return zn.parse_cell({
+        "version": 1, "name": "masks", "cameras": [{"id": "cam0", "width": W, "height": H}],
+        "zones": [
+            {"id": "cutout", "kind": "mask", "shape": "polygon", "camera": "cam0",
+             "points_px": [[x1 - g, y1 - g], [x2 + g, y1 - g], [x2 + g, y2 + g],
+                           [x1 - g, y2 + g]]},
+            {"id": "stop", "kind": "protective", "shape": "polygon", "camera": "cam0",
+             "points_px": [[x2 + 1, 200], [1000, 200], [1000, 700], [x2 + 1, 700]]},
+        ]})
+
+
+@functools.cache
+def _frame(person: bool) -> np.ndarray:
+    img = np.full((H, W, 3), GREY, np.uint8)
+    if person:
+        draw_figure(img, PERSON)
+    draw_figure(img, CUTOUT)  # in front: it hides part of the person
+    return img
+
+
+def _run(detector, img: np.ndarray, cell: zn.Cell, n: int = 2):
+    pipe = Pipeline(detector, "cam0", PolicyConfig(clear_time=0.1, restart_interlock="auto"),
+                    cell)
+    return [pipe.process(img, FrameInfo("cam0", i, i / 10, W, H), i / 10) for i in range(n)]
+
+
+def test_without_the_mask_the_cut_out_and_the_person_merge_into_one_box(detector):
+    persons = detector.detect(_frame(person=True))
+    assert len(persons) == 1  # the situation the mask rule must survive
+    x1, _, x2, _ = persons.boxes_px[0]
+    cx1, _, cx2, _ = _pixels(CUTOUT)
+    assert x1 <= cx1 + 5 and x2 > cx2 + 50
+
+
+def test_a_real_person_merged_with_a_masked_cut_out_is_still_in_the_zone(detector):
+    results = _run(detector, _frame(person=True), _cell())
+    last = results[-1]
+    assert last.masked_boxes > 0
+    assert len(last.persons) == 1
+    x1 = float(last.persons.boxes_px[0][0])
+    assert x1 > _pixels(CUTOUT)[0] + 40  # the cut-out's cells did not join the person
+    assert {(h.zone_id, h.lost) for h in last.zone_report.hits} == {("stop", False)}
+    assert last.command.state == "STOP"
+
+
+def test_the_mask_suppresses_its_cut_out_alone(detector):
+    results = _run(detector, _frame(person=False), _cell(), n=3)
+    assert [len(r.persons) for r in results] == [0, 0, 0]
+    assert results[-1].zone_report.hits == ()
+    assert results[-1].command.state == "RUN"
+
+
+def test_mask_near_a_protective_zone_is_warned_about():
+    near = mask_warnings(_cell())
+    assert len(near) == 1 and "'cutout'" in near[0] and "'stop'" in near[0]
+    far = zn.parse_cell({
+        "version": 1, "name": "far", "cameras": [{"id": "cam0", "width": W, "height": H}],
+        "zones": [
+            {"id": "poster", "kind": "mask", "shape": "polygon", "camera": "cam0",
+             "points_px": [[10, 10], [100, 10], [100, 200], [10, 200]]},
+            {"id": "stop", "kind": "protective", "shape": "polygon", "camera": "cam0",
+             "points_px": [[600, 300], [900, 300], [900, 700], [600, 700]]}]})
+    assert mask_warnings(far) == []
+
+
+def test_volume_masks_count_through_their_image_outline():
+    """A mask volume (a mannequin on the floor) masks by its outline in the camera's image."""
+    import yaml
+
+    from monitor.config import demo_cell_path
+
+    data = yaml.safe_load(demo_cell_path().read_text())
+    data["zones"] = [z for z in data["zones"] if z["kind"] != "mask"]
+    data["zones"].append({"id": "mannequin", "kind": "mask", "shape": "box",
+                          "min_m": [3.0, 2.0, 0.0], "max_m": [3.6, 2.6, 1.8]})
+    cell = zn.parse_cell(data)
+    rule = MaskRule.for_camera(cell, "cam0", W, H, 0.0)
+    (outline,) = rule.polygons
+    x1, y1 = outline.min(axis=0)
+    x2, y2 = outline.max(axis=0)
+    cx, cy = (x1 + x2) / 2, (y1 + y2) / 2
+    inner = [cx - 5, cy - 20, cx + 5, cy + 20]  # well inside the projected box
+    reaching = [cx - 5, cy - 20, x2 + 60, cy + 20]
+    assert rule.keep(np.array([inner, reaching])).tolist() == [False, True]
+    half = MaskRule.for_camera(cell, "cam0", W // 2, H // 2, 0.0)  # a smaller stream
+    assert half.keep(np.array([inner]) / 2).tolist() == [False]
+
+
+def test_zones_validate_warns_about_a_mask_near_a_protective_zone(tmp_path, capsys):
+    import yaml
+
+    from monitor.cli import main
+
+    path = tmp_path / "cell.yaml"
+    path.write_text(yaml.safe_dump({
+        "version": 1, "name": "near", "cameras": [{"id": "cam0", "width": W, "height": H}],
+        "zones": [
+            {"id": "cutout", "kind": "mask", "shape": "polygon", "camera": "cam0",
+             "points_px": [[400, 300], [560, 300], [560, 650], [400, 650]]},
+            {"id": "stop", "kind": "protective", "shape": "polygon", "camera": "cam0",
+             "points_px": [[600, 200], [1000, 200], [1000, 700], [600, 700]]}]}))
+    assert main(["zones", "validate", str(path)]) == 0
+    err = capsys.readouterr().err
+    assert "warning: mask zone 'cutout' is within a person's width of protective zone 'stop'" \
+        in err

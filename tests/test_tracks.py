@@ -1,0 +1,270 @@
+"""Person tracks: persistent ids, and persons lost inside a zone keep it occupied."""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+import pytest
+
+from monitor import zones as zn
+from monitor.tracks import PersonTracker, lost_person_index
+from monitor.types import FrameInfo, Persons, ZoneReport
+
+W, H = 1280, 720
+
+
+def cell() -> zn.Cell:
+    """A protective image zone in the middle, a warning zone on the left."""
+    return zn.parse_cell({
+        "version": 1, "name": "tracks",
+        "cameras": [{"id": "cam0", "width": W, "height": H}],
+        "zones": [
+            {"id": "stop", "kind": "protective", "shape": "polygon", "camera": "cam0",
+             "points_px": [[500, 300], [800, 300], [800, 700], [500, 700]]},
+            {"id": "slow", "kind": "warning", "speed_scale": 0.4, "shape": "polygon",
+             "camera": "cam0", "points_px": [[100, 300], [400, 300], [400, 700], [100, 700]]},
+        ],
+    })
+
+
+CELL = cell()
+
+
+def person(cx: float, bottom: float = 600.0, w: float = 80.0, h: float = 240.0) -> list[float]:
+    return [cx - w / 2, bottom - h, cx + w / 2, bottom]
+
+
+class Run:
+    """Feeds hand-made frames (lists of boxes) through the real zone check and a tracker."""
+
+    def __init__(self, fps: float = 10.0) -> None:
+        self.tracker = PersonTracker()
+        self.fps = fps
+        self.seq = 0
+
+    def frame(self, *boxes: list[float]):
+        t = self.seq / self.fps
+        info = FrameInfo("cam0", self.seq, t, W, H)
+        self.seq += 1
+        persons = Persons(np.array(boxes, np.float32).reshape(-1, 4),
+                          np.full(len(boxes), 0.9, np.float32), info)
+        report = zn.check_persons(CELL, "cam0", persons.boxes_px)
+        return self.tracker.update(persons, report, t, (W, H))
+
+
+def held(update) -> set[tuple[str, int]]:
+    return {(h.zone_id, h.track_id) for h in update.report.hits if h.lost}
+
+
+def seen(update) -> set[tuple[str, int]]:
+    return {(h.zone_id, h.track_id) for h in update.report.hits if not h.lost}
+
+
+def test_ids_persist_while_a_person_walks():
+    run = Run()
+    ids = [run.frame(person(200 + 15 * i)).track_ids for i in range(20)]
+    assert len({i[0] for i in ids}) == 1
+
+
+def test_crossing_persons_keep_their_ids():
+    run = Run()
+    first = run.frame(person(300), person(900, bottom=650))
+    for i in range(1, 30):  # one walks right, the other left, at different depths
+        upd = run.frame(person(300 + 20 * i), person(900 - 20 * i, bottom=650))
+    # row 0 is the person that started on the left, now on the right
+    assert upd.track_ids == first.track_ids
+    assert len(set(first.track_ids)) == 2
+
+
+@pytest.mark.parametrize("gap", [1, 3, 5, 40], ids=lambda g: f"unseen_{g}_frames")
+def test_a_person_unseen_inside_the_protective_zone_keeps_it_occupied(gap):
+    run = Run()
+    for _ in range(5):
+        upd = run.frame(person(650))
+    tid = upd.track_ids[0]
+    last_seen = 0.4
+    for _ in range(gap):
+        upd = run.frame()
+        assert held(upd) == {("stop", tid)}
+        hit = next(h for h in upd.report.hits if h.lost)
+        assert hit.kind == "protective" and hit.speed_scale == 0.0
+        assert hit.lost_since == pytest.approx(last_seen)
+        assert hit.person == lost_person_index(tid) and hit.person < 0
+    back = run.frame(person(655))
+    assert back.track_ids == (tid,)
+    assert held(back) == set() and seen(back) == {("stop", tid)}
+    assert [h.track_id for h in back.ended] == [tid]
+
+
+def test_a_person_lost_in_the_warning_zone_keeps_slow():
+    run = Run()
+    for _ in range(3):
+        run.frame(person(250))
+    upd = run.frame()
+    (hit,) = upd.report.hits
+    assert (hit.zone_id, hit.kind, hit.lost, hit.speed_scale) == ("slow", "warning", True, 0.4)
+
+
+def test_walking_out_of_the_zone_then_vanishing_holds_nothing():
+    run = Run()
+    for i in range(12):  # from inside the protective zone to the empty middle right
+        upd = run.frame(person(650 + 40 * i))
+    assert seen(upd) == set()
+    assert run.frame().report.hits == ()
+
+
+def test_leaving_by_the_image_edge_holds_nothing_but_standing_at_it_does():
+    # a warning zone reaching the left image edge
+    run = Run()
+    left = zn.parse_cell({
+        "version": 1, "name": "edge", "cameras": [{"id": "cam0", "width": W, "height": H}],
+        "zones": [{"id": "edge", "kind": "protective", "shape": "polygon", "camera": "cam0",
+                   "points_px": [[0, 300], [300, 300], [300, 720], [0, 720]]}]})
+
+    def go(xs):
+        tracker = PersonTracker()
+        for i, x in enumerate(xs):
+            boxes = np.array([person(x)] if x is not None else [], np.float32).reshape(-1, 4)
+            persons = Persons(boxes, np.full(len(boxes), 0.9, np.float32))
+            upd = tracker.update(persons, zn.check_persons(left, "cam0", boxes), i / 10, (W, H))
+        return upd
+
+    assert go([200, 150, 100, 60, 40, None]).report.hits == ()  # walked out of view
+    standing = go([40, 40, 40, 40, None])  # at the edge, not moving: may still be there
+    assert {(h.zone_id, h.lost) for h in standing.report.hits} == {("edge", True)}
+    del run
+
+
+def test_a_new_person_where_the_lost_one_was_ends_the_hold():
+    run = Run()
+    for _ in range(3):
+        run.frame(person(650))
+    for _ in range(40):  # long enough for the library to forget its own track
+        upd = run.frame()
+    assert held(upd)
+    again = run.frame(person(690, bottom=610))
+    assert held(again) == set()
+    assert again.ended and seen(again) == {("stop", again.track_ids[0])}
+
+
+def test_a_person_elsewhere_does_not_end_the_hold():
+    run = Run()
+    for _ in range(3):
+        upd = run.frame(person(650))
+    tid = upd.track_ids[0]
+    upd = run.frame(person(200))  # someone else, far left
+    assert held(upd) == {("stop", tid)}
+    assert upd.track_ids[0] != tid
+
+
+@pytest.mark.parametrize("merged", [
+    pytest.param([700, 360, 960, 600], id="merged_box_keeps_a_either"),
+    pytest.param([720, 360, 900, 600], id="merged_box_keeps_b_inside"),
+])
+def test_a_person_merged_into_a_neighbour_walking_out_keeps_the_zone(merged):
+    """Two persons: B stands inside, A walks past; their boxes merge into one whose anchor
+    is outside the zone. Whichever identity the merged box keeps, the zone stays occupied."""
+    run = Run()
+    for _ in range(3):
+        upd = run.frame(person(760, w=70), person(880, w=70))  # B inside, A just outside
+    b, _a = upd.track_ids
+    assert seen(upd) == {("stop", b)}
+    # one box over both; its bottom-centre is outside the zone (x > 800)
+    for _ in range(3):
+        upd = run.frame(merged)
+        assert {h.zone_id for h in upd.report.hits} == {"stop"}
+        assert {h.lost for h in upd.report.hits} == {True}
+    split = run.frame(person(760, w=70), person(930, w=70))
+    assert seen(split) == {("stop", b)} and held(split) == set()
+
+
+def test_confirm_clear_drops_lost_holds_only():
+    run = Run()
+    for _ in range(3):
+        upd = run.frame(person(650), person(250))
+    inside, warning = upd.track_ids
+    upd = run.frame(person(250))  # the protective one is lost, the warning one still seen
+    assert held(upd) == {("stop", inside)} and seen(upd) == {("slow", warning)}
+    dropped = run.tracker.drop_holds()
+    assert [h.track_id for h in dropped] == [inside]
+    assert dropped[0].describe() == f"person {inside} lost inside stop at 0.2 s"
+    after = run.frame(person(250))
+    assert held(after) == set() and seen(after) == {("slow", warning)}
+
+
+def test_an_unknown_zone_answer_keeps_the_previous_zones():
+    run = Run()
+    for _ in range(3):
+        run.frame(person(650))
+    tracker = run.tracker
+    persons = Persons(np.array([person(900)], np.float32), np.array([0.9], np.float32))
+    upd = tracker.update(persons, None, 0.3, (W, H))  # zone check failed in this frame
+    assert upd.report is None
+    gone = tracker.update(Persons.empty(), ZoneReport(), 0.4, (W, H))
+    assert {(h.zone_id, h.lost) for h in gone.report.hits} == {("stop", True)}
+
+
+def test_floor_velocity_from_a_calibration():
+    def to_floor(px):  # 100 px = 1 m along x, floor y from the image row
+        return np.stack([px[:, 0] / 100.0, px[:, 1] / 100.0], axis=1), np.ones(len(px), bool)
+
+    tracker = PersonTracker(to_floor=to_floor)
+    for i in range(10):
+        persons = Persons(np.array([person(200 + 10 * i)], np.float32),
+                          np.array([0.9], np.float32))
+        tracker.update(persons, ZoneReport(), i / 10, (W, H))
+    (track,) = tracker.tracks
+    assert track.floor_m == pytest.approx((2.9, 6.0))
+    assert track.floor_velocity_mps[0] == pytest.approx(1.0, rel=0.05)
+    assert track.velocity_pxps[0] == pytest.approx(100.0, rel=0.05)
+
+
+def test_a_person_seen_for_one_frame_only_is_held():
+    """The library confirms a new track only on its second frame; the hold must not wait."""
+    run = Run()
+    for _ in range(5):
+        run.frame(person(250))  # someone else, so the newcomer is not in the first frame
+    one = run.frame(person(250), person(650))
+    newcomer = one.track_ids[1]
+    gone = run.frame(person(250))
+    assert held(gone) == {("stop", newcomer)}
+
+
+def test_tracking_is_deterministic():
+    def replay():
+        run = Run()
+        out = []
+        for i in range(30):
+            boxes = [person(300 + 20 * i), person(900 - 20 * i, bottom=650)]
+            if i % 7 == 3:
+                boxes = boxes[:1]
+            upd = run.frame(*boxes)
+            out.append((upd.track_ids, upd.report.hits))
+        return out
+
+    assert replay() == replay()
+
+
+def test_a_person_lost_walking_into_the_zone_holds_it():
+    """Seen outside, walking towards the protective zone, hidden on the way in (behind the
+    robot base): the zones on the extrapolated path are held."""
+    run = Run()
+    zones_of = functools.partial(zn.check_persons, CELL, "cam0")
+    for i in range(6):  # right of the zone, walking left at 200 px/s
+        t = run.seq / run.fps
+        boxes = np.array([person(1000 - 20 * i)], np.float32)
+        upd = run.tracker.update(Persons(boxes, np.array([0.9], np.float32)),
+                                 zn.check_persons(CELL, "cam0", boxes), t, (W, H), zones_of)
+        run.seq += 1
+    assert seen(upd) == set()
+    gone = run.tracker.update(Persons.empty(), ZoneReport(), run.seq / run.fps, (W, H),
+                              zones_of)
+    assert held(gone) == {("stop", upd.track_ids[0])}
+    # walking away from the zone and vanishing: nothing ahead
+    away = PersonTracker()
+    for i in range(6):
+        boxes = np.array([person(900 + 20 * i)], np.float32)
+        away.update(Persons(boxes, np.array([0.9], np.float32)),
+                    zn.check_persons(CELL, "cam0", boxes), i / 10, (W, H), zones_of)
+    assert away.update(Persons.empty(), ZoneReport(), 0.6, (W, H), zones_of).report.hits == ()
