@@ -190,8 +190,10 @@ def resolve_paths(config: MonitorConfig, base: Path) -> MonitorConfig:
     bus = dataclasses.replace(config.bus, zenoh_config_file=fix(config.bus.zenoh_config_file),
                               tls_root_ca=fix(config.bus.tls_root_ca),
                               tls_cert=fix(config.bus.tls_cert), tls_key=fix(config.bus.tls_key))
+    detector = dataclasses.replace(config.detector,
+                                   self_test_image=fix(config.detector.self_test_image))
     return dataclasses.replace(
-        config, cameras=tuple(fix_camera(c) for c in config.cameras), bus=bus,
+        config, cameras=tuple(fix_camera(c) for c in config.cameras), bus=bus, detector=detector,
         model=ModelConfig(fix(config.model.path)), zones=ZonesConfig(fix(config.zones.file)))
 
 
