@@ -163,3 +163,20 @@ def test_unreadable_self_test_image_is_refused_at_start(tmp_path, synthetic_mode
     with pytest.raises(ConfigError, match="cannot read"):
         Detector(synthetic_model, DetectorConfig(self_test_image=str(tmp_path / "none.png"),
                                                  self_test_box=(1.0, 1.0, 9.0, 9.0)))
+
+
+def test_nan_outputs_stop_the_pipeline_with_detector_error(tmp_path):
+    """End to end: a model that turns NaN mid-run is a STOP with its reason, never RUN."""
+    from monitor.pipeline import Pipeline
+    from monitor.policy import PolicyConfig
+    from monitor.types import FrameInfo
+
+    detector = Detector(nan_when_bright_model(tmp_path / "m.onnx"),
+                        DetectorConfig(input_size=320))
+    pipeline = Pipeline(detector, "cam0", PolicyConfig(clear_time=0.2, restart_interlock="auto"))
+    white = np.full((480, 640, 3), 255, np.uint8)
+    for i in range(5):
+        result = pipeline.process(white, FrameInfo("cam0", i, i * 0.1, 640, 480), i * 0.1)
+        assert result.command.state == "STOP"
+    reasons = {r.code: r.message for r in result.command.reasons}
+    assert "NaN or infinite" in reasons["detector_error"]
