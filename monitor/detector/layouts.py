@@ -173,8 +173,9 @@ def probe_output_shapes(session, input_name: str, height: int, width: int, nhwc:
     try:
         outputs = session.run(None, feeds)
     except Exception as exc:  # onnxruntime's own exception types
-        first = (str(exc).strip().splitlines() or ["failed"])[0][:160]
-        raise ModelError(f"probe run at {width}x{height} failed ({first}); set "
+        from monitor.detector.session import runtime_message
+
+        raise ModelError(f"probe run at {width}x{height} failed ({runtime_message(exc)}); set "
                          f"detector.input_size to the model's input size") from None
     return [tuple(int(d) for d in np.shape(o)) for o in outputs]
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 from monitor.errors import ModelError
@@ -23,5 +24,14 @@ def open_session(model_path: str | Path, threads: int, spin_wait: bool = False):
     try:
         return ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
     except Exception as exc:  # onnxruntime raises its own exception types for corrupt files
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else "unreadable file"
-        raise ModelError(f"cannot load model {path}: {first[:200]}") from None
+        raise ModelError(f"cannot load model {path}: {runtime_message(exc)}") from None
+
+
+def runtime_message(exc: BaseException) -> str:
+    """onnxruntime's message without its status-code prefix: '[ONNXRuntimeError] : 7 :
+    INVALID_PROTOBUF : Load model from m.onnx failed:Protobuf parsing failed.' -> 'Protobuf
+    parsing failed.'"""
+    text = (str(exc).strip().splitlines() or [""])[0]
+    text = re.sub(r"^\[ONNXRuntimeError\]\s*:\s*\d+\s*:\s*\w+\s*:\s*", "", text)
+    text = re.sub(r"^Load model from .*? failed:\s*", "", text)
+    return text.strip()[:200] or "unreadable file"
