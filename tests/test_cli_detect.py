@@ -115,6 +115,7 @@ def _clip(path, frames: int) -> None:
     writer.release()
 
 
+@pytest.mark.slow
 def test_broken_pipe_is_quiet(tmp_path, synthetic_model):
     """`monitor detect clip.mp4 | head -1`: the reader goes away; no traceback, no noise."""
     clip = tmp_path / "clip.mp4"
@@ -130,14 +131,12 @@ def test_broken_pipe_is_quiet(tmp_path, synthetic_model):
     assert err == ""
 
 
-@pytest.mark.parametrize("where", ["before", "after"])
-def test_debug_works_before_and_after_the_subcommand(tmp_path, where):
+def test_debug_works_before_and_after_the_subcommand(tmp_path):
     missing = str(tmp_path / "nothing.png")
-    args = ["--debug", "detect", missing] if where == "before" else ["detect", missing,
-                                                                     "--debug"]
-    proc = run(*args)
-    assert proc.returncode != 0
-    assert "Traceback" in proc.stderr and "InputError" in proc.stderr
+    for args in (["--debug", "detect", missing], ["detect", missing, "--debug"]):
+        proc = run(*args)
+        assert proc.returncode != 0
+        assert "Traceback" in proc.stderr and "InputError" in proc.stderr, args
     assert "no such file" in one_line_error(run("detect", missing))
 
 
@@ -217,6 +216,7 @@ def test_nan_model_is_a_one_line_error_never_nan_json(tmp_path, person_image):
     assert "NaN" not in proc.stdout and "Infinity" not in proc.stdout
 
 
+@pytest.mark.slow
 def test_person_classes_option(tmp_path, person_image):
     from tests.test_detector import _two_class_model
 
