@@ -83,6 +83,24 @@ def test_healthy_synthetic_model_passes_its_built_in_self_test(detector):
     assert detector.self_test() is None
 
 
+@pytest.mark.parametrize("size", [256, 320])
+def test_built_in_self_test_at_smaller_input_sizes(tmp_path, size):
+    from monitor.models import synthetic
+
+    synthetic.write_model(tmp_path / "m.onnx", input_size=size)
+    assert Detector(tmp_path / "m.onnx").self_test() is None
+
+
+def test_self_test_leaves_the_frame_buffer_alone(detector):
+    """A self-test between two frames (or from another thread) must not change what the next
+    detect sees: it uses its own input buffer."""
+    frame = np.full((720, 1280, 3), 120, np.uint8)
+    tensor_before, _ = detector._letterbox(frame)
+    kept = tensor_before.copy()
+    assert detector.self_test() is None
+    np.testing.assert_array_equal(detector._letterbox._tensor, kept)
+
+
 def test_blind_synthetic_model_fails_the_self_test(tmp_path, synthetic_model):
     detector = Detector(broken_synthetic(synthetic_model, tmp_path / "blind.onnx", "conv0", 0.0))
     fault = detector.self_test()
@@ -97,7 +115,6 @@ def test_wrong_preprocessing_fails_the_self_test(tmp_path, synthetic_model):
 
     detector = Detector(synthetic_model)
     detector.layout = dataclasses.replace(detector.layout, scale=1 / 255 / 255)
-    detector._letterbox = type(detector._letterbox)(detector.layout)
     fault = detector.self_test()
     assert fault is not None and fault.name == "detector_self_test"
 

@@ -94,6 +94,7 @@ class Detector:
         self.output_names = [o.name for o in self.session.get_outputs()]
         self._letterbox = Letterboxer(self.layout)
         self.self_test_case = self._self_test_case()
+        self._self_test_letterbox: Letterboxer | None = None
         # Warm-up: the first run allocates; do it now, not on the first real frame.
         self.detect(np.full((self.layout.input_height, self.layout.input_width, 3), 114, np.uint8))
 
@@ -109,11 +110,22 @@ class Detector:
     def self_test(self) -> Fault | None:
         """Run the model on the self-test image: None if it finds the known person, else a
         STOP fault ``detector_self_test``. Also None when there is no self-test image for this
-        model (see ``self_test_case``; docs/models.md). Not to be called concurrently with
-        ``detect`` (they share the input buffer)."""
+        model (see ``self_test_case``; docs/models.md).
+
+        It has its own input buffer, so a self-test from another thread never overwrites the
+        tensor of a frame being detected."""
         if self.self_test_case is None:
             return None
-        return check_self_test(self.self_test_case, self.detect, self.config.self_test_min_iou)
+        if self._self_test_letterbox is None:
+            self._self_test_letterbox = Letterboxer(self.layout)
+        letterboxer = self._self_test_letterbox
+
+        def detect(image: np.ndarray) -> Persons:
+            tensor, box = letterboxer(image)
+            outputs = self.run_raw(tensor, image.shape[:2])
+            return self.postprocess(outputs, box, image.shape[:2], None)[0]
+
+        return check_self_test(self.self_test_case, detect, self.config.self_test_min_iou)
 
     def finest_stride_px(self) -> float:
         """Input pixels per cell of the finest output grid (16 for tiny-YOLOv3 at 416)."""
