@@ -359,3 +359,23 @@ def test_darknet_threshold_below_one_in_a_thousand_is_honoured(tmp_path):
     path = const_model(tmp_path / "m.onnx", heads)
     np.testing.assert_allclose(_found(_detector(path, score_threshold=1e-4)), PERSONS, atol=1.0)
     assert len(_found(_detector(path, score_threshold=1e-3))) == 0
+
+
+def test_pre_merge_mask_drops_raw_boxes_in_frame_pixels_before_merging(tmp_path):
+    """The hook masks use: it sees raw boxes in frame pixels and its False rows are gone."""
+    detector = _detector(const_model(tmp_path / "m.onnx", {"output0": rows_v5()}))
+    frame = np.full((FRAME_H, FRAME_W, 3), 100, np.uint8)
+    seen = []
+
+    def left_half_masked(boxes_px: np.ndarray) -> np.ndarray:
+        seen.append(boxes_px.copy())
+        return boxes_px[:, 0] >= FRAME_W / 2
+
+    result = detector.detect_timed(frame, pre_merge=left_half_masked)
+    np.testing.assert_allclose(seen[0][np.argsort(seen[0][:, 0])], PERSONS, atol=1.0)
+    np.testing.assert_allclose(result.persons.boxes_px, PERSONS[1:], atol=1.0)
+    assert result.candidates == 1
+    from monitor.errors import DetectorError
+
+    with pytest.raises(DetectorError, match="pre-merge mask"):
+        detector.detect_timed(frame, pre_merge=lambda b: np.ones(len(b) + 1, bool))

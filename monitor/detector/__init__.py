@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -67,6 +68,8 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
+# Decides per raw box (x1 y1 x2 y2, frame pixels) whether it is kept: True = keep.
+PreMerge = Callable[[np.ndarray], np.ndarray]
 
 
 @dataclass(frozen=True)
@@ -146,7 +149,10 @@ class Detector:
             feeds["image_shape"] = np.array([frame_hw], np.float32)
         return self.session.run(self.output_names, feeds)
 
-    def detect_timed(self, image_bgr: np.ndarray, frame: FrameInfo | None = None) -> Detection:
+    def detect_timed(self, image_bgr: np.ndarray, frame: FrameInfo | None = None,
+                     pre_merge: PreMerge | None = None) -> Detection:
+        """Detect persons; ``pre_merge(boxes_px) -> keep`` (frame pixels, one bool per raw box)
+        drops raw boxes before the top-k cap, NMS and merging (masks, see monitor.pipeline)."""
         if image_bgr is None or image_bgr.ndim != 3 or image_bgr.shape[2] != 3:
             raise InputError("frame is not a BGR image")
         t0 = time.perf_counter()
@@ -154,7 +160,8 @@ class Detector:
         t1 = time.perf_counter()
         outputs = self.run_raw(tensor, image_bgr.shape[:2])
         t2 = time.perf_counter()
-        persons, candidates, overflow = self.postprocess(outputs, box, image_bgr.shape[:2], frame)
+        persons, candidates, overflow = self.postprocess(outputs, box, image_bgr.shape[:2], frame,
+                                                         pre_merge)
         t3 = time.perf_counter()
         return Detection(persons, (t1 - t0) * 1e3, (t2 - t1) * 1e3, (t3 - t2) * 1e3,
                          candidates, overflow)
@@ -163,8 +170,10 @@ class Detector:
         return self.detect_timed(image_bgr, frame).persons
 
     def postprocess(self, outputs: list[np.ndarray], box: Letterbox, frame_hw: tuple[int, int],
-                    frame: FrameInfo | None) -> tuple[Persons, int, bool]:
-        """Decode, threshold, cap, NMS, merge, undo the letterbox. Pure given the outputs."""
+                    frame: FrameInfo | None, pre_merge: PreMerge | None = None,
+                    ) -> tuple[Persons, int, bool]:
+        """Decode, threshold, pre-merge mask, cap, NMS, merge, undo the letterbox. Pure given
+        the outputs."""
         cfg, layout = self.config, self.layout
         check_finite(outputs, self.output_names)
         boxes, scores = decode(outputs, layout, cfg.score_threshold)
@@ -173,6 +182,13 @@ class Detector:
         if not np.isfinite(boxes).all():  # e.g. exp() of a huge size logit
             raise DetectorError(f"model gave {int((~np.isfinite(boxes)).any(axis=1).sum())} "
                                 f"person boxes of infinite size: the model is broken")
+        if pre_merge is not None and len(scores):
+            in_frame = boxes if layout.kind == "zoo" else box.to_frame(boxes)
+            keep = np.asarray(pre_merge(in_frame))
+            if keep.dtype != bool or keep.shape != scores.shape:
+                raise DetectorError(f"pre-merge mask has shape {keep.shape} and type "
+                                    f"{keep.dtype}; expected {len(scores)} booleans")
+            boxes, scores = boxes[keep], scores[keep]
         candidates = len(scores)
         overflow = candidates > cfg.top_k
         if overflow:
