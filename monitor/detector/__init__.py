@@ -108,6 +108,8 @@ class Detector:
         meta = self.session.get_modelmeta().custom_metadata_map or {}
         if "synthetic_weights" in meta:  # our synthetic model: it finds the scene's persons
             return builtin_case()
+        log.info("%s: no detector self-test (set detector.self_test_image and self_test_box; "
+                 "see docs/models.md)", self.model_path.name)
         return None
 
     def self_test(self) -> Fault | None:
