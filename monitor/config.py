@@ -190,14 +190,22 @@ def resolve_paths(config: MonitorConfig, base: Path) -> MonitorConfig:
     bus = dataclasses.replace(config.bus, zenoh_config_file=fix(config.bus.zenoh_config_file),
                               tls_root_ca=fix(config.bus.tls_root_ca),
                               tls_cert=fix(config.bus.tls_cert), tls_key=fix(config.bus.tls_key))
+    detector = dataclasses.replace(config.detector,
+                                   self_test_image=fix(config.detector.self_test_image))
     return dataclasses.replace(
-        config, cameras=tuple(fix_camera(c) for c in config.cameras), bus=bus,
+        config, cameras=tuple(fix_camera(c) for c in config.cameras), bus=bus, detector=detector,
         model=ModelConfig(fix(config.model.path)), zones=ZonesConfig(fix(config.zones.file)))
 
 
 def demo_cell_path() -> Path:
-    """The example cell that matches the demo scene (zones/demo-cell.yaml of the source tree)."""
-    path = Path(__file__).resolve().parents[1] / "zones" / "demo-cell.yaml"
+    """The example cell that matches the demo scene, shipped inside the package (package data
+    ``monitor/data/demo-cell.yaml``; in the source tree a link to zones/demo-cell.yaml), so the
+    demo and the default service also work from an installed wheel."""
+    from importlib.resources import files
+
+    resource = files("monitor.data").joinpath("demo-cell.yaml")
+    path = Path(str(resource))
     if not path.is_file():
-        raise ConfigError(f"demo zone file not found at {path}; pass a zone file explicitly")
+        raise ConfigError("the demo zone file is missing from this installation; reinstall "
+                          "workcell-monitor or pass a zone file explicitly")
     return path

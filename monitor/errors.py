@@ -15,3 +15,9 @@ class InputError(MonitorError):
 
 class ConfigError(MonitorError):
     """A config or zone file is invalid."""
+
+
+class DetectorError(MonitorError):
+    """The detector's answer cannot be trusted (NaN or infinite model outputs, a broken model).
+
+    The pipeline turns it into a STOP (``detector_error``): never "no persons"."""

@@ -101,3 +101,129 @@ def test_bad_input_gives_one_line_error(tmp_path, person_image, synthetic_model,
                 "unknown-layout": "no known output layout", "missing-input": "no such file",
                 "bad-image": "cannot read the image", "bad-video": "broken.mp4"}[case]
     assert expected in line
+
+
+# ----------------------------------------------------------------------------- CLI-wide behaviour
+
+
+def _clip(path, frames: int) -> None:
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), 10, (320, 240))
+    for i in range(frames):
+        frame = np.full((240, 320, 3), 120, np.uint8)
+        draw_figure(frame, Figure((60.0 + 4 * i, 220.0), 120.0))
+        writer.write(frame)
+    writer.release()
+
+
+@pytest.mark.slow
+def test_broken_pipe_is_quiet(tmp_path, synthetic_model):
+    """`monitor detect clip.mp4 | head -1`: the reader goes away; no traceback, no noise."""
+    clip = tmp_path / "clip.mp4"
+    _clip(clip, 60)
+    proc = subprocess.Popen([sys.executable, "-m", "monitor", "detect", str(clip), "--model",
+                             str(synthetic_model)], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    first = proc.stdout.readline()
+    proc.stdout.close()  # like head -1 exiting
+    _, err = proc.communicate(timeout=120)
+    assert json.loads(first)["frame"] == 0
+    assert proc.returncode == 0
+    assert err == ""
+
+
+def test_debug_works_before_and_after_the_subcommand(tmp_path):
+    missing = str(tmp_path / "nothing.png")
+    for args in (["--debug", "detect", missing], ["detect", missing, "--debug"]):
+        proc = run(*args)
+        assert proc.returncode != 0
+        assert "Traceback" in proc.stderr and "InputError" in proc.stderr, args
+    assert "no such file" in one_line_error(run("detect", missing))
+
+
+def test_os_errors_are_told_in_words_without_exception_names(tmp_path):
+    blocker = tmp_path / "file.txt"
+    blocker.write_text("a file where a directory is needed")
+    line = one_line_error(run("model", "build", "--out", str(blocker / "m.onnx")))
+    assert line == f"monitor: error: {blocker}: already exists"
+
+
+def test_unexpected_errors_hide_exception_names_and_installation_paths():
+    from monitor.cli import user_message
+
+    exc = RuntimeError("bad value in /usr/lib/python3.12/site-packages/onnx/checker.py:88")
+    text = user_message(exc)
+    assert "RuntimeError" not in text and "site-packages" not in text
+    assert text.startswith("unexpected problem: bad value in <internal>")
+    assert "--debug" in text
+    assert user_message(PermissionError(13, "Permission denied", "/etc/x")) == \
+        "/etc/x: permission denied"
+
+
+def _all_parsers(parser):
+    import argparse
+
+    yield parser
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in action.choices.values():
+                yield from _all_parsers(sub)
+
+
+def test_every_option_with_a_default_shows_it_in_help():
+    """Across every subcommand (other modules' too): the parser class adds the default."""
+    import argparse
+
+    from monitor.cli import HelpFormatter, _has_default, build_parser
+
+    checked = 0
+    for parser in _all_parsers(build_parser()):
+        formatter = HelpFormatter(parser.prog)
+        for action in parser._actions:
+            if not _has_default(action) or action.help == argparse.SUPPRESS:
+                continue
+            checked += 1
+            text = formatter._get_help_string(action)
+            assert "default" in text.lower(), (parser.prog, action.dest)
+            if "%(default)" in text:
+                assert str(action.default) in formatter._expand_help(action), (parser.prog,
+                                                                               action.dest)
+    assert checked > 20
+
+
+def test_detect_and_model_options_all_have_help_text():
+    import argparse
+
+    from monitor.cli import build_parser
+
+    for parser in _all_parsers(build_parser()):
+        if not parser.prog.startswith(("monitor detect", "monitor model")):
+            continue
+        for action in parser._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                continue
+            assert action.help and not action.help.startswith("default:"), \
+                (parser.prog, action.dest)
+            assert "seeds" not in action.help
+
+
+def test_nan_model_is_a_one_line_error_never_nan_json(tmp_path, person_image):
+    from tests.test_detector import const_model
+
+    heads = {f"h{i}": np.full((1, 255, g, g), np.nan, np.float32) for i, g in ((0, 13), (1, 26))}
+    model = const_model(tmp_path / "nan.onnx", heads, inputs={"images": [1, 3, 416, 416]})
+    proc = run("detect", str(person_image), "--model", str(model))
+    assert "NaN or infinite" in one_line_error(proc)
+    assert "NaN" not in proc.stdout and "Infinity" not in proc.stdout
+
+
+@pytest.mark.slow
+def test_person_classes_option(tmp_path, person_image):
+    from tests.test_detector import _two_class_model
+
+    model = str(_two_class_model(tmp_path / "fall.onnx"))
+    default = run("detect", str(person_image), "--model", model)
+    assert default.returncode == 0 and "set detector.person_classes" in default.stderr
+    both = run("detect", str(person_image), "--model", model, "--person-classes", "Normal,Fall")
+    assert both.returncode == 0 and both.stderr == ""
+    assert len(json.loads(both.stdout)["persons"]) == 2
+    assert len(json.loads(default.stdout)["persons"]) == 1

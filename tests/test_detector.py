@@ -33,9 +33,13 @@ def cxcywh(box: np.ndarray) -> list[float]:
 
 
 def const_model(path: Path, outputs: dict[str, np.ndarray],
-                inputs: dict[str, list[int]] | None = None,
-                metadata: dict[str, str] | None = None) -> Path:
-    """A model whose outputs are constants (plus 0 x the inputs, so every input is used)."""
+                inputs: dict[str, list[int | str]] | None = None,
+                metadata: dict[str, str] | None = None,
+                declared: dict[str, list[int | str]] | None = None) -> Path:
+    """A model whose outputs are constants (plus 0 x the inputs, so every input is used).
+
+    ``declared`` overrides an output's shape as written in the file (e.g. symbolic dims)."""
+    declared = declared or {}
     inputs = inputs or {"images": [1, 3, INPUT, INPUT]}
     nodes, zero_terms = [], []
     for name in inputs:
@@ -52,7 +56,8 @@ def const_model(path: Path, outputs: dict[str, np.ndarray],
                 nodes.append(helper.make_node("Add", [last, term], [f"{name}_{k}"]))
                 last = f"{name}_{k}"
             nodes.append(helper.make_node("Identity", [last], [name]))
-            outs.append(helper.make_tensor_value_info(name, TensorProto.FLOAT, list(value.shape)))
+            outs.append(helper.make_tensor_value_info(name, TensorProto.FLOAT,
+                                                      declared.get(name, list(value.shape))))
         else:
             nodes.append(helper.make_node("Identity", [f"{name}_const"], [name]))
             outs.append(helper.make_tensor_value_info(name, TensorProto.INT32, list(value.shape)))
@@ -218,3 +223,159 @@ def test_top_k_overflow_is_reported(tmp_path):
                         DetectorConfig(input_size=INPUT, top_k=16))
     result = detector.detect_timed(np.zeros((FRAME_H, FRAME_W, 3), np.uint8))
     assert result.overflow and result.candidates == 40
+
+
+# ----------------------------------------------------------------------------- layouts by evidence
+
+
+def _detector(path: Path, **cfg):
+    from monitor.detector import DetectorConfig
+
+    return Detector(path, DetectorConfig(input_size=INPUT, merge_touch_px=-1, **cfg))
+
+
+def _found(detector) -> np.ndarray:
+    persons = detector.detect(np.full((FRAME_H, FRAME_W, 3), 100, np.uint8))
+    return persons.boxes_px[np.argsort(persons.boxes_px[:, 0])]
+
+
+def test_one_class_yolov5_with_three_anchors_per_cell_is_not_end_to_end(tmp_path):
+    cells = (INPUT // 8) ** 2 + (INPUT // 16) ** 2 + (INPUT // 32) ** 2
+    rows = np.zeros((1, 3 * cells, 6), np.float32)  # 6300 x (cx cy w h obj person)
+    for i, box in enumerate(PERSONS):
+        rows[0, 100 * i] = [*cxcywh(to_input(box)), 0.9, 0.95]
+    detector = _detector(const_model(tmp_path / "m.onnx", {"output0": rows}))
+    assert detector.layout.kind == "yolov5" and detector.layout.num_classes == 1
+    np.testing.assert_allclose(_found(detector), PERSONS, atol=1.0)
+
+
+def test_one_class_yolox_with_one_row_per_cell_is_not_end_to_end(tmp_path):
+    cells = [(INPUT // s) ** 2 for s in (8, 16, 32)]
+    rows = np.zeros((1, sum(cells), 6), np.float32)
+    for k, box in enumerate(PERSONS):
+        s = (16, 32)[k]
+        offset = sum(cells[: (8, 16, 32).index(s)])
+        cx, cy, w, h = cxcywh(to_input(box, pad=(0.0, 0.0)))
+        gx, gy = int(cx // s), int(cy // s)
+        rows[0, offset + gy * (INPUT // s) + gx] = [cx / s - gx, cy / s - gy, math.log(w / s),
+                                                    math.log(h / s), 0.9, 0.9]
+    detector = _detector(const_model(tmp_path / "m.onnx", {"output": rows}))
+    assert detector.layout.kind == "yolox"
+    np.testing.assert_allclose(_found(detector), PERSONS, atol=1.0)
+
+
+def test_end_to_end_output_still_recognised_when_rows_match_no_grid(tmp_path):
+    rows = np.zeros((1, 300, 6), np.float32)
+    for i, box in enumerate(PERSONS):
+        rows[0, i] = [*to_input(box), 0.8, 0]
+    detector = _detector(const_model(tmp_path / "m.onnx", {"output0": rows}))
+    assert detector.layout.kind == "end2end"
+    np.testing.assert_allclose(_found(detector), PERSONS, atol=1.0)
+
+
+def test_dynamic_axes_yolov8_is_probed(tmp_path):
+    cols = np.ascontiguousarray(np.delete(rows_v5(), 4, axis=2).transpose(0, 2, 1))
+    path = const_model(tmp_path / "m.onnx", {"output0": cols},
+                       inputs={"images": ["batch", 3, "height", "width"]},
+                       declared={"output0": ["batch", "channels", "anchors"]})
+    detector = _detector(path)
+    assert detector.layout.kind == "yolov8"
+    assert (detector.layout.input_width, detector.layout.input_height) == (INPUT, INPUT)
+    np.testing.assert_allclose(_found(detector), PERSONS, atol=1.0)
+
+
+def test_darknet_with_a_non_square_input(tmp_path):
+    ih, iw = 192, 320  # like 352x608: grids 6x10 and 12x20
+    scale = min(iw / FRAME_W, ih / FRAME_H)
+    pad = ((iw - FRAME_W * scale) / 2, (ih - FRAME_H * scale) / 2)
+    heads = {(6, 10): np.zeros((3, 5 + C, 6, 10), np.float32),
+             (12, 20): np.zeros((3, 5 + C, 12, 20), np.float32)}
+    for h in heads.values():
+        h[:, 4] = -12.0
+    for k, box in enumerate(PERSONS):
+        grid, rank = ((6, 10), 0) if k == 0 else ((12, 20), 1)
+        stride = ih / grid[0]
+        inp = box * scale + np.array([pad[0], pad[1], pad[0], pad[1]], np.float32)
+        cx, cy, w, h = cxcywh(inp)
+        gx, gy = int(cx // stride), int(cy // stride)
+        aw, ah = TINY_ANCHORS[TINY_MASKS[rank][0]]
+        head = heads[grid]
+        head[0, :6, gy, gx] = [_logit(cx / stride - gx), _logit(cy / stride - gy),
+                               math.log(w / aw), math.log(h / ah), 6.0, 6.0]
+    outputs = {f"head{i}": t.reshape(1, 3 * (5 + C), *g) for i, (g, t) in enumerate(heads.items())}
+    path = const_model(tmp_path / "m.onnx", outputs, inputs={"images": [1, 3, ih, iw]})
+    detector = _detector(path)
+    assert detector.layout.kind == "darknet"
+    assert (detector.layout.input_width, detector.layout.input_height) == (iw, ih)
+    np.testing.assert_allclose(_found(detector), PERSONS, atol=1.0)
+
+
+def _two_class_model(path: Path) -> Path:
+    """A fall detector: class 0 'Normal' (PERSONS[0]), class 1 'Fall' (PERSONS[1])."""
+    rows = np.zeros((1, 20, 7), np.float32)
+    rows[0, 0] = [*cxcywh(to_input(PERSONS[0])), 0.9, 0.95, 0.02]
+    rows[0, 1] = [*cxcywh(to_input(PERSONS[1])), 0.9, 0.03, 0.9]
+    return const_model(path, {"output0": rows}, metadata={"names": "{0: 'Normal', 1: 'Fall'}"})
+
+
+def test_two_person_classes_unset_takes_class_0_and_warns(tmp_path, caplog):
+    with caplog.at_level("WARNING"):
+        detector = _detector(_two_class_model(tmp_path / "m.onnx"))
+    assert detector.layout.persons == (0,)
+    assert "0: Normal, 1: Fall" in detector.warning and "person_classes" in detector.warning
+    assert detector.warning in caplog.text
+    np.testing.assert_allclose(_found(detector), PERSONS[:1], atol=1.0)
+
+
+@pytest.mark.parametrize("wanted", [("Normal", "fall"), (0, 1)], ids=["names", "ids"])
+def test_two_person_classes_set_finds_both(tmp_path, wanted):
+    detector = _detector(_two_class_model(tmp_path / "m.onnx"), person_classes=wanted)
+    assert detector.layout.persons == (0, 1) and detector.warning is None
+    np.testing.assert_allclose(_found(detector), PERSONS, atol=1.0)
+
+
+def test_unknown_person_class_names_the_classes(tmp_path):
+    from monitor.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=r"no class named 'person'.*0: Normal, 1: Fall"):
+        _detector(_two_class_model(tmp_path / "m.onnx"), person_classes=("person",))
+
+
+def test_a_threshold_below_one_in_a_thousand_is_honoured(tmp_path):
+    rows = np.zeros((1, 20, 5 + C), np.float32)
+    rows[0, 0] = [*cxcywh(to_input(PERSONS[0])), 0.02, 0.025, 0.0, 0.0]  # score 5e-4
+    path = const_model(tmp_path / "m.onnx", {"output0": rows})
+    np.testing.assert_allclose(_found(_detector(path, score_threshold=1e-4)), PERSONS[:1],
+                               atol=1.0)
+    assert len(_found(_detector(path, score_threshold=1e-3))) == 0
+
+
+def test_darknet_threshold_below_one_in_a_thousand_is_honoured(tmp_path):
+    heads = darknet_heads([10, 20], TINY_ANCHORS, TINY_MASKS)
+    for head in heads.values():  # every object at score ~5e-4: sig(-3.4) * sig(-4.6)
+        view = head.reshape(3, 5 + C, *head.shape[2:])
+        view[:, 4] = np.where(view[:, 4] > 0, -3.4, view[:, 4])
+        view[:, 5] = np.where(view[:, 5] > 0, -4.6, view[:, 5])
+    path = const_model(tmp_path / "m.onnx", heads)
+    np.testing.assert_allclose(_found(_detector(path, score_threshold=1e-4)), PERSONS, atol=1.0)
+    assert len(_found(_detector(path, score_threshold=1e-3))) == 0
+
+
+def test_pre_merge_mask_drops_raw_boxes_in_frame_pixels_before_merging(tmp_path):
+    """The hook masks use: it sees raw boxes in frame pixels and its False rows are gone."""
+    detector = _detector(const_model(tmp_path / "m.onnx", {"output0": rows_v5()}))
+    frame = np.full((FRAME_H, FRAME_W, 3), 100, np.uint8)
+    seen = []
+
+    def left_half_masked(boxes_px: np.ndarray) -> np.ndarray:
+        seen.append(boxes_px.copy())
+        return boxes_px[:, 0] >= FRAME_W / 2
+
+    result = detector.detect_timed(frame, pre_merge=left_half_masked)
+    np.testing.assert_allclose(seen[0][np.argsort(seen[0][:, 0])], PERSONS, atol=1.0)
+    np.testing.assert_allclose(result.persons.boxes_px, PERSONS[1:], atol=1.0)
+    assert result.candidates == 1
+    from monitor.errors import DetectorError
+
+    with pytest.raises(DetectorError, match="pre-merge mask"):
+        detector.detect_timed(frame, pre_merge=lambda b: np.ones(len(b) + 1, bool))

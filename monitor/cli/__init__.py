@@ -1,10 +1,18 @@
-"""The ``monitor`` command: subcommands are registered by the modules in this package."""
+"""The ``monitor`` command: subcommands are registered by the modules in this package.
+
+Every parser of the tree is a :class:`MonitorParser`: each option's help shows its default, and
+the global options (``--debug``) work before or after the subcommand. Errors reach the user as
+one line in their words (no exception names, no paths inside the installation); ``--debug``
+shows the traceback.
+"""
 
 from __future__ import annotations
 
 import argparse
+import errno
 import importlib
 import os
+import re
 import sys
 from collections.abc import Sequence
 
@@ -21,42 +29,137 @@ COMMAND_MODULES = (
     "monitor.cli.run",
     "monitor.cli.eval",
 )
+DEBUG_HELP = "show the full traceback on errors (anywhere on the command line)"
+
+
+class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Shows every option's default, except where there is none to show (None, off) or the
+    help text already states it."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        if "default" in text.lower() or not _has_default(action):
+            return text
+        return f"{text} (default: %(default)s)" if text else "default: %(default)s"
+
+
+def _has_default(action: argparse.Action) -> bool:
+    if isinstance(action, argparse._HelpAction | argparse._VersionAction):
+        return False
+    if not action.option_strings and action.nargs not in ("?", "*"):
+        return False  # a required positional has no default
+    return action.default not in (None, False, argparse.SUPPRESS, "", [], ())
+
+
+class _SubParsers(argparse._SubParsersAction):
+    """Subcommands whose ``help`` also becomes the description of their own ``-h``."""
+
+    def add_parser(self, name: str, **kwargs) -> argparse.ArgumentParser:
+        if "help" in kwargs and "description" not in kwargs:
+            kwargs["description"] = kwargs["help"]
+        return super().add_parser(name, **kwargs)
+
+
+class MonitorParser(argparse.ArgumentParser):
+    """The parser class of every (sub)command: defaults in help, global options everywhere."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        kwargs.setdefault("formatter_class", HelpFormatter)
+        super().__init__(*args, **kwargs)
+        self.register("action", "parsers", _SubParsers)
+        # SUPPRESS: a subcommand that is not given --debug does not reset the global one
+        self.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
+                          help=DEBUG_HELP)
+
+    def add_argument(self, *args, **kwargs) -> argparse.Action:
+        action = super().add_argument(*args, **kwargs)
+        if action.help is None and _has_default(action):
+            action.help = "default: %(default)s"
+        return action
+
+    def add_subparsers(self, **kwargs):
+        kwargs.setdefault("parser_class", MonitorParser)
+        return super().add_subparsers(**kwargs)
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = MonitorParser(
         prog="monitor",
         description="Supplementary camera monitor for robot cells (not a certified protective "
         "device).",
     )
     parser.add_argument("--version", action="version", version=f"monitor {__version__}")
-    parser.add_argument("--debug", action="store_true", help="show tracebacks on errors")
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name in COMMAND_MODULES:
         importlib.import_module(name).register(subparsers)
     return parser
 
 
+_OS_REASONS = (
+    (FileExistsError, "already exists"),
+    (FileNotFoundError, "no such file or directory"),
+    (IsADirectoryError, "is a directory, not a file"),
+    (NotADirectoryError, "a part of the path is not a directory"),
+    (PermissionError, "permission denied"),
+)
+# Paths inside the installation or a compiled library's sources mean nothing to a user.
+_FOREIGN_PATH = re.compile(r"(?:[A-Za-z]:)?[\w./\\-]*(?:site-packages|dist-packages|/lib/python"
+                           r"|\.py\b|\.cc\b|\.cpp\b|\.h\b|\.so\b)[\w./\\:-]*")
+
+
+def user_message(exc: BaseException) -> str:
+    """One line in the user's words for an exception that is not a MonitorError."""
+    if isinstance(exc, OSError):
+        reason = next((text for kind, text in _OS_REASONS if isinstance(exc, kind)), None)
+        if reason is None:
+            reason = (exc.strerror or errno.errorcode.get(exc.errno or 0, "")
+                      or "input/output error").lower()
+        name = exc.filename
+        return f"{name}: {reason}" if name else reason
+    if isinstance(exc, MemoryError):
+        return "out of memory"
+    text = (str(exc).strip().splitlines() or [""])[0]
+    text = _FOREIGN_PATH.sub("<internal>", text)[:200]
+    return (f"unexpected problem: {text}" if text else "unexpected problem") + \
+        " (run again with --debug for the details)"
+
+
+def _quiet_broken_pipe() -> None:
+    """The reader of our output went away (``monitor detect v.mp4 | head -1``): stop quietly,
+    and keep Python from complaining when it flushes stdout at exit."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError):  # stdout already closed or not a real file
+        pass
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    if "--debug" not in (sys.argv[1:] if argv is None else argv):
+    args_list = list(sys.argv[1:] if argv is None else argv)
+    debug = "--debug" in args_list
+    if not debug:
         # OpenCV and FFmpeg print their own warnings before our one-line error: quiet them
         os.environ.setdefault("OPENCV_LOG_LEVEL", "OFF")
         os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args = parser.parse_args(args_list)
+    debug = bool(getattr(args, "debug", False))
     try:
         return int(args.func(args) or 0)
+    except BrokenPipeError:
+        _quiet_broken_pipe()
+        return 0
     except MonitorError as exc:
-        if args.debug:
+        if debug:
             raise
         print(f"monitor: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         return 130
     except Exception as exc:  # one line for the user; --debug shows the traceback
-        if args.debug:
+        if debug:
             raise
-        print(f"monitor: error: {type(exc).__name__}: {exc}", file=sys.stderr)
+        print(f"monitor: error: {user_message(exc)}", file=sys.stderr)
         return 1
 
 

@@ -17,7 +17,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     build = sub.add_parser("build", help="build the synthetic tiny-YOLOv3 model (deterministic)")
     build.add_argument("--out", type=Path, help="output .onnx (default: the model cache)")
     build.add_argument("--input-size", type=int, default=416,
-                       help="model input size, a multiple of 32 (default 416, as in the seeds)")
+                       help="model input size in pixels, a multiple of 32 (416 is the classic "
+                       "tiny-YOLOv3 size; 320 or 256 are faster, worse on small persons)")
     build.set_defaults(func=cmd_build)
 
     info = sub.add_parser("info", help="layout, input size, classes and parameter count")
@@ -27,9 +28,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
     ev = sub.add_parser("eval", help="recall / precision on generated frames with ground truth")
     ev.add_argument("--model", type=Path, help="ONNX file (default: the synthetic model)")
-    ev.add_argument("--frames", type=int, default=200)
+    ev.add_argument("--frames", type=int, default=200, help="generated frames to score")
     ev.add_argument("--size", default="1920x1080", help="frame size WxH")
-    ev.add_argument("--seed", type=int, default=0)
+    ev.add_argument("--seed", type=int, default=0, help="random seed of the generated frames")
     ev.set_defaults(func=cmd_eval)
 
 

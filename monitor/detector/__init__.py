@@ -1,0 +1,234 @@
+"""Person detector: any tiny-YOLO style ONNX model through onnxruntime.
+
+The output layout is found from the model's shapes and metadata (or named explicitly):
+
+==============  =====================================================  ======================
+layout          outputs                                                input expected
+==============  =====================================================  ======================
+darknet         2 or 3 raw heads 1x(A*(5+C))xGxG (NCHW) or 1xGxGx(..)  RGB/255, grey pad 0.5
+yolov5          1xNx(5+C): cx cy w h obj classes (sigmoided)           RGB/255, pad 114
+yolov8          1x(4+C)xN: cx cy w h classes (YOLOv8 / YOLO11)         RGB/255, pad 114
+end2end         1xKx6: x1 y1 x2 y2 score class                         RGB/255, pad 114
+zoo             ONNX Model Zoo tiny-yolov3 (inputs input_1,            RGB/255, pad 0.5
+                image_shape; NMS inside the graph)
+yolox           1xNx(5+C), raw grid-relative boxes, N = cells          BGR 0..255, pad 114,
+                                                                       top-left aligned
+==============  =====================================================  ======================
+
+Boxes come back in the original frame's pixels (letterbox undone), person class only, after a
+score threshold, a top-k cap, NMS and merging (``monitor.boxes``). NaN or infinite outputs
+raise ``DetectorError`` (never "no persons"); ``Detector.self_test`` checks the model still
+finds a known person. Modules: layouts (which layout, person classes), preprocess (letterbox),
+decode, session, selftest, config.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from monitor import boxes as box_ops
+from monitor.detector.config import DetectorConfig
+from monitor.detector.decode import (
+    check_finite,
+    decode,
+    decode_darknet,
+    decode_end2end,
+    decode_yolov5,
+    decode_yolov8,
+    decode_yolox,
+    decode_zoo,
+)
+from monitor.detector.layouts import (
+    LAYOUTS,
+    TINY_ANCHORS,
+    TINY_MASKS,
+    V3_ANCHORS,
+    V3_MASKS,
+    ModelLayout,
+    inspect_model,
+)
+from monitor.detector.preprocess import Letterbox, Letterboxer, letterbox
+from monitor.detector.selftest import SelfTestCase, builtin_case, load_case
+from monitor.detector.selftest import check as check_self_test
+from monitor.detector.session import open_session
+from monitor.errors import DetectorError, InputError
+from monitor.types import Fault, FrameInfo, Persons
+
+__all__ = [
+    "LAYOUTS", "TINY_ANCHORS", "TINY_MASKS", "V3_ANCHORS", "V3_MASKS", "Detection", "Detector",
+    "DetectorConfig", "DetectorError", "Letterbox", "Letterboxer", "ModelLayout", "decode",
+    "decode_darknet", "decode_end2end", "decode_yolov5", "decode_yolov8", "decode_yolox",
+    "decode_zoo", "describe", "inspect_model", "letterbox", "open_session",
+]
+
+log = logging.getLogger(__name__)
+# Decides per raw box (x1 y1 x2 y2, frame pixels) whether it is kept: True = keep.
+PreMerge = Callable[[np.ndarray], np.ndarray]
+
+
+@dataclass(frozen=True)
+class Detection:
+    """One detect call: the persons, stage times (ms) and whether candidates were capped."""
+
+    persons: Persons
+    preprocess_ms: float
+    inference_ms: float
+    decode_ms: float
+    candidates: int
+    overflow: bool
+
+
+class Detector:
+    """Loads a model once, warms it up, and turns BGR frames into ``Persons``."""
+
+    def __init__(self, model_path: str | Path, config: DetectorConfig | None = None) -> None:
+        self.config = config or DetectorConfig()
+        self.model_path = Path(model_path)
+        self.session = open_session(model_path, self.config.threads, self.config.spin_wait)
+        self.layout, self.warning = inspect_model(self.session, self.config)
+        if self.warning:
+            log.warning("%s: %s", self.model_path.name, self.warning)
+        self.output_names = [o.name for o in self.session.get_outputs()]
+        self._letterbox = Letterboxer(self.layout)
+        self.self_test_case = self._self_test_case()
+        self._self_test_letterbox: Letterboxer | None = None
+        # Warm-up: the first run allocates; do it now, not on the first real frame.
+        self.detect(np.full((self.layout.input_height, self.layout.input_width, 3), 114, np.uint8))
+
+    def _self_test_case(self) -> SelfTestCase | None:
+        cfg = self.config
+        if cfg.self_test_image is not None and cfg.self_test_box is not None:
+            return load_case(cfg.self_test_image, cfg.self_test_box)
+        meta = self.session.get_modelmeta().custom_metadata_map or {}
+        if "synthetic_weights" in meta:  # our synthetic model: it finds the scene's persons
+            return builtin_case()
+        log.info("%s: no detector self-test (set detector.self_test_image and self_test_box; "
+                 "see docs/models.md)", self.model_path.name)
+        return None
+
+    def self_test(self) -> Fault | None:
+        """Run the model on the self-test image: None if it finds the known person, else a
+        STOP fault ``detector_self_test``. Also None when there is no self-test image for this
+        model (see ``self_test_case``; docs/models.md).
+
+        It has its own input buffer, so a self-test from another thread never overwrites the
+        tensor of a frame being detected."""
+        if self.self_test_case is None:
+            return None
+        if self._self_test_letterbox is None:
+            self._self_test_letterbox = Letterboxer(self.layout)
+        letterboxer = self._self_test_letterbox
+
+        def detect(image: np.ndarray) -> Persons:
+            tensor, box = letterboxer(image)
+            outputs = self.run_raw(tensor, image.shape[:2])
+            return self.postprocess(outputs, box, image.shape[:2], None)[0]
+
+        return check_self_test(self.self_test_case, detect, self.config.self_test_min_iou)
+
+    def finest_stride_px(self) -> float:
+        """Input pixels per cell of the finest output grid (16 for tiny-YOLOv3 at 416)."""
+        if self.layout.kind == "darknet":
+            grids = [o.shape[1] if self.layout.heads_nhwc else o.shape[2]
+                     for o in self.session.get_outputs()]
+            return self.layout.input_height / max(grids)
+        return float(min(self.layout.strides))
+
+    def foot_uncertainty_px(self, frame_width: int, frame_height: int) -> float:
+        """``foot_uncertainty_cells`` finest-grid cells in frame pixels of this frame size."""
+        scale = min(self.layout.input_width / frame_width, self.layout.input_height / frame_height)
+        return self.config.foot_uncertainty_cells * self.finest_stride_px() / scale
+
+    def run_raw(self, tensor: np.ndarray, frame_hw: tuple[int, int]) -> list[np.ndarray]:
+        feeds = {self.layout.input_name: tensor}
+        if self.layout.kind == "zoo":
+            feeds["image_shape"] = np.array([frame_hw], np.float32)
+        return self.session.run(self.output_names, feeds)
+
+    def detect_timed(self, image_bgr: np.ndarray, frame: FrameInfo | None = None,
+                     pre_merge: PreMerge | None = None) -> Detection:
+        """Detect persons; ``pre_merge(boxes_px) -> keep`` (frame pixels, one bool per raw box)
+        drops raw boxes before the top-k cap, NMS and merging (masks, see monitor.pipeline)."""
+        if image_bgr is None or image_bgr.ndim != 3 or image_bgr.shape[2] != 3:
+            raise InputError("frame is not a BGR image")
+        t0 = time.perf_counter()
+        tensor, box = self._letterbox(image_bgr)
+        t1 = time.perf_counter()
+        outputs = self.run_raw(tensor, image_bgr.shape[:2])
+        t2 = time.perf_counter()
+        persons, candidates, overflow = self.postprocess(outputs, box, image_bgr.shape[:2], frame,
+                                                         pre_merge)
+        t3 = time.perf_counter()
+        return Detection(persons, (t1 - t0) * 1e3, (t2 - t1) * 1e3, (t3 - t2) * 1e3,
+                         candidates, overflow)
+
+    def detect(self, image_bgr: np.ndarray, frame: FrameInfo | None = None) -> Persons:
+        return self.detect_timed(image_bgr, frame).persons
+
+    def postprocess(self, outputs: list[np.ndarray], box: Letterbox, frame_hw: tuple[int, int],
+                    frame: FrameInfo | None, pre_merge: PreMerge | None = None,
+                    ) -> tuple[Persons, int, bool]:
+        """Decode, threshold, pre-merge mask, cap, NMS, merge, undo the letterbox. Pure given
+        the outputs."""
+        cfg, layout = self.config, self.layout
+        check_finite(outputs, self.output_names)
+        boxes, scores = decode(outputs, layout, cfg.score_threshold)
+        keep = scores >= cfg.score_threshold
+        boxes, scores = boxes[keep], scores[keep]
+        if not np.isfinite(boxes).all():  # e.g. exp() of a huge size logit
+            raise DetectorError(f"model gave {int((~np.isfinite(boxes)).any(axis=1).sum())} "
+                                f"person boxes of infinite size: the model is broken")
+        if pre_merge is not None and len(scores):
+            in_frame = boxes if layout.kind == "zoo" else box.to_frame(boxes)
+            keep = np.asarray(pre_merge(in_frame))
+            if keep.dtype != bool or keep.shape != scores.shape:
+                raise DetectorError(f"pre-merge mask has shape {keep.shape} and type "
+                                    f"{keep.dtype}; expected {len(scores)} booleans")
+            boxes, scores = boxes[keep], scores[keep]
+        candidates = len(scores)
+        overflow = candidates > cfg.top_k
+        if overflow:
+            top = np.argpartition(-scores, cfg.top_k)[:cfg.top_k]
+            boxes, scores = boxes[top], scores[top]
+        kept = box_ops.nms(boxes, scores, cfg.nms_iou)
+        boxes, scores = box_ops.merge_boxes(boxes[kept], scores[kept], cfg.merge_iou,
+                                            cfg.merge_ios, cfg.merge_touch_px)
+        if layout.kind != "zoo":  # the zoo graph undoes its letterbox itself
+            boxes = box.to_frame(boxes)
+        h, w = frame_hw
+        boxes = np.clip(boxes, 0, [w, h, w, h]).astype(np.float32)
+        return Persons(boxes, scores, frame), candidates, overflow
+
+
+def describe(detector: Detector) -> dict:
+    """What `monitor model info` prints."""
+    import onnx
+
+    layout = detector.layout
+    try:
+        model = onnx.load(str(detector.model_path), load_external_data=False)
+        params = int(sum(np.prod(t.dims) for t in model.graph.initializer))
+    except Exception:  # info is best effort; the session already loaded the model
+        params = -1
+    return {
+        "model": str(detector.model_path),
+        "layout": layout.kind,
+        "input": f"{layout.input_width}x{layout.input_height}",
+        "input_order": ("NHWC" if layout.input_nhwc else "NCHW")
+        + (" RGB" if layout.rgb else " BGR"),
+        "classes": layout.num_classes,
+        "person_classes": ", ".join(f"{c} ({layout.names.get(c, '?')})"
+                                    for c in layout.persons),
+        "self_test": detector.self_test_case.source if detector.self_test_case
+        else "none (set detector.self_test_image and self_test_box)",
+        "parameters": params,
+        "outputs": [f"{o.name} {tuple(o.shape)}" for o in detector.session.get_outputs()],
+        "anchors": list(layout.anchors) if layout.anchors else None,
+        "masks": list(layout.masks) if layout.masks else None,
+    }

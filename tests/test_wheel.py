@@ -1,0 +1,99 @@
+"""The installed product, not the checkout: build the wheel, install it into a fresh virtual
+environment outside the source tree, and run the default service there.
+
+The dependencies are not downloaded again: the new environment sees this environment's
+site-packages through a path file (not as a site dir, so this checkout's editable install is
+not active there), and the test checks that `monitor` is imported from the new environment.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import socket
+import subprocess
+import sys
+import sysconfig
+import tomllib
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_packaged_demo_cell_is_the_example_in_zones():
+    from monitor.config import demo_cell_path
+
+    packaged = demo_cell_path()
+    assert packaged.parent.name == "data" and packaged.parent.parent.name == "monitor"
+    assert packaged.read_bytes() == (ROOT / "zones" / "demo-cell.yaml").read_bytes()
+
+
+def test_every_package_of_the_source_tree_is_in_the_wheel_list():
+    """An explicit package list forgets new subpackages silently: the wheel would lack them."""
+    listed = set(tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
+                 ["packages"])
+    found = {".".join(p.parent.relative_to(ROOT).parts)
+             for p in (ROOT / "monitor").rglob("__init__.py")}
+    assert found - listed == set(), "add these to [tool.setuptools] packages in pyproject.toml"
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _run(args: list[str], cwd: Path, timeout: float = 300) -> subprocess.CompletedProcess:
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "PYTHONHOME")}
+    return subprocess.run(args, cwd=cwd, env=env, capture_output=True, text=True,
+                          timeout=timeout)
+
+
+@pytest.mark.slow
+def test_wheel_installs_and_runs_outside_the_checkout(tmp_path):
+    src = tmp_path / "src"
+    shutil.copytree(ROOT, src, symlinks=True, ignore=shutil.ignore_patterns(
+        ".venv", ".git", "build", "dist", "*.egg-info", "__pycache__", ".pytest_cache",
+        ".ruff_cache"))
+    built = _run([sys.executable, "-m", "pip", "wheel", str(src), "--no-deps",
+                  "--no-build-isolation", "--no-index", "--quiet", "-w", str(tmp_path / "dist")],
+                 tmp_path)
+    assert built.returncode == 0, built.stderr[-2000:]
+    wheel = next((tmp_path / "dist").glob("workcell_monitor-*.whl"))
+
+    venv = tmp_path / "venv"
+    subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(venv)], check=True)
+    python = venv / "bin" / "python"
+    site = Path(_run([str(python), "-c", "import sysconfig; print(sysconfig.get_paths()"
+                                          "['purelib'])"], tmp_path).stdout.strip())
+    deps = {sysconfig.get_paths()["purelib"], sysconfig.get_paths()["platlib"]}
+    (site / "_test_dependencies.pth").write_text("\n".join(sorted(deps)) + "\n")
+    installed = _run([sys.executable, "-m", "pip", "--python", str(python), "install",
+                      "--no-deps", "--no-index", "--quiet", str(wheel)], tmp_path)
+    assert installed.returncode == 0, installed.stderr[-2000:]
+
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    where = _run([str(python), "-c", "import monitor, monitor.config as c; "
+                  "print(monitor.__file__); print(c.demo_cell_path())"], elsewhere)
+    assert where.returncode == 0, where.stderr
+    module, cell = where.stdout.split()
+    assert Path(module).is_relative_to(venv) and Path(cell).is_relative_to(venv)
+    assert Path(cell).read_bytes() == (ROOT / "zones" / "demo-cell.yaml").read_bytes()
+
+    # `monitor run` with the demo defaults: synthetic camera, synthetic model, demo zones
+    config = elsewhere / "monitor.toml"
+    config.write_text(f'[bus]\nlisten = ["tcp/127.0.0.1:{_free_port()}"]\n')
+    run = _run([str(venv / "bin" / "monitor"), "run", "--config", str(config), "--duration",
+                "3"], elsewhere)
+    assert run.returncode == 0, run.stderr[-3000:]
+    started = re.search(r"started .* zones=(\S+)", run.stderr)
+    assert started and Path(started.group(1)).is_relative_to(venv), run.stderr[-3000:]
+    assert "Traceback" not in run.stderr and " ERROR " not in run.stderr
+    assert "INFO stopped" in run.stderr
+
+    helped = _run([str(venv / "bin" / "monitor"), "demo", "--help"], elsewhere)
+    assert helped.returncode == 0 and "--out" in helped.stdout
