@@ -120,6 +120,7 @@ class _Record:
     prev_zones: tuple[HeldZone, ...] = ()  # zones of the sighting before the last one
     lost: bool = False
     held: tuple[HeldZone, ...] = ()
+    streak: int = 1  # frames seen in a row
 
     def snapshot(self) -> Track:
         floor = None if self.floor is None else (float(self.floor[0]), float(self.floor[1]))
@@ -237,6 +238,7 @@ class PersonTracker:
                 continue
             if rec.lost and rec.held:
                 ended.append(rec.hold())
+            rec.streak = 1 if rec.lost else rec.streak + 1
             self._place(rec, boxes[row], floors[row], now, first=False)
             rec.prev_zones = rec.zones
             if row_zones is not None:
@@ -353,7 +355,10 @@ class PersonTracker:
                 merged_into = _union(merged_into, other.prev_zones)
         if not merged and self._leaving_view(rec, frame_size):
             return ()
-        return _union(rec.zones, merged_into, self._zones_ahead(rec, zones_of))
+        # a track seen for a single frame (re-found by a box that may be a flicker near a
+        # lost person) keeps the zones of its sighting before that
+        flicker = rec.prev_zones if rec.streak <= 1 else ()
+        return _union(rec.zones, merged_into, flicker, self._zones_ahead(rec, zones_of))
 
     def _zones_ahead(self, rec: _Record, zones_of: ZonesOf | None) -> tuple[HeldZone, ...]:
         """Zones on the lost person's extrapolated path (image velocity, ``predict_s``)."""
