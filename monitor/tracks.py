@@ -375,10 +375,11 @@ class PersonTracker:
         return _union(*rows) if rows else ()
 
     def _leaving_view(self, rec: _Record, frame_size: tuple[int, int]) -> bool:
-        """Box at the image border and moving outwards across it."""
+        """Box at the left, right or bottom image border and moving outwards across it. Not
+        the top: a head cut off there says nothing of the feet, which are still in view."""
         w, h = frame_size
         m, v = self.config.edge_margin_px, self.config.exit_speed_pxps
-        x1, y1, x2, y2 = rec.box
+        x1, _, x2, y2 = rec.box
         vx, vy = rec.velocity
         return bool((x1 <= m and vx <= -v) or (x2 >= w - m and vx >= v)
-                    or (y1 <= m and vy <= -v) or (y2 >= h - m and vy >= v))
+                    or (y2 >= h - m and vy >= v))

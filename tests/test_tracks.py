@@ -283,3 +283,14 @@ def test_a_one_frame_flicker_near_a_lost_person_does_not_end_the_hold_for_good()
     assert flicker.report.hits == ()
     after = run.frame()
     assert held(after) == {("stop", tid)}  # ... but only while that box is there
+
+
+def test_a_head_cut_off_at_the_top_edge_is_no_exit():
+    """Far away, walking away from the camera: the box's top leaves the image, the feet do not."""
+    tracker = PersonTracker()
+    for i in range(6):
+        boxes = np.array([[620, 0, 680, 660 - 8 * i]], np.float32)  # top at the border
+        tracker.update(Persons(boxes, np.array([0.9], np.float32)),
+                       zn.check_persons(CELL, "cam0", boxes), i / 10, (W, H))
+    gone = tracker.update(Persons.empty(), ZoneReport(), 0.6, (W, H))
+    assert {(h.zone_id, h.lost) for h in gone.report.hits} == {("stop", True)}
