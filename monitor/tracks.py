@@ -120,6 +120,7 @@ class _Record:
     prev_zones: tuple[HeldZone, ...] = ()  # zones of the sighting before the last one
     lost: bool = False
     held: tuple[HeldZone, ...] = ()
+    streak: int = 1  # frames seen in a row
 
     def snapshot(self) -> Track:
         floor = None if self.floor is None else (float(self.floor[0]), float(self.floor[1]))
@@ -237,6 +238,7 @@ class PersonTracker:
                 continue
             if rec.lost and rec.held:
                 ended.append(rec.hold())
+            rec.streak = 1 if rec.lost else rec.streak + 1
             self._place(rec, boxes[row], floors[row], now, first=False)
             rec.prev_zones = rec.zones
             if row_zones is not None:
@@ -353,7 +355,10 @@ class PersonTracker:
                 merged_into = _union(merged_into, other.prev_zones)
         if not merged and self._leaving_view(rec, frame_size):
             return ()
-        return _union(rec.zones, merged_into, self._zones_ahead(rec, zones_of))
+        # a track seen for a single frame (re-found by a box that may be a flicker near a
+        # lost person) keeps the zones of its sighting before that
+        flicker = rec.prev_zones if rec.streak <= 1 else ()
+        return _union(rec.zones, merged_into, flicker, self._zones_ahead(rec, zones_of))
 
     def _zones_ahead(self, rec: _Record, zones_of: ZonesOf | None) -> tuple[HeldZone, ...]:
         """Zones on the lost person's extrapolated path (image velocity, ``predict_s``)."""
@@ -370,10 +375,11 @@ class PersonTracker:
         return _union(*rows) if rows else ()
 
     def _leaving_view(self, rec: _Record, frame_size: tuple[int, int]) -> bool:
-        """Box at the image border and moving outwards across it."""
+        """Box at the left, right or bottom image border and moving outwards across it. Not
+        the top: a head cut off there says nothing of the feet, which are still in view."""
         w, h = frame_size
         m, v = self.config.edge_margin_px, self.config.exit_speed_pxps
-        x1, y1, x2, y2 = rec.box
+        x1, _, x2, y2 = rec.box
         vx, vy = rec.velocity
         return bool((x1 <= m and vx <= -v) or (x2 >= w - m and vx >= v)
-                    or (y1 <= m and vy <= -v) or (y2 >= h - m and vy >= v))
+                    or (y2 >= h - m and vy >= v))

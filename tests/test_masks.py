@@ -169,3 +169,21 @@ def test_zones_validate_warns_about_a_mask_near_a_protective_zone(tmp_path, caps
     err = capsys.readouterr().err
     assert "warning: mask zone 'cutout' is within a person's width of protective zone 'stop'" \
         in err
+
+
+def test_the_detector_hook_sees_raw_boxes_in_frame_pixels(detector):
+    """``pre_merge`` gets the raw boxes (one per grid cell here) in the frame's pixels."""
+    seen = []
+
+    def record(boxes):
+        seen.append(boxes.copy())
+        return np.ones(len(boxes), bool)
+
+    img = _frame(person=False)
+    merged = detector.detect_timed(img, pre_merge=record).persons
+    (raw,) = seen
+    assert len(raw) > 5 and len(merged) == 1
+    assert np.allclose(raw.min(axis=0)[:2], merged.boxes_px[0][:2], atol=1.0)
+    assert np.allclose(raw.max(axis=0)[2:], merged.boxes_px[0][2:], atol=1.0)
+    none = detector.detect_timed(img, pre_merge=lambda b: np.zeros(len(b), bool)).persons
+    assert len(none) == 0

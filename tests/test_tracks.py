@@ -268,3 +268,29 @@ def test_a_person_lost_walking_into_the_zone_holds_it():
         away.update(Persons(boxes, np.array([0.9], np.float32)),
                     zn.check_persons(CELL, "cam0", boxes), i / 10, (W, H), zones_of)
     assert away.update(Persons.empty(), ZoneReport(), 0.6, (W, H), zones_of).report.hits == ()
+
+
+def test_a_one_frame_flicker_near_a_lost_person_does_not_end_the_hold_for_good():
+    run = Run()
+    for _ in range(3):
+        upd = run.frame(person(650))
+    tid = upd.track_ids[0]
+    for _ in range(3):
+        run.frame()
+    # a low box just below the zone, near the lost person's feet
+    flicker = run.frame(person(650, bottom=705, w=120, h=80))
+    assert flicker.track_ids == (tid,)  # taken for the lost person: the hold ends ...
+    assert flicker.report.hits == ()
+    after = run.frame()
+    assert held(after) == {("stop", tid)}  # ... but only while that box is there
+
+
+def test_a_head_cut_off_at_the_top_edge_is_no_exit():
+    """Far away, walking away from the camera: the box's top leaves the image, the feet do not."""
+    tracker = PersonTracker()
+    for i in range(6):
+        boxes = np.array([[620, 0, 680, 660 - 8 * i]], np.float32)  # top at the border
+        tracker.update(Persons(boxes, np.array([0.9], np.float32)),
+                       zn.check_persons(CELL, "cam0", boxes), i / 10, (W, H))
+    gone = tracker.update(Persons.empty(), ZoneReport(), 0.6, (W, H))
+    assert {(h.zone_id, h.lost) for h in gone.report.hits} == {("stop", True)}
