@@ -21,7 +21,11 @@ Mat3 = tuple[Vec3, Vec3, Vec3]
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+    """Unknown keys refused; strict types: booleans must be true/false (``'no'``, ``'off'``,
+    ``0`` are refused), numbers must be numbers (``'1.5'`` is refused), no NaN/inf. YAML lists
+    are turned into tuples before validation (``files._as_tuples``)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False, strict=True)
 
 
 # --------------------------------------------------------------------------------------------
