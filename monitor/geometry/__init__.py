@@ -17,6 +17,12 @@ camera models, horizon), ``separation`` (ISO/TS 15066 arithmetic, reaction time)
 objects), ``calibration`` (tracker-to-flange and tracker-to-cell calibration, AX = XB).
 """
 
+from monitor.geometry.calibration import (
+    ToolCalibration,
+    calibrate_tool,
+    matrix_to_rpy_deg,
+    rotation_angle_deg,
+)
 from monitor.geometry.camera import (
     CameraModel,
     _apply,
@@ -75,6 +81,7 @@ __all__ = [
     "PersonModel",
     "ReactionBudget",
     "SeparationParams",
+    "ToolCalibration",
     "ToolPose",
     "_PolygonEdges",
     "_apply",
@@ -82,6 +89,7 @@ __all__ = [
     "_normaliser",
     "_orient",
     "apply_homography",
+    "calibrate_tool",
     "clip_polygon_to_rect",
     "describe_separation",
     "fcl_box",
@@ -92,6 +100,7 @@ __all__ = [
     "intrusion_distance_m",
     "is_convex",
     "look_at",
+    "matrix_to_rpy_deg",
     "max_robot_speed_mps",
     "points_in_mesh",
     "points_in_polygon",
@@ -103,6 +112,7 @@ __all__ = [
     "reaction_time_s",
     "reprojection_errors_px",
     "rigid",
+    "rotation_angle_deg",
     "rpy_to_matrix",
     "separation_speed_scale",
     "tool_transform",
