@@ -47,6 +47,8 @@ from monitor.geometry.polygons import (
 )
 from monitor.geometry.poses import (
     ToolPose,
+    matrix_to_quaternion_xyzw,
+    pose_in_frame,
     quaternion_to_matrix,
     rigid,
     rpy_to_matrix,
@@ -100,6 +102,7 @@ __all__ = [
     "intrusion_distance_m",
     "is_convex",
     "look_at",
+    "matrix_to_quaternion_xyzw",
     "matrix_to_rpy_deg",
     "max_robot_speed_mps",
     "points_in_mesh",
@@ -107,6 +110,7 @@ __all__ = [
     "points_in_polygons",
     "polygon_fault",
     "polygon_signed_area",
+    "pose_in_frame",
     "protective_separation_m",
     "quaternion_to_matrix",
     "reaction_time_s",

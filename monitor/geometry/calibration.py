@@ -93,7 +93,12 @@ def calibrate_tool(flange_poses: list[np.ndarray] | np.ndarray,
         raise GeometryError("pose pairs contain a non-finite number")
     alphas, betas, rows, rhs = [], [], [], []
     spread = 0.0
-    for i, j in itertools.combinations(range(len(a)), 2):
+    n = len(a)
+    # every pair for a few poses; for many, each pose with its next 10 (the closed form is
+    # only the start of the joint fit, and all n^2 / 2 pairs would cost seconds)
+    pairs = (itertools.combinations(range(n), 2) if n <= 30
+             else ((i, (i + k) % n) for i in range(n) for k in range(1, 11)))
+    for i, j in pairs:
         aij = _inverse(a[i]) @ a[j]
         bij = _inverse(b[i]) @ b[j]
         al, be = rotation_vector(aij[:3, :3]), rotation_vector(bij[:3, :3])

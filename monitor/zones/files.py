@@ -413,6 +413,8 @@ def config_hash(spec: CellSpec, meshes_sha: Mapping[str, str] | None = None) -> 
         "separation": spec.separation.model_dump(mode="json"),
         "tool": tool,
     }
+    if spec.tracker_frame is not None:  # only when set: older files keep their hash
+        payload["tracker_frame"] = spec.tracker_frame.model_dump(mode="json")
     blob = json.dumps(payload, sort_keys=True, separators=(",", ":"), allow_nan=False)
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
 

@@ -105,7 +105,7 @@ def _locate(loc: list, data: dict) -> tuple[str, list]:
         if isinstance(tool, dict) and rest and rest[0] == tool.get("shape"):
             rest = rest[1:]
         return "tool", rest
-    if loc and loc[0] in ("person", "separation"):
+    if loc and loc[0] in ("person", "separation", "tracker_frame"):
         return str(loc[0]), loc[1:]
     return "", loc
 
