@@ -133,7 +133,7 @@ def _read_yaml(path: str | os.PathLike, load: Any, errors: tuple[type[Exception]
         raise ConfigError(f"{p}: brackets nested {depth} deep (at most "
                           f"{MAX_NESTING}): not a zone file")
     try:
-        return load(text)
+        data = load(text)
     except errors as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f":{mark.line + 1}:{mark.column + 1}" if mark is not None else ""
@@ -144,6 +144,9 @@ def _read_yaml(path: str | os.PathLike, load: Any, errors: tuple[type[Exception]
     except (TypeError, ValueError, AttributeError, OverflowError, KeyError) as exc:
         # a tag the loader cannot build (!!float abc, !!timestamp 99-99-99, ...)
         raise ConfigError(f"{p}: YAML value cannot be read: {_first_line(exc)}") from None
+    if _data_depth(data) > MAX_NESTING:  # block (indented) nesting: no brackets to count
+        raise ConfigError(f"{p}: nested more than {MAX_NESTING} levels deep: not a zone file")
+    return data
 
 
 MAX_ZONE_FILE_BYTES = 20_000_000
@@ -153,6 +156,21 @@ MAX_NESTING = 64  # a zone file nests about 6 deep (zones, zone, points, point)
 def _first_line(exc: BaseException) -> str:
     text = str(exc).strip().splitlines()
     return (text[0][:200] if text else type(exc).__name__)
+
+
+def _data_depth(data: Any) -> int:
+    """Nesting depth of loaded YAML data, without recursion (later stages recurse)."""
+    best = 0
+    stack = [(data, 1)]
+    while stack:
+        node, depth = stack.pop()
+        if isinstance(node, dict | list | tuple):
+            best = max(best, depth)
+            if depth > MAX_NESTING:
+                return depth
+            items = node.values() if isinstance(node, dict) else node
+            stack.extend((v, depth + 1) for v in items)
+    return best
 
 
 def _nesting_depth(text: str) -> int:
@@ -315,7 +333,8 @@ def save_cell(cell: Cell, path: str | os.PathLike, document: Any = None) -> None
         old = target.stat() if target.exists() else None
     except OSError as exc:
         raise ConfigError(f"{target}: cannot write zone file: {_first_line(exc)}") from None
-    if old is not None and not os.access(target, os.W_OK):
+    # no write bit at all is a deliberate "do not change" even for root (who may write anyway)
+    if old is not None and (not os.access(target, os.W_OK) or not old.st_mode & 0o222):
         raise ConfigError(f"{target}: zone file is read-only: not replaced (make it writable "
                           "first)")
     _remove_stale_temp_files(target)
