@@ -3,7 +3,6 @@ tracker_frame; and `monitor zones` calibration messages (issue 12)."""
 
 from __future__ import annotations
 
-import copy
 import math
 import os
 import stat
@@ -131,22 +130,14 @@ def test_a_typo_in_the_only_camera_names_the_key_not_a_missing_camera(tmp_path):
     assert errors == ["cameras: at least one camera is needed"]
 
 
-def test_validate_is_linear_in_the_number_of_faults():
+def test_validate_lists_4000_faults_each_with_its_zone():
+    """4,000 faults used to take 3 minutes (the error list was rebuilt per message); the time is
+    measured by benchmarks/zone_files.py, this checks the messages."""
     data = demo_data()
     base = data["zones"][0]
-
-    def faults(n: int) -> float:
-        d = copy.deepcopy(data)
-        d["zones"] = [dict(base, id=f"z{i}", bogus=1) for i in range(n)]
-        start = time.perf_counter()
-        errors, _ = zn.cell_faults(d)
-        assert len(errors) == n
-        return time.perf_counter() - start
-
-    faults(200)  # warm up
-    small, large = min(faults(500) for _ in range(2)), min(faults(4000) for _ in range(2))
-    # 8x the faults: linear is ~8x; quadratic would be ~64x
-    assert large < 25 * small + 0.5
+    data["zones"] = [dict(base, id=f"z{i}", bogus=1) for i in range(4000)]
+    errors, _ = zn.cell_faults(data)
+    assert errors == [f"zone 'z{i}': unknown field 'bogus'" for i in range(4000)]
 
 
 # ---------------------------------------------------------------------------- protective zones
