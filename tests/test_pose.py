@@ -233,7 +233,8 @@ def test_udp_to_zenoh_bridge_with_real_sockets():
                 deadline = time.monotonic() + 15.0
                 k = 0
                 while not got and time.monotonic() < deadline:  # until the bridge is up
-                    udp.sendto(encode_otus(sample(0.5 + 0.01 * k)), ("127.0.0.1", uport))
+                    # tracker time stays below the stream's 1.0 s however long start-up takes
+                    udp.sendto(encode_otus(sample(0.9 - 0.4 * 0.99 ** k)), ("127.0.0.1", uport))
                     k += 1
                     time.sleep(0.05)
                 assert got, "bridge did not publish"
