@@ -233,7 +233,8 @@ def test_udp_to_zenoh_bridge_with_real_sockets():
                 deadline = time.monotonic() + 15.0
                 k = 0
                 while not got and time.monotonic() < deadline:  # until the bridge is up
-                    udp.sendto(encode_otus(sample(0.5 + 0.01 * k)), ("127.0.0.1", uport))
+                    # tracker time stays below the stream's 1.0 s however long start-up takes
+                    udp.sendto(encode_otus(sample(0.9 - 0.4 * 0.99 ** k)), ("127.0.0.1", uport))
                     k += 1
                     time.sleep(0.05)
                 assert got, "bridge did not publish"
@@ -281,3 +282,62 @@ def test_safety_bus_pose_subscriber_feeds_pose_time():
             time.sleep(0.02)
         assert sub.pose_time() is not None
         assert abs(sub.pose_time() - time.monotonic()) < 3.0  # receive time, monitor's clock
+
+
+# --- bounded pose JSON ----------------------------------------------------------------------
+
+
+def _valid_body() -> dict:
+    return json.loads(pose_to_json(moving(2)[1], seq=1, recv_mono=1.0, recv_wall=1.7e9))
+
+
+@pytest.mark.parametrize("mutate, expected", [
+    pytest.param(lambda t: t.replace('"seq": 1', '"seq": ' + "9" * 400), "400 characters",
+                 id="400-digit-int"),
+    pytest.param(lambda t: t.replace('"seq": 1', '"seq": 1e400'), "out of range",
+                 id="overflowing-float"),
+    pytest.param(lambda t: t.replace('"seq": 1', '"seq": NaN'), "NaN is not a number",
+                 id="nan-token"),
+    pytest.param(lambda t: t.replace('"seq": 1', '"seq": 1e13'), "out of range",
+                 id="huge-magnitude"),
+    pytest.param(lambda t: t.replace('"seq": 1', '"pad": "' + "x" * 5000 + '", "seq": 1'),
+                 "bytes", id="long-payload"),
+    pytest.param(lambda t: t.replace('"seq": 1', '"seq": ' + "[" * 2000 + "]" * 2000),
+                 "", id="deep-nesting"),
+    pytest.param(lambda t: "[1, 2]", "not a JSON object", id="not-an-object"),
+])
+def test_pose_json_values_are_bounded_with_a_one_line_rejection(mutate, expected):
+    text = mutate(json.dumps(_valid_body()))
+    with pytest.raises(PacketError) as err:
+        pose_from_json(text.encode())
+    assert err.value.reason == "malformed"
+    assert expected in str(err.value) and "\n" not in str(err.value)
+    assert err.value.__cause__ is None  # no chained traceback in the log
+
+
+def test_pose_json_booleans_are_not_numbers():
+    body = _valid_body()
+    body["position_m"] = [True, 0.0, 1.0]
+    with pytest.raises(PacketError, match="is not a number"):
+        pose_from_json(json.dumps(body).encode())
+
+
+def test_subscriber_measures_the_tool_speed_of_a_lying_stream():
+    """Positions move at 1 m/s, the velocity field says 0: every check of a single sample
+    passes, but the reading's measured speed is 1 m/s and the stream is pose_implausible."""
+    port = free_port()
+    keys = BusKeys.of("workcell/t2/")
+    lying = [dataclasses.replace(s, velocity_m_s=(0.0, 0.0, 0.0)) for s in moving(40)]
+    with open_session(BusConfig(cell="t2", listen=(f"tcp/127.0.0.1:{port}",))) as session, \
+            PoseSubscriber(session, keys.pose) as sub:
+        for i, s in enumerate(lying):
+            session.put(keys.pose, pose_to_json(s, seq=i + 1, recv_mono=0.0, recv_wall=0.0))
+        deadline = time.monotonic() + 3.0
+        while sub.stats()["accepted"] < len(lying) and time.monotonic() < deadline:
+            time.sleep(0.01)
+        reading = sub.latest()
+        assert reading is not None and reading.sample == lying[-1]
+        speed = reading.tool_speed()
+    assert speed.measured_mps == pytest.approx(1.0, rel=1e-6)
+    assert speed.speed_mps == pytest.approx(1.0, rel=1e-6) and speed.reported_mps == 0.0
+    assert speed.fault is not None and speed.fault.name == "pose_implausible"

@@ -352,3 +352,14 @@ def test_a_box_above_the_horizon_of_a_tilted_camera_touches_every_volume(pitch):
     if below is not None:
         xy, valid = cell.camera_models["cam0"].pixel_to_floor(np.array([[640.0, 719.0]]))
         assert valid[0] and xy[0, 1] > -6.0  # floor in front of the camera, not behind it
+
+
+def test_a_homography_whose_horizon_crosses_its_pairs_is_refused():
+    cam = zn.load_cell(demo_cell_path()).camera_models["cam0"]
+    r, t = geo.look_at((0, -6.0, 1.5), (0, 0, 1.5))
+    level = geo.CameraModel.pinhole(1280, 720, cam.camera_matrix, None, r, t)
+    below = np.array([[300.0, 500.0], [900.0, 500.0], [640.0, 700.0], [100.0, 650.0]])
+    geo.CameraModel.from_homography(1280, 720, level.homography, below)  # fine
+    with pytest.raises(geo.GeometryError, match="horizon"):
+        geo.CameraModel.from_homography(1280, 720, level.homography,
+                                        np.r_[below, [[640.0, 200.0]]])

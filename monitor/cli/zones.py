@@ -44,7 +44,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("file", type=Path)
     p.add_argument("id", help="zone id (letters, digits, _ . -)")
     p.add_argument("points", nargs="?", help="image polygon 'x,y x,y x,y ...' (pixels)")
-    p.add_argument("--kind", required=True, choices=zn.KINDS)
+    p.add_argument("--kind", required=True, choices=zn.KINDS, help="zone kind")
     _zone_options(p)
     p.add_argument("--disabled", action="store_true", help="add the zone disabled")
     p.set_defaults(func=cmd_add)
@@ -53,7 +53,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("file", type=Path)
     p.add_argument("id")
     p.add_argument("--new-id", help="rename the zone id")
-    p.add_argument("--kind", choices=zn.KINDS)
+    p.add_argument("--kind", choices=zn.KINDS, help="zone kind")
     p.add_argument("--points", help="new image polygon 'x,y x,y ...' (pixels)")
     _zone_options(p)
     p.set_defaults(func=cmd_edit)
@@ -87,7 +87,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                        "extrinsics of a camera whose intrinsics are known. Pairs are "
                        "'u,v,x,y' (floor, z = 0) or 'u,v,x,y,z' (--pnp): pixels then metres.")
     p.add_argument("file", type=Path)
-    p.add_argument("--camera", required=True)
+    p.add_argument("--camera", required=True, help="camera id")
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--pairs", help="'u,v,x,y u,v,x,y ...'")
     src.add_argument("--csv", type=Path, help="CSV file with columns u,v,x,y[,z] (header "
@@ -109,6 +109,49 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p = sub.add_parser("hash", help="print the config hash of the active zone set")
     p.add_argument("file", type=Path)
     p.set_defaults(func=cmd_hash)
+
+    p = sub.add_parser(
+        "calibrate-tool", help="measure the tracker's mounting and frame from robot poses",
+        description="Closed-loop calibration of the tracked tool (docs/separation.md): from "
+        "pairs of robot flange poses (cell frame, from the robot controller) and tracker poses "
+        "(the tracker's own frame) it solves A X = Y B for the tracker's mounting on the flange "
+        "(written as tool.offset, given_as tracker_in_tool) and the tracker's frame in the cell "
+        "(written as tracker_frame), and prints the residual of every pose. CSV rows: flange "
+        "x,y,z (m), qx,qy,qz,qw, then tracker x,y,z (m), qx,qy,qz,qw (quaternions x, y, z, w).")
+    p.add_argument("file", type=Path)
+    p.add_argument("--csv", type=Path, required=True,
+                   help="CSV of pose pairs, 14 numbers a row (header optional)")
+    p.add_argument("--max-residual-mm", type=float, default=5.0,
+                   help="refuse to write when a pose's residual is larger (mm)")
+    p.add_argument("--max-residual-deg", type=float, default=3.0,
+                   help="refuse to write when a pose's residual is larger (degrees)")
+    p.add_argument("--dry-run", action="store_true", help="print the residuals, write nothing")
+    p.set_defaults(func=cmd_calibrate_tool)
+
+    for name, action in sub.choices.items():
+        _document_defaults(action, "unchanged" if name == "edit" else "not set")
+
+
+_POSITIONAL_HELP = {"file": "zone file (YAML)", "id": "zone id", "ids": "zone ids"}
+
+
+def _document_defaults(parser: argparse.ArgumentParser, none_text: str) -> None:
+    """Every option says its default in --help (and every argument has a help text)."""
+    for action in parser._actions:
+        if isinstance(action, argparse._HelpAction):
+            continue
+        if action.help is None:
+            action.help = _POSITIONAL_HELP.get(action.dest, action.dest.replace("_", " "))
+        if not action.option_strings or "default" in action.help:
+            continue
+        if action.required:
+            action.help += " (required)"
+        elif isinstance(action, argparse._StoreTrueAction):
+            action.help += " (default: off)"
+        elif action.default in (None, []):
+            action.help += f" (default: {none_text})"
+        else:
+            action.help += " (default: %(default)s)"
 
 
 def _zone_options(p: argparse.ArgumentParser) -> None:
@@ -374,14 +417,32 @@ def cmd_validate(args: argparse.Namespace) -> int:
     if errors:
         return 2
     cell = zn.parse_cell(data, args.file)
-    from monitor.zones.masks import mask_warnings  # h1: masks near alert zones
+    from monitor.zones.masks import mask_warnings
 
     for w in mask_warnings(cell):
         print(f"{args.file}: warning: {w}", file=sys.stderr)
+    for cam_id, model in cell.camera_models.items():
+        print(f"{args.file}: camera '{cam_id}': {_horizon_text(model)}")
     active = sum(1 for z in cell.zones if z.enabled)
     print(f"{args.file}: ok: {len(cell.zones)} zones ({active} enabled), "
           f"{len(cell.cameras)} cameras, config hash {cell.config_hash}")
     return 0
+
+
+def _horizon_text(model: geo.CameraModel) -> str:
+    """Where the horizon runs in the image: pixels on its far side never meet the floor and
+    persons whose feet are there are treated as inside every volume."""
+    row = model.horizon_row_px()
+    floor = "below" if model.floor_is_below_horizon() else "above"
+    if row is None:
+        return "horizon not crossing the centre column"
+    if row < 0 or row > model.height:
+        _, valid = model.pixel_to_floor(np.array([[model.width / 2, model.height / 2]]))
+        where = "above" if row < 0 else "below"
+        sees = "floor" if valid[0] else "no floor (sky only)"
+        return f"horizon {where} the image (row {row:.0f}): the centre column sees {sees}"
+    return (f"horizon at row {row:.0f} (centre column): floor {floor} it; a person whose feet "
+            f"are beyond it is treated as inside every volume")
 
 
 def _read_pairs(args: argparse.Namespace) -> np.ndarray:
@@ -444,6 +505,13 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     rms = float(np.sqrt(np.mean(np.square(errors))))
     print(f"reprojection error: RMS {rms:.3f} px, max {float(np.max(errors)):.3f} px "
           f"over {len(errors)} pairs")
+    exact = 4 if not args.pnp else 3  # a homography has 8 unknowns, extrinsics 6
+    if len(pairs) <= exact + 1:
+        print(f"monitor: warning: {len(pairs)} pairs leave "
+              f"{'no' if len(pairs) == exact else 'almost no'} redundancy: the fit passes "
+              f"through them {'exactly' if len(pairs) == exact else 'nearly exactly'}, so the "
+              "error above cannot show a wrong pair. Give 6 or more pairs, spread over the "
+              "floor the zones use.", file=sys.stderr)
     if args.dry_run:
         return 0
     cam["calibration"] = cal
@@ -494,4 +562,74 @@ def cmd_preview(args: argparse.Namespace) -> int:
 
 def cmd_hash(args: argparse.Namespace) -> int:
     print(zn.load_cell(args.file).config_hash)
+    return 0
+
+
+def _read_pose_pairs(path: Path) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    flange, tracker = [], []
+    try:
+        with path.open(newline="", encoding="utf-8") as fh:
+            for n, row in enumerate(csv.reader(fh)):
+                cells = [c.strip() for c in row if c.strip()]
+                if not cells or cells[0].startswith("#"):
+                    continue
+                try:
+                    v = [float(c) for c in cells]
+                except ValueError:
+                    if n == 0:
+                        continue  # header line
+                    raise InputError(f"{path}:{n + 1}: not numbers: {row}") from None
+                if len(v) != 14 or not np.all(np.isfinite(v)):
+                    raise InputError(f"{path}:{n + 1}: a row needs 14 finite numbers (flange "
+                                     "x,y,z,qx,qy,qz,qw, tracker x,y,z,qx,qy,qz,qw), got "
+                                     f"{len(v)}")
+                try:
+                    flange.append(geo.rigid(geo.quaternion_to_matrix(v[3:7]), v[0:3]))
+                    tracker.append(geo.rigid(geo.quaternion_to_matrix(v[10:14]), v[7:10]))
+                except geo.GeometryError as exc:
+                    raise InputError(f"{path}:{n + 1}: {exc}") from None
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read: {exc}") from None
+    return flange, tracker
+
+
+def cmd_calibrate_tool(args: argparse.Namespace) -> int:
+    data = _read(args.file)
+    if not isinstance(data.get("tool"), dict):
+        raise ConfigError(f"{args.file}: no 'tool:' section to calibrate (add the tool's shape "
+                          "first, zones/README.md)")
+    flange, tracker = _read_pose_pairs(args.csv)
+    try:
+        cal = geo.calibrate_tool(flange, tracker)
+    except geo.GeometryError as exc:
+        raise ConfigError(f"calibrate-tool: {exc}") from None
+    print(f"{'pose':>4}  {'residual_mm':>11}  {'residual_deg':>12}")
+    for n, (mm, deg) in enumerate(zip(cal.residual_mm, cal.residual_deg, strict=True)):
+        print(f"{n + 1:>4}  {mm:>11.2f}  {deg:>12.2f}")
+    print(f"RMS {float(np.sqrt(np.mean(cal.residual_mm ** 2))):.2f} mm, "
+          f"{float(np.sqrt(np.mean(cal.residual_deg ** 2))):.2f} deg over {len(flange)} poses; "
+          f"largest relative rotation {cal.rotation_spread_deg:.0f} deg")
+    x, y = cal.flange_T_tracker, cal.cell_T_reference
+    offset = {"translation_mm": [round(float(v) * 1000, 3) for v in x[:3, 3]],
+              "rpy_deg": [round(v, 4) for v in geo.matrix_to_rpy_deg(x[:3, :3])],
+              "given_as": "tracker_in_tool"}
+    frame = {"translation_m": [round(float(v), 5) for v in y[:3, 3]],
+             "rpy_deg": [round(v, 4) for v in geo.matrix_to_rpy_deg(y[:3, :3])]}
+    print(f"tool.offset: {offset}")
+    print(f"tracker_frame: {frame}")
+    if len(flange) < 10:
+        print(f"monitor: warning: only {len(flange)} poses: the residuals say little; use 20 "
+              "or more, turning the flange about different axes", file=sys.stderr)
+    worst_mm, worst_deg = float(cal.residual_mm.max()), float(cal.residual_deg.max())
+    if worst_mm > args.max_residual_mm or worst_deg > args.max_residual_deg:
+        raise ConfigError(f"calibrate-tool: residual {worst_mm:.1f} mm / {worst_deg:.1f} deg "
+                          f"exceeds --max-residual-mm {args.max_residual_mm:g} / "
+                          f"--max-residual-deg {args.max_residual_deg:g}: nothing written "
+                          "(check the pose pairs: same order? same units?)")
+    if args.dry_run:
+        return 0
+    data["tool"]["offset"] = offset
+    data["tracker_frame"] = frame
+    _write(data, args.file)
+    print(f"calibrated the tool of {args.file}")
     return 0

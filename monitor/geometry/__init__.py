@@ -17,6 +17,12 @@ camera models, horizon), ``separation`` (ISO/TS 15066 arithmetic, reaction time)
 objects), ``calibration`` (tracker-to-flange and tracker-to-cell calibration, AX = XB).
 """
 
+from monitor.geometry.calibration import (
+    ToolCalibration,
+    calibrate_tool,
+    matrix_to_rpy_deg,
+    rotation_angle_deg,
+)
 from monitor.geometry.camera import (
     CameraModel,
     _apply,
@@ -41,6 +47,8 @@ from monitor.geometry.polygons import (
 )
 from monitor.geometry.poses import (
     ToolPose,
+    matrix_to_quaternion_xyzw,
+    pose_in_frame,
     quaternion_to_matrix,
     rigid,
     rpy_to_matrix,
@@ -75,6 +83,7 @@ __all__ = [
     "PersonModel",
     "ReactionBudget",
     "SeparationParams",
+    "ToolCalibration",
     "ToolPose",
     "_PolygonEdges",
     "_apply",
@@ -82,6 +91,7 @@ __all__ = [
     "_normaliser",
     "_orient",
     "apply_homography",
+    "calibrate_tool",
     "clip_polygon_to_rect",
     "describe_separation",
     "fcl_box",
@@ -92,17 +102,21 @@ __all__ = [
     "intrusion_distance_m",
     "is_convex",
     "look_at",
+    "matrix_to_quaternion_xyzw",
+    "matrix_to_rpy_deg",
     "max_robot_speed_mps",
     "points_in_mesh",
     "points_in_polygon",
     "points_in_polygons",
     "polygon_fault",
     "polygon_signed_area",
+    "pose_in_frame",
     "protective_separation_m",
     "quaternion_to_matrix",
     "reaction_time_s",
     "reprojection_errors_px",
     "rigid",
+    "rotation_angle_deg",
     "rpy_to_matrix",
     "separation_speed_scale",
     "tool_transform",

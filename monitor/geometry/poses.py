@@ -41,6 +41,35 @@ def quaternion_to_matrix(q_xyzw: Sequence[float]) -> np.ndarray:
     )
 
 
+def matrix_to_quaternion_xyzw(r: np.ndarray) -> tuple[float, float, float, float]:
+    """Unit quaternion (x, y, z, w), w >= 0, of a rotation matrix (Shepperd's method)."""
+    m = np.asarray(r, dtype=float)
+    tr = float(np.trace(m))
+    if tr > 0:
+        s = 2.0 * math.sqrt(tr + 1.0)
+        q = ((m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s, s / 4)
+    elif m[0, 0] > m[1, 1] and m[0, 0] > m[2, 2]:
+        s = 2.0 * math.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2])
+        q = (s / 4, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s, (m[2, 1] - m[1, 2]) / s)
+    elif m[1, 1] > m[2, 2]:
+        s = 2.0 * math.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2])
+        q = ((m[0, 1] + m[1, 0]) / s, s / 4, (m[1, 2] + m[2, 1]) / s, (m[0, 2] - m[2, 0]) / s)
+    else:
+        s = 2.0 * math.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1])
+        q = ((m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, s / 4, (m[1, 0] - m[0, 1]) / s)
+    n = math.sqrt(sum(v * v for v in q))
+    sign = -1.0 if q[3] < 0 else 1.0
+    return tuple(float(sign * v / n) for v in q)  # type: ignore[return-value]
+
+
+def pose_in_frame(frame: np.ndarray, pose: ToolPose) -> ToolPose:
+    """``pose`` (given in some reference frame) expressed in the frame that ``frame`` (4x4,
+    outer_T_reference) maps into: outer_T_reference @ reference_T_body."""
+    m = frame @ rigid(quaternion_to_matrix(pose.quaternion_xyzw), pose.position_m)
+    return ToolPose(tuple(float(v) for v in m[:3, 3]), matrix_to_quaternion_xyzw(m[:3, :3]),
+                    pose.time)
+
+
 def rpy_to_matrix(roll_deg: float, pitch_deg: float, yaw_deg: float) -> np.ndarray:
     """Rotation from roll, pitch, yaw in degrees about fixed x, y, z: ``Rz @ Ry @ Rx``."""
     r, p, y = (math.radians(v) for v in (roll_deg, pitch_deg, yaw_deg))
@@ -64,8 +93,12 @@ def rigid(rotation: np.ndarray, translation: Sequence[float]) -> np.ndarray:
 def tool_transform(pose: ToolPose, offset: np.ndarray) -> np.ndarray:
     """Cell-from-tool transform: the tracker pose composed with the fixed mounting offset.
 
-    ``offset`` is the tool frame expressed in the tracker frame (4x4), as the seeds' tracker
-    calibration gives it (translation [13.55, 1.82, 49.17] mm, about 180 deg about z).
+    ``offset`` is the tool frame expressed in the tracker frame (4x4, tool_in_tracker). The
+    seeds' calibration gives the other direction: the tracker's mounting on the robot flange
+    (tracker in flange frame: translation [13.55, 1.82, 49.17] mm, about 180 deg about z; its
+    quaternion is printed w-first, [0.004 0.005 -0.002 -1] = w, x, y, z). With the tool frame
+    at the flange, ``offset`` is the inverse of that (the zone file's ``given_as:
+    tracker_in_tool``). ``pose`` must already be in the cell frame (``tracker_frame``).
     """
     return rigid(quaternion_to_matrix(pose.quaternion_xyzw), pose.position_m) @ offset
 

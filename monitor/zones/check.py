@@ -13,7 +13,7 @@ from monitor.errors import ConfigError, InputError
 from monitor.types import ZoneHit, ZoneReport
 from monitor.zones.files import Cell
 from monitor.zones.prepare import PreparedCell, _Volume, tool_object
-from monitor.zones.separation import evaluate_separation
+from monitor.zones.separation import evaluate_separation, pose_in_cell
 
 # --------------------------------------------------------------------------------------------
 # The per-frame query
@@ -98,6 +98,7 @@ def _check(prep: PreparedCell, camera_id: str, boxes_px: np.ndarray,
            tool_pose: geo.ToolPose | None, tool_speed_mps: float | None,
            band_px: tuple[float, float] = (0.0, 0.0)) -> ZoneReport:
     cell = prep.cell
+    tool_pose = pose_in_cell(prep, tool_pose)  # tracker frame -> cell (zone file tracker_frame)
     if camera_id not in cell.cameras:
         raise ConfigError(f"{cell.label}: unknown camera '{camera_id}' "
                           f"(cameras: {', '.join(sorted(cell.cameras))})")

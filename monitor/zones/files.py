@@ -2,12 +2,16 @@
 
 from __future__ import annotations
 
+import contextlib
+import glob
 import hashlib
 import io
 import json
 import os
+import re
 import shutil
 import tempfile
+import time
 from collections.abc import Mapping
 from dataclasses import dataclass
 from functools import cached_property
@@ -21,7 +25,7 @@ from pydantic import ValidationError
 from monitor import geometry as geo
 from monitor.errors import ConfigError
 from monitor.zones.schema import CameraSpec, CellSpec
-from monitor.zones.validate import _check_spec, _pydantic_message
+from monitor.zones.validate import _check_spec, _pydantic_message, useful_errors
 
 if TYPE_CHECKING:
     from monitor.zones.prepare import PreparedCell
@@ -55,6 +59,12 @@ class Cell:
         raise ConfigError(f"{self.label}: no zone '{zone_id}'")
 
     @property
+    def has_protective_zone(self) -> bool:
+        """An enabled protective zone exists. Without one a person anywhere is never a STOP:
+        ``monitor run`` refuses such a file unless its configuration says so explicitly."""
+        return any(z.enabled and z.kind == "protective" for z in self.zones)
+
+    @property
     def label(self) -> str:
         return str(self.path) if self.path is not None else "<cell>"
 
@@ -71,7 +81,11 @@ def load_cell(path: str | os.PathLike) -> Cell:
     return parse_cell(read_cell_data(path), path)
 
 
-class _UniqueKeyLoader(yaml.SafeLoader):
+# libyaml's parser when PyYAML has it (about 10x faster on a large file); same constructor
+_SafeBase: Any = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+
+
+class _UniqueKeyLoader(_SafeBase):
     """SafeLoader that refuses a key given twice in one mapping (PyYAML keeps the last one
     silently, which could switch a zone's kind or enabled flag unnoticed)."""
 
@@ -79,6 +93,10 @@ class _UniqueKeyLoader(yaml.SafeLoader):
         seen = set()
         for key_node, _ in node.value:
             key = self.construct_object(key_node, deep=deep)
+            if not isinstance(key, str | int | float | bool):
+                raise yaml.constructor.ConstructorError(
+                    None, None, f"a key must be a plain name, not {type(key).__name__}",
+                    key_node.start_mark)
             if key in seen:
                 raise yaml.constructor.ConstructorError(
                     None, None, f"duplicate key {key!r}", key_node.start_mark)
@@ -86,23 +104,87 @@ class _UniqueKeyLoader(yaml.SafeLoader):
         return super().construct_mapping(node, deep)
 
 
+# YAML 1.2 booleans only (true/false), as ruamel reads them too: PyYAML's YAML 1.1 also turns
+# yes/no/on/off into booleans, so the two loaders would disagree on `enabled: off`.
+_UniqueKeyLoader.yaml_implicit_resolvers = {
+    first: [(tag, rx) for tag, rx in resolvers if tag != "tag:yaml.org,2002:bool"]
+    for first, resolvers in yaml.SafeLoader.yaml_implicit_resolvers.items()
+}
+_UniqueKeyLoader.add_implicit_resolver(
+    "tag:yaml.org,2002:bool", re.compile(r"^(?:true|True|TRUE|false|False|FALSE)$"),
+    list("tTfF"))
+
+
 def _read_yaml(path: str | os.PathLike, load: Any, errors: tuple[type[Exception], ...]) -> Any:
     """Read a zone file and parse it with ``load(text)``; one-line ConfigError on any fault,
     with the line and column of a YAML syntax error."""
     p = Path(path)
     try:
+        if p.stat().st_size > MAX_ZONE_FILE_BYTES:
+            raise ConfigError(f"{p}: zone file is larger than {MAX_ZONE_FILE_BYTES // 1_000_000} "
+                              "MB: not a zone file")
         text = p.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise ConfigError(f"{p}: zone file not found") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise ConfigError(f"{p}: cannot read zone file: {exc}") from None
+    depth = _nesting_depth(text)
+    if depth > MAX_NESTING:
+        raise ConfigError(f"{p}: brackets nested {depth} deep (at most "
+                          f"{MAX_NESTING}): not a zone file")
     try:
-        return load(text)
+        data = load(text)
     except errors as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f":{mark.line + 1}:{mark.column + 1}" if mark is not None else ""
-        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        problem = getattr(exc, "problem", None) or _first_line(exc)
         raise ConfigError(f"{p}{where}: YAML syntax error: {problem}") from None
+    except RecursionError:
+        raise ConfigError(f"{p}: nested too deeply: not a zone file") from None
+    except (TypeError, ValueError, AttributeError, OverflowError, KeyError) as exc:
+        # a tag the loader cannot build (!!float abc, !!timestamp 99-99-99, ...)
+        raise ConfigError(f"{p}: YAML value cannot be read: {_first_line(exc)}") from None
+    if _data_depth(data) > MAX_NESTING:  # block (indented) nesting: no brackets to count
+        raise ConfigError(f"{p}: nested more than {MAX_NESTING} levels deep: not a zone file")
+    return data
+
+
+MAX_ZONE_FILE_BYTES = 20_000_000
+MAX_NESTING = 64  # a zone file nests about 6 deep (zones, zone, points, point)
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    return (text[0][:200] if text else type(exc).__name__)
+
+
+def _data_depth(data: Any) -> int:
+    """Nesting depth of loaded YAML data, without recursion (later stages recurse)."""
+    best = 0
+    stack = [(data, 1)]
+    while stack:
+        node, depth = stack.pop()
+        if isinstance(node, dict | list | tuple):
+            best = max(best, depth)
+            if depth > MAX_NESTING:
+                return depth
+            items = node.values() if isinstance(node, dict) else node
+            stack.extend((v, depth + 1) for v in items)
+    return best
+
+
+def _nesting_depth(text: str) -> int:
+    """Deepest bracket nesting of flow collections, counted without parsing (the parsers
+    recurse per level and would end in RecursionError). Brackets inside quotes count too:
+    a zone file has no reason to quote 64 brackets in a row."""
+    depth = best = 0
+    for ch in text:
+        if ch in "[{":
+            depth += 1
+            best = max(best, depth)
+        elif ch in "]}":
+            depth = max(depth - 1, 0)
+    return best
 
 
 def read_cell_data(path: str | os.PathLike) -> Any:
@@ -161,9 +243,10 @@ def parse_cell(data: Any, path: str | os.PathLike | None = None) -> Cell:
         raise ConfigError(f"{label}: a zone file must be a YAML mapping with version, cameras, "
                           "zones")
     try:
-        spec = CellSpec.model_validate(data)
+        spec = CellSpec.model_validate(_as_tuples(data))
     except ValidationError as exc:
-        raise ConfigError(f"{label}: {_pydantic_message(exc, data)}") from None
+        raise ConfigError(f"{label}: {_pydantic_message(exc, data, 0, useful_errors(exc, data))}"
+                          ) from None
     base = Path(path).parent if path is not None else Path.cwd()
     errors, warnings, models, meshes = _check_spec(spec, base)
     if errors:
@@ -188,12 +271,23 @@ def cell_faults(data: Any, path: str | os.PathLike | None = None) -> tuple[list[
     if not isinstance(data, dict):
         return ["a zone file must be a YAML mapping with version, cameras, zones"], []
     try:
-        spec = CellSpec.model_validate(data)
+        spec = CellSpec.model_validate(_as_tuples(data))
     except ValidationError as exc:
-        return [_pydantic_message(exc, data, index=k) for k in range(len(exc.errors()))], []
+        errs = useful_errors(exc, data)
+        return [_pydantic_message(exc, data, index=k, errors=errs) for k in range(len(errs))], []
     base = Path(path).parent if path is not None else Path.cwd()
     errors, warnings, _, _ = _check_spec(spec, base)
     return errors, warnings
+
+
+def _as_tuples(data: Any) -> Any:
+    """YAML lists as tuples, so that the strict schema (no coercion: ``'no'`` is not a bool,
+    ``'1.5'`` not a number) accepts them where it wants a tuple."""
+    if isinstance(data, dict):
+        return {k: _as_tuples(v) for k, v in data.items()}
+    if isinstance(data, list | tuple):
+        return tuple(_as_tuples(v) for v in data)
+    return data
 
 
 def cell_to_data(cell_or_spec: Cell | CellSpec) -> dict:
@@ -225,30 +319,76 @@ def dump_cell_yaml(cell_or_spec: Cell | CellSpec) -> str:
 def save_cell(cell: Cell, path: str | os.PathLike, document: Any = None) -> None:
     """Write the cell atomically: a temp file in the same directory is renamed over ``path``;
     an existing file is first copied to ``path.bak``. With ``document`` (from
-    :func:`read_cell_document`, already validated as ``cell``) the file keeps its comments."""
+    :func:`read_cell_document`, already validated as ``cell``) the file keeps its comments.
+
+    The file keeps its mode and owner; a read-only file is refused (not replaced), and so is a
+    file whose owner this user cannot keep. Temp files are removed on every failure (a full
+    disk, Ctrl-C); ones left by a killed run (``.<name>.*.tmp``, older than a minute) are
+    removed at the next save. Any fault is a one-line ConfigError; the old file is untouched.
+    """
     target = Path(path)
     text = dump_cell_document(document) if document is not None else dump_cell_yaml(cell)
-    target.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
     try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        old = target.stat() if target.exists() else None
+    except OSError as exc:
+        raise ConfigError(f"{target}: cannot write zone file: {_first_line(exc)}") from None
+    # no write bit at all is a deliberate "do not change" even for root (who may write anyway)
+    if old is not None and (not os.access(target, os.W_OK) or not old.st_mode & 0o222):
+        raise ConfigError(f"{target}: zone file is read-only: not replaced (make it writable "
+                          "first)")
+    _remove_stale_temp_files(target)
+    tmp: Path | None = None
+    bak_tmp = target.with_name(f".{target.name}.bak.tmp")
+    try:
+        fd, name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+        tmp = Path(name)
         with os.fdopen(fd, "w", encoding="utf-8") as fh:
             fh.write(text)
             fh.flush()
             os.fsync(fh.fileno())
-        if target.exists():
-            shutil.copymode(target, tmp)
+        if old is not None:
+            os.chmod(tmp, old.st_mode & 0o7777)
+            if (old.st_uid, old.st_gid) != (os.getuid(), os.getgid()):
+                try:
+                    os.chown(tmp, old.st_uid, old.st_gid)
+                except PermissionError:
+                    raise ConfigError(f"{target}: zone file belongs to another user (uid "
+                                      f"{old.st_uid}); replacing it would change its owner: "
+                                      "edit it as that user") from None
         else:
             umask = os.umask(0)
             os.umask(umask)
             os.chmod(tmp, 0o666 & ~umask)
-        if target.exists():
-            bak_tmp = target.with_name(f".{target.name}.bak.tmp")
+        if old is not None:
             shutil.copy2(target, bak_tmp)
             os.replace(bak_tmp, target.with_name(target.name + ".bak"))
         os.replace(tmp, target)
+        tmp = None
     except OSError as exc:
-        Path(tmp).unlink(missing_ok=True)
-        raise ConfigError(f"{target}: cannot write zone file: {exc}") from None
+        raise ConfigError(f"{target}: cannot write zone file: {_first_line(exc)}") from None
+    finally:  # also on Ctrl-C: no temp file stays behind
+        for leftover in (tmp, bak_tmp):
+            if leftover is not None:
+                with contextlib.suppress(OSError):
+                    leftover.unlink(missing_ok=True)
+
+
+STALE_TEMP_S = 60.0
+
+
+def _remove_stale_temp_files(target: Path) -> None:
+    """Temp files of an earlier run that was killed between writing and renaming. Only ours
+    (``.<name>.<random>.tmp``) and only when older than a minute (not a parallel save)."""
+    now = time.time()
+    try:
+        stale = list(target.parent.glob(f".{glob.escape(target.name)}.*.tmp"))
+    except OSError:
+        return
+    for p in stale:
+        with contextlib.suppress(OSError):
+            if p.is_file() and not p.is_symlink() and now - p.stat().st_mtime > STALE_TEMP_S:
+                p.unlink()
 
 
 def write_cell_data(data: Any, path: str | os.PathLike) -> Cell:
@@ -292,6 +432,8 @@ def config_hash(spec: CellSpec, meshes_sha: Mapping[str, str] | None = None) -> 
         "separation": spec.separation.model_dump(mode="json"),
         "tool": tool,
     }
+    if spec.tracker_frame is not None:  # only when set: older files keep their hash
+        payload["tracker_frame"] = spec.tracker_frame.model_dump(mode="json")
     blob = json.dumps(payload, sort_keys=True, separators=(",", ":"), allow_nan=False)
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
 

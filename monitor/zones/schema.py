@@ -21,7 +21,11 @@ Mat3 = tuple[Vec3, Vec3, Vec3]
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+    """Unknown keys refused; strict types: booleans must be true/false (``'no'``, ``'off'``,
+    ``0`` are refused), numbers must be numbers (``'1.5'`` is refused), no NaN/inf. YAML lists
+    are turned into tuples before validation (``files._as_tuples``)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False, strict=True)
 
 
 # --------------------------------------------------------------------------------------------
@@ -214,6 +218,20 @@ class ToolMesh(_ToolBase):
 ToolSpec = Annotated[ToolCylinder | ToolBox | ToolSphere | ToolMesh, Field(discriminator="shape")]
 
 
+class TrackerFrame(_Strict):
+    """The tracker's reference frame in the cell: the OTUS tracker reports poses relative to
+    where it was last reset, not in the cell. ``translation_m`` and ``rpy_deg`` (about fixed x,
+    y, z) place that frame in the cell frame (cell_T_reference); a tool pose in the cell is
+    ``tracker_frame @ tracker pose @ tool offset``. ``monitor zones calibrate-tool`` measures
+    it. Without it the tracker frame is taken to be the cell frame."""
+
+    translation_m: Vec3 = (0.0, 0.0, 0.0)
+    rpy_deg: Vec3 = (0.0, 0.0, 0.0)
+
+    def cell_from_tracker(self) -> np.ndarray:
+        return geo.rigid(geo.rpy_to_matrix(*self.rpy_deg), self.translation_m)
+
+
 class CellSpec(_Strict):
     """The whole zone file."""
 
@@ -223,6 +241,7 @@ class CellSpec(_Strict):
     person: PersonSpec = PersonSpec()
     separation: SeparationSpec = SeparationSpec()
     tool: ToolSpec | None = None
+    tracker_frame: TrackerFrame | None = None
     cameras: tuple[CameraSpec, ...] = Field(min_length=1)
     zones: tuple[ZoneSpec, ...] = ()
 

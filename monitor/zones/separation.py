@@ -65,6 +65,21 @@ def evaluate_separation(prep: PreparedCell, tool_pose: geo.ToolPose | None,
     return SeparationAnswer(required, separation, scale)
 
 
+def pose_in_cell(prep: PreparedCell, pose: geo.ToolPose | None) -> geo.ToolPose | None:
+    """A tracker pose (tracker's reference frame) in the cell frame, through the zone file's
+    ``tracker_frame``; unchanged without one. A pose that is not finite stays as it is (the
+    separation then fails safe)."""
+    frame = prep.cell.spec.tracker_frame
+    if pose is None or frame is None:
+        return pose
+    if not all(math.isfinite(float(v)) for v in (*pose.position_m, *pose.quaternion_xyzw)):
+        return pose
+    try:
+        return geo.pose_in_frame(frame.cell_from_tracker(), pose)
+    except geo.GeometryError:  # a zero quaternion: leave it for the fail-safe path
+        return pose
+
+
 def tool_points_in_tracker(prep: PreparedCell) -> np.ndarray:
     """(8, 3) points in the tracker frame whose motion bounds the whole tool's: the corners of
     the cube around the tool's bounding sphere. The speed of a rigid body's point is convex in

@@ -30,9 +30,12 @@ from monitor.zones.schema import (
 # Error messages
 
 
-def _pydantic_message(exc: ValidationError, data: dict, index: int = 0) -> str:
-    """One line for one pydantic error: where (zone id, camera id, section), field, fault."""
-    err = exc.errors()[index]
+def _pydantic_message(exc: ValidationError, data: dict, index: int = 0,
+                      errors: list | None = None) -> str:
+    """One line for one pydantic error: where (zone id, camera id, section), field, fault.
+    Pass ``errors`` (``exc.errors()``, built once) when formatting many: building the list is
+    the costly part, and doing it per error made ``zones validate`` quadratic."""
+    err = (errors if errors is not None else exc.errors())[index]
     loc = list(err["loc"])
     where, rest = _locate(loc, data)
     field = ".".join(str(p) for p in rest)
@@ -55,11 +58,29 @@ def _pydantic_message(exc: ValidationError, data: dict, index: int = 0) -> str:
         text = f"{field}: {err.get('input')!r} is not a valid id (letters, digits, _ . -)"
     elif typ == "too_short" and field == "cameras":
         text = "cameras: at least one camera is needed"
+    elif typ in ("bool_type", "bool_parsing"):
+        text = f"{field}: must be true or false (got {err.get('input')!r})"
+    elif typ in ("float_type", "float_parsing", "int_type", "int_parsing"):
+        text = f"{field}: must be a number, not {type(err.get('input')).__name__} " \
+               f"{str(err.get('input'))[:40]!r}"
     else:
         got = f" (got {err['input']!r})" if isinstance(err.get("input"), int | float | str) \
             else ""
         text = f"{field}: {err['msg']}{got}" if field else err["msg"] + got
     return f"{where}: {text}" if where else text
+
+
+def useful_errors(exc: ValidationError, data: Any) -> list:
+    """``exc.errors()`` without the misleading ones: pydantic adds "at least one camera is
+    needed" when the only camera is itself invalid (a typo in one of its keys); the camera's
+    own error says what is wrong."""
+    errs = exc.errors()
+    cams = data.get("cameras") if isinstance(data, dict) else None
+    if isinstance(cams, list | tuple) and len(cams) > 0:
+        kept = [e for e in errs if not (e["type"] == "too_short" and tuple(e["loc"]) ==
+                                        ("cameras",))]
+        errs = kept or errs
+    return errs
 
 
 def _locate(loc: list, data: dict) -> tuple[str, list]:
@@ -85,7 +106,7 @@ def _locate(loc: list, data: dict) -> tuple[str, list]:
         if isinstance(tool, dict) and rest and rest[0] == tool.get("shape"):
             rest = rest[1:]
         return "tool", rest
-    if loc and loc[0] in ("person", "separation"):
+    if loc and loc[0] in ("person", "separation", "tracker_frame"):
         return str(loc[0]), loc[1:]
     return "", loc
 
@@ -136,6 +157,10 @@ def _check_spec(spec: CellSpec, base: Path
             meshes["tool"] = mesh
     if isinstance(spec.tool, ToolBox) and min(spec.tool.size_m) <= 0:
         errors.append("tool: size_m must be positive on every axis")
+    if not any(z.enabled and z.kind == "protective" for z in spec.zones):
+        warnings.append("no enabled protective zone: a person anywhere in the cell can never "
+                        "cause a STOP ('monitor run' refuses this file unless its configuration "
+                        "allows it explicitly)")
     for cam in spec.cameras:
         has_image = any(isinstance(z, PolygonZone) and z.camera == cam.id and z.enabled
                         and z.kind in ("protective", "warning") for z in spec.zones)

@@ -1,0 +1,222 @@
+"""Tool speed measured from the OTUS pose stream itself (issue 11).
+
+The tracker's velocity field is not trusted: the speed of every tool point is measured from the
+positions and orientations over a window of accepted samples, rotation included, and compared
+with the reported rates (a disagreement is a STOP fault ``pose_implausible``). The speed used
+for S_p is the larger of measured and reported. docs/separation.md explains the numbers.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+from monitor.errors import ConfigError
+
+if TYPE_CHECKING:
+    from monitor.pose import OtusSample
+
+Vec3 = tuple[float, float, float]
+
+
+def _norm(v: tuple[float, ...]) -> float:
+    return math.sqrt(sum(x * x for x in v))
+
+
+def _sub(a: tuple[float, ...], b: tuple[float, ...]) -> tuple[float, ...]:
+    return tuple(x - y for x, y in zip(a, b, strict=True))
+
+
+def _unit(q: tuple[float, ...]) -> tuple[float, ...]:
+    n = _norm(q)
+    return tuple(x / n for x in q)
+
+
+@dataclass(frozen=True)
+class MotionLimits:
+    """How the tool speed is measured from the stream and when the reported rates are not
+    believed. Metres, seconds, radians.
+
+    ``window_s``: the speed is measured between the newest sample and one at least this much
+    older (tracker time): at 400 Hz two consecutive samples are 2.5 ms apart and ±1 mm of
+    tracker precision alone would read as 0.8 m/s. ``speed_tolerance_m_s`` and
+    ``relative_tolerance``: how far the reported mean velocity over the window may differ from
+    the displacement over it; ``angular_tolerance_rad_s`` the same for the rotation.
+    """
+
+    window_s: float = 0.05
+    history_s: float = 0.5
+    speed_tolerance_m_s: float = 0.15
+    angular_tolerance_rad_s: float = 0.5
+    relative_tolerance: float = 0.2
+
+    def __post_init__(self) -> None:
+        for name in ("window_s", "history_s", "speed_tolerance_m_s", "angular_tolerance_rad_s"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise ConfigError(f"pose.{name}: must be a positive number, got {value!r}")
+        if self.history_s < self.window_s:
+            raise ConfigError("pose.history_s: must be at least window_s")
+        if not (math.isfinite(self.relative_tolerance) and self.relative_tolerance >= 0):
+            raise ConfigError("pose.relative_tolerance: must be >= 0")
+
+
+@dataclass(frozen=True)
+class ToolSpeed:
+    """The tool speed to use for S_p and how it was found (m/s).
+
+    ``speed_mps`` = the largest of ``measured_mps`` (from the positions and orientations of
+    the stream over ``MotionLimits.window_s``, every tool point, rotation included) and
+    ``reported_mps`` (the newest sample's velocity and angular velocity at every tool point);
+    with too short a history the fallback speed takes the measured one's place. ``fault`` is a
+    STOP ``pose_implausible`` fault when the reported rates disagree with the measured ones.
+    """
+
+    speed_mps: float
+    measured_mps: float | None
+    reported_mps: float
+    fault: object | None = None  # monitor.types.Fault
+
+
+def _rotation(q: tuple[float, ...]) -> tuple[tuple[float, float, float], ...]:
+    x, y, z, w = _unit(q)
+    return ((1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)),
+            (2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)),
+            (2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)))
+
+
+def _rotate(m: tuple[tuple[float, float, float], ...], r: tuple[float, ...]) -> Vec3:
+    return (m[0][0] * r[0] + m[0][1] * r[1] + m[0][2] * r[2],
+            m[1][0] * r[0] + m[1][1] * r[1] + m[1][2] * r[2],
+            m[2][0] * r[0] + m[2][1] * r[1] + m[2][2] * r[2])
+
+
+def _cross(a: tuple[float, ...], b: tuple[float, ...]) -> Vec3:
+    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+
+
+def _rotation_vector(q0: tuple[float, ...], q1: tuple[float, ...]) -> Vec3:
+    """Axis * angle of the rotation from q0 to q1, in the reference frame (q1 * conj(q0))."""
+    x0, y0, z0, w0 = _unit(q0)
+    x1, y1, z1, w1 = _unit(q1)
+    # q = q1 * conj(q0)
+    w = w1 * w0 + x1 * x0 + y1 * y0 + z1 * z0
+    x = -w1 * x0 + x1 * w0 - y1 * z0 + z1 * y0
+    y = -w1 * y0 + y1 * w0 - z1 * x0 + x1 * z0
+    z = -w1 * z0 + z1 * w0 - x1 * y0 + y1 * x0
+    if w < 0:
+        x, y, z, w = -x, -y, -z, -w
+    n = math.sqrt(x * x + y * y + z * z)
+    if n < 1e-12:
+        return (0.0, 0.0, 0.0)
+    angle = 2.0 * math.atan2(n, w)
+    return (x / n * angle, y / n * angle, z / n * angle)
+
+
+def _point_speeds(sample: OtusSample, points: list[Vec3]) -> float:
+    """Largest reported speed of the tool points: |v + w x (R r)| (w in the reference frame,
+    as OpenVR reports it)."""
+    m = _rotation(sample.quaternion_xyzw)
+    best = 0.0
+    for r in points:
+        arm = _rotate(m, r)
+        rot = _cross(sample.angular_velocity_rad_s, arm)
+        best = max(best, _norm(tuple(v + w for v, w in zip(sample.velocity_m_s, rot,
+                                                             strict=True))))
+    return best
+
+
+def estimate_tool_speed(history: tuple[OtusSample, ...] | list[OtusSample],
+                        tool_points: object = None, limits: MotionLimits | None = None,
+                        unknown_mps: float = 0.0) -> ToolSpeed:
+    """The speed of the fastest tool point from accepted samples (oldest first), tracker frame.
+
+    ``tool_points`` are (N, 3) points of the tool in the tracker body frame, metres (for a
+    zone file: ``monitor.zones.separation.tool_points_in_tracker(cell.prepared)``); None means
+    the tracker origin only. Pure: the same history always gives the same answer.
+    """
+    from monitor.types import Fault  # types is light; keep the import local like geometry
+
+    lim = limits or MotionLimits()
+    if not history:
+        return ToolSpeed(max(unknown_mps, 0.0), None, 0.0)
+    pts: list[Vec3] = [(0.0, 0.0, 0.0)]
+    if tool_points is not None:
+        pts += [tuple(float(c) for c in p) for p in tool_points]  # type: ignore[union-attr]
+    new = history[-1]
+    reported = _point_speeds(new, pts)
+    old = None
+    for sample in reversed(history[:-1]):
+        if new.timestamp - sample.timestamp >= lim.window_s:
+            old = sample
+            break
+    if old is None:
+        return ToolSpeed(max(reported, unknown_mps), None, reported)
+    dt = new.timestamp - old.timestamp
+    m0, m1 = _rotation(old.quaternion_xyzw), _rotation(new.quaternion_xyzw)
+    measured = 0.0
+    for r in pts:
+        a = tuple(p + q for p, q in zip(old.position_m, _rotate(m0, r), strict=True))
+        b = tuple(p + q for p, q in zip(new.position_m, _rotate(m1, r), strict=True))
+        measured = max(measured, _norm(_sub(b, a)) / dt)
+    fault = _plausibility_fault(history, old, new, dt, lim, Fault)
+    return ToolSpeed(max(measured, reported), measured, reported, fault)
+
+
+def _plausibility_fault(history, old: OtusSample, new: OtusSample, dt: float,
+                        lim: MotionLimits, fault_type) -> object | None:
+    """Mean reported velocity and angular velocity over [old, new] (trapezoid rule) against
+    the displacement and rotation over the same span."""
+    span = [s for s in history if old.timestamp <= s.timestamp <= new.timestamp]
+    v_mean = [0.0, 0.0, 0.0]
+    w_mean = [0.0, 0.0, 0.0]
+    for a, b in itertools.pairwise(span):
+        h = (b.timestamp - a.timestamp) / dt / 2.0
+        for k in range(3):
+            v_mean[k] += h * (a.velocity_m_s[k] + b.velocity_m_s[k])
+            w_mean[k] += h * (a.angular_velocity_rad_s[k] + b.angular_velocity_rad_s[k])
+    v_meas = tuple(x / dt for x in _sub(new.position_m, old.position_m))
+    w_meas = tuple(x / dt for x in _rotation_vector(old.quaternion_xyzw, new.quaternion_xyzw))
+    dv = _norm(_sub(tuple(v_mean), v_meas))
+    dw = _norm(_sub(tuple(w_mean), w_meas))
+    v_tol = lim.speed_tolerance_m_s + lim.relative_tolerance * max(_norm(v_meas),
+                                                                   _norm(tuple(v_mean)))
+    w_tol = lim.angular_tolerance_rad_s + lim.relative_tolerance * max(_norm(w_meas),
+                                                                       _norm(tuple(w_mean)))
+    if dv > v_tol:
+        return fault_type("pose_implausible",
+                          f"tracker reports {_norm(tuple(v_mean)):.2f} m/s but its positions "
+                          f"moved at {_norm(v_meas):.2f} m/s over {dt * 1000:.0f} ms", True,
+                          "pose")
+    if dw > w_tol:
+        return fault_type("pose_implausible",
+                          f"tracker reports {_norm(tuple(w_mean)):.2f} rad/s but its "
+                          f"orientation turned at {_norm(w_meas):.2f} rad/s over "
+                          f"{dt * 1000:.0f} ms", True, "pose")
+    return None
+
+
+class ToolMotion:
+    """Keeps the accepted samples of the last ``history_s`` (tracker time) for
+    ``estimate_tool_speed``. Not thread-safe: ``PoseSubscriber`` calls it under its lock."""
+
+    def __init__(self, limits: MotionLimits | None = None) -> None:
+        self.limits = limits or MotionLimits()
+        self._samples: list[OtusSample] = []
+
+    def add(self, sample: OtusSample) -> None:
+        self._samples.append(sample)
+        cut = sample.timestamp - self.limits.history_s
+        k = 0
+        while k < len(self._samples) - 1 and self._samples[k + 1].timestamp <= cut:
+            k += 1
+        if k:
+            del self._samples[:k]
+
+    def history(self) -> tuple[OtusSample, ...]:
+        return tuple(self._samples)
+
+    def tool_speed(self, tool_points: object = None, unknown_mps: float = 0.0) -> ToolSpeed:
+        return estimate_tool_speed(self._samples, tool_points, self.limits, unknown_mps)
