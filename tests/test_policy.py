@@ -9,8 +9,11 @@ from monitor.policy import (
     RUN,
     SLOW,
     STOP,
+    Command,
+    Latch,
     PolicyConfig,
     PolicyInputs,
+    Reason,
     ResetRequest,
     initial_state,
     step,
@@ -657,3 +660,71 @@ def test_frame_timeout_and_reset_age_expire_at_their_limits():
     assert cmd.reset.accepted  # exactly reset_max_age old: still fresh
     _s, cmd = step(state, frame(4.21, reset_request=reset(2.2)), 4.21, MANUAL)
     assert not cmd.reset.accepted and cmd.state == STOP
+
+
+# --- exact texts and fields (what operators and controllers read) -------------------------------
+
+
+def test_separation_equal_to_required_is_enough():
+    _s, cmd = step(warmed(SEP)[0], _sep(1.1, 0.8, 0.8), 1.1, SEP)
+    assert cmd.state == RUN
+    _s, cmd = step(warmed(SEP)[0], _sep(1.1, 0.5, 0.8), 1.1, SEP)
+    assert [r.message for r in cmd.reasons] == ["separation 0.500 m < required 0.800 m"]
+
+
+def test_reason_texts_and_distances():
+    hit = ZoneHit("Z1", "protective", 2, 0.0, 0.25, track_id=None, lost=True)
+    _s, cmd = step(warmed(AUTO)[0], frame(1.1, hit), 1.1, AUTO)
+    (r,) = cmd.reasons
+    assert (r.code, r.message, r.person, r.distance_m) == (
+        "person_lost", "person 2 lost inside Z1", 2, 0.25)
+    _s, cmd = step(warmed(AUTO)[0], frame(1.1, ZoneHit("W1", "warning", 0, 0.5, 1.5,
+                                                        track_id=9)), 1.1, AUTO)
+    (r,) = cmd.reasons
+    assert (r.code, r.message, r.person, r.distance_m) == ("warning_zone", "person 9 in W1",
+                                                          9, 1.5)
+    state, _ = step(warmed(AUTO)[0], frame(1.1, prot()), 1.1, AUTO)
+    _s, cmd = step(state, frame(1.2), 1.2, AUTO)
+    assert cmd.reasons[-1].message == "causes absent for 0.100 s of 1.0 s"
+    assert cmd.describe() == "STOP: person 0 in Z1 (clearing)"
+
+
+def test_warning_zone_scale_above_one_is_capped_at_full_speed():
+    _s, cmd = step(warmed()[0], frame(1.1, warn(scale=1.5)), 1.1, MANUAL)
+    assert (cmd.state, cmd.speed_scale) == (SLOW, 1.0)
+
+
+def test_describe_of_commands_made_elsewhere():
+    assert Command(STOP, 0.0).describe() == "STOP: no cause given"
+    two = Command(STOP, 0.0, (Reason("fault", "a: x"), Reason("fault", "b: y")))
+    assert two.describe() == "STOP: a: x; b: y"
+    latched = Command(STOP, 0.0, (Reason("fault", "a: x"), Reason("fault", "b: y"),
+                                  Reason("latched", "waiting")), latched=True)
+    assert latched.describe() == "LATCHED: a: x; b: y"
+    possible = Command(STOP, 0.0, latched=True, reset_possible=True,
+                       latched_by=Latch("fault", "a: x", 2.0))
+    assert possible.describe() == "LATCHED by a: x at 2.0 s; cell clear for 0.0 s: reset possible"
+
+
+def test_command_to_dict_has_every_field():
+    state, _ = step(warmed()[0], frame(1.1, prot()), 1.1, MANUAL)
+    _s, cmd = step(state, frame(1.2, prot(), reset_request=reset(1.2)), 1.2, MANUAL)
+    d = cmd.to_dict()
+    assert d["state"] == STOP and d["speed_scale"] == 0.0 and d["since"] == 1.1
+    assert d["latched"] is True and d["reset_possible"] is False and d["clear_for_s"] is None
+    assert d["reset"] == {"operator": "op7", "accepted": False, "request_id": "r1.2",
+                          "message": "refused: person 0 in Z1"}
+    assert d["latched_by"]["code"] == "protective_zone" and "reset_possible_since" not in d
+    assert [r["code"] for r in d["reasons"]] == ["protective_zone", "latched"]
+
+
+@pytest.mark.parametrize(("kwargs", "message"), [
+    ({"restart_interlock": "sometimes"},
+     "policy.restart_interlock: 'sometimes' is not 'manual' or 'auto'"),
+    ({"clear_time": 0}, "policy.clear_time: must be a positive number of seconds, got 0"),
+    ({"pose_timeout": "1"}, "policy.pose_timeout: must be a positive number of seconds, got '1'"),
+])
+def test_config_errors_name_the_key_and_value(kwargs, message):
+    with pytest.raises(ConfigError) as err:
+        PolicyConfig(**kwargs)
+    assert str(err.value) == message
