@@ -14,6 +14,7 @@ from monitor.policy import (
     PolicyConfig,
     PolicyInputs,
     Reason,
+    ResetOutcome,
     ResetRequest,
     initial_state,
     step,
@@ -728,3 +729,68 @@ def test_config_errors_name_the_key_and_value(kwargs, message):
     with pytest.raises(ConfigError) as err:
         PolicyConfig(**kwargs)
     assert str(err.value) == message
+
+
+def _reasons(cmd) -> list[dict]:
+    return [r.to_dict() for r in cmd.reasons]
+
+
+def test_every_fail_safe_reason_exactly():
+    _s, cmd = step(initial_state(), tick(), 0.0, MANUAL)
+    assert _reasons(cmd) == [{"code": "startup", "message": "no frame processed yet"}]
+    _s, cmd = step(initial_state(), frame(0.0), 0.0, MANUAL)
+    assert _reasons(cmd) == [{"code": "startup",
+                              "message": "first frame: watching the cell for clear_time"}]
+    _s, cmd = step(warmed(AUTO)[0], tick(), 1.625, AUTO)
+    assert _reasons(cmd) == [{"code": "frame_timeout", "message": "no frame for 0.625 s (> 0.5 s)"}]
+    faults = (Fault("camera_lost", "gone", True, "cam1"), Fault("odd", "why", True),
+              Fault("blur", "soft", False, "cam1"))
+    inputs = PolicyInputs(frame_time=0.6, zone_report=ZoneReport(), detector_error="boom",
+                          zone_error="bad zone", pose_time=1.0, faults=faults)
+    _s, cmd = step(warmed(SEP)[0], inputs, 1.125, SEP)
+    assert _reasons(cmd) == [
+        {"code": "frame_stale", "message": "frame is 0.525 s old (> 0.3 s)"},
+        {"code": "detector_error", "message": "boom", "fault": "detector_error",
+         "source": "detector"},
+        {"code": "zone_invalid", "message": "bad zone", "fault": "zone_invalid",
+         "source": "zones"},
+        {"code": "pose_stale", "message": "tool pose is 0.125 s old (> 0.1 s)",
+         "fault": "pose_stale", "source": "pose"},
+        {"code": "fault", "message": "camera_lost: gone", "fault": "camera_lost",
+         "source": "cam1"},
+        {"code": "fault", "message": "odd: why", "fault": "odd"},
+    ]
+    _s, cmd = step(warmed(SEP)[0], frame(1.1, pose_time=None), 1.1, SEP)
+    assert _reasons(cmd) == [{"code": "pose_stale", "message": "no tool pose received",
+                              "fault": "pose_stale", "source": "pose"}]
+
+
+def test_separation_reasons_exactly():
+    _s, cmd = step(warmed(SEP)[0], _sep(1.1, 1.0, 0.8, 0.0), 1.1, SEP)
+    assert _reasons(cmd) == [{"code": "separation", "distance_m": 1.0, "required_m": 0.8,
+                              "message": "separation speed scale 0.00: no robot speed is safe "
+                                         "at this separation"}]
+    _s, cmd = step(warmed(SEP)[0], _sep(1.1, 1.0, 0.8, 0.45), 1.1, SEP)
+    assert _reasons(cmd) == [{"code": "separation_speed", "distance_m": 1.0, "required_m": 0.8,
+                              "message": "separation allows 0.45 of the programmed speed"}]
+
+
+def test_reset_and_latch_texts_exactly():
+    state, cmd = step(warmed()[0], frame(1.1, prot()), 1.1, MANUAL)
+    assert cmd.reasons[-1] == Reason("latched", "STOP latched: waiting for an operator reset")
+    _s, old = step(state, frame(3.5, reset_request=reset(1.0)), 3.5, MANUAL)
+    assert old.reset == ResetOutcome("op7", False, "refused: request is 2.5 s old", "r1.0")
+    _s, lost_cmd = step(state, frame(1.2, lost(track=4, since=1.15),
+                                     reset_request=reset(1.2)), 1.2, MANUAL)
+    assert lost_cmd.reset.message == (
+        "refused: person 4 lost inside robot-protective at 1.1 s (wait until the person is "
+        "seen leaving, or `monitor reset --confirm-clear` after looking)")
+    for t in (1.2, 1.6, 2.0, 2.2):
+        state, _ = step(state, frame(t), t, MANUAL)
+    _s, ok = step(state, frame(2.3, reset_request=reset(2.3)), 2.3, MANUAL)
+    assert ok.reset == ResetOutcome("op7", True, "reset accepted", "r2.3")
+    _s, none = step(warmed()[0], frame(1.1, reset_request=reset(1.1)), 1.1, MANUAL)
+    assert none.reset == ResetOutcome("op7", False, "nothing to reset: not latched", "r1.1")
+    stall = Fault("monitor_stalled", "no step for 2 s", True, "service", latch=True)
+    _s, cmd = step(warmed(AUTO)[0], frame(1.1, faults=(stall,)), 1.1, AUTO)
+    assert cmd.latched_by == Latch("fault", "monitor_stalled: no step for 2 s", 1.1)
