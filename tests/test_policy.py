@@ -9,8 +9,12 @@ from monitor.policy import (
     RUN,
     SLOW,
     STOP,
+    Command,
+    Latch,
     PolicyConfig,
     PolicyInputs,
+    Reason,
+    ResetOutcome,
     ResetRequest,
     initial_state,
     step,
@@ -657,3 +661,136 @@ def test_frame_timeout_and_reset_age_expire_at_their_limits():
     assert cmd.reset.accepted  # exactly reset_max_age old: still fresh
     _s, cmd = step(state, frame(4.21, reset_request=reset(2.2)), 4.21, MANUAL)
     assert not cmd.reset.accepted and cmd.state == STOP
+
+
+# --- exact texts and fields (what operators and controllers read) -------------------------------
+
+
+def test_separation_equal_to_required_is_enough():
+    _s, cmd = step(warmed(SEP)[0], _sep(1.1, 0.8, 0.8), 1.1, SEP)
+    assert cmd.state == RUN
+    _s, cmd = step(warmed(SEP)[0], _sep(1.1, 0.5, 0.8), 1.1, SEP)
+    assert [r.message for r in cmd.reasons] == ["separation 0.500 m < required 0.800 m"]
+
+
+def test_reason_texts_and_distances():
+    hit = ZoneHit("Z1", "protective", 2, 0.0, 0.25, track_id=None, lost=True)
+    _s, cmd = step(warmed(AUTO)[0], frame(1.1, hit), 1.1, AUTO)
+    (r,) = cmd.reasons
+    assert (r.code, r.message, r.person, r.distance_m) == (
+        "person_lost", "person 2 lost inside Z1", 2, 0.25)
+    _s, cmd = step(warmed(AUTO)[0], frame(1.1, ZoneHit("W1", "warning", 0, 0.5, 1.5,
+                                                        track_id=9)), 1.1, AUTO)
+    (r,) = cmd.reasons
+    assert (r.code, r.message, r.person, r.distance_m) == ("warning_zone", "person 9 in W1",
+                                                          9, 1.5)
+    state, _ = step(warmed(AUTO)[0], frame(1.1, prot()), 1.1, AUTO)
+    _s, cmd = step(state, frame(1.2), 1.2, AUTO)
+    assert cmd.reasons[-1].message == "causes absent for 0.100 s of 1.0 s"
+    assert cmd.describe() == "STOP: person 0 in Z1 (clearing)"
+
+
+def test_warning_zone_scale_above_one_is_capped_at_full_speed():
+    _s, cmd = step(warmed()[0], frame(1.1, warn(scale=1.5)), 1.1, MANUAL)
+    assert (cmd.state, cmd.speed_scale) == (SLOW, 1.0)
+
+
+def test_describe_of_commands_made_elsewhere():
+    assert Command(STOP, 0.0).describe() == "STOP: no cause given"
+    two = Command(STOP, 0.0, (Reason("fault", "a: x"), Reason("fault", "b: y")))
+    assert two.describe() == "STOP: a: x; b: y"
+    latched = Command(STOP, 0.0, (Reason("fault", "a: x"), Reason("fault", "b: y"),
+                                  Reason("latched", "waiting")), latched=True)
+    assert latched.describe() == "LATCHED: a: x; b: y"
+    possible = Command(STOP, 0.0, latched=True, reset_possible=True,
+                       latched_by=Latch("fault", "a: x", 2.0))
+    assert possible.describe() == "LATCHED by a: x at 2.0 s; cell clear for 0.0 s: reset possible"
+
+
+def test_command_to_dict_has_every_field():
+    state, _ = step(warmed()[0], frame(1.1, prot()), 1.1, MANUAL)
+    _s, cmd = step(state, frame(1.2, prot(), reset_request=reset(1.2)), 1.2, MANUAL)
+    d = cmd.to_dict()
+    assert d["state"] == STOP and d["speed_scale"] == 0.0 and d["since"] == 1.1
+    assert d["latched"] is True and d["reset_possible"] is False and d["clear_for_s"] is None
+    assert d["reset"] == {"operator": "op7", "accepted": False, "request_id": "r1.2",
+                          "message": "refused: person 0 in Z1"}
+    assert d["latched_by"]["code"] == "protective_zone" and "reset_possible_since" not in d
+    assert [r["code"] for r in d["reasons"]] == ["protective_zone", "latched"]
+
+
+@pytest.mark.parametrize(("kwargs", "message"), [
+    ({"restart_interlock": "sometimes"},
+     "policy.restart_interlock: 'sometimes' is not 'manual' or 'auto'"),
+    ({"clear_time": 0}, "policy.clear_time: must be a positive number of seconds, got 0"),
+    ({"pose_timeout": "1"}, "policy.pose_timeout: must be a positive number of seconds, got '1'"),
+])
+def test_config_errors_name_the_key_and_value(kwargs, message):
+    with pytest.raises(ConfigError) as err:
+        PolicyConfig(**kwargs)
+    assert str(err.value) == message
+
+
+def _reasons(cmd) -> list[dict]:
+    return [r.to_dict() for r in cmd.reasons]
+
+
+def test_every_fail_safe_reason_exactly():
+    _s, cmd = step(initial_state(), tick(), 0.0, MANUAL)
+    assert _reasons(cmd) == [{"code": "startup", "message": "no frame processed yet"}]
+    _s, cmd = step(initial_state(), frame(0.0), 0.0, MANUAL)
+    assert _reasons(cmd) == [{"code": "startup",
+                              "message": "first frame: watching the cell for clear_time"}]
+    _s, cmd = step(warmed(AUTO)[0], tick(), 1.625, AUTO)
+    assert _reasons(cmd) == [{"code": "frame_timeout", "message": "no frame for 0.625 s (> 0.5 s)"}]
+    faults = (Fault("camera_lost", "gone", True, "cam1"), Fault("odd", "why", True),
+              Fault("blur", "soft", False, "cam1"))
+    inputs = PolicyInputs(frame_time=0.6, zone_report=ZoneReport(), detector_error="boom",
+                          zone_error="bad zone", pose_time=1.0, faults=faults)
+    _s, cmd = step(warmed(SEP)[0], inputs, 1.125, SEP)
+    assert _reasons(cmd) == [
+        {"code": "frame_stale", "message": "frame is 0.525 s old (> 0.3 s)"},
+        {"code": "detector_error", "message": "boom", "fault": "detector_error",
+         "source": "detector"},
+        {"code": "zone_invalid", "message": "bad zone", "fault": "zone_invalid",
+         "source": "zones"},
+        {"code": "pose_stale", "message": "tool pose is 0.125 s old (> 0.1 s)",
+         "fault": "pose_stale", "source": "pose"},
+        {"code": "fault", "message": "camera_lost: gone", "fault": "camera_lost",
+         "source": "cam1"},
+        {"code": "fault", "message": "odd: why", "fault": "odd"},
+    ]
+    _s, cmd = step(warmed(SEP)[0], frame(1.1, pose_time=None), 1.1, SEP)
+    assert _reasons(cmd) == [{"code": "pose_stale", "message": "no tool pose received",
+                              "fault": "pose_stale", "source": "pose"}]
+
+
+def test_separation_reasons_exactly():
+    _s, cmd = step(warmed(SEP)[0], _sep(1.1, 1.0, 0.8, 0.0), 1.1, SEP)
+    assert _reasons(cmd) == [{"code": "separation", "distance_m": 1.0, "required_m": 0.8,
+                              "message": "separation speed scale 0.00: no robot speed is safe "
+                                         "at this separation"}]
+    _s, cmd = step(warmed(SEP)[0], _sep(1.1, 1.0, 0.8, 0.45), 1.1, SEP)
+    assert _reasons(cmd) == [{"code": "separation_speed", "distance_m": 1.0, "required_m": 0.8,
+                              "message": "separation allows 0.45 of the programmed speed"}]
+
+
+def test_reset_and_latch_texts_exactly():
+    state, cmd = step(warmed()[0], frame(1.1, prot()), 1.1, MANUAL)
+    assert cmd.reasons[-1] == Reason("latched", "STOP latched: waiting for an operator reset")
+    _s, old = step(state, frame(3.5, reset_request=reset(1.0)), 3.5, MANUAL)
+    assert old.reset == ResetOutcome("op7", False, "refused: request is 2.5 s old", "r1.0")
+    _s, lost_cmd = step(state, frame(1.2, lost(track=4, since=1.15),
+                                     reset_request=reset(1.2)), 1.2, MANUAL)
+    assert lost_cmd.reset.message == (
+        "refused: person 4 lost inside robot-protective at 1.1 s (wait until the person is "
+        "seen leaving, or `monitor reset --confirm-clear` after looking)")
+    for t in (1.2, 1.6, 2.0, 2.2):
+        state, _ = step(state, frame(t), t, MANUAL)
+    _s, ok = step(state, frame(2.3, reset_request=reset(2.3)), 2.3, MANUAL)
+    assert ok.reset == ResetOutcome("op7", True, "reset accepted", "r2.3")
+    _s, none = step(warmed()[0], frame(1.1, reset_request=reset(1.1)), 1.1, MANUAL)
+    assert none.reset == ResetOutcome("op7", False, "nothing to reset: not latched", "r1.1")
+    stall = Fault("monitor_stalled", "no step for 2 s", True, "service", latch=True)
+    _s, cmd = step(warmed(AUTO)[0], frame(1.1, faults=(stall,)), 1.1, AUTO)
+    assert cmd.latched_by == Latch("fault", "monitor_stalled: no step for 2 s", 1.1)

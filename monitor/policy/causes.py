@@ -59,7 +59,7 @@ def frame_causes(report: ZoneReport | None) -> FrameCauses:
     # no person near the tool gives no separation: nothing to compare (the zone check says so)
     if sep is not None and req is not None and (
             not (math.isfinite(sep) and math.isfinite(req)) or sep < req):
-        stops.append(Reason("separation", f"separation {_m(sep)} < required {_m(req)}",
+        stops.append(Reason("separation", f"separation {sep:.3f} m < required {req:.3f} m",
                             distance_m=sep, required_m=req))
     v = report.separation_speed_scale
     if v is not None:
@@ -72,10 +72,6 @@ def frame_causes(report: ZoneReport | None) -> FrameCauses:
                                 "programmed speed", distance_m=sep, required_m=req))
             scale = min(scale, v)
     return FrameCauses(tuple(stops), tuple(slows), min(scale, 1.0))
-
-
-def _m(value: float | None) -> str:
-    return "unknown" if value is None else f"{value:.3f} m"
 
 
 def _older_than(now: float, then: float, limit: float) -> bool:

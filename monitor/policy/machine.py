@@ -107,9 +107,9 @@ def speed_window(window: tuple[tuple[float, float], ...], wanted: float, now: fl
     return kept, min(s for _, s in kept)
 
 
-def _clearing(seen: float | None, now: float, config: PolicyConfig) -> Reason:
-    gone = now - seen if seen is not None else 0.0
-    return Reason("clearing", f"causes absent for {gone:.3f} s of {config.clear_time} s")
+def _clearing(seen: float, now: float, config: PolicyConfig) -> Reason:
+    """Only while clearing: the cause was seen (``seen`` is a time)."""
+    return Reason("clearing", f"causes absent for {now - seen:.3f} s of {config.clear_time} s")
 
 
 def step(state: PolicyState, inputs: PolicyInputs, now: float,

@@ -185,7 +185,7 @@ class Command:
                 clear = self.clear_for_s or 0.0
                 return (f"LATCHED by {self.latched_by.message} at {self.latched_by.at:.1f} s; "
                         f"cell clear for {clear:.1f} s: reset possible")
-            return "LATCHED: " + ("; ".join(r.message for r in causes) or "waiting for a reset")
+            return "LATCHED: " + "; ".join(r.message for r in causes)
         if self.state == RUN:
             return "RUN"
         head = STOP if self.state == STOP else f"SLOW x{self.speed_scale:.2f}"
