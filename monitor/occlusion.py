@@ -110,10 +110,13 @@ def feet_may_be_hidden(boxes_px: np.ndarray, model: geo.CameraModel | None, widt
                     hidden[i] = True
                     break
     if model is not None and model.can_project_3d:
-        floor, ok = model.pixel_to_floor(np.c_[u, boxes[:, 3]])
-        pts = np.r_[np.c_[floor, np.zeros(len(u))], np.c_[floor, np.full(len(u), min_height_m)]]
-        px, front = model.project(pts)
         n = len(u)
+        floor, ok = model.pixel_to_floor(np.column_stack((u, boxes[:, 3])))
+        pts = np.zeros((2 * n, 3))
+        pts[:n, :2] = floor
+        pts[n:, :2] = floor
+        pts[n:, 2] = min_height_m
+        px, front = model.project(pts)
         expected = px[:n, 1] - px[n:, 1]
         short = ok & front[:n] & front[n:] & (boxes[:, 3] - boxes[:, 1] < expected)
         hidden |= short
@@ -134,7 +137,8 @@ def place_persons(boxes_px: np.ndarray, model: geo.CameraModel, width: int, heig
     u = (boxes[:, 0] + boxes[:, 2]) * 0.5
     y_far = np.maximum(boxes[:, 3] - hi, boxes[:, 1] + 1.0)
     y_near = np.maximum(boxes[:, 3] - lo, y_far)
-    both, ok = model.pixel_to_floor(np.r_[np.c_[u, y_far], np.c_[u, y_near]])
+    both, ok = model.pixel_to_floor(np.column_stack((np.concatenate((u, u)),
+                                                     np.concatenate((y_far, y_near)))))
     far, near = both[:n].copy(), both[n:].copy()
     located = ok[:n] & ok[n:]
     bottom_px = y_near.copy()
@@ -231,7 +235,8 @@ def segments_hit_polygons(u: np.ndarray, y0: np.ndarray, y1: np.ndarray,
                           polys: PolygonSegments) -> np.ndarray:
     """(N, Z) bool: the vertical pixel segment x = u, y0 <= y <= y1 touches polygon z."""
     u, y0, y1 = (np.asarray(v, float).reshape(-1) for v in (u, y0, y1))
-    out = polys.inside.contains(np.c_[u, y0]) | polys.inside.contains(np.c_[u, y1])
+    out = polys.inside.contains(np.column_stack((u, y0))) \
+        | polys.inside.contains(np.column_stack((u, y1)))
     if polys.count == 0 or len(u) == 0:
         return out
     uu, lo, hi = u[:, None], y0[:, None], y1[:, None]
