@@ -110,7 +110,8 @@ def _check(prep: PreparedCell, camera_id: str, boxes_px: np.ndarray,
     if model is not None and n:
         place = occ.place_persons(boxes, model, cam.width, cam.height, band_px=(lo, hi),
                                   height_range_m=prep.height_range_m,
-                                  occluder_outlines_px=prep.occluder_outlines.get(camera_id, ()))
+                                  occluder_columns=prep.occluder_columns.get(camera_id),
+                                  camera_centre=prep.camera_centres.get(camera_id))
     img = prep.image_zones.get(camera_id)
     if img is not None and n:
         if place is not None:
