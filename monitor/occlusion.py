@@ -190,7 +190,11 @@ def place_persons(boxes_px: np.ndarray, model: geo.CameraModel, width: int, heig
     m = len(todo)
     for j, i in enumerate(todo.tolist()):
         cands = []  # floor points under the head at each end of the height range
-        unbounded = False  # a level or rising sight line: the head may be arbitrarily far
+        # a level or rising sight line: the head may be arbitrarily far
+        # a head cut by the image's top edge may be anywhere above it: from right under the
+        # camera out to as far as the feet allow
+        top_cut = bool(boxes[i, 1] <= EDGE_TOLERANCE_PX)
+        unbounded = top_cut
         for d in (rays[j], rays[m + j]):
             if d[2] > -1e-9 and h_max > centre[2]:
                 unbounded = True
@@ -205,8 +209,8 @@ def place_persons(boxes_px: np.ndarray, model: geo.CameraModel, width: int, heig
         if not cands and not unbounded:
             continue  # no height in the range fits the head: keep the feet-based answer
         dist = [float(np.hypot(*(p - c_xy))) for p in cands]
-        head_near = cands[int(np.argmin(dist))] if cands else c_xy.copy()
-        d_near = min(dist) if cands else 0.0
+        head_near = cands[int(np.argmin(dist))] if cands and not top_cut else c_xy.copy()
+        d_near = min(dist) if cands and not top_cut else 0.0
         d_vis = float(np.hypot(*(far[i] - c_xy))) if located[i] else np.inf
         d_far = np.inf if unbounded else max(dist)
         head_far = far[i] if unbounded else cands[int(np.argmax(dist))]

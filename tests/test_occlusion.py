@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 import shapely
 
+from monitor import geometry as geo
 from monitor import occlusion as occ
 from monitor import zones as zn
 from monitor.scene import DEMO_CAMERA
@@ -289,3 +290,18 @@ def test_synthetic_model_box_bottom_lies_within_one_cell_below_the_feet(detector
     assert len(errors) >= 5
     lo, hi = occ.SYNTHETIC_FOOT_BAND_CELLS
     assert lo * cell_px - 1 <= min(errors) and max(errors) <= hi * cell_px + 1, errors
+
+
+def test_box_cut_at_both_image_edges_reaches_as_far_as_the_bottom_allows():
+    # a camera at 1.4 m looking almost level, a tall person 1.2 m in front of it: head above
+    # the image, feet below it
+    k = np.array([[900.0, 0, 640], [0, 900.0, 360], [0, 0, 1]])
+    r, t = geo.look_at((0.0, -6.0, 1.4), (0.0, 0.0, 1.2))
+    model = geo.CameraModel.pinhole(1280, 720, k, None, r, t)
+    px, _ = model.project(np.array([[0.3, -4.8, 0.0], [0.3, -4.8, 2.0]]))
+    (fu, fv), (_, hv) = px
+    assert hv < 0 and fv > 720
+    box = np.array([[fu - 150, 0.0, fu + 150, 720.0]])
+    p = occ.place_persons(box, model, 1280, 720)
+    seg = shapely.LineString([p.near_m[0], p.far_m[0]])
+    assert p.located[0] and seg.distance(shapely.Point(0.3, -4.8)) < 0.05
