@@ -119,6 +119,15 @@ def median_us(prep: zn.PreparedCell, boxes: np.ndarray, pose: geo.ToolPose | Non
     return statistics.median(times) * 1e6
 
 
+def reference_ms() -> float:
+    """CPU time of a fixed pure-Python loop: how slow this machine is right now."""
+    t0 = time.thread_time()
+    total = 0
+    for i in range(1_000_000):
+        total += i
+    return (time.thread_time() - t0) * 1e3
+
+
 def main() -> None:
     rng = np.random.default_rng(2)
     pose = geo.ToolPose((0.5, 0.2, 1.1), (0.0, 0.7071068, 0.0, 0.7071068), time=0.0)
@@ -148,6 +157,8 @@ def main() -> None:
         hits = len(zn.check_persons(prep, "cam0", src[10], tool_pose=tool,
                                     foot_band_px=fb).hits)
         print(f"| {label} | " + " | ".join(cells) + f" | {hits} |")
+    print(f"\nreference: a 10^6-step Python loop took {reference_ms():.0f} ms CPU here (about "
+          "50 ms on an idle core: scale the table by that ratio on a loaded machine)")
     t0 = time.perf_counter()
     zn.prepare_cell(make_cell(10, 10))
     print(f"\nprepare_cell (10 + 10 zones, once at start): "
