@@ -29,6 +29,7 @@ that lies there.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
@@ -88,45 +89,81 @@ def pixel_rays(model: geo.CameraModel, px: np.ndarray) -> np.ndarray:
     return d / np.linalg.norm(d, axis=1, keepdims=True)
 
 
+@dataclass(frozen=True, eq=False)
+class OccluderColumns:
+    """Where a camera's occluder outlines are, as per-column running counts of outline pixels
+    (dilated by ``EDGE_TOLERANCE_PX``): "does column u meet an outline between rows a and b"
+    is two look-ups. Built once per camera."""
+
+    counts: np.ndarray  # (height + 1, width) int32: outline pixels above each row, per column
+
+    @classmethod
+    def build(cls, outlines_px: Sequence[np.ndarray], width: int, height: int
+              ) -> OccluderColumns | None:
+        if not outlines_px:
+            return None
+        mask = np.zeros((height, width), np.uint8)
+        for outline in outlines_px:
+            pts = np.round(np.asarray(outline, float) * 16).astype(np.int32)
+            cv2.fillPoly(mask, [pts], 1, cv2.LINE_8, shift=4)
+        r = math.ceil(EDGE_TOLERANCE_PX)
+        mask = cv2.dilate(mask, np.ones((2 * r + 1, 2 * r + 1), np.uint8))
+        counts = np.zeros((height + 1, width), np.int32)
+        np.cumsum(mask, axis=0, out=counts[1:])
+        return cls(counts)
+
+    def meets(self, u: np.ndarray, y0: np.ndarray, y1: np.ndarray) -> np.ndarray:
+        """(N,) bool: column ``u`` holds outline pixels between rows ``y0`` and ``y1``."""
+        h, w = self.counts.shape[0] - 1, self.counts.shape[1]
+        col = np.clip(np.floor(u), 0, w - 1).astype(np.intp)
+        a = np.clip(np.floor(y0), 0, h).astype(np.intp)
+        b = np.clip(np.floor(y1) + 1, 0, h).astype(np.intp)
+        return self.counts[b, col] > self.counts[a, col]
+
+
 def feet_may_be_hidden(boxes_px: np.ndarray, model: geo.CameraModel | None, width: int,
                        height: int, occluder_outlines_px: Sequence[np.ndarray] = (),
-                       min_height_m: float = 1.0, band_hi_px: float = 0.0) -> np.ndarray:
-    """(N,) bool: the feet of each box may be hidden, by the image edge, an occluder, or
+                       min_height_m: float = 1.0, band_hi_px: float = 0.0,
+                       occluder_columns: OccluderColumns | None = None) -> np.ndarray:
+    """(N,) bool: the feet of each box may be hidden, by the image's bottom edge, an occluder
+    (the box bottom, or up to ``band_hi_px`` below it, on an occluder's image outline), or
     because the box is shorter than a person of ``min_height_m`` at the floor point its bottom
-    implies (a pinhole calibration is needed for the last two)."""
+    implies (a pinhole calibration is needed for the last two). ``occluder_columns`` is the
+    prepared form of ``occluder_outlines_px`` (faster); give one or the other."""
     boxes = np.asarray(boxes_px, float).reshape(-1, 4)
-    tol = EDGE_TOLERANCE_PX
-    hidden = boxes[:, 3] >= height - tol
-    if not len(boxes):
+    n = len(boxes)
+    hidden = boxes[:, 3] >= height - EDGE_TOLERANCE_PX
+    if not n:
         return hidden
     u = (boxes[:, 0] + boxes[:, 2]) * 0.5
-    reach = max(tol, band_hi_px)
-    for outline in occluder_outlines_px:
-        poly = np.asarray(outline, np.float32).reshape(-1, 1, 2)
-        for i in np.flatnonzero(~hidden):
-            # the visible bottom sits on (or just above, by the box error) the occluder's outline
-            for y in (boxes[i, 3], boxes[i, 3] + reach):
-                if cv2.pointPolygonTest(poly, (float(u[i]), float(y)), True) >= -tol:
-                    hidden[i] = True
-                    break
+    reach = max(EDGE_TOLERANCE_PX, band_hi_px)
+    if occluder_columns is None and len(occluder_outlines_px):
+        occluder_columns = OccluderColumns.build(occluder_outlines_px, width, height)
+    if occluder_columns is not None:
+        hidden |= occluder_columns.meets(u, boxes[:, 3], boxes[:, 3] + reach)
     if model is not None and model.can_project_3d:
-        floor, ok = model.pixel_to_floor(np.c_[u, boxes[:, 3]])
-        pts = np.r_[np.c_[floor, np.zeros(len(u))], np.c_[floor, np.full(len(u), min_height_m)]]
+        floor, ok = model.pixel_to_floor(np.column_stack((u, boxes[:, 3])))
+        pts = np.zeros((2 * n, 3))
+        pts[:n, :2] = floor
+        pts[n:, :2] = floor
+        pts[n:, 2] = min_height_m
         px, front = model.project(pts)
-        n = len(u)
         expected = px[:n, 1] - px[n:, 1]
-        short = ok & front[:n] & front[n:] & (boxes[:, 3] - boxes[:, 1] < expected)
-        hidden |= short
+        hidden |= ok & front[:n] & front[n:] & (boxes[:, 3] - boxes[:, 1] < expected)
     return hidden
 
 
 def place_persons(boxes_px: np.ndarray, model: geo.CameraModel, width: int, height: int, *,
                   band_px: tuple[float, float] = (0.0, 0.0),
                   height_range_m: tuple[float, float] = (1.0, 2.0),
-                  occluder_outlines_px: Sequence[np.ndarray] = ()) -> Placement:
+                  occluder_outlines_px: Sequence[np.ndarray] = (),
+                  occluder_columns: OccluderColumns | None = None,
+                  camera_centre: np.ndarray | None = None) -> Placement:
     """Where each box's person may stand (see the module docstring).
 
     ``band_px`` = (lo, hi): the feet lie ``lo`` .. ``hi`` pixels above the box's bottom edge.
+    ``occluder_columns`` and ``camera_centre`` are prepared forms (built once per camera) of
+    ``occluder_outlines_px`` and ``camera_centre_m(model)``.
     """
     boxes = np.asarray(boxes_px, float).reshape(-1, 4)
     n = len(boxes)
@@ -134,13 +171,14 @@ def place_persons(boxes_px: np.ndarray, model: geo.CameraModel, width: int, heig
     u = (boxes[:, 0] + boxes[:, 2]) * 0.5
     y_far = np.maximum(boxes[:, 3] - hi, boxes[:, 1] + 1.0)
     y_near = np.maximum(boxes[:, 3] - lo, y_far)
-    both, ok = model.pixel_to_floor(np.r_[np.c_[u, y_far], np.c_[u, y_near]])
+    both, ok = model.pixel_to_floor(np.column_stack((np.concatenate((u, u)),
+                                                     np.concatenate((y_far, y_near)))))
     far, near = both[:n].copy(), both[n:].copy()
     located = ok[:n] & ok[n:]
     bottom_px = y_near.copy()
     hidden = feet_may_be_hidden(boxes, model, width, height, occluder_outlines_px,
-                                height_range_m[0], hi)
-    centre = camera_centre_m(model)
+                                height_range_m[0], hi, occluder_columns)
+    centre = camera_centre if camera_centre is not None else camera_centre_m(model)
     todo = np.flatnonzero(hidden)
     if centre is None or not len(todo):
         return Placement(near, far, located, hidden, u, y_far, bottom_px)
@@ -152,7 +190,11 @@ def place_persons(boxes_px: np.ndarray, model: geo.CameraModel, width: int, heig
     m = len(todo)
     for j, i in enumerate(todo.tolist()):
         cands = []  # floor points under the head at each end of the height range
-        unbounded = False  # a level or rising sight line: the head may be arbitrarily far
+        # a level or rising sight line: the head may be arbitrarily far
+        # a head cut by the image's top edge may be anywhere above it: from right under the
+        # camera out to as far as the feet allow
+        top_cut = bool(boxes[i, 1] <= EDGE_TOLERANCE_PX)
+        unbounded = top_cut
         for d in (rays[j], rays[m + j]):
             if d[2] > -1e-9 and h_max > centre[2]:
                 unbounded = True
@@ -167,8 +209,8 @@ def place_persons(boxes_px: np.ndarray, model: geo.CameraModel, width: int, heig
         if not cands and not unbounded:
             continue  # no height in the range fits the head: keep the feet-based answer
         dist = [float(np.hypot(*(p - c_xy))) for p in cands]
-        head_near = cands[int(np.argmin(dist))] if cands else c_xy.copy()
-        d_near = min(dist) if cands else 0.0
+        head_near = cands[int(np.argmin(dist))] if cands and not top_cut else c_xy.copy()
+        d_near = min(dist) if cands and not top_cut else 0.0
         d_vis = float(np.hypot(*(far[i] - c_xy))) if located[i] else np.inf
         d_far = np.inf if unbounded else max(dist)
         head_far = far[i] if unbounded else cands[int(np.argmax(dist))]
@@ -231,7 +273,8 @@ def segments_hit_polygons(u: np.ndarray, y0: np.ndarray, y1: np.ndarray,
                           polys: PolygonSegments) -> np.ndarray:
     """(N, Z) bool: the vertical pixel segment x = u, y0 <= y <= y1 touches polygon z."""
     u, y0, y1 = (np.asarray(v, float).reshape(-1) for v in (u, y0, y1))
-    out = polys.inside.contains(np.c_[u, y0]) | polys.inside.contains(np.c_[u, y1])
+    out = polys.inside.contains(np.column_stack((u, y0))) \
+        | polys.inside.contains(np.column_stack((u, y1)))
     if polys.count == 0 or len(u) == 0:
         return out
     uu, lo, hi = u[:, None], y0[:, None], y1[:, None]

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 import shapely
 
+from monitor import geometry as geo
 from monitor import occlusion as occ
 from monitor import zones as zn
 from monitor.scene import DEMO_CAMERA
@@ -259,3 +260,48 @@ def test_preview_draws_the_shadow_behind_an_occluder():
     assert not np.array_equal(drawn[int(behind[1]), int(behind[0])],
                               zn.draw_zones(frame, zn.load_cell(DEMO), "cam0")[
                                   int(behind[1]), int(behind[0])])
+
+
+# ------------------------------------------------------------------------ foot band
+
+
+def test_detector_default_foot_band_is_the_measured_one():
+    from monitor.detector import DetectorConfig
+
+    assert DetectorConfig().foot_uncertainty_cells == occ.SYNTHETIC_FOOT_BAND_CELLS[1]
+
+
+@pytest.mark.slow
+def test_synthetic_model_box_bottom_lies_within_one_cell_below_the_feet(detector):
+    from monitor.scene import DemoScene
+    from monitor.types import FrameInfo
+
+    cell_px = detector.foot_uncertainty_px(1280, 720) / detector.config.foot_uncertainty_cells
+    errors = []
+    scene = DemoScene(fps=1.0)
+    for img, truth in scene.frames():
+        if len(truth.persons) != 1 or truth.persons[0].visible_fraction < 0.99:
+            continue
+        if truth.persons[0].full_box_px[3] >= 715:
+            continue
+        det = detector.detect_timed(img, FrameInfo("cam0", truth.index, 0.0, 1280, 720))
+        if len(det.persons) == 1:
+            errors.append(float(det.persons.boxes_px[0, 3]) - truth.persons[0].full_box_px[3])
+    assert len(errors) >= 5
+    lo, hi = occ.SYNTHETIC_FOOT_BAND_CELLS
+    assert lo * cell_px - 1 <= min(errors) and max(errors) <= hi * cell_px + 1, errors
+
+
+def test_box_cut_at_both_image_edges_reaches_as_far_as_the_bottom_allows():
+    # a camera at 1.4 m looking almost level, a tall person 1.2 m in front of it: head above
+    # the image, feet below it
+    k = np.array([[900.0, 0, 640], [0, 900.0, 360], [0, 0, 1]])
+    r, t = geo.look_at((0.0, -6.0, 1.4), (0.0, 0.0, 1.2))
+    model = geo.CameraModel.pinhole(1280, 720, k, None, r, t)
+    px, _ = model.project(np.array([[0.3, -4.8, 0.0], [0.3, -4.8, 2.0]]))
+    (fu, fv), (_, hv) = px
+    assert hv < 0 and fv > 720
+    box = np.array([[fu - 150, 0.0, fu + 150, 720.0]])
+    p = occ.place_persons(box, model, 1280, 720)
+    seg = shapely.LineString([p.near_m[0], p.far_m[0]])
+    assert p.located[0] and seg.distance(shapely.Point(0.3, -4.8)) < 0.05

@@ -76,3 +76,19 @@ def test_unknown_scenario_is_a_config_error():
 
     with pytest.raises(ConfigError, match="unknown scenario nope"):
         sc.select(["nope"])
+
+
+def test_eval_cli_lists_scenarios_and_refuses_unknown_ones():
+    import subprocess
+    import sys
+
+    cmd = [sys.executable, "-m", "monitor", "eval", "scenarios"]
+    listed = subprocess.run([*cmd, "--list"], capture_output=True, text=True, timeout=120)
+    assert listed.returncode == 0, listed.stderr
+    names = [line.split()[0] for line in listed.stdout.splitlines()]
+    assert names[:4] == ["bench-0.80", "bench-0.95", "bench-1.15", "bench-1.30"]
+    assert "two-persons" in names and "(needs tracker)" in listed.stdout
+    bad = subprocess.run([*cmd, "nope"], capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 2
+    assert bad.stderr.strip().splitlines()[-1].startswith(
+        "monitor: error: unknown scenario nope (known: bench-0.80")

@@ -114,7 +114,8 @@ def _check(prep: PreparedCell, camera_id: str, boxes_px: np.ndarray,
     if model is not None and n:
         place = occ.place_persons(boxes, model, cam.width, cam.height, band_px=(lo, hi),
                                   height_range_m=prep.height_range_m,
-                                  occluder_outlines_px=prep.occluder_outlines.get(camera_id, ()))
+                                  occluder_columns=prep.occluder_columns.get(camera_id),
+                                  camera_centre=prep.camera_centres.get(camera_id))
     img = prep.image_zones.get(camera_id)
     if img is not None and n:
         if place is not None:
@@ -179,13 +180,13 @@ def _swept_person(prep: PreparedCell, a: np.ndarray, b: np.ndarray
     r, h = prep.person.zone_radius_m, prep.person.height_m
     d = b - a
     length = float(np.hypot(*d))
-    ends = [np.r_[a, h / 2]]
+    ends = [np.array((a[0], a[1], h / 2))]
     if length < 1e-4:
         return [fcl.CollisionObject(prep.zone_cylinder, fcl.Transform(ends[0]))]
-    ends.append(np.r_[b, h / 2])
+    ends.append(np.array((b[0], b[1], h / 2)))
     yaw = math.atan2(d[1], d[0])
     rot = geo.rpy_to_matrix(0.0, 0.0, math.degrees(yaw))
-    mid = np.r_[(a + b) / 2, h / 2]
+    mid = np.array(((a[0] + b[0]) / 2, (a[1] + b[1]) / 2, h / 2))
     objs = [fcl.CollisionObject(fcl.Box(length, 2 * r, h), fcl.Transform(rot, mid))]
     objs += [fcl.CollisionObject(prep.zone_cylinder, fcl.Transform(e)) for e in ends]
     return objs

@@ -12,7 +12,13 @@ import fcl
 import numpy as np
 
 from monitor import geometry as geo
-from monitor.occlusion import PolygonSegments, occluder_outline_px, segments_hit_polygons
+from monitor.occlusion import (
+    OccluderColumns,
+    PolygonSegments,
+    camera_centre_m,
+    occluder_outline_px,
+    segments_hit_polygons,
+)
 from monitor.types import ZoneReport
 from monitor.zones.draw import _box_corners
 
@@ -130,6 +136,8 @@ class PreparedCell:
     # per camera: image outlines (convex hulls, raw pixels) of the occluders it sees
     occluder_outlines: Mapping[str, tuple[np.ndarray, ...]] = field(default_factory=dict)
     height_range_m: tuple[float, float] = (1.0, 2.0)
+    occluder_columns: Mapping[str, OccluderColumns | None] = field(default_factory=dict)
+    camera_centres: Mapping[str, np.ndarray | None] = field(default_factory=dict)
 
     def check(self, camera_id: str, boxes_px: np.ndarray, tool_pose: geo.ToolPose | None = None,
               tool_speed_mps: float | None = None) -> ZoneReport:
@@ -154,6 +162,9 @@ def prepare_cell(cell: Cell) -> PreparedCell:
     for cam_id, model in cell.camera_models.items():
         hulls = [occluder_outline_px(occluder_corners_m(z, cell), model) for z in occ_zones]
         outlines[cam_id] = tuple(h for h in hulls if h is not None)
+    columns = {cid: OccluderColumns.build(o, cell.cameras[cid].width, cell.cameras[cid].height)
+               for cid, o in outlines.items()}
+    centres = {cid: camera_centre_m(m) for cid, m in cell.camera_models.items()}
     p, s = cell.spec.person, cell.spec.separation
     person = geo.PersonModel(p.radius_m, p.height_m, p.position_uncertainty_m)
     return PreparedCell(
@@ -174,6 +185,8 @@ def prepare_cell(cell: Cell) -> PreparedCell:
         occluders=occluders,
         occluder_outlines=outlines,
         height_range_m=tuple(p.height_range_m),
+        occluder_columns=columns,
+        camera_centres=centres,
     )
 
 
