@@ -228,15 +228,7 @@ def quantize_model(model_path: str | Path, out_path: str | Path,
 
     ``calibration`` are BGR frames; ``wrap(iterable, total, desc)`` may show progress.
     """
-    import onnx
-    from onnxruntime.quantization import (
-        CalibrationDataReader,
-        CalibrationMethod,
-        QuantFormat,
-        QuantType,
-        quantize_static,
-    )
-    from onnxruntime.quantization.shape_inference import quant_pre_process
+    from onnxruntime.quantization import CalibrationDataReader, CalibrationMethod
 
     from monitor.detector import Detector, DetectorConfig
 
@@ -260,7 +252,21 @@ def quantize_model(model_path: str | Path, out_path: str | Path,
     method = {"minmax": CalibrationMethod.MinMax, "entropy": CalibrationMethod.Entropy,
               "percentile": CalibrationMethod.Percentile}[options.method]
     out_path = Path(out_path)
-    logging.getLogger().setLevel(logging.ERROR)  # the quantizer logs advice at INFO/WARNING
+    root = logging.getLogger()
+    level = root.level
+    root.setLevel(logging.ERROR)  # the quantizer logs advice on the root logger
+    try:
+        _quantize(model_path, out_path, Reader(), method, options)
+    finally:
+        root.setLevel(level)
+    return out_path
+
+
+def _quantize(model_path, out_path: Path, reader, method, options: QuantizeOptions) -> None:
+    import onnx
+    from onnxruntime.quantization import QuantFormat, QuantType, quantize_static
+    from onnxruntime.quantization.shape_inference import quant_pre_process
+
     with tempfile.TemporaryDirectory(prefix="monitor-quantize-") as tmp:
         try:
             model = onnx.load(str(model_path))
@@ -285,7 +291,7 @@ def quantize_model(model_path: str | Path, out_path: str | Path,
             extra["CalibPercentile"] = options.percentile
         result = Path(tmp) / "int8.onnx"
         try:
-            quantize_static(str(source), str(result), Reader(), quant_format=QuantFormat.QDQ,
+            quantize_static(str(source), str(result), reader, quant_format=QuantFormat.QDQ,
                             per_channel=True, activation_type=QuantType.QUInt8,
                             weight_type=QuantType.QInt8, reduce_range=options.reduce_range,
                             calibrate_method=method,
@@ -299,7 +305,6 @@ def quantize_model(model_path: str | Path, out_path: str | Path,
         staged = out_path.with_name(out_path.name + ".tmp")
         staged.write_bytes(result.read_bytes())
         staged.replace(out_path)
-    return out_path
 
 
 # ----------------------------------------------------------------------------- comparison
