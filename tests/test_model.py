@@ -80,3 +80,30 @@ def test_accuracy_on_200_generated_frames(detector):
     assert acc.one_box_share >= 0.98
     assert acc.distractor_hits == 0
     assert 0.5 < acc.mean_iou < 1.0
+
+
+def test_progress_prints_steady_lines_when_not_on_a_terminal():
+    import io
+
+    from monitor.progress import Steps, progress
+
+    out = io.StringIO()
+    assert list(progress(range(5), desc="calibrating", stream=out, every_s=3600)) == [0, 1, 2,
+                                                                                      3, 4]
+    assert out.getvalue().splitlines() == ["calibrating: 0/5", "calibrating: 5/5 done"]
+    out = io.StringIO()
+    steps = Steps(["fp32 model", "int8 model"], "model build", stream=out)
+    steps.start("building the fp32 model")
+    steps.done()
+    steps.start("calibrating the int8 model")
+    assert out.getvalue().splitlines() == [
+        "model build: step 1/2: building the fp32 model",
+        "model build: step 2/2: calibrating the int8 model"]
+
+
+def test_int8_ranges_refuse_weights_they_do_not_fit():
+    assert synthetic.int8_ranges()["conv21.out"] == (0.1, 30)
+    with pytest.raises(ValueError, match="row_mass_cap"):
+        synthetic.int8_ranges(synthetic.SyntheticWeights(row_mass_cap=0.8))
+    with pytest.raises(ValueError, match="exceed"):
+        synthetic.int8_ranges(synthetic.SyntheticWeights(mass_gain=12.0))
