@@ -63,6 +63,9 @@ class SyntheticWeights:
     presence_gain: float = 4.0
     min_mass: float = 0.75  # sum of 3x3-cell neighbourhood mass (a blurred covered share)
     mass_gain: float = 10.0
+    # Each row of the 3x3-cell mass sum is capped at this before the sum (see build_weights):
+    # it changes no decision but bounds the head's activations, so int8 keeps them exact.
+    row_mass_cap: float = 1.0
     box_margin_px: float = 0.8  # each cell box grows by this on every side (416 pixels)
     objectness_gain: float = 20.0
 
@@ -93,9 +96,18 @@ def build_weights(p: SyntheticWeights) -> dict[str, tuple[np.ndarray, np.ndarray
         W[0, 0, 1, 1] = 1.0
         W[1, 1] = 1 / 9
         w[name] = (W, B)
-    # conv8: 128 -> 256 at 26 (the route to the fine head): identity for P and M.
+    # conv8: 128 -> 256 at 26 (the route to the fine head): P (identity), and the mass's
+    # horizontal 3-cell sum H as the pair leaky(H / cap), leaky(H / cap - 1), plus a constant
+    # 0.1 channel. The head's conv21 takes (pair difference - constant) = 0.9 clamp(H / cap, 0, 1)
+    # from its three rows: the 3x3 sum with each row capped. Capping a row at cap >= min_mass +
+    # 1 / mass_gain changes no gate decision (one full row already passes), and it bounds every
+    # activation of the head to a few units; the constant channel is zero in conv21's padding
+    # exactly as a real zero-mass row would contribute nothing.
     W, B = _conv("conv8", 128, 256, 3)
-    W[0, 0, 1, 1] = W[1, 1, 1, 1] = 1.0
+    W[0, 0, 1, 1] = 1.0
+    W[1, 1, 1, :] = W[2, 1, 1, :] = 1.0 / p.row_mass_cap
+    B[2] = -1.0
+    B[3] = 0.1
     w["conv8"] = (W, B)
     for name, cin, cout, k in (("conv10", 256, 512, 3), ("conv12", 512, 1024, 3),
                                ("conv13", 1024, 256, 1), ("conv14", 256, 512, 3),
@@ -105,14 +117,17 @@ def build_weights(p: SyntheticWeights) -> dict[str, tuple[np.ndarray, np.ndarray
     W, B = _conv("conv15", 512, 255, 1)
     B[4::85] = -20.0
     w["conv15"] = (W, B)
-    # conv21: 384 -> 256 at 26; inputs 0..127 upsampled (zero), 128.. the route (P=128, M=129).
+    # conv21: 384 -> 256 at 26; inputs 0..127 upsampled (zero), 128.. the route (P=128; the
+    # capped-mass pair 129, 130 and the constant 131).
     W, B = _conv("conv21", 384, 256, 3)
-    P, M = 128, 129
+    P, M1, M2, ONE = 128, 129, 130, 131
     for ch, extra in ((0, 0.0), (1, -1.0)):
         W[ch, P, 1, 1] = p.presence_gain
         B[ch] = -0.5 * p.presence_gain + extra
+    row = p.mass_gain * p.row_mass_cap / 0.9
     for ch, extra in ((2, 0.0), (3, -1.0)):
-        W[ch, M, :, :] = p.mass_gain
+        W[ch, M1, :, 1] = row
+        W[ch, M2, :, 1] = W[ch, ONE, :, 1] = -row
         B[ch] = -p.min_mass * p.mass_gain + extra
     w["conv21"] = (W, B)
     # conv22: 256 -> 255 at 26, linear: anchor slot 0 of this head fires, slots 1 and 2 never.
@@ -188,9 +203,11 @@ def build_model(p: SyntheticWeights | None = None, input_size: int = INPUT_SIZE,
     graph = helper.make_graph(
         nodes, "tiny_yolov3_synthetic",
         [helper.make_tensor_value_info("images", TensorProto.FLOAT,
-                                       [1, 3, input_size, input_size])],
-        [helper.make_tensor_value_info("output_13", TensorProto.FLOAT, [1, 255, g13, g13]),
-         helper.make_tensor_value_info("output_26", TensorProto.FLOAT, [1, 255, g26, g26])],
+                                       ["batch", 3, input_size, input_size])],
+        [helper.make_tensor_value_info("output_13", TensorProto.FLOAT,
+                                       ["batch", 255, g13, g13]),
+         helper.make_tensor_value_info("output_26", TensorProto.FLOAT,
+                                       ["batch", 255, g26, g26])],
         inits)
     model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 13)],
                               producer_name="workcell-monitor", producer_version="1")
@@ -239,3 +256,40 @@ def ensure_model(path: str | Path | None = None) -> Path:
     if not target.is_file():
         write_model(target)
     return target
+
+
+def int8_ranges(p: SyntheticWeights | None = None) -> dict[str, tuple[float, int]]:
+    """uint8 (scale, zero point) of the activations whose range the weights fix, for static
+    quantization (``monitor.quantize.QuantizeOptions.ranges``); the rest is calibrated.
+
+    The gates are differences leaky(v) - leaky(v - 1) of two channels in one tensor. With
+    1 / scale and 0.1 / scale whole numbers, both channels round by the same amount and the
+    difference stays exact outside the gate's soft step; each range holds the channel's largest
+    value so that neither side saturates (conv21's negative side may: a gate that is off stays
+    off). Calibrated ranges do neither, and the int8 model then loses persons and fires on
+    stickers.
+    """
+    p = p or SyntheticWeights()
+    if p.row_mass_cap < p.min_mass + 1.0 / p.mass_gain:
+        raise ValueError("row_mass_cap must be >= min_mass + 1 / mass_gain")
+    unit = (1 / 250, 5)  # P and M in [0, 1], with a little room below zero
+    pair = (1 / 80, 8)  # conv8: P, the capped-mass pair up to 3 / cap, the 0.1 constant
+    if 3.0 / p.row_mass_cap > (255 - 8) / 80 or p.colour_gain * (2 + p.colour_threshold) > 15:
+        raise ValueError("these weights exceed the analytic int8 ranges")
+    head_max = p.mass_gain * (3 * p.row_mass_cap - p.min_mass)
+    if head_max > 22.5 or p.presence_gain > 4.0:
+        raise ValueError("these weights exceed the analytic int8 ranges")
+    ranges: dict[str, tuple[float, int]] = {
+        "images": (1 / 255, 0),  # the input is uint8 / 255: exact
+        "conv0.out": (0.1, 160),  # z, z - 1 in [-16, 9.5]
+        "conv0.act": (0.05, 40),  # leaky: [-2, 10.75]
+        "pool1.out": (0.05, 40),
+    }
+    for name in ("conv2.out", "conv2.act", "pool3.out", "conv4.out", "conv4.act", "pool5.out",
+                 "conv6.out", "conv6.act", "pool7.out"):
+        ranges[name] = unit
+    for name in ("conv8.out", "conv8.act", "pool9.out", "up.out", "route.out"):
+        ranges[name] = pair
+    ranges["conv21.out"] = (0.1, 30)  # [-3, 22.5]
+    ranges["conv21.act"] = (0.1, 3)  # [-0.3, 25.2]
+    return ranges

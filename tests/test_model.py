@@ -13,7 +13,7 @@ from monitor.accuracy import Accuracy, cell_tolerance_px, score_frame
 from monitor.scene import WORKWEAR_BGR, Figure, draw_figure, random_frames
 
 # The bytes of the default build; change only together with models/README.md.
-EXPECTED_SHA256 = "7b77cbf52d610355ef54fce74229c8cbd11d370c11ac64099b0ecdfec9d5cec6"
+EXPECTED_SHA256 = "cbe1e0a3ffb9eafee713d5d9b968ef6c21dfed732df1dada3e10865dcdd6ad89"
 
 
 def test_build_is_deterministic_and_matches_the_model_card(tmp_path, synthetic_model):
@@ -29,10 +29,13 @@ def test_graph_is_the_seeds_layer_table(synthetic_model):
     convs = [n for n in model.graph.node if n.op_type == "Conv"]
     assert len(convs) == 13
     assert model.opset_import[0].version >= 13
-    outs = {o.name: [d.dim_value for d in o.type.tensor_type.shape.dim] for o in model.graph.output}
-    assert outs == {"output_13": [1, 255, 13, 13], "output_26": [1, 255, 26, 26]}
-    ins = [d.dim_value for d in model.graph.input[0].type.tensor_type.shape.dim]
-    assert ins == [1, 3, 416, 416]
+    def dims(value_info):
+        return [d.dim_param or d.dim_value for d in value_info.type.tensor_type.shape.dim]
+
+    # a dynamic batch dimension: frames of several cameras run as one batch
+    outs = {o.name: dims(o) for o in model.graph.output}
+    assert outs == {"output_13": ["batch", 255, 13, 13], "output_26": ["batch", 255, 26, 26]}
+    assert dims(model.graph.input[0]) == ["batch", 3, 416, 416]
 
 
 def test_one_figure_gives_one_box_around_it(detector):
@@ -77,3 +80,30 @@ def test_accuracy_on_200_generated_frames(detector):
     assert acc.one_box_share >= 0.98
     assert acc.distractor_hits == 0
     assert 0.5 < acc.mean_iou < 1.0
+
+
+def test_progress_prints_steady_lines_when_not_on_a_terminal():
+    import io
+
+    from monitor.progress import Steps, progress
+
+    out = io.StringIO()
+    assert list(progress(range(5), desc="calibrating", stream=out, every_s=3600)) == [0, 1, 2,
+                                                                                      3, 4]
+    assert out.getvalue().splitlines() == ["calibrating: 0/5", "calibrating: 5/5 done"]
+    out = io.StringIO()
+    steps = Steps(["fp32 model", "int8 model"], "model build", stream=out)
+    steps.start("building the fp32 model")
+    steps.done()
+    steps.start("calibrating the int8 model")
+    assert out.getvalue().splitlines() == [
+        "model build: step 1/2: building the fp32 model",
+        "model build: step 2/2: calibrating the int8 model"]
+
+
+def test_int8_ranges_refuse_weights_they_do_not_fit():
+    assert synthetic.int8_ranges()["conv21.out"] == (0.1, 30)
+    with pytest.raises(ValueError, match="row_mass_cap"):
+        synthetic.int8_ranges(synthetic.SyntheticWeights(row_mass_cap=0.8))
+    with pytest.raises(ValueError, match="exceed"):
+        synthetic.int8_ranges(synthetic.SyntheticWeights(mass_gain=12.0))

@@ -1,9 +1,10 @@
-"""`monitor model build | info | eval`: the synthetic model and any ONNX export."""
+"""`monitor model build | info | eval | quantize`: the synthetic model and any ONNX export."""
 
 from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
 
@@ -19,6 +20,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     build.add_argument("--input-size", type=int, default=416,
                        help="model input size in pixels, a multiple of 32 (416 is the classic "
                        "tiny-YOLOv3 size; 320 or 256 are faster, worse on small persons)")
+    build.add_argument("--int8", action="store_true",
+                       help="also write the int8 model (NAME.int8.onnx beside it), checked "
+                            "against fp32 on generated frames")
     build.set_defaults(func=cmd_build)
 
     info = sub.add_parser("info", help="layout, input size, classes and parameter count")
@@ -31,7 +35,31 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     ev.add_argument("--frames", type=int, default=200, help="generated frames to score")
     ev.add_argument("--size", default="1920x1080", help="frame size WxH")
     ev.add_argument("--seed", type=int, default=0, help="random seed of the generated frames")
+    ev.add_argument("--int8", action="store_true",
+                    help="evaluate the synthetic model's int8 build (made when absent)")
     ev.set_defaults(func=cmd_eval)
+
+    q = sub.add_parser(
+        "quantize", help="static int8 model calibrated on your frames, checked against fp32",
+        description="Static int8 quantization (QDQ, per-channel weights) calibrated on frames "
+                    "of your cell. Every 4th frame is held out: the int8 model's persons are "
+                    "compared with the fp32 model's there, and the model is written only if "
+                    "they agree (see docs/models-int8.md).")
+    q.add_argument("model", type=Path, help="the fp32 ONNX model")
+    q.add_argument("--frames", type=Path, required=True,
+                   help="a directory of images or a video from your cameras, with persons")
+    q.add_argument("--out", type=Path, help="output file (default: MODEL.int8.onnx beside it)")
+    q.add_argument("--force", action="store_true",
+                   help="write the model even when it disagrees with fp32")
+    q.add_argument("--min-agreement", type=float, default=0.98,
+                   help="persons found by both / by either on held-out frames (default 0.98)")
+    q.add_argument("--method", default="minmax", choices=("minmax", "entropy", "percentile"),
+                   help="calibration method (default minmax, the measured best)")
+    q.add_argument("--quantize-heads", action="store_true",
+                   help="quantize the output heads too (default: keep them in float)")
+    q.add_argument("--max-frames", type=int, default=120,
+                   help="frames read from --frames at most (spread over a video)")
+    q.set_defaults(func=cmd_quantize)
 
 
 def cmd_build(args: argparse.Namespace) -> int:
@@ -40,16 +68,67 @@ def cmd_build(args: argparse.Namespace) -> int:
     out = args.out or synthetic.default_model_path()
     if args.input_size % 32 or not 64 <= args.input_size <= 1024:
         raise MonitorError(f"--input-size {args.input_size} is not a multiple of 32 in 64..1024")
+    from monitor.progress import Steps
+
+    steps = Steps(["fp32 model"] + (["int8 model", "check"] if args.int8 else []),
+                  "model build")
+    steps.start("building the fp32 model")
     digest = synthetic.write_model(out, input_size=args.input_size)
+    steps.done()
     print(f"wrote {out} (sha256 {digest})")
+    if args.int8:
+        int8, agreement = build_int8(out, steps)
+        print(agreement.table())
+        print(f"wrote {int8}")
     return 0
 
 
-def _detector(model: Path | None, layout: str | None = None):
+def build_int8(fp32: Path, steps=None):
+    """The synthetic model's int8 file beside ``fp32``: analytic ranges, calibration on
+    generated frames, then checked on other generated frames (refused below 0.98)."""
+    from monitor import quantize
+    from monitor.detector import Detector
+    from monitor.models import synthetic
+    from monitor.progress import progress
+    from monitor.scene import random_frames
+
+    out = quantize.default_output(fp32)
+    staged = out.with_name(out.stem + ".unchecked.onnx")
+    if steps:
+        steps.start("calibrating the int8 model")
+    calib = [f for f, _ in random_frames(24, seed=1000, size=(1920, 1080))]
+    options = quantize.QuantizeOptions(ranges=synthetic.int8_ranges())
+    quantize.quantize_model(fp32, staged, calib, options, wrap=_wrap(progress))
+    if steps:
+        steps.done()
+        steps.start("checking int8 against fp32")
+    held = [f for f, t in random_frames(24, seed=2000, size=(1920, 1080)) if t.persons]
+    agreement = quantize.compare(Detector(fp32), Detector(staged), held, wrap=_wrap(progress))
+    why = quantize.check_agreement(agreement, 0.98)
+    if why:
+        staged.unlink(missing_ok=True)
+        raise quantize.QuantizeRefused(f"int8 synthetic model not written: {why}")
+    staged.replace(out)
+    if steps:
+        steps.done()
+    return out, agreement
+
+
+def _wrap(progress):
+    return lambda items, total, desc: progress(items, total, desc)
+
+
+def _detector(model: Path | None, layout: str | None = None, int8: bool = False):
+    from monitor import quantize
     from monitor.detector import Detector, DetectorConfig
     from monitor.models import synthetic
 
     path = model if model else synthetic.ensure_model()
+    if int8 and model is None:
+        int8_path = quantize.default_output(path)
+        if not int8_path.is_file():
+            build_int8(path)
+        path = int8_path
     return Detector(path, DetectorConfig(layout=layout))
 
 
@@ -77,7 +156,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     from monitor.accuracy import Accuracy, cell_tolerance_px, score_frame
     from monitor.scene import random_frames
 
-    detector = _detector(args.model)
+    detector = _detector(args.model, int8=args.int8)
     size = parse_size(args.size)
     tolerance = cell_tolerance_px(size, detector.layout.input_width)
     acc = Accuracy()
@@ -90,4 +169,41 @@ def cmd_eval(args: argparse.Namespace) -> int:
         "mean_iou": round(acc.mean_iou, 3), "one_box_per_person": round(acc.one_box_share, 4),
         "distractor_hits": acc.distractor_hits, "tolerance_px": round(tolerance, 1),
         "seconds": round(time.perf_counter() - start, 1)}))
+    return 0
+
+
+def cmd_quantize(args: argparse.Namespace) -> int:
+    from monitor import quantize
+    from monitor.detector import Detector
+    from monitor.errors import InputError
+    from monitor.progress import progress
+
+    model = args.model
+    out = args.out or quantize.default_output(model)
+    if out.resolve() == model.resolve():
+        raise InputError(f"--out {out} is the input model: choose another file")
+    if args.max_frames < quantize.MIN_FRAMES:
+        raise InputError(f"--max-frames must be at least {quantize.MIN_FRAMES}")
+    fp32 = Detector(model)  # ModelError (one line) when MODEL is not a usable model
+    frames = quantize.read_frames(args.frames, args.max_frames)
+    calib, held = quantize.split_frames(frames)
+    print(f"{len(frames)} frames: {len(calib)} for calibration, {len(held)} held out",
+          file=sys.stderr)
+    options = quantize.QuantizeOptions(method=args.method,
+                                       keep_float=() if args.quantize_heads else None)
+    staged = out.with_name(out.stem + ".unchecked.onnx")
+    wrap = _wrap(progress)
+    try:
+        quantize.quantize_model(model, staged, calib, options, wrap=wrap)
+        agreement = quantize.compare(fp32, Detector(staged), held, wrap=wrap)
+        print(agreement.table())
+        why = quantize.check_agreement(agreement, args.min_agreement)
+        if why and not args.force:
+            raise quantize.QuantizeRefused(f"int8 model not written: {why} (--force writes it)")
+        staged.replace(out)
+    finally:
+        staged.unlink(missing_ok=True)
+    if why:
+        print(f"warning: written anyway (--force): {why}", file=sys.stderr)
+    print(f"wrote {out}")
     return 0

@@ -98,6 +98,7 @@ class Detector:
         self._letterbox = Letterboxer(self.layout)
         self.self_test_case = self._self_test_case()
         self._self_test_letterbox: Letterboxer | None = None
+        self._batch_letterbox: list[Letterboxer] = []  # detect_batch: one canvas per slot
         # Warm-up: the first run allocates; do it now, not on the first real frame.
         self.detect(np.full((self.layout.input_height, self.layout.input_width, 3), 114, np.uint8))
 
@@ -170,6 +171,54 @@ class Detector:
 
     def detect(self, image_bgr: np.ndarray, frame: FrameInfo | None = None) -> Persons:
         return self.detect_timed(image_bgr, frame).persons
+
+    @property
+    def batchable(self) -> bool:
+        """The model's batch dimension is dynamic: several frames can run as one batch."""
+        first = self.session.get_inputs()[0].shape[0]
+        return self.layout.kind != "zoo" and not (isinstance(first, int) and first > 0)
+
+    def detect_batch_timed(self, images: list[np.ndarray],
+                           frames: list[FrameInfo | None] | None = None,
+                           pre_merge: list[PreMerge | None] | None = None) -> list[Detection]:
+        """Detect in frames that are ready together (e.g. one per camera) as one inference
+        when the model has a dynamic batch dimension, else one after the other. The result for
+        each frame is the same as ``detect_timed``'s; inference time is shared equally.
+        ``pre_merge`` gives each frame's own pre-merge mask (its camera's mask zones)."""
+        frames = list(frames) if frames is not None else [None] * len(images)
+        masks = list(pre_merge) if pre_merge is not None else [None] * len(images)
+        if not len(frames) == len(masks) == len(images):
+            raise InputError(f"{len(images)} images but {len(frames)} frame infos and "
+                             f"{len(masks)} pre-merge masks")
+        if len(images) <= 1 or not self.batchable:
+            return [self.detect_timed(im, fr, pm)
+                    for im, fr, pm in zip(images, frames, masks, strict=True)]
+        for im in images:
+            if im is None or im.ndim != 3 or im.shape[2] != 3:
+                raise InputError("frame is not a BGR image")
+        t0 = time.perf_counter()
+        while len(self._batch_letterbox) < len(images):
+            self._batch_letterbox.append(Letterboxer(self.layout))
+        prepared = [lb(im) for lb, im in zip(self._batch_letterbox, images, strict=False)]
+        tensor = np.concatenate([t for t, _ in prepared])
+        t1 = time.perf_counter()
+        outputs = self.session.run(self.output_names, {self.layout.input_name: tensor})
+        t2 = time.perf_counter()
+        share = (t2 - t1) * 1e3 / len(images)
+        pre = (t1 - t0) * 1e3 / len(images)
+        result = []
+        for i, (im, fr, pm) in enumerate(zip(images, frames, masks, strict=True)):
+            t3 = time.perf_counter()
+            persons, candidates, overflow = self.postprocess(
+                [o[i:i + 1] for o in outputs], prepared[i][1], im.shape[:2], fr, pm)
+            result.append(Detection(persons, pre, share, (time.perf_counter() - t3) * 1e3,
+                                    candidates, overflow))
+        return result
+
+    def detect_batch(self, images: list[np.ndarray],
+                     frames: list[FrameInfo | None] | None = None) -> list[Persons]:
+        """Persons per frame (see ``detect_batch_timed``)."""
+        return [d.persons for d in self.detect_batch_timed(images, frames)]
 
     def postprocess(self, outputs: list[np.ndarray], box: Letterbox, frame_hw: tuple[int, int],
                     frame: FrameInfo | None, pre_merge: PreMerge | None = None,
