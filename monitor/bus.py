@@ -46,6 +46,7 @@ import contextlib
 import json
 import math
 import os
+import re
 import socket
 import threading
 import time
@@ -170,13 +171,15 @@ def zenoh_config(bus: BusConfig) -> zenoh.Config:
         conf = (zenoh.Config.from_file(bus.zenoh_config_file) if bus.zenoh_config_file
                 else zenoh.Config())
     except Exception as exc:
-        raise ConfigError(f"{bus.zenoh_config_file}: not a valid Zenoh config: {exc}") from None
+        raise ConfigError(f"{bus.zenoh_config_file}: not a valid Zenoh config: "
+                          f"{_zenoh_error(exc)}") from None
 
     def put(key: str, value) -> None:
         try:
             conf.insert_json5(key, json.dumps(value))
         except Exception as exc:
-            raise ConfigError(f"bus: Zenoh rejects {key}={value!r}: {exc}") from None
+            raise ConfigError(f"bus: Zenoh rejects {key}={value!r}: {_zenoh_error(exc)}"
+                              ) from None
 
     if bus.mode is not None or bus.zenoh_config_file is None:
         put("mode", bus.mode or "peer")
@@ -217,7 +220,8 @@ def open_session(bus: BusConfig) -> zenoh.Session:
 
 def _zenoh_error(exc: Exception) -> str:
     """Zenoh's error text without its Rust source paths and chained context (one line)."""
-    text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+    msg = re.search(r'msg: "([^"\n]*)', str(exc))
+    text = msg.group(1) if msg else (str(exc).splitlines()[0] if str(exc) else "failed")
     cut = text.find(" at /")
     text = text[:cut] if cut > 0 else text
     if "Address already in use" in str(exc) or "address in use" in str(exc).lower():
@@ -307,7 +311,10 @@ class SafetyBus:
             self._pub_command = s.declare_publisher(
                 self.keys.command, encoding="application/json",
                 priority=zenoh.Priority.REAL_TIME, express=True,
-                congestion_control=zenoh.CongestionControl.BLOCK)
+                congestion_control=zenoh.CongestionControl.BLOCK,
+                # remote only: our own duplicate-monitor subscriber below must not count as a
+                # consumer in matching_status (unmatched puts are reported)
+                allowed_destination=zenoh.Locality.REMOTE)
             self._pub_alert = s.declare_publisher(
                 self.keys.alert, encoding="application/json",
                 priority=zenoh.Priority.DATA_HIGH, congestion_control=zenoh.CongestionControl.DROP)
@@ -318,7 +325,8 @@ class SafetyBus:
                 s.declare_queryable(self.keys.status, self._on_status_query),
                 s.declare_queryable(self.keys.reset, self._on_reset_query),
                 s.declare_subscriber(self.keys.reset, self._on_reset),
-                s.declare_subscriber(self.keys.command, self._on_command_seen),
+                s.declare_subscriber(self.keys.command, self._on_command_seen,
+                                     allowed_origin=zenoh.Locality.REMOTE),
                 s.liveliness().declare_subscriber(self.keys.alive + "/*", self._on_alive),
             ]
             self._token = s.liveliness().declare_token(f"{self.keys.alive}/{self.config.instance}")

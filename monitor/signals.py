@@ -1,24 +1,25 @@
 """Stop on SIGINT/SIGTERM within a bounded time, whatever the process is doing.
 
-Why not ``signal.signal``: a Python handler only runs when the main thread gets back to the
-interpreter. While it sits in a blocking Rust call (``zenoh.open``, ``Session.close``, a
-finaliser joining Zenoh threads) the signal waits, possibly forever (issue 13: ``timeout 6
-monitor watch`` hung for an hour in a futex). So ``StopSignals`` blocks SIGINT/SIGTERM in the
-calling thread -- and thereby in every thread started later, Zenoh's included -- and a small
-thread takes them with ``sigtimedwait``:
+A Python signal handler only runs when the main thread gets back to the interpreter; while it
+sits in a blocking Rust call (``zenoh.open``, ``Session.get``, ``Session.close``) the signal
+waits, possibly forever (issue 13: ``timeout 6 monitor watch`` hung for an hour in a futex).
+Masking the signals and taking them in a thread does not work either: numpy and OpenCV start
+threads at import that would still receive them. So:
 
+* the main thread never blocks in Zenoh: ``call_interruptible`` runs such calls in a helper
+  thread while the main thread waits in short slices (handlers run between them);
 * first signal: set the ``stop`` event (the command winds down: closes its session, prints its
   summary) and arm a deadline: after ``grace_s`` the process flushes and ``os._exit``s; a kernel
   timer (SIGALRM, default action: terminate) backs that up at ``hard_s`` even if no Python code
-  can run any more;
+  can run any more (a hang in interpreter shutdown);
 * second signal: flush and ``os._exit`` at once.
 
-Use it first thing in a command, before any Zenoh session exists::
+Use it first thing in a command::
 
     with StopSignals() as stop:
-        with open_session(cfg) as session:
-            ...
-            stop.wait()
+        session = call_interruptible(lambda: open_session(cfg), stop)
+        ...
+        stop.wait()
 
 ``close_bounded(session)`` closes a Zenoh session in a helper thread with a deadline (after
 undeclaring Python-callback entities, which otherwise keep the close waiting).
@@ -31,9 +32,16 @@ import os
 import signal
 import sys
 import threading
-from collections.abc import Iterable
+import time
+from collections.abc import Callable, Iterable
+from typing import TypeVar
 
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
+T = TypeVar("T")
+
+
+class Interrupted(Exception):
+    """A stop signal arrived while waiting for a blocking call."""
 
 
 def _flush() -> None:
@@ -43,7 +51,8 @@ def _flush() -> None:
 
 
 class StopSignals:
-    """Context manager; ``__enter__`` returns the stop event. Main thread only."""
+    """Context manager; ``__enter__`` returns the stop event. Main thread only; the previous
+    handlers are restored on exit."""
 
     def __init__(self, grace_s: float = 1.5, hard_s: float = 1.9, name: str = "monitor") -> None:
         if not 0 < grace_s < hard_s:
@@ -53,9 +62,7 @@ class StopSignals:
         self.name = name
         self.stop = threading.Event()
         self.signum: int | None = None
-        self._done = threading.Event()
-        self._thread: threading.Thread | None = None
-        self._old_mask: set | None = None
+        self._old: dict = {}
         self._timer: threading.Timer | None = None
 
     @property
@@ -66,37 +73,28 @@ class StopSignals:
     def __enter__(self) -> threading.Event:
         if threading.current_thread() is not threading.main_thread():
             raise RuntimeError("StopSignals must be entered in the main thread")
-        self._old_mask = signal.pthread_sigmask(signal.SIG_BLOCK, SIGNALS)
-        self._thread = threading.Thread(target=self._wait_signals, name="stop-signals",
-                                        daemon=True)
-        self._thread.start()
+        for s in SIGNALS:
+            self._old[s] = signal.signal(s, self._on_signal)
         return self.stop
 
     def __exit__(self, *exc) -> None:
-        self._done.set()
-        if self._thread is not None:
-            self._thread.join(timeout=1.0)
         if self._timer is not None:
             self._timer.cancel()  # wound down in time; the kernel timer stays armed until exit
-        if self._old_mask is not None:
-            signal.pthread_sigmask(signal.SIG_SETMASK, self._old_mask)
+        for s, h in self._old.items():
+            signal.signal(s, h)
 
-    def _wait_signals(self) -> None:
-        while not self._done.is_set():
-            info = signal.sigtimedwait(SIGNALS, 0.1)
-            if info is None:
-                continue
-            if self.signum is not None:  # the second signal: no more waiting
-                self._exit(f"{self.name}: second signal; exiting now", 128 + info.si_signo)
-            self.signum = info.si_signo
-            self.stop.set()
-            # backstop that needs no Python: SIGALRM's default action terminates the process
-            signal.setitimer(signal.ITIMER_REAL, self.hard_s)
-            self._timer = threading.Timer(self.grace_s, self._exit, args=(
-                f"{self.name}: did not stop within {self.grace_s:g} s; exiting anyway",
-                128 + info.si_signo))
-            self._timer.daemon = True
-            self._timer.start()
+    def _on_signal(self, signum: int, frame) -> None:
+        if self.signum is not None:  # the second signal: no more waiting
+            self._exit(f"{self.name}: second signal; exiting now", 128 + signum)
+        self.signum = signum
+        self.stop.set()
+        # backstop that needs no Python: SIGALRM's default action terminates the process
+        signal.setitimer(signal.ITIMER_REAL, self.hard_s)
+        self._timer = threading.Timer(self.grace_s, self._exit, args=(
+            f"{self.name}: did not stop within {self.grace_s:g} s; exiting anyway",
+            128 + signum))
+        self._timer.daemon = True
+        self._timer.start()
 
     @staticmethod
     def _exit(message: str, code: int) -> None:
@@ -104,6 +102,29 @@ class StopSignals:
             print(message, file=sys.stderr)
         _flush()
         os._exit(code)
+
+
+def call_interruptible(fn: Callable[[], T], stop: threading.Event, slice_s: float = 0.05) -> T:
+    """``fn()`` in a helper thread; the caller waits in slices so signal handlers run. Raises
+    Interrupted when ``stop`` is set first (the call is left behind in its daemon thread), and
+    re-raises what ``fn`` raised."""
+    done = threading.Event()
+    box: dict = {}
+
+    def run() -> None:
+        try:
+            box["value"] = fn()
+        except BaseException as exc:  # handed to the caller
+            box["error"] = exc
+        done.set()
+
+    threading.Thread(target=run, name="blocking-call", daemon=True).start()
+    while not done.wait(slice_s):
+        if stop.is_set():
+            raise Interrupted
+    if "error" in box:
+        raise box["error"]
+    return box["value"]
 
 
 def disarm_hard_deadline() -> None:
@@ -127,4 +148,8 @@ def close_bounded(session, timeout: float = 1.0, undeclare: Iterable = ()) -> bo
         done.set()
 
     threading.Thread(target=close, name="zenoh-close", daemon=True).start()
-    return done.wait(timeout)
+    deadline = time.monotonic() + timeout
+    while not done.wait(0.05):  # in slices: a second signal's handler runs in between
+        if time.monotonic() > deadline:
+            return False
+    return True

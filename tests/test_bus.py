@@ -22,9 +22,9 @@ from monitor.bus import (
     zenoh_config,
 )
 from monitor.errors import ConfigError
+from monitor.policy import Command, Reason, ResetOutcome
 from monitor.resets import request_reset
 from monitor.signing import load_private_key, new_key_pair
-from monitor.policy import Command, Reason, ResetOutcome
 from monitor.types import Alert, FrameInfo, Persons, ZoneHit, ZoneReport
 
 
