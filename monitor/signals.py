@@ -104,6 +104,13 @@ class StopSignals:
         os._exit(code)
 
 
+def wait_for_stop(stop: threading.Event, slice_s: float = 0.05) -> None:
+    """Block until ``stop`` is set, in slices: a signal delivered to another thread (numpy's,
+    Zenoh's) only runs its Python handler when the main thread wakes up."""
+    while not stop.wait(slice_s):
+        pass
+
+
 def call_interruptible(fn: Callable[[], T], stop: threading.Event, slice_s: float = 0.05) -> T:
     """``fn()`` in a helper thread; the caller waits in slices so signal handlers run. Raises
     Interrupted when ``stop`` is set first (the call is left behind in its daemon thread), and

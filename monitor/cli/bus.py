@@ -31,7 +31,13 @@ from monitor.bus import (
 from monitor.errors import ConfigError
 from monitor.pose import OtusBridge, PoseLimits, Rejection, parse_host_port
 from monitor.resets import request_reset, reset_payload
-from monitor.signals import Interrupted, StopSignals, call_interruptible, close_bounded
+from monitor.signals import (
+    Interrupted,
+    StopSignals,
+    call_interruptible,
+    close_bounded,
+    wait_for_stop,
+)
 from monitor.signing import load_private_key, load_public_key, new_key_pair
 
 # `monitor run` without a config listens here (monitor.config.DEMO_LISTEN); the operator
@@ -373,7 +379,7 @@ def cmd_router(args: argparse.Namespace) -> int:
         with _bounded(session, "monitor router") as session:
             print(f"monitor router: zid {session.zid()} listening on {list(bus.listen)}",
                   file=sys.stderr, flush=True)
-            stop.wait()
+            wait_for_stop(stop)
     return 0
 
 
