@@ -61,7 +61,10 @@ def _number(body: dict, key: str, lo: float, hi: float) -> float:
     value = body.get(key)
     if isinstance(value, bool) or not isinstance(value, int | float):
         raise InvalidCommand(f"{key} is not a number")
-    value = float(value)
+    try:
+        value = float(value)
+    except OverflowError:  # a JSON integer beyond the float range
+        raise InvalidCommand(f"{key} not within {lo}..{hi}") from None
     if not (math.isfinite(value) and lo <= value <= hi):
         raise InvalidCommand(f"{key} not within {lo}..{hi}")
     return value

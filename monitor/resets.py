@@ -109,6 +109,13 @@ class ResetGate:
             self._seen.popitem(last=False)
 
 
+def _finite(value: int | float) -> bool:
+    try:
+        return math.isfinite(value)  # a JSON integer may be too large for a float
+    except OverflowError:
+        return False
+
+
 def _parse(payload: bytes) -> dict:
     if len(payload) > MAX_RESET_PAYLOAD:
         raise ResetRefused("reset request too large")
@@ -125,7 +132,7 @@ def _parse(payload: bytes) -> dict:
     if not isinstance(rid, str) or not rid or len(rid) > MAX_FIELD:
         raise ResetRefused("reset request without a request_id")
     wall = body.get("wall")
-    if isinstance(wall, bool) or not isinstance(wall, int | float) or not math.isfinite(wall):
+    if isinstance(wall, bool) or not isinstance(wall, int | float) or not _finite(wall):
         raise ResetRefused("reset request without a valid wall time")
     note = body.get("note", "")
     confirm = body.get("confirm_clear", False)
