@@ -138,11 +138,14 @@ class BusConfig:
         return prefix if prefix.endswith("/") else prefix + "/"
 
 
+_PROCESS_TOKEN = os.urandom(2).hex()  # one per process: equal configs compare equal
+
+
 def default_instance(role: str) -> str:
-    """A unique instance id: role, host, pid and a random part (two monitors never share one
-    by accident; the consumer and the other monitor then see two and STOP)."""
+    """A unique instance id: role, host, pid and a random part drawn once per process (two
+    monitors never share one by accident, even across containers with equal pids)."""
     host = "".join(c if c.isalnum() or c in "-_." else "-" for c in socket.gethostname())
-    return f"{role}-{host or 'host'}-{os.getpid()}-{os.urandom(2).hex()}"
+    return f"{role}-{host or 'host'}-{os.getpid()}-{_PROCESS_TOKEN}"
 
 
 @dataclass(frozen=True)
