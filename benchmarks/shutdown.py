@@ -19,7 +19,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from tests.test_shutdown_bus import LIMIT_S, cpu_load, stop_time  # noqa: E402
+from tests.test_shutdown_bus import LIMIT_S, cpu_load, stop_time
 
 
 def main() -> None:
