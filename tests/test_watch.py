@@ -252,3 +252,35 @@ def test_router_status_and_reset_commands_through_a_router(tmp_path):
         router.send_signal(signal.SIGTERM)
         router.communicate(timeout=10)
     assert router.returncode == 0
+
+
+def test_watch_shows_the_latched_state_with_or_without_the_policys_details():
+    from monitor.cli.bus import _latch_text
+
+    assert _latch_text({"latched": False}) == ""
+    assert _latch_text({"latched": True}) == "LATCHED"  # an older monitor: no details
+    text = _latch_text({"latched": True, "reset_possible": True, "clear_for_s": 2.34,
+                        "latched_by": {"code": "protective_zone",
+                                       "message": "person 0 in robot-protective at 5.5 s"}})
+    assert text == ("LATCHED by person 0 in robot-protective at 5.5 s; cell clear for 2.3 s: "
+                    "reset possible (`monitor reset --operator <id>`)")
+    assert _latch_text({"latched": True, "reset_possible": False, "latched_by": "junk",
+                        "clear_for_s": "x"}) == "LATCHED: reset not possible yet"
+
+
+@pytest.mark.parametrize("argv", [["watch"], ["reset"], ["status"], ["router"],
+                                  ["bridge", "otus"], ["keys", "new"]])
+def test_every_option_of_the_bus_commands_says_its_default(argv):
+    import argparse
+
+    from monitor.cli import build_parser
+
+    parser = build_parser()
+    for name in argv:
+        parser = next(a for a in parser._actions
+                      if isinstance(a, argparse._SubParsersAction)).choices[name]
+    for action in parser._actions:
+        if action.help in (None, argparse.SUPPRESS) or isinstance(action, argparse._HelpAction):
+            continue
+        assert "default" in action.help or "required" in action.help, \
+            f"monitor {' '.join(argv)} {action.option_strings or action.dest}: {action.help}"
