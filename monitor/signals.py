@@ -104,6 +104,16 @@ class StopSignals:
         os._exit(code)
 
 
+def exit_if_stopped(stop: threading.Event, code: int = 0) -> int:
+    """After a stop signal, once the command has closed its session and printed its summary:
+    flush and ``os._exit(code)`` instead of returning into interpreter shutdown, where Zenoh's
+    runtime teardown takes a second or more (and may hang). Returns ``code`` otherwise."""
+    if stop.is_set():
+        _flush()
+        os._exit(code)
+    return code
+
+
 def wait_for_stop(stop: threading.Event, slice_s: float = 0.05) -> None:
     """Block until ``stop`` is set, in slices: a signal delivered to another thread (numpy's,
     Zenoh's) only runs its Python handler when the main thread wakes up."""

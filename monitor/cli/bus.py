@@ -36,6 +36,7 @@ from monitor.signals import (
     StopSignals,
     call_interruptible,
     close_bounded,
+    exit_if_stopped,
     wait_for_stop,
 )
 from monitor.signing import load_private_key, load_public_key, new_key_pair
@@ -189,7 +190,7 @@ def cmd_watch(args: argparse.Namespace) -> int:
             if not close_bounded(session, 1.0, entities):
                 print("monitor watch: Zenoh did not close within 1 s; exiting anyway",
                       file=sys.stderr, flush=True)
-    return 0
+        return exit_if_stopped(stop)
 
 
 def _watch_subscriptions(session, keys: BusKeys, inbox, clock) -> list:
@@ -344,7 +345,7 @@ def _bridge_otus(args: argparse.Namespace, stop) -> int:
         v = bridge.validator
         print(f"monitor bridge otus: {bridge.packets} packets, {v.accepted} published, "
               f"rejected {dict(v.rejected)}, {bridge.silences} silences", file=sys.stderr)
-    return 0
+    return exit_if_stopped(stop)
 
 
 class _bounded:
@@ -380,7 +381,7 @@ def cmd_router(args: argparse.Namespace) -> int:
             print(f"monitor router: zid {session.zid()} listening on {list(bus.listen)}",
                   file=sys.stderr, flush=True)
             wait_for_stop(stop)
-    return 0
+        return exit_if_stopped(stop)
 
 
 def _operator_key_path(args: argparse.Namespace) -> Path | None:
