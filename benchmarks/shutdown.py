@@ -33,7 +33,7 @@ def main() -> None:
     print("|---|---|---:|---:|---:|---:|")
     with cpu_load():
         for name in args.commands.split(","):
-            for phase in ("start", "opening", "running"):
+            for phase in ("running", "start", "opening"):  # running first: time-to-ready
                 for second in (False, True):
                     times = [stop_time(name, phase, second, rng)[0]
                              for _ in range(args.repeats)]
