@@ -93,7 +93,8 @@ def bus_and_listener():
                     heartbeat_hz=20.0, ttl_ms=200, config_hash="abc123", stall_timeout=0.6)
     with SafetyBus(cfg, alert_limits=AlertLimits(min_interval=10.0)) as bus, \
             Listener(port) as ctl:
-        assert wait_for(lambda: bus._pub_command.matching_status.matching)
+        assert wait_for(lambda: all(p.matching_status.matching for p in (
+            bus._pub_command, bus._pub_alert, bus._pub_detections)))  # all routes are up
         yield bus, ctl
 
 
