@@ -189,7 +189,9 @@ def resolve_paths(config: MonitorConfig, base: Path) -> MonitorConfig:
 
     bus = dataclasses.replace(config.bus, zenoh_config_file=fix(config.bus.zenoh_config_file),
                               tls_root_ca=fix(config.bus.tls_root_ca),
-                              tls_cert=fix(config.bus.tls_cert), tls_key=fix(config.bus.tls_key))
+                              tls_cert=fix(config.bus.tls_cert), tls_key=fix(config.bus.tls_key),
+                              signing_key=fix(config.bus.signing_key),
+                              operators_file=fix(config.bus.operators_file))
     detector = dataclasses.replace(config.detector,
                                    self_test_image=fix(config.detector.self_test_image))
     return dataclasses.replace(

@@ -23,6 +23,8 @@ from monitor.bus import (
 )
 from monitor.errors import ConfigError
 from monitor.policy import Command, Reason, ResetOutcome
+from monitor.resets import request_reset
+from monitor.signing import load_private_key, new_key_pair
 from monitor.types import Alert, FrameInfo, Persons, ZoneHit, ZoneReport
 
 
@@ -91,7 +93,8 @@ def bus_and_listener():
                     heartbeat_hz=20.0, ttl_ms=200, config_hash="abc123", stall_timeout=0.6)
     with SafetyBus(cfg, alert_limits=AlertLimits(min_interval=10.0)) as bus, \
             Listener(port) as ctl:
-        assert wait_for(lambda: bus._pub_command.matching_status.matching)
+        assert wait_for(lambda: all(p.matching_status.matching for p in (
+            bus._pub_command, bus._pub_alert, bus._pub_detections)))  # all routes are up
         yield bus, ctl
 
 
@@ -232,17 +235,20 @@ def test_status_queryable_answers_with_state_and_counters(bus_and_listener):
     assert bus.status()["puts_unmatched"].get("workcell/t/safety/detections", 0) >= 1
 
 
-def test_reset_requests_are_received_with_operator_and_invalid_ones_counted(bus_and_listener):
+def test_unsigned_resets_are_refused_without_operators_and_invalid_ones_counted(
+        bus_and_listener):
     bus, ctl = bus_and_listener
     ctl.session.put(ctl.keys.reset, reset_payload("anna", "r1", "checked the cell"))
     ctl.session.put(ctl.keys.reset, b'{"note": "no operator"}')
     ctl.session.put(ctl.keys.reset, b"garbage")
-    got = []
-    assert wait_for(lambda: bool(got.extend(bus.poll_resets()) or got) and
-                    bus.status()["resets_invalid"] == 2)
-    assert len(got) == 1 and got[0].operator == "anna" and got[0].request_id == "r1"
-    assert abs(got[0].time - time.monotonic()) < 3.0  # stamped on the monitor's clock
-    assert bus.poll_resets() == []
+    assert wait_for(lambda: bus.status()["resets_refused"] == 3)
+    st = bus.status()
+    assert st["resets_invalid"] == 2  # the two without an operator
+    assert st["last_reset"]["accepted"] is False
+    assert bus.poll_resets() == []  # the policy never sees them
+    assert wait_for(lambda: any(a["kind"] == "reset_refused" for a, _ in ctl.alerts))
+    first = next(a for a, _ in ctl.alerts if a["kind"] == "reset_refused")
+    assert "anna" in first["message"] and "no operators configured" in first["message"]
 
 
 def test_command_puts_from_two_threads_stay_in_seq_order(bus_and_listener):
@@ -376,8 +382,11 @@ def test_secure_router_only_monitor_publishes_commands_only_operators_reset(tmp_
                          user=user, password=password, **kw)
 
     keys = BusKeys.of("workcell/sec/")
+    ops = {name: new_key_pair(tmp_path / f"{name}.key")[2] for name in ("operator1", "rogue")}
+    (tmp_path / "operators").write_text(f"operator1 {ops['operator1']}\n")
     seen: list[dict] = []
-    with zenoh.open(conf), SafetyBus(client("monitor", "m-pw")) as bus, \
+    with zenoh.open(conf), SafetyBus(client(
+            "monitor", "m-pw", operators_file=str(tmp_path / "operators"))) as bus, \
             open_session(client("viewer", "v-pw")) as viewer, \
             open_session(client("rogue", "r-pw")) as rogue, \
             open_session(client("operator1", "o-pw")) as operator:
@@ -388,14 +397,28 @@ def test_secure_router_only_monitor_publishes_commands_only_operators_reset(tmp_
         assert wait_for(lambda: any(c.get("instance") == "monitor" for c in seen))
         # a rogue client cannot command the robot nor release a latched STOP
         rogue.put(keys.command, json.dumps({"state": "RUN", "instance": "rogue"}))
-        rogue.put(keys.reset, reset_payload("rogue"))
+        def signed(name):
+            payload = reset_payload(name, cell="sec")
+            return payload, load_private_key(tmp_path / f"{name}.key").sign(keys.reset, payload)
+
+        rogue.put(keys.reset, signed("rogue")[0], attachment=signed("rogue")[1])
         viewer.put(keys.reset, reset_payload("viewer"))
-        operator.put(keys.reset, reset_payload("operator1"))
+        answer = request_reset(viewer, keys.reset, *signed("operator1"), timeout=1.0)
+        assert answer is None  # the ACL drops a viewer's reset query (second layer)
+        answers = []
+        asker = threading.Thread(target=lambda: answers.append(request_reset(
+            operator, keys.reset, *signed("operator1"), timeout=5.0)))
+        asker.start()
         got = []
         assert wait_for(lambda: bool(got.extend(bus.poll_resets()) or got))
         time.sleep(0.3)  # give the denied messages time to (not) arrive
         got += bus.poll_resets()
         assert [r.operator for r in got] == ["operator1"]
+        # the policy's outcome is the answer to the operator's query
+        bus.publish_command(Command("STOP", 0.0, (), 1.0, reset=ResetOutcome(
+            "operator1", False, "refused: person 0 in zone P1", got[0].request_id)))
+        asker.join(5.0)
+        assert answers[0]["accepted"] is False and "person 0" in answers[0]["reason"]
         assert not any(c.get("instance") == "rogue" for c in seen)
         # and everyone may read the status
         replies = list(viewer.get(keys.status, timeout=3.0))

@@ -172,20 +172,43 @@ def test_bus_cli_errors_are_one_line():
     assert out.returncode == 2 and "--listen" in out.stderr
 
 
-def test_router_status_and_reset_commands_through_a_router():
-    """`monitor router` as the hub; the monitor and the CLI tools are clients of it."""
+def test_router_status_and_reset_commands_through_a_router(tmp_path):
+    """`monitor router` as the hub; the monitor and the CLI tools are clients of it. `monitor
+    reset` waits for the monitor's answer: exit 0 accepted, 1 refused (with the reason)."""
     from monitor.bus import SafetyBus
-    from monitor.policy import Command
+    from monitor.policy import Command, ResetOutcome
 
     port = free_port()
     router = subprocess.Popen(
         [sys.executable, "-m", "monitor", "router", "--listen", f"tcp/127.0.0.1:{port}"],
         stderr=subprocess.PIPE, text=True)
     client = ["--cell", "rt", "--mode", "client", "--connect", f"tcp/127.0.0.1:{port}"]
+    key = tmp_path / "anna.key"
+    keys = subprocess.run([sys.executable, "-m", "monitor", "keys", "new", str(key),
+                           "--operator", "anna"], capture_output=True, text=True, timeout=30)
+    assert keys.returncode == 0, keys.stderr
+    operators = tmp_path / "operators"
+    operators.write_text(keys.stdout.strip().splitlines()[-1] + "\n")  # "anna ed25519:..."
+
+    def reset(*extra):
+        return subprocess.Popen([sys.executable, "-m", "monitor", "reset", *client,
+                                 "--operator", "anna", "--key", str(key), "--timeout", "10",
+                                 *extra],
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+    def next_request(bus):
+        deadline = time.monotonic() + 20
+        while time.monotonic() < deadline:
+            got = bus.poll_resets()
+            if got:
+                return got[0]
+            time.sleep(0.01)
+        raise AssertionError("no reset request reached the monitor")
+
     try:
         assert "listening" in router.stderr.readline()
         cfg = BusConfig(cell="rt", instance="mon-rt", mode="client",
-                        connect=(f"tcp/127.0.0.1:{port}",))
+                        connect=(f"tcp/127.0.0.1:{port}",), operators_file=str(operators))
         with SafetyBus(cfg) as bus:
             bus.publish_command(Command("RUN", 1.0, ()))
             bus.update_status(fps=9.5)
@@ -194,21 +217,70 @@ def test_router_status_and_reset_commands_through_a_router():
             assert out.returncode == 0, out.stderr
             status = json.loads(out.stdout)
             assert status["instance"] == "mon-rt" and status["fps"] == 9.5
+            # accepted by the policy -> exit 0
+            proc = reset("--note", "cell checked")
+            req = next_request(bus)
+            assert (req.operator, req.note, req.confirm_clear) == ("anna", "cell checked", False)
+            bus.publish_command(Command("STOP", 0.0, (), reset=ResetOutcome(
+                "anna", True, "reset accepted", req.request_id)))
+            stdout, stderr = proc.communicate(timeout=30)
+            assert proc.returncode == 0, stderr
+            assert "accepted" in stdout
+            # refused by the policy -> exit 1 with the reason
+            proc = reset("--confirm-clear")
+            req = next_request(bus)
+            assert req.confirm_clear
+            bus.publish_command(Command("STOP", 0.0, (), reset=ResetOutcome(
+                "anna", False, "refused: person 0 in zone P1", req.request_id)))
+            stdout, stderr = proc.communicate(timeout=30)
+            assert proc.returncode == 1 and "REFUSED" in stdout and "person 0 in zone P1" in stdout
+            # refused by the bus (no key for this operator) -> exit 1 with the reason
             out = subprocess.run([sys.executable, "-m", "monitor", "reset", *client,
-                                  "--operator", "anna", "--note", "cell checked"],
+                                  "--operator", "mallory"],
                                  capture_output=True, text=True, timeout=30)
-            assert out.returncode == 0, out.stderr
-            got = []
-            deadline = time.monotonic() + 5
-            while not got and time.monotonic() < deadline:
-                got = bus.poll_resets()
-                time.sleep(0.01)
-            assert [(r.operator, r.note) for r in got] == [("anna", "cell checked")]
-        # no monitor any more: status is a one-line error, exit 2
-        out = subprocess.run([sys.executable, "-m", "monitor", "status", *client,
-                              "--timeout", "0.5"], capture_output=True, text=True, timeout=30)
-        assert out.returncode == 2 and "no answer" in out.stderr
+            assert out.returncode == 1 and "unknown operator 'mallory'" in out.stdout
+            assert bus.poll_resets() == []
+        # no monitor any more: status and reset are one-line errors, exit 2, with a hint
+        for cmd in ("status", "reset"):
+            out = subprocess.run([sys.executable, "-m", "monitor", cmd, *client, "--timeout",
+                                  "0.5", *(["--operator", "anna"] if cmd == "reset" else [])],
+                                 capture_output=True, text=True, timeout=30)
+            assert out.returncode == 2, out.stderr
+            assert "no answer" in out.stderr or "no monitor answered" in out.stderr
+            assert "--connect" in out.stderr
     finally:
         router.send_signal(signal.SIGTERM)
         router.communicate(timeout=10)
     assert router.returncode == 0
+
+
+def test_watch_shows_the_latched_state_with_or_without_the_policys_details():
+    from monitor.cli.bus import _latch_text
+
+    assert _latch_text({"latched": False}) == ""
+    assert _latch_text({"latched": True}) == "LATCHED"  # an older monitor: no details
+    text = _latch_text({"latched": True, "reset_possible": True, "clear_for_s": 2.34,
+                        "latched_by": {"code": "protective_zone",
+                                       "message": "person 0 in robot-protective at 5.5 s"}})
+    assert text == ("LATCHED by person 0 in robot-protective at 5.5 s; cell clear for 2.3 s: "
+                    "reset possible (`monitor reset --operator <id>`)")
+    assert _latch_text({"latched": True, "reset_possible": False, "latched_by": "junk",
+                        "clear_for_s": "x"}) == "LATCHED: reset not possible yet"
+
+
+@pytest.mark.parametrize("argv", [["watch"], ["reset"], ["status"], ["router"],
+                                  ["bridge", "otus"], ["keys", "new"]])
+def test_every_option_of_the_bus_commands_says_its_default(argv):
+    import argparse
+
+    from monitor.cli import build_parser
+
+    parser = build_parser()
+    for name in argv:
+        parser = next(a for a in parser._actions
+                      if isinstance(a, argparse._SubParsersAction)).choices[name]
+    for action in parser._actions:
+        if action.help in (None, argparse.SUPPRESS) or isinstance(action, argparse._HelpAction):
+            continue
+        assert "default" in action.help or "required" in action.help, \
+            f"monitor {' '.join(argv)} {action.option_strings or action.dest}: {action.help}"

@@ -1,0 +1,161 @@
+"""Operator reset requests on ``safety/reset``: the signed wire format and the bus-side gate.
+
+A reset releases a latched STOP, so the monitor accepts one only from an operator listed in the
+operators file, signed with that operator's key (``monitor keys new --operator NAME``), for this
+cell, sent recently (``wall`` within ``window_s`` of the monitor's clock) and never seen before
+(``request_id``). Everything else is refused by the bus, before the policy sees it, with a
+reason; the policy then still refuses a reset while any STOP cause holds.
+
+Payload (UTF-8 JSON; the Ed25519 signature of ``monitor.signing.signed_message(<reset key>,
+payload)`` is the attachment)::
+
+    {"schema": "workcell.safety.reset/1", "cell": "cell1", "operator": "anna",
+     "request_id": "anna-1732400000.123-5f3a", "note": "...", "confirm_clear": false,
+     "wall": 1732400000.123}
+"""
+
+from __future__ import annotations
+
+import collections
+import json
+import math
+import os
+import time
+from dataclasses import dataclass
+
+from monitor.policy import ResetRequest
+from monitor.signing import Signer, verify
+
+RESET_SCHEMA = "workcell.safety.reset/1"
+MAX_RESET_PAYLOAD = 8 * 1024
+MAX_FIELD = 256
+
+
+class ResetRefused(ValueError):
+    """A reset request the bus refuses; the message is the reason told to the sender."""
+
+
+def reset_payload(operator: str, request_id: str = "", note: str = "", *, cell: str = "",
+                  confirm_clear: bool = False, wall: float | None = None) -> bytes:
+    """A reset request body; ``request_id`` defaults to a fresh unique id."""
+    wall = time.time() if wall is None else wall
+    rid = request_id or f"{operator}-{wall:.3f}-{os.urandom(3).hex()}"
+    body = {"schema": RESET_SCHEMA, "operator": operator, "request_id": rid, "note": note,
+            "confirm_clear": confirm_clear, "wall": wall}
+    if cell:
+        body["cell"] = cell
+    return json.dumps(body).encode()
+
+
+def signed_reset(signer: Signer, key_expr: str, payload: bytes) -> bytes:
+    """The attachment (signature) for a reset payload sent on ``key_expr``."""
+    return signer.sign(key_expr, payload)
+
+
+@dataclass(frozen=True)
+class ResetPolicy:
+    """Who may reset and how strictly requests are checked (from the bus config)."""
+
+    operators: dict | None  # name -> Ed25519PublicKey; None = no operators file configured
+    cell: str
+    key_expr: str  # the reset key (part of what is signed)
+    allow_unsigned: bool = False  # only for a closed lab setup; never in production
+    window_s: float = 30.0
+
+
+class ResetGate:
+    """Checks reset requests; remembers request ids for replay protection (not thread-safe)."""
+
+    def __init__(self, policy: ResetPolicy) -> None:
+        self.policy = policy
+        self._seen: collections.OrderedDict[str, float] = collections.OrderedDict()
+
+    def check(self, payload: bytes, signature: bytes | None, received: float,
+              wall_now: float | None = None) -> ResetRequest:
+        """A ResetRequest (``time`` = ``received``, monotonic) or ResetRefused with the reason."""
+        p = self.policy
+        wall_now = time.time() if wall_now is None else wall_now
+        body = _parse(payload)
+        operator = body["operator"]
+        if p.operators is None:
+            if not p.allow_unsigned:
+                raise ResetRefused("no operators configured on this monitor (bus.operators_file)"
+                                   "; resets are refused")
+        elif operator not in p.operators:
+            raise ResetRefused(f"unknown operator {operator!r}")
+        elif signature is None:
+            raise ResetRefused(f"unsigned reset in the name of {operator!r}")
+        elif not verify(p.operators[operator], p.key_expr, payload, signature):
+            raise ResetRefused(f"signature does not match operator {operator!r}")
+        cell = body.get("cell", p.cell)
+        if cell != p.cell:
+            raise ResetRefused(f"request is for cell {cell!r}, this is {p.cell!r}")
+        wall = body["wall"]
+        if abs(wall - wall_now) > p.window_s:
+            raise ResetRefused(f"request time is {wall - wall_now:+.1f} s off the monitor's "
+                               f"clock (allowed ±{p.window_s:g} s): replayed or clock wrong")
+        rid = body["request_id"]
+        self._forget(wall_now)
+        if rid in self._seen:
+            raise ResetRefused(f"request id {rid!r} was already used (replayed)")
+        self._seen[rid] = wall_now
+        return ResetRequest(operator=operator, time=received, request_id=rid,
+                            note=body["note"], confirm_clear=body["confirm_clear"])
+
+    def _forget(self, wall_now: float) -> None:
+        horizon = 2 * self.policy.window_s
+        while self._seen and (wall_now - next(iter(self._seen.values())) > horizon
+                              or len(self._seen) > 10_000):
+            self._seen.popitem(last=False)
+
+
+def _finite(value: int | float) -> bool:
+    try:
+        return math.isfinite(value)  # a JSON integer may be too large for a float
+    except OverflowError:
+        return False
+
+
+def _parse(payload: bytes) -> dict:
+    if len(payload) > MAX_RESET_PAYLOAD:
+        raise ResetRefused("reset request too large")
+    try:
+        body = json.loads(payload)
+    except (ValueError, UnicodeDecodeError, RecursionError):
+        raise ResetRefused("reset request is not JSON") from None
+    if not isinstance(body, dict):
+        raise ResetRefused("reset request is not a JSON object")
+    operator = body.get("operator")
+    if not isinstance(operator, str) or not operator.strip() or len(operator) > MAX_FIELD:
+        raise ResetRefused("reset request without an operator id")
+    rid = body.get("request_id")
+    if not isinstance(rid, str) or not rid or len(rid) > MAX_FIELD:
+        raise ResetRefused("reset request without a request_id")
+    wall = body.get("wall")
+    if isinstance(wall, bool) or not isinstance(wall, int | float) or not _finite(wall):
+        raise ResetRefused("reset request without a valid wall time")
+    note = body.get("note", "")
+    confirm = body.get("confirm_clear", False)
+    if not isinstance(note, str) or len(note) > 4 * MAX_FIELD or not isinstance(confirm, bool):
+        raise ResetRefused("reset request with a malformed note or confirm_clear")
+    cell = body.get("cell")
+    if cell is not None and not isinstance(cell, str):
+        raise ResetRefused("reset request with a malformed cell")
+    return {"operator": operator.strip(), "request_id": rid, "wall": float(wall),
+            "note": note, "confirm_clear": confirm, **({"cell": cell} if cell else {})}
+
+
+def request_reset(session, key_expr: str, payload: bytes, signature: bytes | None,
+                  timeout: float) -> dict | None:
+    """Send a reset request as a query and wait for the monitor's answer (the first reply),
+    ``{"accepted": bool, "reason": str, "stage": "bus"|"policy", ...}``; None on timeout."""
+    for reply in session.get(key_expr, payload=payload, attachment=signature, timeout=timeout):
+        if reply.ok is None:
+            continue
+        try:
+            body = json.loads(reply.ok.payload.to_bytes())
+        except (ValueError, UnicodeDecodeError):
+            continue
+        if isinstance(body, dict) and isinstance(body.get("accepted"), bool):
+            return body
+    return None

@@ -1,0 +1,275 @@
+"""A rogue peer on 127.0.0.1 against the monitor, the consumer and the reset path.
+
+The consumer is `monitor watch` (the reference consumer) in its own process, the monitor a
+SafetyBus in another, the rogue a third: it floods forged, replayed and malformed RUN commands
+straight into the consumer while the monitor says STOP.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import multiprocessing
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+
+import pytest
+import zenoh
+
+from monitor.bus import BusConfig, BusKeys, DuplicateMonitor, SafetyBus, open_session
+from monitor.policy import Command, Reason, ResetOutcome
+from monitor.resets import request_reset, reset_payload
+from monitor.signing import load_private_key, new_key_pair
+
+CELL = "rogue"
+CAP_MS = 500
+FAIL_SAFE = ("ttl", "liveliness", "duplicate_monitor", "sequence")
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def wait_for(cond, timeout: float = 10.0) -> bool:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if cond():
+            return True
+        time.sleep(0.005)
+    return cond()
+
+
+def monitor_main(port: int, key: str, run_s: float, start_run) -> None:
+    """STOP until ``start_run``; RUN for ``run_s`` (so the rogue can record signed RUNs), then
+    a latched STOP forever."""
+    cfg = BusConfig(cell=CELL, instance="mon-a", listen=(f"tcp/127.0.0.1:{port}",),
+                    heartbeat_hz=20.0, ttl_ms=200, signing_key=key)
+    with SafetyBus(cfg) as bus:
+        person = (Reason("protective_zone", "person 0 in P1", zone_id="P1", person=0),)
+        while not start_run.is_set():
+            bus.publish_command(Command("STOP", 0.0, person, since=0.0))
+            time.sleep(0.02)
+        start = time.monotonic()
+        while True:  # until the test kills this process
+            if time.monotonic() - start < run_s:
+                bus.publish_command(Command("RUN", 1.0, (), since=start))
+            else:
+                bus.publish_command(Command("STOP", 0.0, person, since=start + run_s,
+                                            latched=True))
+            time.sleep(0.02)
+
+
+def rogue_main(monitor_port: int, consumer_port: int, rogue_key: str, recording, go,
+               killed) -> None:
+    """Records the monitor's signed commands, then floods the consumer with forgeries."""
+    keys = BusKeys.of(f"workcell/{CELL}/")
+    wrong = load_private_key(rogue_key)
+    cfg = BusConfig(cell=CELL, instance="rogue", connect=(
+        f"tcp/127.0.0.1:{monitor_port}", f"tcp/127.0.0.1:{consumer_port}"))
+    recorded: list[tuple[bytes, bytes | None]] = []
+    with open_session(cfg) as s:
+        sub = s.declare_subscriber(keys.command, lambda x: recorded.append(
+            (x.payload.to_bytes(), x.attachment.to_bytes() if x.attachment else None)))
+        while not recorded:
+            time.sleep(0.01)
+        recording.set()
+        go.wait(60)
+        runs = [r for r in recorded if json.loads(r[0])["state"] == "RUN"]
+        last = json.loads(recorded[-1][0])
+        token = None
+        n = 0
+        while True:
+            if killed.is_set() and token is None:
+                token = s.liveliness().declare_token(f"{keys.alive}/mon-a")  # forged
+            n += 1
+            base = {**last, "state": "RUN", "speed_scale": 1.0, "reasons": [], "latched": False,
+                    "wall": time.time(), "seq": last["seq"] + n}
+            forged = json.dumps(base).encode()
+            attacks = [
+                (forged, None),  # unsigned
+                (forged, wrong.sign(keys.command, forged)),  # wrong key
+                runs[n % len(runs)],  # replay of a real signed RUN (old seq)
+                (json.dumps({**base, "ttl_ms": math.nan}).encode(), None),
+                (json.dumps({**base, "seq": 10**400}).encode(), None),
+                (json.dumps({**base, "seq": 1e400}).encode(), None),
+                (json.dumps({**base, "ttl_ms": -1, "speed_scale": "1"}).encode(), None),
+                (b"\xff\xfe not json", None),
+                (json.dumps({**base, "seq": 1}).encode(), None),  # old seq
+            ]
+            for payload, attachment in attacks:
+                s.put(keys.command, payload, attachment=attachment)
+            time.sleep(0.002)
+        sub.undeclare()
+
+
+@pytest.mark.slow
+def test_a_rogue_flooding_forged_replayed_and_malformed_runs_never_moves_the_consumer(tmp_path):
+    mon_key, mon_pub, _ = new_key_pair(tmp_path / "monitor.key")
+    rogue_key, _, _ = new_key_pair(tmp_path / "rogue.key")
+    mon_port, consumer_port = free_port(), free_port()
+    ctx = multiprocessing.get_context("spawn")
+    start_run, recording, go, killed = (ctx.Event() for _ in range(4))
+    watch = subprocess.Popen(
+        [sys.executable, "-m", "monitor", "watch", "--cell", CELL, "--json",
+         "--monitor-key", str(mon_pub), "--ttl-ms", str(CAP_MS),
+         "--listen", f"tcp/127.0.0.1:{consumer_port}",
+         "--connect", f"tcp/127.0.0.1:{mon_port}"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    events: list[dict] = []
+    reader = threading.Thread(target=lambda: events.extend(
+        json.loads(line) for line in watch.stdout), daemon=True)
+    reader.start()
+    monitor = ctx.Process(target=monitor_main, args=(mon_port, str(mon_key), 1.0, start_run))
+    rogue = ctx.Process(target=rogue_main, args=(mon_port, consumer_port, str(rogue_key),
+                                                  recording, go, killed))
+    try:
+        monitor.start()
+        rogue.start()
+
+        def verdicts():
+            return [e for e in list(events) if e["event"] == "verdict"]
+
+        # both the consumer and the rogue hear the monitor: let it RUN for a moment
+        assert wait_for(lambda: recording.is_set() and any(
+            v["state"] == "STOP" and v["code"] == "" for v in verdicts()), 60), events[-5:]
+        start_run.set()
+        assert wait_for(lambda: any(v["state"] == "RUN" for v in verdicts()), 30), events[-5:]
+        assert wait_for(lambda: verdicts()[-1]["state"] == "STOP" and any(
+            v["state"] == "RUN" for v in verdicts()), 30), events[-5:]
+        go.set()  # the monitor says STOP now: attack
+        time.sleep(3.0)  # flood for a while (the property is checked over every event below)
+        os.kill(monitor.pid, signal.SIGKILL)
+        killed.set()
+        # within the consumer's own cap it no longer follows the dead monitor (replays keep
+        # it in a sequence error, the forged token makes two monitors, or silence)
+        time.sleep(CAP_MS / 1000 + 0.25)
+        dead = verdicts()[-1]
+        time.sleep(1.0)  # the forged token and the flood go on after the kill
+    finally:
+        for p in (monitor, rogue):
+            if p.is_alive():
+                p.kill()
+            p.join(10)
+        watch.send_signal(signal.SIGINT)
+        _, err = watch.communicate(timeout=10)
+    assert watch.returncode == 0, err  # never crashed by what it received
+    vs = verdicts()
+    first_run = next(i for i, v in enumerate(vs) if v["state"] == "RUN")
+    first_stop = next(i for i, v in enumerate(vs) if i > first_run and v["state"] == "STOP")
+    assert all(v["state"] == "RUN" for v in vs[first_run:first_stop])
+    after = vs[first_stop:]
+    assert all(v["state"] == "STOP" for v in after), [v for v in after if v["state"] != "STOP"]
+    rejected = [e for e in events if e["event"] == "command" and e["rejected"]]
+    assert {e["rejected"] for e in rejected} >= {"invalid", "unsigned", "signature", "seq"}
+    assert dead["state"] == "STOP" and dead["code"] in FAIL_SAFE, dead
+    assert verdicts()[-1]["state"] == "STOP" and verdicts()[-1]["code"] in FAIL_SAFE
+
+
+# --- resets ----------------------------------------------------------------------------------
+
+
+def test_rogue_resets_are_refused_with_an_alert_and_a_signed_one_is_accepted(tmp_path):
+    names = ("anna", "operator1", "mallory")
+    k = {n: new_key_pair(tmp_path / f"{n}.key") for n in names}
+    ops = tmp_path / "operators"
+    ops.write_text("".join(f"{n} {k[n][2]}\n" for n in ("anna", "operator1")))
+    signer = {n: load_private_key(k[n][0]) for n in names}
+    port = free_port()
+    cfg = BusConfig(cell=CELL, instance="mon-r", listen=(f"tcp/127.0.0.1:{port}",),
+                    operators_file=str(ops))
+    keys = BusKeys.of(f"workcell/{CELL}/")
+    alerts: list[dict] = []
+    with SafetyBus(cfg) as bus, open_session(BusConfig(
+            cell=CELL, instance="x", connect=(f"tcp/127.0.0.1:{port}",))) as peer:
+        peer.declare_subscriber(keys.alert, lambda s: alerts.append(
+            json.loads(s.payload.to_bytes())))
+        assert wait_for(lambda: bool(list(peer.get(keys.status, timeout=1.0))))
+
+        def ask(operator: str, by: str | None):
+            payload = reset_payload(operator, cell=CELL)
+            sig = signer[by].sign(keys.reset, payload) if by else None
+            return request_reset(peer, keys.reset, payload, sig, 5.0)
+
+        cases = {"unsigned": ask("anna", None), "unknown": ask("mallory", "mallory"),
+                 "impersonation": ask("anna", "operator1")}
+        assert {c: (a["accepted"], a["stage"]) for c, a in cases.items()} == {
+            c: (False, "bus") for c in cases}
+        assert "unsigned reset in the name of 'anna'" in cases["unsigned"]["reason"]
+        assert "unknown operator 'mallory'" in cases["unknown"]["reason"]
+        assert "signature does not match operator 'anna'" in cases["impersonation"]["reason"]
+        assert bus.poll_resets() == []
+        assert bus.status()["resets_refused"] == 3
+        assert wait_for(lambda: any(a["kind"] == "reset_refused" and "refused by the bus"
+                                    in a["message"] for a in alerts), 5)
+        # a properly signed reset reaches the policy; its outcome is the answer
+        answers = []
+        t = threading.Thread(target=lambda: answers.append(ask("anna", "anna")))
+        t.start()
+        assert wait_for(lambda: bool(getattr(bus, "_pending", None)), 10)
+        (req,) = bus.poll_resets()
+        assert req.operator == "anna"
+        bus.publish_command(Command("RUN", 1.0, (), reset=ResetOutcome(
+            "anna", True, "reset accepted", req.request_id)))
+        t.join(10)
+        assert answers[0]["accepted"] is True and answers[0]["stage"] == "policy"
+
+
+# --- one monitor per cell ------------------------------------------------------------------
+
+
+def test_a_second_monitor_on_the_cell_refuses_to_start():
+    port = free_port()
+    first = BusConfig(cell=CELL, instance="mon-1", listen=(f"tcp/127.0.0.1:{port}",))
+    second = BusConfig(cell=CELL, instance="mon-2", connect=(f"tcp/127.0.0.1:{port}",))
+    with SafetyBus(first), pytest.raises(DuplicateMonitor,
+                                         match="another monitor \\(mon-1\\) is already live"):
+        SafetyBus(second, startup_check_s=3.0).__enter__()
+
+
+def test_a_monitor_appearing_later_makes_both_stop_with_a_duplicate_monitor_fault():
+    port = free_port()
+    cfg = BusConfig(cell=CELL, instance="mon-1", listen=(f"tcp/127.0.0.1:{port}",),
+                    heartbeat_hz=20.0, ttl_ms=200)
+    keys = BusKeys.of(f"workcell/{CELL}/")
+    seen: list[dict] = []
+    with SafetyBus(cfg) as bus, open_session(BusConfig(
+            cell=CELL, instance="ctl", connect=(f"tcp/127.0.0.1:{port}",))) as other:
+        other.declare_subscriber(keys.command, lambda s: seen.append(
+            json.loads(s.payload.to_bytes())))
+        assert bus.faults() == []
+        bus.publish_command(Command("RUN", 1.0, ()))
+        assert wait_for(lambda: any(c["state"] == "RUN" for c in seen))
+        # the other one (started without seeing the first) announces itself
+        token = other.liveliness().declare_token(f"{keys.alive}/mon-2")
+        assert wait_for(lambda: bool(bus.faults()))
+        (fault,) = bus.faults()
+        assert (fault.name, fault.stop, fault.latch) == ("duplicate_monitor", True, True)
+        assert "mon-2" in fault.reason
+        n = len(seen)
+        bus.publish_command(Command("RUN", 1.0, ()))
+        assert wait_for(lambda: any(c["state"] == "STOP" and any(
+            r["code"] == "duplicate_monitor" for r in c["reasons"]) for c in seen[n:]))
+        token.undeclare()
+        assert wait_for(lambda: not bus.faults())
+        assert bus.status()["other_monitors"] == []
+
+
+def test_the_default_instance_id_is_unique_per_process():
+    out = subprocess.run([sys.executable, "-c", "from monitor.bus import BusConfig; "
+                          "print(BusConfig().instance)"], capture_output=True, text=True,
+                         timeout=60)
+    here = BusConfig().instance
+    assert out.returncode == 0 and out.stdout.strip() != here
+    assert str(os.getpid()) in here and here.startswith("monitor-")
+
+
+def test_zenoh_sessions_closed(tmp_path):
+    """Guard: the helpers above close every session (a leaked one hangs pytest at exit)."""
+    assert zenoh is not None
