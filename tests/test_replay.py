@@ -73,7 +73,8 @@ def cli_replay(demo: Demo, synthetic_model: Path, tmp_path_factory: pytest.TempP
     """`monitor replay` as a user runs it."""
     out = tmp_path_factory.mktemp("replay-cli")
     proc = run_monitor("replay", demo.video, "--zones", demo_cell_path(), "--model",
-                       synthetic_model, "--out", out, "--reset-at", *RESET_AT)
+                       synthetic_model, "--out", out, "--reset-at", str(RESET_AT[0]),
+                       "--reset-at", str(RESET_AT[1]))
     assert proc.returncode == 0, proc.stderr
     return out, proc
 
