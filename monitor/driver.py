@@ -293,6 +293,19 @@ class StopSignals:
         self._timer.daemon = True
         self._timer.start()
 
+    def exit_now(self, code: int) -> None:
+        """Leave without the interpreter's teardown (joins of library threads, finalisers):
+        after a signal everything of ours is already closed, and a loaded machine can spend
+        seconds in that teardown. Output written so far is flushed first."""
+        import logging
+        import sys
+
+        for stream in (sys.stdout, sys.stderr):
+            with contextlib.suppress(Exception):
+                stream.flush()
+        logging.shutdown()
+        os._exit(code)
+
     def force(self) -> None:
         """Run the registered last actions (each bounded) and leave the process at once."""
         for action in list(self._forces):

@@ -173,7 +173,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
         if summary.interrupted:
             print(f"monitor: interrupted {summary.interrupted}: partial outputs finished in "
                   f"{args.out}/", file=sys.stderr)
-            return signals.exit_code
+            signals.exit_now(signals.exit_code)
         if summary.truncated:  # the readable part was processed; still a bad input: say so
             raise InputError(summary.truncated)
         return 0
@@ -203,7 +203,10 @@ def render_progress(frames, total: int, label: str = "rendering scene"):
 def cmd_demo(args: argparse.Namespace) -> int:
     signals = _signals()
     try:
-        return _demo(args, signals)
+        code = _demo(args, signals)
+        if signals.received is not None:
+            signals.exit_now(code)
+        return code
     finally:
         signals.restore()
 
@@ -254,7 +257,10 @@ def cmd_run(args: argparse.Namespace) -> int:
     try:
         from monitor.service import run_service
 
-        return run_service(args.config, log_json=args.log_json, duration=args.duration,
+        code = run_service(args.config, log_json=args.log_json, duration=args.duration,
                            signals=signals)
+        if signals.received is not None:  # stopped by a signal: everything is closed
+            signals.exit_now(code)
+        return code
     finally:
         signals.restore()
