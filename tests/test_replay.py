@@ -74,7 +74,7 @@ def cli_replay(demo: Demo, synthetic_model: Path, tmp_path_factory: pytest.TempP
     out = tmp_path_factory.mktemp("replay-cli")
     proc = run_monitor("replay", demo.video, "--zones", demo_cell_path(), "--model",
                        synthetic_model, "--out", out, "--reset-at", str(RESET_AT[0]),
-                       "--reset-at", str(RESET_AT[1]))
+                       "--reset-at", str(RESET_AT[1]), timeout=600)  # a hang guard only
     assert proc.returncode == 0, proc.stderr
     return out, proc
 
