@@ -429,7 +429,8 @@ class _H264Writer:
             # yuv420p needs even sizes: the last row/column is dropped when odd
             self.stream.width, self.stream.height = shape[1] // 2 * 2, shape[0] // 2 * 2
             self.stream.pix_fmt = "yuv420p"
-            self.stream.options = {"preset": "veryfast", "crf": "23"}
+            # zerolatency: no lookahead or B-frames, so closing (also after Ctrl-C) is instant
+            self.stream.options = {"preset": "veryfast", "crf": "23", "tune": "zerolatency"}
         except Exception:
             self.container.close()
             raise
