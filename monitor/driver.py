@@ -176,7 +176,7 @@ class Driver:
         if self.stall_after_s is not None:
             done = self.clock()
             if self._stall_gap(done, start) is not None:  # frozen while deciding: stale result
-                return self._stalled(done - start, inputs)
+                return self._stalled(done - start, inputs, result if frame else None, frame)
         if frame is not None:
             self._armed = True
         return self._emit(result, frame)
@@ -187,16 +187,27 @@ class Driver:
         gap = now - before
         return gap if gap > self.stall_after_s else None
 
-    def _stalled(self, gap: float, inputs: StepInputs) -> Step:
+    def _stalled(self, gap: float, inputs: StepInputs, processed: StepResult | None = None,
+                 frame: Frame | None = None) -> Step:
+        """The command of a stalled step is decided anew, now, with the stall fault. A frame
+        processed during the stall keeps its detections (they are real, only late): the
+        sinks publish them, but never the command decided before the gap."""
         now = self.clock()
         self._discard_before = now
         self.stalls += 1
         fault = Fault(STALL_FAULT, f"monitor loop stalled for {gap:.2f} s (> {self.stall_after_s}"
                       f" s): process frozen, machine paused or overloaded; frames before "
                       f"the gap discarded", True, "monitor", latch=True)
-        result = self.pipeline.tick(now, pose_time=inputs.pose_time, reset=None,
+        # a reset not yet handed to the pipeline is judged now (and refused: the stall holds)
+        reset = inputs.reset if processed is None else None
+        result = self.pipeline.tick(now, pose_time=inputs.pose_time, reset=reset,
                                     extra_faults=(*inputs.extra_faults, fault))
-        return self._emit(result, None, stalled_s=gap)
+        if processed is not None:
+            result = dataclasses.replace(
+                result, frame=processed.frame, persons=processed.persons,
+                zone_report=processed.zone_report, health=processed.health,
+                alerts=(*processed.alerts, *result.alerts), stage_ms=processed.stage_ms)
+        return self._emit(result, frame if processed is not None else None, stalled_s=gap)
 
     def _run_self_test(self, now: float) -> tuple[Fault, ...]:
         if self.self_test is None:
