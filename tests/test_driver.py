@@ -149,6 +149,38 @@ def test_a_loop_gap_beyond_frame_timeout_is_a_latched_stall_stop_and_old_frames_
     assert fresh.frame is not None and fresh.result.command.state == STOP
 
 
+class FreezingClock(Clock):
+    """Jumps ``by`` seconds at its ``at``-th reading: the process froze inside a step."""
+
+    def __init__(self, at: int, by: float) -> None:
+        super().__init__()
+        self.calls, self.at, self.by = 0, at, by
+
+    def __call__(self) -> float:
+        self.calls += 1
+        if self.calls == self.at:
+            self.t += self.by
+        return self.t
+
+
+def test_a_freeze_inside_a_step_never_publishes_the_command_decided_before_it(
+        detector, empty_cell_image):
+    cell = load_cell(demo_cell_path())
+    clock, rec = FreezingClock(at=5, by=2.0), Recorder()  # readings: start, done, end; start...
+    policy = PolicyConfig(restart_interlock="auto")
+    driver = Driver(Pipeline(detector, "cam0", policy, cell), [rec],
+                    stall_after_s=0.5, clock=clock)
+    driver.step(frame_at(empty_cell_image, 0, clock.t), clock.t)  # readings 1-3
+    t = clock.t + 0.05
+    clock.t = t
+    step = driver.step(frame_at(empty_cell_image, 1, t), t)  # 4: start, 5: done (+2 s)
+    assert step.stalled_s == pytest.approx(2.0)
+    assert step.frame is not None and step.result.persons is not None  # detections kept
+    assert step.result.now == pytest.approx(t + 2.0)  # decided after the freeze
+    assert step.result.command.state == STOP
+    assert STALL_FAULT in {f.name for f in step.result.faults}
+
+
 def test_no_stall_detection_before_the_first_frame_or_in_replay(detector, empty_cell_image):
     clock = Clock()
     driver = Driver(Pipeline(detector, "cam0", POLICY, None), [],
