@@ -308,3 +308,41 @@ def test_replay_summary_counts_state_and_reason_changes_apart(tmp_path, detector
         cap.release()
     pytest.importorskip("av")
     assert summary.video_codec.startswith("H.264") and fourcc in ("avc1", "h264", "H264")
+
+
+# --- sinks and CLI helpers -------------------------------------------------------------------
+
+def test_events_sink_writes_a_reset_possible_event(tmp_path, detector, empty_cell_image):
+    from monitor.replay import EventsSink
+
+    rec = Recorder()
+    driver = Driver(Pipeline(detector, "cam0", POLICY, None), [rec])
+    step = driver.step(frame_at(empty_cell_image, 0, 0.0), 0.0)
+    sink = EventsSink(tmp_path)
+    sink.on_step(Step(step.result, step.frame, 0, reset_possible=True))
+    sink.close()
+    events = [json.loads(line) for line in (tmp_path / "events.jsonl").read_text().splitlines()]
+    possible = [e for e in events if e["type"] == "reset_possible"]
+    assert possible == [{"type": "reset_possible", "frame": 0, "time_s": 0.0,
+                         "describe": possible[0]["describe"]}]
+    assert possible[0]["describe"].startswith("STOP")
+
+
+def test_render_progress_prints_steady_lines_when_not_a_terminal(capsys):
+    from monitor.cli.run import render_progress
+
+    assert list(render_progress(iter(range(8)), 8)) == list(range(8))
+    lines = capsys.readouterr().err.splitlines()
+    assert lines == [f"rendering scene: {k}/8 frames" for k in (2, 4, 6, 8)]
+
+
+def test_demo_with_a_missing_zone_file_is_a_one_line_error(tmp_path):
+    import subprocess
+    import sys
+
+    proc = subprocess.run([sys.executable, "-m", "monitor", "demo", "--zones",
+                           str(tmp_path / "cell.yaml"), "--out", str(tmp_path / "out")],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert proc.stderr.splitlines()[-1] == f"monitor: error: {tmp_path / 'cell.yaml'}: " \
+        "no such zone file"
