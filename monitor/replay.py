@@ -220,8 +220,9 @@ class VideoFeed:
     ``reset_at`` at the first step at or after their time (a negative time: at frame 0)."""
 
     def __init__(self, reader: VideoFileReader, tick_s: float, reset_at: tuple[float, ...],
-                 realtime: bool = False) -> None:
+                 realtime: bool = False, stop: threading.Event | None = None) -> None:
         self.reader = iter(reader)
+        self.stop = stop or threading.Event()  # ends a --realtime wait at once
         self.tick_s = tick_s
         self.pending_resets = sorted(reset_at)
         self.realtime = realtime
@@ -263,7 +264,7 @@ class VideoFeed:
             return
         delay = self.started + t - (self.first_time or 0.0) - time.perf_counter()
         if delay > 0:
-            time.sleep(delay)
+            self.stop.wait(delay)  # a long gap in the timestamps must not delay a Ctrl-C
 
 
 # --- the sinks: events.jsonl, summary, annotated video, progress, a callback ---------------------
@@ -506,8 +507,8 @@ def replay(video: str | Path, detector: Detector, cell: Cell | None, settings: R
         sinks.append(CallbackSink(publish))
     sinks.append(ProgressSink(reader.frame_count, settings.progress))
     driver = Driver(pipeline, sinks, self_test_period_s=settings.self_test_period_s)
-    feed = VideoFeed(reader, settings.tick_s, settings.reset_at, settings.realtime)
     stop = stop or threading.Event()
+    feed = VideoFeed(reader, settings.tick_s, settings.reset_at, settings.realtime, stop)
     start = time.perf_counter()
     try:
         driver.run(feed, stop)

@@ -409,3 +409,34 @@ def test_every_option_of_run_replay_demo_has_help_with_its_default():
                 assert action.help and "default" in action.help, (name, action.dest)
     text = sub.choices["run"].format_help()
     assert "tcp/127.0.0.1:7447" in text and "synthetic:demo" in text
+
+
+@pytest.mark.slow
+def test_sigterm_during_a_realtime_replay_ends_it_within_2_s(tmp_path, synthetic_model):
+    import signal
+    import time
+
+    video = tmp_path / "slow.mp4"  # 1 fps: a realtime replay waits a second between frames
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"mp4v"), 1, (1280, 720))
+    for _ in range(20):
+        writer.write(np.full((720, 1280, 3), 90, np.uint8))
+    writer.release()
+    out = tmp_path / "out"
+    proc = subprocess.Popen([sys.executable, "-m", "monitor", "replay", str(video), "--realtime",
+                             "--model", str(synthetic_model), "--out", str(out)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 120
+        while not (out / "annotated.mp4").exists():
+            assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
+            time.sleep(0.02)
+        proc.send_signal(signal.SIGTERM)
+        sent = time.monotonic()
+        _, stderr = proc.communicate(timeout=30)
+        took = time.monotonic() - sent
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 128 + signal.SIGTERM and took <= 2.0, (took, stderr)
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["interrupted"] and summary["frames"] < 20
