@@ -201,3 +201,15 @@ def test_a_second_signal_exits_at_once(service_config, tmp_path, rep):
                                        second=True)
     assert took <= GONE_WITHIN_S, took
     assert code in (0, 128 + signal.SIGTERM)
+
+
+def test_systemd_unit_gives_the_monitor_time_to_publish_its_final_stop():
+    import configparser
+
+    unit = configparser.ConfigParser(strict=False, interpolation=None)
+    unit.optionxform = str
+    unit.read(Path(__file__).resolve().parents[1] / "deploy" / "workcell-monitor.service")
+    service = unit["Service"]
+    # SIGTERM to the main process only; SIGKILL for the rest only after the monitor's own 2 s
+    assert service["KillMode"] == "mixed" and service["KillSignal"] == "SIGTERM"
+    assert float(service["TimeoutStopSec"]) > GONE_WITHIN_S
