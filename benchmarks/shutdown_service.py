@@ -5,7 +5,9 @@ Run: .venv/bin/python benchmarks/shutdown_service.py [--reps 20]
 Phases (each a fresh `monitor run` subprocess with a looped empty-cell video, the demo zones
 and a Zenoh peer on a free tcp/127.0.0.1 port):
 
-- right after start: SIGTERM as soon as the process exists (imports, handlers, model)
+- right after start: SIGTERM as soon as the process exists (before the handlers: the default
+  action ends it)
+- 1.5 s after start: during the imports and the model load
 - session open, CPU load: two busy-loop processes; SIGTERM when the "started" line appears
   (the metrics server and the Zenoh session open right after it)
 - running: SIGTERM once the first command is logged and the bus port listens
@@ -44,6 +46,8 @@ def main() -> int:
     args = parser.parse_args()
     phases = {
         "right after start": lambda c, p, log: stop_after_start(c, p, log, signal.SIGTERM),
+        "1.5 s after start (imports, model)": lambda c, p, log: stop_after_start(
+            c, p, log, signal.SIGTERM, 1.5),
         "session open, CPU load": lambda c, p, log: stop_during_session_open(
             c, p, log, signal.SIGTERM),
         "running": lambda c, p, log: stop_while_running(c, p, log, signal.SIGTERM)[:2],

@@ -129,10 +129,13 @@ class CpuLoad:
             p.wait(10)
 
 
-def stop_after_start(config: Path, port: int, log: Path, sig: int) -> tuple[float, int]:
+def stop_after_start(config: Path, port: int, log: Path, sig: int, delay: float = 0.0
+                     ) -> tuple[float, int]:
+    """The signal ``delay`` s after the process was started (0: at once; ~1 s: imports and
+    the model load on this machine)."""
     mon = Monitor(config, port, log)
     try:
-        took = mon.signal_and_time((sig, 0.0))
+        took = mon.signal_and_time((sig, delay))
         return took, mon.proc.returncode
     finally:
         mon.close()
