@@ -13,11 +13,15 @@ zones, health and policy do their real work. Three passes in one run:
    Target: pipeline fps / bare inference fps >= 0.95.
 2. Throughput, decode in a reader thread (as the live service's grabber): the same pipeline fed
    from a 2-frame queue.
+2b. Throughput through the driver (``monitor.driver.Driver`` with the replay feed, ticks between
+   frames, the summary sink): what `monitor replay` costs over bare ``Pipeline.process`` calls
+   (the loop before the driver was exactly such a hand-written loop).
 3. Latency, live: the video paced at its frame rate through ``LatestFrameGrabber`` into the
-   service's own loop (``monitor.service._loop``) with a real ``SafetyBus`` on tcp/127.0.0.1 and a
-   subscriber session. Latency = when ``publish_command`` returned - the frame's capture stamp
-   (both monotonic); and, for commands that changed (the ones put on the wire at once), capture
-   to the subscriber's callback. Target: median <= median inference + 5 ms.
+   service's driver loop (``Driver`` + ``LiveFeed`` + ``ServiceSink``) with a real
+   ``SafetyBus`` on tcp/127.0.0.1 and a subscriber session. Latency = when
+   ``publish_command`` returned - the frame's capture stamp (both monotonic); and, for
+   commands that changed (the ones put on the wire at once), capture to the subscriber's
+   callback. Target: median <= median inference + 5 ms.
 """
 
 from __future__ import annotations
@@ -47,10 +51,12 @@ from monitor import service
 from monitor.bus import BusConfig, SafetyBus, open_session
 from monitor.config import MonitorConfig, demo_cell_path
 from monitor.detector import Detector, DetectorConfig, letterbox
+from monitor.driver import Driver
 from monitor.frames import LatestFrameGrabber, PacedSource, VideoFileReader
 from monitor.health import CameraHealth, HealthConfig
 from monitor.pipeline import Pipeline
 from monitor.policy import PolicyConfig
+from monitor.replay import ReplaySummary, SummarySink, VideoFeed
 from monitor.scene import DemoScene, write_video
 from monitor.zones import Cell, parse_cell, read_cell_data, watch_regions
 
@@ -146,6 +152,19 @@ def throughput_threaded(video: Path, detector: Detector, cell: Cell) -> dict:
     return {"frames": n, "ms_per_frame": elapsed * 1e3 / n}
 
 
+def throughput_driver(video: Path, detector: Detector, cell: Cell) -> dict:
+    """The replay path: the driver with the video feed (ticks between frames) and a sink."""
+    pipeline = new_pipeline(detector, cell)
+    summary = ReplaySummary(str(video))
+    with VideoFileReader(video, "cam0", expected_size=SIZE) as reader:
+        driver = Driver(pipeline, [SummarySink(summary)])
+        start = time.perf_counter()
+        driver.run(VideoFeed(reader, 0.05, ()), threading.Event())
+        elapsed = time.perf_counter() - start
+    return {"frames": summary.frames, "ms_per_frame": elapsed * 1e3 / summary.frames,
+            "ticks": summary.ticks}
+
+
 class _TimedPipeline(Pipeline):
     """Remembers the capture stamp of the frame just processed, and its inference time."""
 
@@ -206,8 +225,10 @@ def latency(video: Path, detector: Detector, cell: Cell, seconds: float) -> dict
         source.open()
         grabber = LatestFrameGrabber(source, stop=stop, expected_size=SIZE).start()
         try:
-            service._loop(config, pipeline, bus, [grabber], None,
-                          service.Metrics(0, "127.0.0.1"), stop, seconds + 0.5)
+            sink = service.ServiceSink(bus, service.Metrics(0, "127.0.0.1"), [grabber])
+            feed = service.LiveFeed([grabber], bus, None, config.service.tick_s, stop,
+                                    seconds + 0.5, sink.alert)
+            Driver(pipeline, [sink], stall_after_s=config.policy.frame_timeout).run(feed, stop)
         finally:
             stop.set()
             grabber.stop()
@@ -234,6 +255,7 @@ def main() -> int:
         detector = Detector(synthetic.ensure_model(), DetectorConfig(threads=args.threads))
         t = throughput_inline(video, detector, cell)
         th = throughput_threaded(video, detector, cell)
+        dr = throughput_driver(video, detector, cell)
         lat = latency(video, detector, cell, args.seconds)
 
     bare_ms, whole_ms = sum(t["bare"]) / n, sum(t["whole"]) / n
@@ -247,6 +269,9 @@ def main() -> int:
           f"| {1e3 / whole_ms:.1f} | {bare_ms / whole_ms:.3f} |")
     print(f"| pipeline, decode in a thread (service) | {th['ms_per_frame']:.1f} | - "
           f"| {1e3 / th['ms_per_frame']:.1f} | {bare_ms / th['ms_per_frame']:.3f} |")
+    print(f"| replay through the driver (read inline, {dr['ticks']} ticks) "
+          f"| {dr['ms_per_frame']:.1f} | - | {1e3 / dr['ms_per_frame']:.1f} "
+          f"| {bare_ms / dr['ms_per_frame']:.3f} |")
     print("\n| stage (inline pass) | median ms |")
     print("|---|---|")
     for stage in ("read+decode", "preprocess", "inference", "decode", "zones", "health",

@@ -47,6 +47,9 @@ class ModelConfig:
 @dataclass(frozen=True)
 class ZonesConfig:
     file: str | None = None  # None: the demo cell with the demo source, else no zones
+    # A cell without an enabled protective zone (or without a zone file) can never STOP for a
+    # person: the monitor refuses to start unless this says it is meant (then it says so).
+    allow_no_protective: bool = False
 
 
 @dataclass(frozen=True)
@@ -196,7 +199,8 @@ def resolve_paths(config: MonitorConfig, base: Path) -> MonitorConfig:
                                    self_test_image=fix(config.detector.self_test_image))
     return dataclasses.replace(
         config, cameras=tuple(fix_camera(c) for c in config.cameras), bus=bus, detector=detector,
-        model=ModelConfig(fix(config.model.path)), zones=ZonesConfig(fix(config.zones.file)))
+        model=ModelConfig(fix(config.model.path)),
+        zones=dataclasses.replace(config.zones, file=fix(config.zones.file)))
 
 
 def demo_cell_path() -> Path:

@@ -1,21 +1,23 @@
 """`monitor run`: the headless service beside the pose tracker.
 
-Start order: config (validated, nothing opened yet) -> model -> zones -> Zenoh bus -> pose
-subscriber -> frame grabber -> loop. Shutdown runs in reverse with bounded joins; the bus sends
-a last STOP (reason ``shutdown``) before it closes. SIGINT and SIGTERM stop the loop; exit 0.
+Start order: signal handlers -> config (validated, nothing opened yet) -> zones (an enabled
+protective zone is required unless ``[zones] allow_no_protective = true``) -> model -> Zenoh bus
+-> pose subscriber -> frame grabbers -> the driver loop (``monitor.driver``). Shutdown runs in
+reverse with bounded joins; the bus sends a last STOP (reason ``shutdown``) before it closes.
+SIGINT and SIGTERM stop the loop (exit 0); a process still there 1.5 s later, or a second
+signal, publishes STOP best effort and exits at once.
 
 The loop never waits for a frame longer than ``service.tick_s``: without frames the policy still
-runs its timers, so a lost camera gives STOP within ``policy.frame_timeout``.
+runs its timers, so a lost camera gives STOP within ``policy.frame_timeout``. A gap in the loop
+itself longer than ``frame_timeout`` (process frozen) is a latched ``monitor_stalled`` STOP.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import itertools
 import json
 import logging
 import math
-import signal
 import statistics
 import sys
 import threading
@@ -25,9 +27,18 @@ from pathlib import Path
 
 from monitor.bus import BusConfig, SafetyBus
 from monitor.config import DEMO_SOURCE, MonitorConfig, demo_cell_path, load_config
+from monitor.driver import (
+    Driver,
+    Step,
+    StepInputs,
+    StopSignals,
+    protective_warning,
+    require_protective_zone,
+)
 from monitor.errors import ConfigError
 from monitor.health import LOST
 from monitor.pipeline import Pipeline, StepResult
+from monitor.policy import STOP, Command, Reason
 from monitor.types import Alert, Fault
 
 log = logging.getLogger("monitor")
@@ -99,6 +110,7 @@ class Metrics:
 STATE_LEVEL = {"RUN": 0, "SLOW": 1, "STOP": 2}
 
 
+
 def build_pipeline(config: MonitorConfig):
     """Model, zones, health checker and pipeline from a validated config (I/O: files only)."""
     from monitor.detector import Detector
@@ -110,6 +122,8 @@ def build_pipeline(config: MonitorConfig):
     if zones_file is None and all(c.source == DEMO_SOURCE for c in config.cameras):
         zones_file = str(demo_cell_path())
     cell = load_cell(zones_file) if zones_file else None
+    require_protective_zone(cell, config.zones.allow_no_protective,
+                            zones_file or "(no [zones] file)")
     health, expected = {}, {}
     for cam in config.cameras:
         if cell is not None and cam.id not in cell.cameras:
@@ -127,158 +141,223 @@ def build_pipeline(config: MonitorConfig):
 
 
 def run_service(config_path: str | Path | None, log_json: bool = False,
-                duration: float | None = None, stop: threading.Event | None = None) -> int:
+                duration: float | None = None, stop: threading.Event | None = None,
+                signals: StopSignals | None = None) -> int:
+    """The service until ``duration`` has passed or a signal (or ``stop``) ends it.
+
+    ``signals``: handlers the caller installed as early as it could (``monitor run`` does so
+    before the model runtime is imported); without them they are installed here.
+    """
+    own_signals = signals is None
+    signals = signals or StopSignals(stop).install()
+    try:
+        return _run(config_path, log_json, duration, signals)
+    finally:
+        if own_signals:
+            signals.restore()
+
+
+def _run(config_path, log_json: bool, duration: float | None, signals: StopSignals) -> int:
     from monitor.frames import LatestFrameGrabber, SourceOptions, open_source
 
+    stop = signals.stop
     setup_logging(log_json)
     config = load_config(config_path)
     if log_json is False and config.service.log_json:
         setup_logging(True)
-    stop = stop or threading.Event()
     pipeline, cell, expected = build_pipeline(config)
+    if stop.is_set():  # told to stop while the model loaded: nothing opened yet
+        event("stopped before start")
+        return 0
     event("started", config=str(config_path or "embedded demo"),
           cameras=",".join(f"{c.id}={c.source}" for c in config.cameras),
           zones=cell.label if cell else "none",
           config_hash=cell.config_hash if cell else "")
-    if cell is None:
-        event("no zone file: persons are detected but cannot cause SLOW or STOP",
-              logging.WARNING)
-    previous = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
-    if threading.current_thread() is threading.main_thread():
-        for s in previous:
-            signal.signal(s, lambda *_: stop.set())
+    warning = protective_warning(cell)
+    if warning:
+        event(warning, logging.WARNING)
     metrics = Metrics(config.service.metrics_port, config.service.metrics_host)
     try:
         with SafetyBus(bus_config_for(config, cell), alert_limits=config.alerts) as bus:
+            forget = signals.on_force(lambda: bus.publish_command(shutdown_forced()))
             event("bus open", key_prefix=bus.config.key_prefix, zid=bus.boot,
                   listen=",".join(bus.config.listen), connect=",".join(bus.config.connect))
-            pose = bus.pose_subscriber() if config.policy.separation_monitoring else None
-            if pose is not None:
-                pose.__enter__()
+            if warning:
+                bus.update_status(protective_zone=False, warning=warning)
             try:
-                grabbers = []
-                try:
-                    for cam in config.cameras:
-                        source = open_source(cam.source, cam.id, realtime=cam.realtime,
-                                             options=SourceOptions(loop=cam.loop), stop=stop)
-                        grabbers.append(LatestFrameGrabber(
-                            source, stop=stop, expected_size=expected[cam.id]).start())
-                    _loop(config, pipeline, bus, grabbers, pose, metrics, stop, duration)
-                finally:
-                    stop.set()
-                    for grabber in reversed(grabbers):
-                        if not grabber.stop(timeout=2.0):
-                            event("frame grabber did not stop in time", logging.WARNING,
-                                  camera=grabber.camera_id)
+                _serve(config, pipeline, bus, expected, metrics, stop, duration,
+                       LatestFrameGrabber, SourceOptions, open_source)
             finally:
-                if pose is not None:
-                    pose.__exit__(None, None, None)
+                forget()
             event("shutting down: final STOP published")
     finally:
         metrics.close()
-        if threading.current_thread() is threading.main_thread():
-            for s, handler in previous.items():
-                signal.signal(s, handler)
     event("stopped")
     return 0
 
 
-def _loop(config: MonitorConfig, pipeline: Pipeline, bus: SafetyBus, grabbers: list, pose,
-          metrics, stop: threading.Event, duration: float | None) -> None:
-    """Cameras take turns (round robin); each wait is bounded, so timers run without frames."""
-    started = time.monotonic()
-    frame_times: deque[float] = deque(maxlen=30)
-    inference: deque[float] = deque(maxlen=30)
-    last_status = 0.0
-    was_connected = {g.camera_id: True for g in grabbers}
-    wait = config.service.tick_s / len(grabbers)
-    for turn in itertools.count():
-        if stop.is_set():
-            break
-        now = time.monotonic()
-        if duration is not None and now - started >= duration:
-            break
-        grabber = grabbers[turn % len(grabbers)]
-        frame = grabber.get(timeout=wait)
-        if frame is None and not grabber.alive:  # the source ended: get() no longer waits
-            stop.wait(wait)
-        now = time.monotonic()
-        resets = bus.poll_resets()
-        reset = resets[-1] if resets else None
-        pose_time = tool_pose = tool_speed = None
+def shutdown_forced() -> Command:
+    return Command(STOP, 0.0, (Reason("shutdown", "monitor shutting down (forced)"),),
+                   since=time.monotonic())
+
+
+def _serve(config: MonitorConfig, pipeline: Pipeline, bus: SafetyBus, expected: dict, metrics,
+           stop: threading.Event, duration: float | None, grabber_cls, options_cls,
+           open_source) -> None:
+    pose = bus.pose_subscriber() if config.policy.separation_monitoring else None
+    if pose is not None:
+        pose.__enter__()
+    grabbers: list = []
+    try:
+        for cam in config.cameras:
+            if stop.is_set():
+                return
+            source = open_source(cam.source, cam.id, realtime=cam.realtime,
+                                 options=options_cls(loop=cam.loop), stop=stop)
+            grabbers.append(grabber_cls(source, stop=stop,
+                                        expected_size=expected[cam.id]).start())
+        sink = ServiceSink(bus, metrics, grabbers)
+        feed = LiveFeed(grabbers, bus, pose, config.service.tick_s, stop, duration,
+                        sink.alert)
+        driver = Driver(pipeline, [sink], stall_after_s=config.policy.frame_timeout,
+                        self_test_period_s=getattr(config.detector, "self_test_period_s", None))
+        driver.run(feed, stop)
+    finally:
+        stop.set()
+        for grabber in reversed(grabbers):
+            if not grabber.stop(timeout=0.5):  # a read blocked in a driver: daemon thread
+                event("frame grabber did not stop in time", logging.WARNING,
+                      camera=grabber.camera_id)
         if pose is not None:
-            reading = pose.latest()
+            pose.__exit__(None, None, None)
+
+
+class LiveFeed:
+    """Frames from the grabbers, round robin, on the monotonic clock. Each wait is bounded by
+    ``tick_s / cameras``, so the policy's timers run without frames."""
+
+    def __init__(self, grabbers: list, bus: SafetyBus, pose, tick_s: float,
+                 stop: threading.Event, duration: float | None, alert) -> None:
+        self.grabbers = grabbers
+        self.bus = bus
+        self.pose = pose
+        self.stop = stop
+        self.alert = alert
+        self.wait = tick_s / len(grabbers)
+        self.end = time.monotonic() + duration if duration is not None else None
+        self.turn = 0
+        # None: never connected yet (start-up is no loss); True / False after that
+        self.was_connected: dict[str, bool | None] = {g.camera_id: None for g in grabbers}
+
+    def next(self):
+        if self.end is not None and time.monotonic() >= self.end:
+            return None
+        grabber = self.grabbers[self.turn % len(self.grabbers)]
+        self.turn += 1
+        frame = grabber.get(timeout=self.wait)
+        if frame is None and not grabber.alive:  # the source ended: get() no longer waits
+            self.stop.wait(self.wait)
+        return frame, time.monotonic()
+
+    def inputs(self, now: float) -> StepInputs:
+        resets = self.bus.poll_resets()
+        pose_time = tool_pose = tool_speed = None
+        if self.pose is not None:
+            reading = self.pose.latest()
             if reading is not None:
                 pose_time, tool_pose = reading.received, reading.tool_pose()
                 tool_speed = math.hypot(*reading.sample.velocity_m_s)  # for S_p (ISO/TS 15066)
-            for rejection in pose.drain_rejections():
+            for rejection in self.pose.drain_rejections():
                 from monitor.alerts import pose_alert
 
-                _alert(bus, metrics, pose_alert(rejection, "pose", now))
-        # A loss a grabber has seen (read/open error, wrong size, end of stream) is a STOP
-        # cause at once, with the camera's own error; frame_timeout is only the backstop.
-        extra = []
-        for g in grabbers:
-            connected = g.connected
-            if connected != was_connected[g.camera_id]:
-                event("camera lost" if not connected else "camera reconnected",
-                      logging.WARNING if not connected else logging.INFO,
-                      camera=g.camera_id, error=g.status().last_error)
-                was_connected[g.camera_id] = connected
-            if not connected and g.last_error:
-                extra.append(Fault(LOST, g.last_error, True, g.camera_id))
-        extra = tuple(extra)
-        if frame is not None:
-            result = pipeline.process(frame.image, frame.info, now, tool_pose=tool_pose,
-                                      tool_speed_mps=tool_speed, pose_time=pose_time,
-                                      reset=reset, extra_faults=extra)
-            frame_times.append(now)
-            inference.append(result.stage_ms.get("inference", 0.0))
-        else:
-            result = pipeline.tick(now, pose_time=pose_time, reset=reset, extra_faults=extra)
-        bus.publish_command(result.command)  # the safety message first, dashboards after
-        if frame is not None:
+                self.alert(pose_alert(rejection, "pose", now))
+        return StepInputs(reset=resets[-1] if resets else None,
+                          extra_faults=self.camera_faults(), tool_pose=tool_pose,
+                          tool_speed_mps=tool_speed, pose_time=pose_time)
+
+    def camera_faults(self) -> tuple[Fault, ...]:
+        """A loss a grabber has seen (read/open error, wrong size, end of stream) is a STOP
+        cause at once, with the camera's own error; frame_timeout is only the backstop."""
+        faults = []
+        for g in self.grabbers:
+            connected, error = g.connected, g.last_error
+            before = self.was_connected[g.camera_id]
+            if connected and before is not True:
+                event("camera connected" if before is None else "camera reconnected",
+                      camera=g.camera_id)
+                self.was_connected[g.camera_id] = True
+            elif not connected and (before is True or (before is None and error)):
+                event("camera lost" if before else "camera not available", logging.WARNING,
+                      camera=g.camera_id, error=error)
+                self.was_connected[g.camera_id] = False
+            if not connected and error:
+                faults.append(Fault(LOST, error, True, g.camera_id))
+        return tuple(faults)
+
+
+class ServiceSink:
+    """The live outputs of each step: command and detections on the bus (the safety message
+    first), alerts on the bus and in the log, the log line of each command change and stall,
+    the status queryable and the Prometheus gauges once a second."""
+
+    def __init__(self, bus: SafetyBus, metrics: Metrics, grabbers: list) -> None:
+        self.bus = bus
+        self.metrics = metrics
+        self.grabbers = grabbers
+        self.frame_times: deque[float] = deque(maxlen=30)
+        self.inference: deque[float] = deque(maxlen=30)
+        self.last_status = -math.inf
+
+    def on_step(self, step: Step) -> None:
+        result = step.result
+        self.bus.publish_command(result.command)  # the safety message first, dashboards after
+        if step.frame is not None:
             # the body's "frame" holds camera, seq, capture time and size (no override here)
-            bus.publish_detections(result.persons, result.zone_report)
+            self.bus.publish_detections(result.persons, result.zone_report)
+            self.frame_times.append(result.now)
+            self.inference.append(result.stage_ms.get("inference", 0.0))
+        if step.stalled_s is not None:
+            event("monitor stalled: STOP latched", logging.ERROR, gap_s=round(step.stalled_s, 3))
         if result.changed:
             cmd = result.command
+            describe = getattr(cmd, "describe", None)
             event(f"command {cmd.state}", logging.WARNING if cmd.state != "RUN" else logging.INFO,
                   speed_scale=cmd.speed_scale, latched=cmd.latched,
-                  reasons="; ".join(r.message for r in cmd.reasons) or "-")
-        alerts = list(result.alerts)
-        if result.command.reset is not None:
-            from monitor.alerts import reset_alert
+                  reasons="; ".join(r.message for r in cmd.reasons) or "-",
+                  **({"describe": describe()} if describe else {}))
+        if step.reset_possible:
+            event("reset possible: no STOP cause holds", logging.INFO)
+        for alert in result.alerts:
+            self.alert(alert)
+        if result.now - self.last_status >= 1.0:
+            self.last_status = result.now
+            self.status(result)
 
-            alerts.append(reset_alert(result.command.reset, pipeline.camera_id, now))
-        for alert in alerts:
-            _alert(bus, metrics, alert)
-        if now - last_status >= 1.0:
-            last_status = now
-            _status(bus, metrics, grabbers, result, frame_times, inference)
+    def alert(self, alert: Alert) -> None:
+        self.metrics.alerts.labels(alert.kind).inc()
+        if self.bus.publish_alert(alert):
+            level = {"info": logging.INFO, "critical": logging.ERROR}.get(alert.severity,
+                                                                         logging.WARNING)
+            event(f"alert {alert.kind}", level, severity=alert.severity, message=alert.message)
 
+    def status(self, result: StepResult) -> None:
+        fps = 0.0
+        times = self.frame_times
+        if len(times) >= 2 and times[-1] > times[0]:
+            fps = (len(times) - 1) / (times[-1] - times[0])
+        inf_ms = statistics.median(self.inference) if self.inference else 0.0
+        statuses = [g.status() for g in self.grabbers]
+        cameras = [{"id": s.camera_id, "connected": s.connected, "dropped": s.dropped,
+                    "reconnects": s.reconnects, "last_error": s.last_error} for s in statuses]
+        self.bus.update_status(fps=round(fps, 2), inference_ms=round(inf_ms, 2),
+                               camera=cameras[0], cameras=cameras)
+        m = self.metrics
+        m.fps.set(fps)
+        m.inference_ms.set(inf_ms)
+        m.state.set(STATE_LEVEL[result.command.state])
+        m.dropped.set(sum(s.dropped for s in statuses))
+        if result.persons is not None:
+            m.persons.set(len(result.persons))
 
-def _alert(bus: SafetyBus, metrics: Metrics, alert: Alert) -> None:
-    metrics.alerts.labels(alert.kind).inc()
-    if bus.publish_alert(alert):
-        level = {"info": logging.INFO, "critical": logging.ERROR}.get(alert.severity,
-                                                                     logging.WARNING)
-        event(f"alert {alert.kind}", level, severity=alert.severity, message=alert.message)
-
-
-def _status(bus: SafetyBus, metrics: Metrics, grabbers: list, result: StepResult, frame_times,
-            inference) -> None:
-    fps = 0.0
-    if len(frame_times) >= 2 and frame_times[-1] > frame_times[0]:
-        fps = (len(frame_times) - 1) / (frame_times[-1] - frame_times[0])
-    inf_ms = statistics.median(inference) if inference else 0.0
-    statuses = [g.status() for g in grabbers]
-    cameras = [{"id": s.camera_id, "connected": s.connected, "dropped": s.dropped,
-                "reconnects": s.reconnects, "last_error": s.last_error} for s in statuses]
-    bus.update_status(fps=round(fps, 2), inference_ms=round(inf_ms, 2), camera=cameras[0],
-                      cameras=cameras)
-    metrics.fps.set(fps)
-    metrics.inference_ms.set(inf_ms)
-    metrics.state.set(STATE_LEVEL[result.command.state])
-    metrics.dropped.set(sum(s.dropped for s in statuses))
-    if result.persons is not None:
-        metrics.persons.set(len(result.persons))
+    def close(self) -> None:
+        pass

@@ -73,7 +73,8 @@ def cli_replay(demo: Demo, synthetic_model: Path, tmp_path_factory: pytest.TempP
     """`monitor replay` as a user runs it."""
     out = tmp_path_factory.mktemp("replay-cli")
     proc = run_monitor("replay", demo.video, "--zones", demo_cell_path(), "--model",
-                       synthetic_model, "--out", out, "--reset-at", *RESET_AT)
+                       synthetic_model, "--out", out, "--reset-at", str(RESET_AT[0]),
+                       "--reset-at", str(RESET_AT[1]), timeout=600)  # a hang guard only
     assert proc.returncode == 0, proc.stderr
     return out, proc
 
@@ -128,7 +129,9 @@ def test_slow_in_the_warning_zone_then_stop_at_the_first_frame_in_the_protective
 
 @pytest.mark.slow
 def test_every_frame_decides_at_once_and_run_needs_reset_and_clear_time(steps):
-    _, results, _ = steps
+    _, all_steps, _ = steps
+    results = [r for r in all_steps if r.frame is not None]  # ticks between frames: no zones
+    assert len(all_steps) > len(results)  # 7.5 fps: two ticks (tick_s 0.05 s) between frames
     kinds = [{h.kind for h in r.zone_report.hits} for r in results]
     for r, k in zip(results, kinds, strict=True):  # no debounce towards the safe side
         if "protective" in k:
@@ -316,3 +319,124 @@ def test_summary_reports_each_reset(steps):
     assert [(r["time_s"], r["accepted"]) for r in summary.resets] == [(8.0, False), (18.0, True)]
     assert "refused" in summary.resets[0]["message"] or "zone" in summary.resets[0]["message"]
     assert "18.00 s accepted" in summary.table()
+
+
+# --- --reset-at: validated against the video, never swallows the video name ------------------
+
+@pytest.mark.parametrize(("reset_at", "needles"), [
+    pytest.param("-5", ["--reset-at", "-5 s is not a video time"], id="negative"),
+    pytest.param("abc", ["--reset-at", "'abc' is not a time"], id="not-a-number"),
+    pytest.param("0.2,999", ["--reset-at 999", "past the end of clip.mp4", "0.40 s, 3 frames"],
+                 id="past-the-end"),
+])
+def test_reset_at_outside_the_video_is_a_one_line_error(tmp_path, synthetic_model, reset_at,
+                                                        needles):
+    video = _clip(tmp_path / "clip.mp4", 3)
+    proc = run_monitor("replay", "--reset-at", reset_at, video, "--model", synthetic_model,
+                       "--out", tmp_path / "out", "--no-video")
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
+    last = proc.stderr.rstrip("\n").splitlines()[-1]
+    for needle in needles:
+        assert needle in last, (needle, last)
+    assert not (tmp_path / "out" / "summary.json").exists()
+
+
+def test_reset_at_before_the_video_name_and_repeated(tmp_path, synthetic_model):
+    video = _clip(tmp_path / "clip.mp4", 3)  # frames at 0, 0.133, 0.267 s
+    out = tmp_path / "out"
+    proc = run_monitor("replay", "--reset-at", "0.1", "--reset-at", "0.2", video, "--model",
+                       synthetic_model, "--out", out, "--no-video")
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads((out / "summary.json").read_text())
+    # at the first step at or after each time: ticks every 0.05 s after each frame
+    assert [r["time_s"] for r in summary["resets"]] == [0.1, 0.2333]
+    assert "state changes" in proc.stdout and "reason changes" in proc.stdout
+
+
+# --- Ctrl-C: exit 130, every output finished and from this run, and it says where ------------
+
+@pytest.mark.slow
+def test_ctrl_c_finishes_the_outputs_consistently_and_says_where(tmp_path, synthetic_model):
+    import signal
+    import time
+
+    video = _clip(tmp_path / "clip.mp4", 60)
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "summary.json").write_text('{"from": "the previous run"}\n')
+    proc = subprocess.Popen([sys.executable, "-m", "monitor", "replay", str(video), "--zones",
+                             str(demo_cell_path()), "--model", str(synthetic_model), "--out",
+                             str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    try:
+        deadline = time.monotonic() + 120
+        while not (out / "annotated.mp4").exists():  # written from the first frame on
+            assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
+            time.sleep(0.02)
+        assert not (out / "summary.json").exists()  # the old summary went first
+        proc.send_signal(signal.SIGINT)
+        sent = time.monotonic()
+        stdout, stderr = proc.communicate(timeout=30)
+        took = time.monotonic() - sent
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130, stderr
+    assert took <= 2.0, took
+    assert f"partial outputs finished in {out}/" in stderr and "interrupted at frame" in stderr
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["interrupted"].startswith("at frame") and 0 < summary["frames"] < 60
+    events = [json.loads(line) for line in (out / "events.jsonl").read_text().splitlines()]
+    assert events and max(e["frame"] for e in events) < summary["frames"]
+    cap = cv2.VideoCapture(str(out / "annotated.mp4"))
+    try:
+        assert int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) == summary["frames"]
+    finally:
+        cap.release()
+    assert "interrupted" in stdout  # the table says it too
+
+
+# --- help: every option says its default; run says what it does without a config ---------------
+
+def test_every_option_of_run_replay_demo_has_help_with_its_default():
+    from monitor.cli import build_parser
+
+    parser = build_parser()
+    sub = next(a for a in parser._actions if a.dest == "command")
+    for name in ("run", "replay", "demo"):
+        for action in sub.choices[name]._actions:
+            if action.option_strings and action.dest != "help":
+                assert action.help and "default" in action.help, (name, action.dest)
+    text = sub.choices["run"].format_help()
+    assert "tcp/127.0.0.1:7447" in text and "synthetic:demo" in text
+
+
+@pytest.mark.slow
+def test_sigterm_during_a_realtime_replay_ends_it_within_2_s(tmp_path, synthetic_model):
+    import signal
+    import time
+
+    video = tmp_path / "slow.mp4"  # 1 fps: a realtime replay waits a second between frames
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"mp4v"), 1, (1280, 720))
+    for _ in range(20):
+        writer.write(np.full((720, 1280, 3), 90, np.uint8))
+    writer.release()
+    out = tmp_path / "out"
+    proc = subprocess.Popen([sys.executable, "-m", "monitor", "replay", str(video), "--realtime",
+                             "--model", str(synthetic_model), "--out", str(out)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 120
+        while not (out / "annotated.mp4").exists():
+            assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
+            time.sleep(0.02)
+        proc.send_signal(signal.SIGTERM)
+        sent = time.monotonic()
+        _, stderr = proc.communicate(timeout=30)
+        took = time.monotonic() - sent
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 128 + signal.SIGTERM and took <= 2.0, (took, stderr)
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["interrupted"] and summary["frames"] < 20

@@ -180,6 +180,8 @@ def test_sigterm_after_commands_over_zenoh_status_and_metrics(tmp_path, syntheti
         assert svc.stop(signal.SIGTERM) == 0
         assert wait_for(lambda: svc.alive == [True, False], 5, "the token to vanish")
         log = [json.loads(line) for line in svc.stderr_path.read_text().splitlines()]
+    events = [e["event"] for e in log]
+    assert "camera lost" not in events and events.count("camera connected") == 1
     seqs = [c["seq"] for c in svc.commands]
     assert seqs == sorted(set(seqs)) and len(seqs) >= 10  # heartbeats and changes, in order
     assert {c["boot"] for c in svc.commands} == {run["boot"]}
@@ -251,9 +253,15 @@ def demo_jpegs(n: int = 10) -> list[bytes]:
 def test_camera_loss_stops_at_once_then_frames_reset_and_clear_time_give_run(
         tmp_path, synthetic_model):
     with MjpegCamera(demo_jpegs()) as camera, \
-            Service(tmp_path, synthetic_model, camera.url) as svc:  # no zone file: none apply
+            Service(tmp_path, synthetic_model, camera.url,  # no zone file: none apply
+                    "[zones]\nallow_no_protective = true\n") as svc:
         i_run, _ = svc.next_command(0, lambda c: c["state"] == "RUN", 60, "RUN")
         wait_for(lambda: len(svc.detections) >= 3, 10, "detections", svc)
+        status = svc.status()  # said at start and in status: no person can cause a STOP here
+        assert status["protective_zone"] is False and "allow_no_protective" in status["warning"]
+        log = svc.stderr_path.read_text()
+        assert "no zone file: persons cannot cause STOP" in log
+        assert "camera lost" not in log and "camera connected" in log  # no false loss at start
 
         camera.online.clear()
         i_stop, stop = svc.next_command(i_run, lambda c: c["state"] == "STOP", 10, "STOP")
@@ -318,6 +326,21 @@ def test_bad_config_refuses_to_start_with_one_line(tmp_path, synthetic_model, te
                       + text.format(cell=demo_cell_path()))
     proc = run_monitor("run", "--config", config, "--duration", "1")
     assert_one_line_error(proc, *needles)
+
+
+def test_no_protective_zone_refuses_to_start_unless_allowed(tmp_path, synthetic_model):
+    cell = tmp_path / "no-protective.yaml"
+    cell.write_text(demo_cell_path().read_text().replace("kind: protective",
+                                                         "kind: protective\n    enabled: false"))
+    config = tmp_path / "monitor.toml"
+    config.write_text(f'[model]\npath = "{synthetic_model}"\n[zones]\nfile = "{cell}"\n')
+    assert_one_line_error(run_monitor("run", "--config", config, "--duration", "1"),
+                          "no-protective.yaml has no enabled protective zone",
+                          "allow_no_protective = true")
+    config.write_text(f'[model]\npath = "{synthetic_model}"\n'
+                      '[camera]\nsource = "nowhere.mp4"\n')  # another camera, no zone file
+    assert_one_line_error(run_monitor("run", "--config", config, "--duration", "1"),
+                          "no zone file is given")
 
 
 def test_missing_config_file_and_taken_metrics_port(tmp_path, synthetic_model):

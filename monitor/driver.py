@@ -1,0 +1,331 @@
+"""The one loop around ``Pipeline``, for the live service and for replay.
+
+A *feed* hands in the next frame (or None: nothing new) and the time to decide at, plus the
+outside inputs of that moment (resets, tool pose, camera faults). The ``Driver`` turns each into
+one ``Pipeline.process`` or ``Pipeline.tick`` step, adds what both modes need (reset alerts, the
+detector self-test, "a reset is possible now", stall detection) and hands every step to its
+*sinks* (bus, logs, metrics, events.jsonl, annotated video) in order: the safety sink first.
+
+Live and replay differ only in their feed and sinks: live frames come from grabbers on the
+monotonic clock and the feed ticks at least every ``service.tick_s``; a replay feed walks the
+video's own timestamps and inserts ticks every ``tick_s`` of video time between two frames, so
+a gap in the video's timestamps longer than ``policy.frame_timeout`` gives ``frame_timeout``
+in replay exactly as a silent camera does live.
+
+Stall detection (live only): the driver measures its own loop on the monotonic clock. A gap
+longer than ``stall_after_s`` (the policy's ``frame_timeout``) between two steps, or inside one
+step, means the process was frozen (SIGSTOP, a paused VM, a long GC): the monitor was blind.
+That step's result is discarded, frames grabbed before the gap are dropped, and a
+``monitor_stalled`` fault with ``latch=True`` goes to the policy: STOP, latched, a critical
+alert and a log line. Replay never measures wall time, so its events stay deterministic.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import os
+import signal
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Protocol
+
+from monitor.frames import Frame
+from monitor.pipeline import Pipeline, StepResult
+from monitor.policy import ResetRequest
+from monitor.types import Fault
+
+STALL_FAULT = "monitor_stalled"
+
+
+@dataclass(frozen=True)
+class StepInputs:
+    """What the outside world hands in at one step besides the frame."""
+
+    reset: ResetRequest | None = None
+    extra_faults: tuple[Fault, ...] = ()
+    tool_pose: object = None
+    tool_speed_mps: float | None = None
+    pose_time: float | None = None
+
+
+@dataclass(frozen=True)
+class Step:
+    """One step as the sinks see it."""
+
+    result: StepResult
+    frame: Frame | None  # the frame processed; None for a timer tick
+    index: int  # seq of the newest processed frame (-1 before the first)
+    stalled_s: float | None = None  # loop gap when this step reports a stall
+    reset_possible: bool = False  # a reset became possible at this step (it was not before)
+
+
+class Sink(Protocol):
+    """Something fed with every step: bus, log, metrics, events file, annotated video."""
+
+    def on_step(self, step: Step) -> None: ...
+
+    def close(self) -> None: ...
+
+
+class Feed(Protocol):
+    """Where frames and time come from. ``next()`` returns ``(frame or None, now)`` or None
+    when the feed has ended; ``inputs(now)`` the resets, pose and faults of that moment."""
+
+    def next(self) -> tuple[Frame | None, float] | None: ...
+
+    def inputs(self, now: float) -> StepInputs: ...
+
+
+def has_protective_zone(cell) -> bool:
+    """True when the cell has an enabled protective zone (the only thing that STOPs for a
+    person). Uses ``Cell.has_protective_zone`` where the zone package provides it."""
+    if cell is None:
+        return False
+    value = getattr(cell, "has_protective_zone", None)
+    if value is not None:
+        return bool(value() if callable(value) else value)
+    return any(z.kind == "protective" and getattr(z, "enabled", True) for z in cell.zones)
+
+
+def protective_warning(cell) -> str | None:
+    """The line to state at start and in status when no person can cause a STOP."""
+    if has_protective_zone(cell):
+        return None
+    what = "no zone file" if cell is None else f"zone file {cell.label} has no enabled " \
+        "protective zone"
+    return f"{what}: persons cannot cause STOP (allowed by allow_no_protective)"
+
+
+def require_protective_zone(cell, allowed: bool, where: str) -> None:
+    """Refuse a cell where no person can ever cause a STOP, unless explicitly allowed."""
+    if allowed or has_protective_zone(cell):
+        return
+    from monitor.errors import ConfigError
+
+    what = "no zone file is given" if cell is None else \
+        f"{where} has no enabled protective zone"
+    raise ConfigError(f"{what}: persons could never cause STOP; add a protective zone, or set "
+                      f"[zones] allow_no_protective = true if that is meant")
+
+
+def reset_possible(command) -> bool | None:
+    """Whether the policy says a reset would be accepted now (None: the policy does not say)."""
+    value = getattr(command, "reset_possible", None)
+    return None if value is None else bool(value)
+
+
+class Driver:
+    """Frames and ticks in, steps out to the sinks.
+
+    ``stall_after_s`` enables stall detection on ``clock`` (None: off, as in replay).
+    ``self_test_period_s``: the detector's ``self_test()`` (when it has one) runs at the first
+    step and then this often (seconds of ``now``); its fault holds until a test passes.
+    """
+
+    def __init__(self, pipeline: Pipeline, sinks: Sequence[Sink] = (), *,
+                 stall_after_s: float | None = None,
+                 clock: Callable[[], float] = time.monotonic,
+                 self_test_period_s: float | None = None) -> None:
+        self.pipeline = pipeline
+        self.sinks = list(sinks)
+        self.stall_after_s = stall_after_s
+        self.clock = clock
+        self.self_test = getattr(pipeline.detector, "self_test", None)
+        self.self_test_period_s = self_test_period_s
+        self._next_self_test: float | None = None
+        self._self_test_fault: Fault | None = None
+        self._last_end: float | None = None  # clock at the end of the previous step
+        self._armed = False  # stall detection starts after the first frame (warm-up excluded)
+        self._discard_before: float | None = None
+        self._index = -1
+        self._reset_possible = False
+        self.stalls = 0
+        self.steps = 0
+
+    def run(self, feed: Feed, stop: threading.Event) -> None:
+        """Step until the feed ends or ``stop`` is set."""
+        while not stop.is_set():
+            item = feed.next()
+            if item is None or stop.is_set():
+                break
+            frame, now = item
+            self.step(frame, now, feed.inputs(now))
+
+    def step(self, frame: Frame | None, now: float, inputs: StepInputs = StepInputs()
+             ) -> Step:
+        """One pipeline step (a frame, or a tick when ``frame`` is None), fed to the sinks."""
+        start = self.clock() if self.stall_after_s is not None else 0.0
+        if self._stall_gap(start, self._last_end) is not None:
+            return self._stalled(start - self._last_end, inputs)
+        if frame is not None and self._discard_before is not None \
+                and frame.info.capture_time < self._discard_before:
+            frame = None  # grabbed before the monitor froze: it shows a past cell
+        faults = inputs.extra_faults + self._run_self_test(now)
+        if frame is not None:
+            result = self.pipeline.process(
+                frame.image, frame.info, now, tool_pose=inputs.tool_pose,
+                tool_speed_mps=inputs.tool_speed_mps, pose_time=inputs.pose_time,
+                reset=inputs.reset, extra_faults=faults)
+            self._index = frame.info.seq
+        else:
+            result = self.pipeline.tick(now, pose_time=inputs.pose_time, reset=inputs.reset,
+                                        extra_faults=faults)
+        if self.stall_after_s is not None:
+            done = self.clock()
+            if self._stall_gap(done, start) is not None:  # frozen while deciding: stale result
+                return self._stalled(done - start, inputs, result if frame else None, frame)
+        if frame is not None:
+            self._armed = True
+        return self._emit(result, frame)
+
+    def _stall_gap(self, now: float, before: float | None) -> float | None:
+        if self.stall_after_s is None or not self._armed or before is None:
+            return None
+        gap = now - before
+        return gap if gap > self.stall_after_s else None
+
+    def _stalled(self, gap: float, inputs: StepInputs, processed: StepResult | None = None,
+                 frame: Frame | None = None) -> Step:
+        """The command of a stalled step is decided anew, now, with the stall fault. A frame
+        processed during the stall keeps its detections (they are real, only late): the
+        sinks publish them, but never the command decided before the gap."""
+        now = self.clock()
+        self._discard_before = now
+        self.stalls += 1
+        fault = Fault(STALL_FAULT, f"monitor loop stalled for {gap:.2f} s (> {self.stall_after_s}"
+                      f" s): process frozen, machine paused or overloaded; frames before "
+                      f"the gap discarded", True, "monitor", latch=True)
+        # a reset not yet handed to the pipeline is judged now (and refused: the stall holds)
+        reset = inputs.reset if processed is None else None
+        result = self.pipeline.tick(now, pose_time=inputs.pose_time, reset=reset,
+                                    extra_faults=(*inputs.extra_faults, fault))
+        if processed is not None:
+            result = dataclasses.replace(
+                result, frame=processed.frame, persons=processed.persons,
+                zone_report=processed.zone_report, health=processed.health,
+                alerts=(*processed.alerts, *result.alerts), stage_ms=processed.stage_ms)
+        return self._emit(result, frame if processed is not None else None, stalled_s=gap)
+
+    def _run_self_test(self, now: float) -> tuple[Fault, ...]:
+        if self.self_test is None:
+            return ()
+        if self._next_self_test is None or now >= self._next_self_test:
+            try:
+                self._self_test_fault = self.self_test()
+            except Exception as exc:  # a self-test that cannot run is a failed one
+                self._self_test_fault = Fault("detector_self_test", f"self-test raised {exc}",
+                                              True, "detector")
+            period = self.self_test_period_s
+            self._next_self_test = now + period if period and period > 0 else float("inf")
+        return (self._self_test_fault,) if self._self_test_fault is not None else ()
+
+    def _emit(self, result: StepResult, frame: Frame | None,
+              stalled_s: float | None = None) -> Step:
+        if result.command.reset is not None:
+            from monitor.alerts import reset_alert
+
+            alert = reset_alert(result.command.reset, self.pipeline.camera_id, result.now)
+            result = dataclasses.replace(result, alerts=(*result.alerts, alert))
+        possible = bool(reset_possible(result.command))
+        became_possible = possible and not self._reset_possible
+        self._reset_possible = possible
+        step = Step(result, frame, self._index, stalled_s, became_possible)
+        for sink in self.sinks:
+            sink.on_step(step)
+        self.steps += 1
+        if self.stall_after_s is not None:
+            self._last_end = self.clock()
+        return step
+
+    def close(self) -> None:
+        """Close the sinks in reverse order (each one's failure does not skip the others)."""
+        errors = []
+        for sink in reversed(self.sinks):
+            try:
+                sink.close()
+            except Exception as exc:  # keep closing: the other outputs must still be finished
+                errors.append(exc)
+        if errors:
+            raise errors[0]
+
+
+class StopSignals:
+    """SIGINT/SIGTERM handling for the long-running commands.
+
+    The first signal sets ``stop`` (the loops end, outputs are finished, the bus sends its final
+    STOP) and arms a deadline: if the process is still there ``grace_s`` later, ``on_force``
+    runs (best effort, bounded) and the process exits at once. A second signal does the same
+    without waiting. Install it before anything slow (imports of the model runtime, the model,
+    the Zenoh session), so a signal in any phase is honoured.
+    """
+
+    def __init__(self, stop: threading.Event | None = None, *, grace_s: float = 1.5,
+                 force_timeout_s: float = 0.3) -> None:
+        self.stop = stop or threading.Event()
+        self.grace_s = grace_s
+        self.force_timeout_s = force_timeout_s
+        self.received: int | None = None
+        self._forces: list[Callable[[], None]] = []
+        self._previous: dict[int, object] = {}
+        self._timer: threading.Timer | None = None
+
+    def install(self) -> StopSignals:
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                self._previous[sig] = signal.getsignal(sig)
+                signal.signal(sig, self._handle)
+        return self
+
+    def restore(self) -> None:
+        if self._timer is not None:
+            self._timer.cancel()
+        for sig, handler in self._previous.items():
+            signal.signal(sig, handler)
+        self._previous.clear()
+
+    def on_force(self, action: Callable[[], None]) -> Callable[[], None]:
+        """Register a last action for a forced exit (e.g. publish STOP); returns a remover."""
+        self._forces.append(action)
+        return lambda: self._forces.remove(action) if action in self._forces else None
+
+    @property
+    def exit_code(self) -> int:
+        return 128 + (self.received or signal.SIGINT)
+
+    def _handle(self, signum: int, _frame) -> None:
+        if self.received is not None:
+            self.force()
+        self.received = signum
+        self.stop.set()
+        self._timer = threading.Timer(self.grace_s, self.force)
+        self._timer.daemon = True
+        self._timer.start()
+
+    def exit_now(self, code: int) -> None:
+        """Leave without the interpreter's teardown (joins of library threads, finalisers):
+        after a signal everything of ours is already closed, and a loaded machine can spend
+        seconds in that teardown. Output written so far is flushed first."""
+        import logging
+        import sys
+
+        for stream in (sys.stdout, sys.stderr):
+            with contextlib.suppress(Exception):
+                stream.flush()
+        logging.shutdown()
+        os._exit(code)
+
+    def force(self) -> None:
+        """Run the registered last actions (each bounded) and leave the process at once."""
+        for action in list(self._forces):
+            worker = threading.Thread(target=_quietly, args=(action,), daemon=True)
+            worker.start()
+            worker.join(self.force_timeout_s)
+        os._exit(self.exit_code)
+
+
+def _quietly(action: Callable[[], None]) -> None:
+    with contextlib.suppress(Exception):  # best effort on the way out; nothing left to tell
+        action()
