@@ -161,9 +161,13 @@ def parse_config(data: dict, where: str = "config") -> MonitorConfig:
 
 
 def load_config(path: str | Path | None) -> MonitorConfig:
-    """Read and validate a monitor.toml; None gives the embedded demo defaults."""
+    """Read and validate a monitor.toml; None gives the embedded demo defaults.
+
+    The embedded demo listens on 127.0.0.1 only and, having no operators file, accepts
+    unsigned resets (so `monitor reset --operator you` works beside it); a config file never
+    does unless it says ``allow_unsigned_resets = true``."""
     if path is None:
-        return MonitorConfig()
+        return MonitorConfig(bus=BusConfig(listen=DEMO_LISTEN, allow_unsigned_resets=True))
     path = Path(path)
     try:
         with path.open("rb") as fh:

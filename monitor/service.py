@@ -36,10 +36,16 @@ from monitor.driver import (
     require_protective_zone,
 )
 from monitor.errors import ConfigError
+from monitor.geometry import ReactionBudget, describe_separation
 from monitor.health import LOST
 from monitor.pipeline import Pipeline, StepResult
 from monitor.policy import STOP, Command, Reason
 from monitor.types import Alert, Fault
+from monitor.zones.separation import (
+    require_separation_ready,
+    tool_points_in_tracker,
+    with_reaction_time,
+)
 
 log = logging.getLogger("monitor")
 
@@ -134,10 +140,32 @@ def build_pipeline(config: MonitorConfig):
         health[cam.id] = CameraHealth(config.health, cam.id, reference, watch)
         expected[cam.id] = (cell.cameras[cam.id].width, cell.cameras[cam.id].height) \
             if cell else None
+    if config.policy.separation_monitoring:
+        if cell is None:
+            raise ConfigError("policy.separation_monitoring needs a zone file with a tool and a "
+                              "calibrated camera ([zones] file)")
+        require_separation_ready(cell)
     model = Path(config.model.path) if config.model.path else synthetic.ensure_model()
     detector = Detector(model, config.detector)  # one model, shared by the cameras in turn
     pipeline = Pipeline(detector, [c.id for c in config.cameras], config.policy, cell, health)
+    if config.policy.separation_monitoring:
+        # T_r is never smaller than the delays this configuration lets pass (ISO/TS 15066)
+        pipeline.prepared = with_reaction_time(pipeline.prepared, reaction_budget(config))
     return pipeline, cell, expected
+
+
+def reaction_budget(config: MonitorConfig) -> ReactionBudget:
+    """The worst-case delays of this configuration (seconds): a frame may arrive as late as
+    ``frame_timeout`` before the cell STOPs anyway, be ``max_frame_age`` old when decided on, a
+    lost STOP leaves the consumer on the last RUN for ``ttl_ms``, and the pose may be
+    ``pose_timeout`` old."""
+    policy = config.policy
+    return ReactionBudget(frame_interval_s=policy.frame_timeout,
+                          max_frame_age_s=policy.max_frame_age,
+                          processing_s=config.service.tick_s,
+                          command_ttl_s=config.bus.ttl_ms / 1000.0,
+                          consumer_reaction_s=0.05,
+                          pose_age_s=policy.pose_timeout)
 
 
 def run_service(config_path: str | Path | None, log_json: bool = False,
@@ -176,6 +204,13 @@ def _run(config_path, log_json: bool, duration: float | None, signals: StopSigna
     warning = protective_warning(cell)
     if warning:
         event(warning, logging.WARNING)
+    if config.bus.allow_unsigned_resets:
+        event("resets are accepted without an operator key (embedded demo on 127.0.0.1, or "
+              "allow_unsigned_resets = true): not for a production cell", logging.WARNING)
+    if config.policy.separation_monitoring and pipeline.prepared is not None:
+        event(describe_separation(pipeline.prepared.separation,
+                                  cell.spec.separation.programmed_speed_mps,
+                                  reaction_budget(config)))
     metrics = Metrics(config.service.metrics_port, config.service.metrics_host)
     try:
         with SafetyBus(bus_config_for(config, cell), alert_limits=config.alerts) as bus:
@@ -218,7 +253,7 @@ def _serve(config: MonitorConfig, pipeline: Pipeline, bus: SafetyBus, expected: 
                                         expected_size=expected[cam.id]).start())
         sink = ServiceSink(bus, metrics, grabbers)
         feed = LiveFeed(grabbers, bus, pose, config.service.tick_s, stop, duration,
-                        sink.alert)
+                        sink.alert, pipeline.prepared)
         driver = Driver(pipeline, [sink], stall_after_s=config.policy.frame_timeout,
                         self_test_period_s=getattr(config.detector, "self_test_period_s", None))
         driver.run(feed, stop)
@@ -237,8 +272,12 @@ class LiveFeed:
     ``tick_s / cameras``, so the policy's timers run without frames."""
 
     def __init__(self, grabbers: list, bus: SafetyBus, pose, tick_s: float,
-                 stop: threading.Event, duration: float | None, alert) -> None:
+                 stop: threading.Event, duration: float | None, alert, prepared=None) -> None:
         self.grabbers = grabbers
+        # the tool points whose speed bounds the whole tool's (none without a tool)
+        self.tool_points = tool_points_in_tracker(prepared) if prepared is not None else None
+        self.unknown_speed = (prepared.separation.robot_speed_default_mps
+                              if prepared is not None else 0.0)
         self.bus = bus
         self.pose = pose
         self.stop = stop
@@ -262,17 +301,23 @@ class LiveFeed:
     def inputs(self, now: float) -> StepInputs:
         resets = self.bus.poll_resets()
         pose_time = tool_pose = tool_speed = None
+        faults = list(self.camera_faults()) + list(self.bus.faults())  # e.g. duplicate_monitor
         if self.pose is not None:
             reading = self.pose.latest()
             if reading is not None:
                 pose_time, tool_pose = reading.received, reading.tool_pose()
-                tool_speed = math.hypot(*reading.sample.velocity_m_s)  # for S_p (ISO/TS 15066)
+                # measured from the stream itself (every tool point, rotation included), the
+                # larger of measured and reported; a lying velocity field is a STOP fault
+                speed = reading.tool_speed(self.tool_points, unknown_mps=self.unknown_speed)
+                tool_speed = speed.speed_mps
+                if speed.fault is not None:
+                    faults.append(speed.fault)
             for rejection in self.pose.drain_rejections():
                 from monitor.alerts import pose_alert
 
                 self.alert(pose_alert(rejection, "pose", now))
         return StepInputs(reset=resets[-1] if resets else None,
-                          extra_faults=self.camera_faults(), tool_pose=tool_pose,
+                          extra_faults=tuple(faults), tool_pose=tool_pose,
                           tool_speed_mps=tool_speed, pose_time=pose_time)
 
     def camera_faults(self) -> tuple[Fault, ...]:

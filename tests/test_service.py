@@ -23,6 +23,7 @@ import zenoh
 from monitor.bus import BusConfig, BusKeys, open_session, reset_payload
 from monitor.config import demo_cell_path
 from monitor.policy import PolicyConfig
+from monitor.resets import signed_reset
 from monitor.scene import DemoScene
 from monitor.zones import load_cell
 
@@ -68,11 +69,17 @@ class Service:
     def __init__(self, tmp: Path, model: Path, camera: str, extra: str = "") -> None:
         self.bus_port, self.metrics_port = free_port(), free_port()
         self.keys = BusKeys.of("workcell/t5/")
+        # a real operator key: the monitor refuses unsigned resets from a config file
+        from monitor.signing import load_private_key, new_key_pair
+
+        private, _, public = new_key_pair(tmp / "tester.key")
+        self.operator = load_private_key(private)
+        (tmp / "operators").write_text(f"tester {public}\n")
         self.config = tmp / "monitor.toml"
         self.config.write_text(
             f'[camera]\nsource = "{camera}"\n'
             f'[model]\npath = "{model}"\n'
-            f'[bus]\ncell = "t5"\ninstance = "svc-test"\n'
+            f'[bus]\ncell = "t5"\ninstance = "svc-test"\noperators_file = "operators"\n'
             f'listen = ["tcp/127.0.0.1:{self.bus_port}"]\n'
             f'[service]\nmetrics_port = {self.metrics_port}\n' + extra)
         self.stderr_path = tmp / "service.log"
@@ -282,7 +289,9 @@ def test_camera_loss_stops_at_once_then_frames_reset_and_clear_time_give_run(
                         15, "frames after the reconnect", svc)[0]
         # the operator resets as soon as the picture is back; RUN still waits for clear_time
         i_reset = len(svc.commands)
-        svc.session.put(svc.keys.reset, reset_payload("tester", "r-1"))
+        payload = reset_payload("tester", "r-1", cell="t5")
+        svc.session.put(svc.keys.reset, payload,
+                        attachment=signed_reset(svc.operator, svc.keys.reset, payload))
         _, outcome = svc.next_command(i_reset, lambda c: "reset" in c, 5, "the reset outcome")
         assert outcome["reset"]["accepted"], outcome["reset"]
         i_run2, run = svc.next_command(i_reset, lambda c: c["state"] == "RUN", 10, "RUN again")
