@@ -41,8 +41,7 @@ class Target:
 TARGETS = {
     t.name: t for t in (
         Target("policy", ("monitor/policy/*",),
-               ("tests/test_policy.py", "tests/test_policy_properties.py",
-                "tests/test_safety_mutants.py")),
+               ("tests/test_policy.py", "tests/test_policy_properties.py")),
         Target("watchdog", ("monitor/bus.py",),
                ("tests/test_safety_mutants.py", "-k", "watchdog"), r"CommandWatchdog"),
         Target("zone_check", ("monitor/zones/check.py",),
@@ -84,6 +83,7 @@ def _configure(dest: Path, target: Target) -> None:
     text += (
         "\n[tool.mutmut]\n"
         'source_paths = ["monitor/"]\n'
+        'also_copy = ["zones/", "models/"]\n'
         f"only_mutate = {_toml_list(target.files)}\n"
         f"pytest_add_cli_args_test_selection = {_toml_list(target.tests)}\n"
         'pytest_add_cli_args = ["-x", "-q", "-p", "no:cacheprovider"]\n'
