@@ -1,6 +1,7 @@
 """Run every benchmark, one after the other, and print their tables plus each run's peak memory.
 
-Run: python benchmarks/all.py [NAME ...]   (names: detector zones bus health frames pipeline)
+Run: python benchmarks/all.py [NAME ...]   (default: every name in ORDER; ``--long`` adds the
+long evaluations: mutation testing, 100k-input fuzzing, 20-run shutdown, the scenario set).
 Benchmarks measure; they are not tests. Close other work first: the machine has 2 cores.
 """
 
@@ -13,14 +14,18 @@ import time
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
-ORDER = ("detector", "zones", "bus", "health", "frames", "pipeline")
+ORDER = ("detector", "quantize", "zones", "tracks", "zone_files", "bus", "health", "frames",
+         "pipeline", "cameras")
+LONG = ("mutation", "fuzz", "shutdown", "shutdown_service", "scenarios")
 
 
 def main(argv: list[str]) -> int:
-    names = argv or list(ORDER)
-    unknown = [n for n in names if n not in ORDER]
+    long = "--long" in argv
+    names = [a for a in argv if a != "--long"] or list(ORDER) + (list(LONG) if long else [])
+    unknown = [n for n in names if n not in ORDER + LONG]
     if unknown:
-        print(f"unknown benchmark {unknown[0]!r}; known: {', '.join(ORDER)}", file=sys.stderr)
+        print(f"unknown benchmark {unknown[0]!r}; known: {', '.join(ORDER + LONG)}",
+              file=sys.stderr)
         return 2
     summary = []
     for name in names:

@@ -22,10 +22,7 @@ alert and a log line. Replay never measures wall time, so its events stay determ
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
-import os
-import signal
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -250,82 +247,3 @@ class Driver:
                 errors.append(exc)
         if errors:
             raise errors[0]
-
-
-class StopSignals:
-    """SIGINT/SIGTERM handling for the long-running commands.
-
-    The first signal sets ``stop`` (the loops end, outputs are finished, the bus sends its final
-    STOP) and arms a deadline: if the process is still there ``grace_s`` later, ``on_force``
-    runs (best effort, bounded) and the process exits at once. A second signal does the same
-    without waiting. Install it before anything slow (imports of the model runtime, the model,
-    the Zenoh session), so a signal in any phase is honoured.
-    """
-
-    def __init__(self, stop: threading.Event | None = None, *, grace_s: float = 1.5,
-                 force_timeout_s: float = 0.3) -> None:
-        self.stop = stop or threading.Event()
-        self.grace_s = grace_s
-        self.force_timeout_s = force_timeout_s
-        self.received: int | None = None
-        self._forces: list[Callable[[], None]] = []
-        self._previous: dict[int, object] = {}
-        self._timer: threading.Timer | None = None
-
-    def install(self) -> StopSignals:
-        if threading.current_thread() is threading.main_thread():
-            for sig in (signal.SIGINT, signal.SIGTERM):
-                self._previous[sig] = signal.getsignal(sig)
-                signal.signal(sig, self._handle)
-        return self
-
-    def restore(self) -> None:
-        if self._timer is not None:
-            self._timer.cancel()
-        for sig, handler in self._previous.items():
-            signal.signal(sig, handler)
-        self._previous.clear()
-
-    def on_force(self, action: Callable[[], None]) -> Callable[[], None]:
-        """Register a last action for a forced exit (e.g. publish STOP); returns a remover."""
-        self._forces.append(action)
-        return lambda: self._forces.remove(action) if action in self._forces else None
-
-    @property
-    def exit_code(self) -> int:
-        return 128 + (self.received or signal.SIGINT)
-
-    def _handle(self, signum: int, _frame) -> None:
-        if self.received is not None:
-            self.force()
-        self.received = signum
-        self.stop.set()
-        self._timer = threading.Timer(self.grace_s, self.force)
-        self._timer.daemon = True
-        self._timer.start()
-
-    def exit_now(self, code: int) -> None:
-        """Leave without the interpreter's teardown (joins of library threads, finalisers):
-        after a signal everything of ours is already closed, and a loaded machine can spend
-        seconds in that teardown. Output written so far is flushed first."""
-        import logging
-        import sys
-
-        for stream in (sys.stdout, sys.stderr):
-            with contextlib.suppress(Exception):
-                stream.flush()
-        logging.shutdown()
-        os._exit(code)
-
-    def force(self) -> None:
-        """Run the registered last actions (each bounded) and leave the process at once."""
-        for action in list(self._forces):
-            worker = threading.Thread(target=_quietly, args=(action,), daemon=True)
-            worker.start()
-            worker.join(self.force_timeout_s)
-        os._exit(self.exit_code)
-
-
-def _quietly(action: Callable[[], None]) -> None:
-    with contextlib.suppress(Exception):  # best effort on the way out; nothing left to tell
-        action()

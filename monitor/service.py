@@ -31,7 +31,6 @@ from monitor.driver import (
     Driver,
     Step,
     StepInputs,
-    StopSignals,
     protective_warning,
     require_protective_zone,
 )
@@ -40,6 +39,7 @@ from monitor.geometry import ReactionBudget, describe_separation
 from monitor.health import LOST
 from monitor.pipeline import Pipeline, StepResult
 from monitor.policy import STOP, Command, Reason
+from monitor.signals import StopSignals
 from monitor.types import Alert, Fault
 from monitor.zones.separation import (
     require_separation_ready,
@@ -177,7 +177,7 @@ def run_service(config_path: str | Path | None, log_json: bool = False,
     before the model runtime is imported); without them they are installed here.
     """
     own_signals = signals is None
-    signals = signals or StopSignals(stop).install()
+    signals = signals or StopSignals(name="monitor run", stop=stop).install()
     try:
         return _run(config_path, log_json, duration, signals)
     finally:

@@ -51,37 +51,64 @@ def _flush() -> None:
 
 
 class StopSignals:
-    """Context manager; ``__enter__`` returns the stop event. Main thread only; the previous
-    handlers are restored on exit."""
+    """SIGINT/SIGTERM handling for a long-running command (main thread only).
 
-    def __init__(self, grace_s: float = 1.5, hard_s: float = 1.9, name: str = "monitor") -> None:
+    As a context manager ``__enter__`` returns the stop event; ``install()`` / ``restore()``
+    do the same for callers that hold the object (``monitor run``, ``replay``, ``demo``).
+    ``on_force(action)`` registers a last action (e.g. publish STOP) that runs, each bounded by
+    ``force_timeout_s``, before a forced exit (the grace deadline or a second signal).
+    """
+
+    def __init__(self, grace_s: float = 1.5, hard_s: float = 1.9, name: str = "monitor",
+                 stop: threading.Event | None = None, force_timeout_s: float = 0.15) -> None:
         if not 0 < grace_s < hard_s:
             raise ValueError("need 0 < grace_s < hard_s")
         self.grace_s = grace_s
         self.hard_s = hard_s
         self.name = name
-        self.stop = threading.Event()
+        self.force_timeout_s = force_timeout_s
+        self.stop = stop or threading.Event()
         self.signum: int | None = None
         self._old: dict = {}
         self._timer: threading.Timer | None = None
+        self._forces: list[Callable[[], None]] = []
+
+    @property
+    def received(self) -> int | None:
+        """The first signal received (None before any)."""
+        return self.signum
 
     @property
     def exit_code(self) -> int:
         """128 + the signal number once signalled (the shell's convention), else 0."""
         return 128 + self.signum if self.signum else 0
 
-    def __enter__(self) -> threading.Event:
-        if threading.current_thread() is not threading.main_thread():
-            raise RuntimeError("StopSignals must be entered in the main thread")
-        for s in SIGNALS:
-            self._old[s] = signal.signal(s, self._on_signal)
-        return self.stop
+    def install(self) -> StopSignals:
+        if threading.current_thread() is threading.main_thread():
+            for s in SIGNALS:
+                self._old[s] = signal.signal(s, self._on_signal)
+        return self
 
-    def __exit__(self, *exc) -> None:
+    def restore(self) -> None:
         if self._timer is not None:
             self._timer.cancel()  # wound down in time; the kernel timer stays armed until exit
         for s, h in self._old.items():
             signal.signal(s, h)
+        self._old.clear()
+
+    def __enter__(self) -> threading.Event:
+        if threading.current_thread() is not threading.main_thread():
+            raise RuntimeError("StopSignals must be entered in the main thread")
+        self.install()
+        return self.stop
+
+    def __exit__(self, *exc) -> None:
+        self.restore()
+
+    def on_force(self, action: Callable[[], None]) -> Callable[[], None]:
+        """Register a last action for a forced exit; returns a function that removes it."""
+        self._forces.append(action)
+        return lambda: self._forces.remove(action) if action in self._forces else None
 
     def _on_signal(self, signum: int, frame) -> None:
         if self.signum is not None:  # the second signal: no more waiting
@@ -96,12 +123,30 @@ class StopSignals:
         self._timer.daemon = True
         self._timer.start()
 
-    @staticmethod
-    def _exit(message: str, code: int) -> None:
+    def exit_now(self, code: int) -> None:
+        """Leave without the interpreter's teardown (joins of library threads, finalisers):
+        after a signal everything of ours is closed, and a loaded machine can spend seconds in
+        that teardown. Output written so far is flushed first."""
+        import logging
+
+        _flush()
+        logging.shutdown()
+        os._exit(code)
+
+    def _exit(self, message: str, code: int) -> None:
+        for action in list(self._forces):  # e.g. the final STOP, best effort and bounded
+            worker = threading.Thread(target=_quietly, args=(action,), daemon=True)
+            worker.start()
+            worker.join(self.force_timeout_s)
         with contextlib.suppress(Exception):
             print(message, file=sys.stderr)
         _flush()
         os._exit(code)
+
+
+def _quietly(action: Callable[[], None]) -> None:
+    with contextlib.suppress(Exception):  # best effort on the way out; nothing left to tell
+        action()
 
 
 def exit_if_stopped(stop: threading.Event, code: int = 0) -> int:

@@ -1,6 +1,6 @@
 """`monitor replay`, `monitor demo` and `monitor run`: the product's main commands.
 
-Each installs its SIGINT/SIGTERM handlers first (``monitor.driver.StopSignals``), before the
+Each installs its SIGINT/SIGTERM handlers first (``monitor.signals.StopSignals``), before the
 model runtime and the Zenoh session load: a signal in any phase ends the command within 2 s,
 a second one at once.
 """
@@ -150,7 +150,7 @@ def do_replay(video: Path, zones: Path | None, model: Path | None, config_path: 
 
 
 def _signals():
-    from monitor.driver import StopSignals
+    from monitor.signals import StopSignals
 
     return StopSignals().install()
 
