@@ -188,6 +188,7 @@ def place_persons(boxes_px: np.ndarray, model: geo.CameraModel, width: int, heig
     heads = np.r_[np.c_[u[todo], boxes[todo, 1]], np.c_[u[todo], boxes[todo, 1] + hi]]
     rays = pixel_rays(model, heads)
     m = len(todo)
+    moved: list[int] = []
     for j, i in enumerate(todo.tolist()):
         cands = []  # floor points under the head at each end of the height range
         # a level or rising sight line: the head may be arbitrarily far
@@ -226,8 +227,13 @@ def place_persons(boxes_px: np.ndarray, model: geo.CameraModel, width: int, heig
             near[i] = new_near
         far[i] = new_far
         located[i] = True
-        px, front = model.project(np.array([[near[i, 0], near[i, 1], 0.0]]))
-        bottom_px[i] = max(bottom_px[i], float(px[0, 1])) if front[0] else float(height)
+        moved.append(i)
+    if moved:  # the feet's lowest image row: where the nearest floor position projects
+        idx = np.array(moved, dtype=np.intp)
+        pts = np.zeros((len(idx), 3))
+        pts[:, :2] = near[idx]
+        px, front = model.project(pts)
+        bottom_px[idx] = np.where(front, np.maximum(bottom_px[idx], px[:, 1]), float(height))
     return Placement(near, far, located, hidden, u, y_far, bottom_px)
 
 
