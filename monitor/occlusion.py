@@ -300,8 +300,8 @@ def segments_hit_polygons(u: np.ndarray, y0: np.ndarray, y1: np.ndarray,
                           polys: PolygonSegments) -> np.ndarray:
     """(N, Z) bool: the vertical pixel segment x = u, y0 <= y <= y1 touches polygon z."""
     u, y0, y1 = (np.asarray(v, float).reshape(-1) for v in (u, y0, y1))
-    out = polys.inside.contains(np.column_stack((u, y0))) \
-        | polys.inside.contains(np.column_stack((u, y1)))
+    # inside at one end, or crossing an edge (which also covers "inside at the other end")
+    out = polys.inside.contains(np.column_stack((u, y0)))
     if polys.count == 0 or len(u) == 0:
         return out
     uu, lo, hi = u[:, None], y0[:, None], y1[:, None]
