@@ -79,6 +79,21 @@ def camera_centre_m(model: geo.CameraModel) -> np.ndarray | None:
     return -model.rotation.T @ model.translation_m
 
 
+def project_px(model: geo.CameraModel, points_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``model.project`` without OpenCV's per-call set-up when the lens has no distortion
+    (the per-frame path projects a handful of points)."""
+    if model.rotation is None or (model.distortion is not None and np.any(model.distortion)):
+        return model.project(points_m)
+    cam = points_m @ model.rotation.T + model.translation_m
+    front = cam[:, 2] > 1e-6
+    z = np.where(front, cam[:, 2], 1.0)
+    k = model.camera_matrix
+    px = np.empty((len(cam), 2))
+    px[:, 0] = k[0, 0] * cam[:, 0] / z + k[0, 1] * cam[:, 1] / z + k[0, 2]
+    px[:, 1] = k[1, 1] * cam[:, 1] / z + k[1, 2]
+    return px, front
+
+
 def pixel_rays(model: geo.CameraModel, px: np.ndarray) -> np.ndarray:
     """Unit viewing directions (N, 3) in the cell frame of raw pixels (pinhole cameras only)."""
     und = model.undistort_px(px)
@@ -124,12 +139,15 @@ class OccluderColumns:
 def feet_may_be_hidden(boxes_px: np.ndarray, model: geo.CameraModel | None, width: int,
                        height: int, occluder_outlines_px: Sequence[np.ndarray] = (),
                        min_height_m: float = 1.0, band_hi_px: float = 0.0,
-                       occluder_columns: OccluderColumns | None = None) -> np.ndarray:
+                       occluder_columns: OccluderColumns | None = None,
+                       bottom_floor: tuple[np.ndarray, np.ndarray] | None = None
+                       ) -> np.ndarray:
     """(N,) bool: the feet of each box may be hidden, by the image's bottom edge, an occluder
     (the box bottom, or up to ``band_hi_px`` below it, on an occluder's image outline), or
     because the box is shorter than a person of ``min_height_m`` at the floor point its bottom
     implies (a pinhole calibration is needed for the last two). ``occluder_columns`` is the
-    prepared form of ``occluder_outlines_px`` (faster); give one or the other."""
+    prepared form of ``occluder_outlines_px`` (faster); give one or the other.
+    ``bottom_floor``: ``model.pixel_to_floor`` of the boxes' bottom-centres, when known."""
     boxes = np.asarray(boxes_px, float).reshape(-1, 4)
     n = len(boxes)
     hidden = boxes[:, 3] >= height - EDGE_TOLERANCE_PX
@@ -142,12 +160,14 @@ def feet_may_be_hidden(boxes_px: np.ndarray, model: geo.CameraModel | None, widt
     if occluder_columns is not None:
         hidden |= occluder_columns.meets(u, boxes[:, 3], boxes[:, 3] + reach)
     if model is not None and model.can_project_3d:
-        floor, ok = model.pixel_to_floor(np.column_stack((u, boxes[:, 3])))
+        if bottom_floor is None:
+            bottom_floor = model.pixel_to_floor(np.column_stack((u, boxes[:, 3])))
+        floor, ok = bottom_floor
         pts = np.zeros((2 * n, 3))
         pts[:n, :2] = floor
         pts[n:, :2] = floor
         pts[n:, 2] = min_height_m
-        px, front = model.project(pts)
+        px, front = project_px(model, pts)
         expected = px[:n, 1] - px[n:, 1]
         hidden |= ok & front[:n] & front[n:] & (boxes[:, 3] - boxes[:, 1] < expected)
     return hidden
@@ -176,8 +196,9 @@ def place_persons(boxes_px: np.ndarray, model: geo.CameraModel, width: int, heig
     far, near = both[:n].copy(), both[n:].copy()
     located = ok[:n] & ok[n:]
     bottom_px = y_near.copy()
+    bottom = (near, ok[n:]) if lo == 0.0 else None
     hidden = feet_may_be_hidden(boxes, model, width, height, occluder_outlines_px,
-                                height_range_m[0], hi, occluder_columns)
+                                height_range_m[0], hi, occluder_columns, bottom)
     centre = camera_centre if camera_centre is not None else camera_centre_m(model)
     todo = np.flatnonzero(hidden)
     if centre is None or not len(todo):
@@ -188,6 +209,7 @@ def place_persons(boxes_px: np.ndarray, model: geo.CameraModel, width: int, heig
     heads = np.r_[np.c_[u[todo], boxes[todo, 1]], np.c_[u[todo], boxes[todo, 1] + hi]]
     rays = pixel_rays(model, heads)
     m = len(todo)
+    moved: list[int] = []
     for j, i in enumerate(todo.tolist()):
         cands = []  # floor points under the head at each end of the height range
         # a level or rising sight line: the head may be arbitrarily far
@@ -226,8 +248,13 @@ def place_persons(boxes_px: np.ndarray, model: geo.CameraModel, width: int, heig
             near[i] = new_near
         far[i] = new_far
         located[i] = True
-        px, front = model.project(np.array([[near[i, 0], near[i, 1], 0.0]]))
-        bottom_px[i] = max(bottom_px[i], float(px[0, 1])) if front[0] else float(height)
+        moved.append(i)
+    if moved:  # the feet's lowest image row: where the nearest floor position projects
+        idx = np.array(moved, dtype=np.intp)
+        pts = np.zeros((len(idx), 3))
+        pts[:, :2] = near[idx]
+        px, front = project_px(model, pts)
+        bottom_px[idx] = np.where(front, np.maximum(bottom_px[idx], px[:, 1]), float(height))
     return Placement(near, far, located, hidden, u, y_far, bottom_px)
 
 
@@ -273,8 +300,8 @@ def segments_hit_polygons(u: np.ndarray, y0: np.ndarray, y1: np.ndarray,
                           polys: PolygonSegments) -> np.ndarray:
     """(N, Z) bool: the vertical pixel segment x = u, y0 <= y <= y1 touches polygon z."""
     u, y0, y1 = (np.asarray(v, float).reshape(-1) for v in (u, y0, y1))
-    out = polys.inside.contains(np.column_stack((u, y0))) \
-        | polys.inside.contains(np.column_stack((u, y1)))
+    # inside at one end, or crossing an edge (which also covers "inside at the other end")
+    out = polys.inside.contains(np.column_stack((u, y0)))
     if polys.count == 0 or len(u) == 0:
         return out
     uu, lo, hi = u[:, None], y0[:, None], y1[:, None]

@@ -305,3 +305,12 @@ def test_box_cut_at_both_image_edges_reaches_as_far_as_the_bottom_allows():
     p = occ.place_persons(box, model, 1280, 720)
     seg = shapely.LineString([p.near_m[0], p.far_m[0]])
     assert p.located[0] and seg.distance(shapely.Point(0.3, -4.8)) < 0.05
+
+
+def test_fast_projection_equals_opencv():
+    model = zn.load_cell(DEMO).camera_models["cam0"]
+    pts = np.random.default_rng(0).uniform([-4, -4, 0], [4, 4, 2.5], (50, 3))
+    got, front = occ.project_px(model, pts)
+    want, want_front = model.project(pts)
+    np.testing.assert_allclose(got, want, atol=1e-6)
+    assert (front == want_front).all()

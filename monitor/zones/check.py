@@ -184,8 +184,8 @@ def _swept_person(prep: PreparedCell, a: np.ndarray, b: np.ndarray
     if length < 1e-4:
         return [fcl.CollisionObject(prep.zone_cylinder, fcl.Transform(ends[0]))]
     ends.append(np.array((b[0], b[1], h / 2)))
-    yaw = math.atan2(d[1], d[0])
-    rot = geo.rpy_to_matrix(0.0, 0.0, math.degrees(yaw))
+    c, s = d[0] / length, d[1] / length  # turn the box's x axis onto the segment
+    rot = np.array(((c, -s, 0.0), (s, c, 0.0), (0.0, 0.0, 1.0)))
     mid = np.array(((a[0] + b[0]) / 2, (a[1] + b[1]) / 2, h / 2))
     objs = [fcl.CollisionObject(fcl.Box(length, 2 * r, h), fcl.Transform(rot, mid))]
     objs += [fcl.CollisionObject(prep.zone_cylinder, fcl.Transform(e)) for e in ends]
