@@ -200,6 +200,9 @@ def place_persons(boxes_px: np.ndarray, model: geo.CameraModel, width: int, heig
     hidden = feet_may_be_hidden(boxes, model, width, height, occluder_outlines_px,
                                 height_range_m[0], hi, occluder_columns, bottom)
     centre = camera_centre if camera_centre is not None else camera_centre_m(model)
+    if centre is not None and model.can_project_3d:
+        _widen_tall_boxes(boxes, model, u, near, far, located, y_far, centre,
+                          height_range_m, hi)
     todo = np.flatnonzero(hidden)
     if centre is None or not len(todo):
         return Placement(near, far, located, hidden, u, y_far, bottom_px)
@@ -256,6 +259,41 @@ def place_persons(boxes_px: np.ndarray, model: geo.CameraModel, width: int, heig
         px, front = project_px(model, pts)
         bottom_px[idx] = np.where(front, np.maximum(bottom_px[idx], px[:, 1]), float(height))
     return Placement(near, far, located, hidden, u, y_far, bottom_px)
+
+
+def _widen_tall_boxes(boxes: np.ndarray, model: geo.CameraModel, u: np.ndarray,
+                      near: np.ndarray, far: np.ndarray, located: np.ndarray,
+                      y_far: np.ndarray, centre: np.ndarray,
+                      height_range_m: tuple[float, float], band_px: float) -> None:
+    """A box taller than the tallest person (``height_range_m[1]``) standing at its bottom
+    holds more than one person: boxes merged, or a person standing behind another whose legs
+    the nearer one hides. Its top is then someone's head *farther* away than the bottom says,
+    so the floor range is widened (in place) out to where that head puts the feet, over the
+    whole height range. Without it the person behind disappears into the nearer one's box."""
+    idx = np.flatnonzero(located)
+    if not len(idx):
+        return
+    h_max = height_range_m[1]
+    heads = np.c_[near[idx], np.full(len(idx), h_max)]
+    px, front = project_px(model, heads)
+    # a top cut by the image edge is no head (the hidden-feet pass places such boxes)
+    tall = front & (boxes[idx, 1] < px[:, 1] - band_px) & (boxes[idx, 1] > EDGE_TOLERANCE_PX)
+    for i in idx[tall].tolist():
+        ray = pixel_rays(model, np.array([[u[i], boxes[i, 1]]]))[0]
+        if ray[2] >= -1e-9:  # a level or rising sight line: the head may be anywhere beyond
+            far_xy = None
+        else:
+            s_far = (height_range_m[0] - centre[2]) / ray[2]
+            far_xy = centre[:2] + s_far * ray[:2] if s_far > 0 else None
+        if far_xy is None:
+            located[i] = False  # unbounded: fail safe, inside every volume
+            continue
+        c = centre[:2]
+        if np.hypot(*(far_xy - c)) > np.hypot(*(far[i] - c)):
+            far[i] = far_xy
+            row, ok = project_px(model, np.array([[far_xy[0], far_xy[1], 0.0]]))
+            if ok[0]:
+                y_far[i] = min(y_far[i], float(row[0, 1]))
 
 
 def occluder_outline_px(points_m: np.ndarray, model: geo.CameraModel) -> np.ndarray | None:

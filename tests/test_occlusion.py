@@ -97,6 +97,23 @@ def test_person_in_clear_view_keeps_a_tight_answer():
     assert {h.zone_id for h in rep.hits} == {"robot-warning", "cam0-warning"}
 
 
+def test_one_box_over_two_persons_one_behind_the_other_finds_the_one_behind():
+    # a person inside the protective zone, another in front of them outside it: the merged
+    # box runs from the far person's head to the near person's feet. The bottom alone puts
+    # "the person" outside; the box is too tall for one person there, so the far one counts.
+    cell = zn.load_cell(DEMO)
+    far, near = seen_box(0.0, -0.3), seen_box(0.0, -2.4)
+    merged = np.array([[min(far[0, 0], near[0, 0]), far[0, 1],
+                        max(far[0, 2], near[0, 2]), near[0, 3]]])
+    alone = zn.check_persons(cell, "cam0", near)
+    assert "robot-protective" not in {h.zone_id for h in alone.hits}
+    rep = zn.check_persons(cell, "cam0", merged)
+    assert {"robot-protective", "cam0-protective"} <= {h.zone_id for h in rep.hits}
+    p = occ.place_persons(merged, cell.camera_models["cam0"], 1280, 720)
+    seg = shapely.LineString([p.near_m[0], p.far_m[0]])
+    assert seg.distance(shapely.Point(0.0, -0.3)) < 0.05, (p.near_m, p.far_m)
+
+
 def test_feet_band_sweeps_between_its_ends():
     cell = zn.load_cell(DEMO)
     model = cell.camera_models["cam0"]

@@ -37,6 +37,11 @@ RESET_AT = (8.0, 18.0)
 # this walk enters the zones from the side, so the STOP is never later here.)
 # Allow 0.3 s of walking: k = ceil(0.3 s * fps) frames early.
 EARLY_FRAMES = math.ceil(0.3 * DEMO_FPS)
+# The feet are placed as a range (box bottom up to one grid cell above it, docs/occlusion.md)
+# and a zone counts a person when any point of the range is inside: entering a zone from the
+# far side, the range reaches it up to one cell of floor (~0.5 m here, ~0.7 s of walking)
+# before the true feet do. Earlier is the safe direction; it costs a little nuisance SLOW.
+EARLY_SLOW_FRAMES = math.ceil(0.8 * DEMO_FPS)
 CLEAR_TIME = PolicyConfig().clear_time
 
 
@@ -114,7 +119,7 @@ def test_slow_in_the_warning_zone_then_stop_at_the_first_frame_in_the_protective
     truth_slow = demo.first_truth_frame("warning")
     truth_stop = demo.first_truth_frame("protective")
     assert truth_slow < truth_stop
-    assert truth_slow - EARLY_FRAMES <= first_slow["frame"] <= truth_slow
+    assert truth_slow - EARLY_SLOW_FRAMES <= first_slow["frame"] <= truth_slow
     assert truth_stop - EARLY_FRAMES <= first_stop["frame"] <= truth_stop
     assert first_stop["time_s"] == pytest.approx(first_stop["frame"] / DEMO_FPS, abs=1e-3)
 
