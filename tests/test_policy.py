@@ -691,8 +691,17 @@ def test_reason_texts_and_distances():
 
 
 def test_warning_zone_scale_above_one_is_capped_at_full_speed():
-    _s, cmd = step(warmed()[0], frame(1.1, warn(scale=1.5)), 1.1, MANUAL)
-    assert (cmd.state, cmd.speed_scale) == (SLOW, 1.0)
+    state = warmed()[0]
+    for t in (1.1, 1.6, 2.1, 2.6):  # longer than clear_time: no earlier scale in the window
+        state, cmd = step(state, frame(t, warn(scale=1.5)), t, MANUAL)
+        assert (cmd.state, cmd.speed_scale) == (SLOW, 1.0)
+
+
+def test_reset_refusal_names_every_cause():
+    state, _ = step(warmed()[0], frame(1.1, prot("Z1", 0), prot("Z2", 1)), 1.1, MANUAL)
+    _s, cmd = step(state, frame(1.2, prot("Z1", 0), prot("Z2", 1), reset_request=reset(1.2)),
+                   1.2, MANUAL)
+    assert cmd.reset.message == "refused: person 0 in Z1; person 1 in Z2"
 
 
 def test_describe_of_commands_made_elsewhere():
