@@ -803,3 +803,13 @@ def test_reset_and_latch_texts_exactly():
     stall = Fault("monitor_stalled", "no step for 2 s", True, "service", latch=True)
     _s, cmd = step(warmed(AUTO)[0], frame(1.1, faults=(stall,)), 1.1, AUTO)
     assert cmd.latched_by == Latch("fault", "monitor_stalled: no step for 2 s", 1.1)
+
+
+def test_tick_without_frame_keeps_the_last_frames_speed_scale():
+    config = PolicyConfig(restart_interlock="auto", clear_time=0.2, frame_timeout=0.5)
+    run([
+        (2.0, frame(2.0, warn(scale=0.4)), SLOW, 0.4, ["warning_zone"]),
+        (2.1, tick(), SLOW, 0.4, ["warning_zone"]),
+        (2.3, tick(), SLOW, 0.4, ["warning_zone"]),  # beyond clear_time: only ticks in window
+        (2.45, tick(), SLOW, 0.4, ["warning_zone"]),
+    ], config=config, state=warmed(config, until=1.9)[0])
