@@ -813,3 +813,14 @@ def test_tick_without_frame_keeps_the_last_frames_speed_scale():
         (2.3, tick(), SLOW, 0.4, ["warning_zone"]),  # beyond clear_time: only ticks in window
         (2.45, tick(), SLOW, 0.4, ["warning_zone"]),
     ], config=config, state=warmed(config, until=1.9)[0])
+
+
+def test_clearing_reasons_keep_the_cause_they_wait_for():
+    state, _ = step(warmed()[0], frame(1.1, warn("W1", 0.5)), 1.1, MANUAL)
+    _s, cmd = step(state, frame(1.2), 1.2, MANUAL)
+    assert [(r.code, r.zone_id) for r in cmd.reasons] == [("warning_zone", "W1"),
+                                                          ("clearing", None)]
+    state, _ = step(warmed()[0], frame(1.1, prot("Z1")), 1.1, MANUAL)
+    _s, cmd = step(state, frame(1.2), 1.2, MANUAL)
+    assert [(r.code, r.zone_id) for r in cmd.reasons] == [("protective_zone", "Z1"),
+                                                          ("clearing", None), ("latched", None)]
