@@ -691,8 +691,17 @@ def test_reason_texts_and_distances():
 
 
 def test_warning_zone_scale_above_one_is_capped_at_full_speed():
-    _s, cmd = step(warmed()[0], frame(1.1, warn(scale=1.5)), 1.1, MANUAL)
-    assert (cmd.state, cmd.speed_scale) == (SLOW, 1.0)
+    state = warmed()[0]
+    for t in (1.1, 1.6, 2.1, 2.6):  # longer than clear_time: no earlier scale in the window
+        state, cmd = step(state, frame(t, warn(scale=1.5)), t, MANUAL)
+        assert (cmd.state, cmd.speed_scale) == (SLOW, 1.0)
+
+
+def test_reset_refusal_names_every_cause():
+    state, _ = step(warmed()[0], frame(1.1, prot("Z1", 0), prot("Z2", 1)), 1.1, MANUAL)
+    _s, cmd = step(state, frame(1.2, prot("Z1", 0), prot("Z2", 1), reset_request=reset(1.2)),
+                   1.2, MANUAL)
+    assert cmd.reset.message == "refused: person 0 in Z1; person 1 in Z2"
 
 
 def test_describe_of_commands_made_elsewhere():
@@ -794,3 +803,24 @@ def test_reset_and_latch_texts_exactly():
     stall = Fault("monitor_stalled", "no step for 2 s", True, "service", latch=True)
     _s, cmd = step(warmed(AUTO)[0], frame(1.1, faults=(stall,)), 1.1, AUTO)
     assert cmd.latched_by == Latch("fault", "monitor_stalled: no step for 2 s", 1.1)
+
+
+def test_tick_without_frame_keeps_the_last_frames_speed_scale():
+    config = PolicyConfig(restart_interlock="auto", clear_time=0.2, frame_timeout=0.5)
+    run([
+        (2.0, frame(2.0, warn(scale=0.4)), SLOW, 0.4, ["warning_zone"]),
+        (2.1, tick(), SLOW, 0.4, ["warning_zone"]),
+        (2.3, tick(), SLOW, 0.4, ["warning_zone"]),  # beyond clear_time: only ticks in window
+        (2.45, tick(), SLOW, 0.4, ["warning_zone"]),
+    ], config=config, state=warmed(config, until=1.9)[0])
+
+
+def test_clearing_reasons_keep_the_cause_they_wait_for():
+    state, _ = step(warmed()[0], frame(1.1, warn("W1", 0.5)), 1.1, MANUAL)
+    _s, cmd = step(state, frame(1.2), 1.2, MANUAL)
+    assert [(r.code, r.zone_id) for r in cmd.reasons] == [("warning_zone", "W1"),
+                                                          ("clearing", None)]
+    state, _ = step(warmed()[0], frame(1.1, prot("Z1")), 1.1, MANUAL)
+    _s, cmd = step(state, frame(1.2), 1.2, MANUAL)
+    assert [(r.code, r.zone_id) for r in cmd.reasons] == [("protective_zone", "Z1"),
+                                                          ("clearing", None), ("latched", None)]

@@ -18,7 +18,8 @@ ZONE_STOP_CODES = frozenset({"protective_zone", "person_lost", "separation"})
 
 @dataclass(frozen=True)
 class FrameCauses:
-    """What one frame's zone report asks for: STOP causes, SLOW causes and the SLOW speed."""
+    """What one frame's zone report asks for: STOP causes, SLOW causes and the speed scale
+    its SLOW causes allow (1.0 when there is none)."""
 
     stops: tuple[Reason, ...] = ()
     slows: tuple[Reason, ...] = ()

@@ -150,8 +150,8 @@ def step(state: PolicyState, inputs: PolicyInputs, now: float,
     if latched_by is not None:
         reasons += (Reason("latched", "STOP latched: waiting for an operator reset"),)
 
-    wanted = 0.0 if stop_causes else (seen.scale if slow_causes else 1.0)
-    window, lowest = speed_window(state.scale_window, wanted, now, config)
+    # (1.0 without a SLOW cause; a STOP's own entry would expire before STOP can be left)
+    window, lowest = speed_window(state.scale_window, seen.scale, now, config)
     speed = {STOP: 0.0, RUN: 1.0}.get(level, lowest)
 
     since = now if (state.since is None or level != state.state) else state.since

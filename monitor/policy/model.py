@@ -242,5 +242,6 @@ class PolicyState:
 
 
 def initial_state() -> PolicyState:
-    """STOP with reason ``startup``: nothing is known until frames arrive."""
-    return PolicyState(hold_reasons=(Reason("startup", "no frame processed yet"),))
+    """STOP: nothing is known until frames arrive (every step before the first frame, and the
+    step of that frame, has the cause ``startup``)."""
+    return PolicyState()
