@@ -15,7 +15,6 @@ import pytest
 from monitor.scene import scenarios as sc
 
 FPS = 5.0
-NEEDS_H1 = pytest.mark.xfail(reason="needs h1 tracker/masks", strict=False)
 
 
 def _by_name(name: str) -> sc.Scenario:
@@ -41,9 +40,7 @@ def test_legs_hidden_behind_a_waist_high_bench(detector):
 @pytest.mark.slow
 @pytest.mark.parametrize("name", [
     "bench-0.80", "bench-0.95", "bench-1.30", "crate-crouch", "robot-base", "kneeling",
-    "running", "clear-view-outside",
-    pytest.param("two-persons", marks=NEEDS_H1),
-    pytest.param("masked-cutout", marks=NEEDS_H1),
+    "running", "clear-view-outside", "two-persons", "masked-cutout",
 ])
 def test_scenario(detector, name):
     r = sc.run_scenario(_by_name(name), detector)
