@@ -74,7 +74,7 @@ def test_round_trip_leaves_a_valid_file_and_preview_draws(tmp_path):
     assert row[:3] == ["slow-img", "warning", "no"]
     shown = ok("show", f, "stop-img", cwd=tmp_path)
     assert "name: Press" in shown and "[520.0, 400.0]" in shown
-    assert "ok: 5 zones (4 enabled)" in ok("validate", f, cwd=tmp_path)
+    assert "ok: 5 zones (4 enabled), 1 camera," in ok("validate", f, cwd=tmp_path)
 
     cell = zn.load_cell(tmp_path / f)
     assert [z.id for z in cell.zones] == ["stop-img", "slow-img", "stop-box", "slow-ring",

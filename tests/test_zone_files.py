@@ -365,3 +365,25 @@ def test_non_finite_values_never_reach_the_separation(tmp_path):
     data["separation"]["programmed_speed_mps"] = float("nan")
     assert "programmed_speed_mps" in one_line_error(write(tmp_path, data))
     assert not math.isnan(zn.load_cell(DEMO).spec.separation.programmed_speed_mps)
+
+
+def test_image_zone_beyond_the_horizon_is_refused():
+    # a feet-anchored protective polygon must lie on the floor side of the camera's horizon
+    import copy
+
+    from monitor.config import demo_cell_path
+
+    data = copy.deepcopy(zn.read_cell_data(demo_cell_path()))
+    cam = data["cameras"][0]
+    cam["calibration"]["camera_matrix"][1][2] = 560.0  # principal point lower: horizon at ~200
+    cell = zn.parse_cell(data)
+    cam_id = cam["id"]
+    row = cell.camera_models[cam_id].horizon_row_px()
+    assert row is not None and 150 < row < 250
+    data["zones"].append({"id": "sky", "kind": "protective", "shape": "polygon",
+                          "camera": cam_id,
+                          "points_px": [[100, 1], [300, 1], [300, row + 50], [100, row + 50]]})
+    errors, _ = zn.cell_faults(data)
+    assert any("zone 'sky'" in e and "horizon" in e for e in errors), errors
+    with pytest.raises(ConfigError, match="beyond camera"):
+        zn.parse_cell(data)

@@ -385,7 +385,8 @@ def cmd_list(args: argparse.Namespace) -> int:
     widths = [max(len(r[c]) for r in rows) for c in range(len(rows[0]))]
     for r in rows:
         print("  ".join(v.ljust(w) for v, w in zip(r, widths, strict=True)).rstrip())
-    print(f"{len(cell.zones)} zones, {len(cell.cameras)} cameras, config hash {cell.config_hash}")
+    print(f"{_count(len(cell.zones), 'zone')}, {_count(len(cell.cameras), 'camera')}, "
+          f"config hash {cell.config_hash}")
     return 0
 
 
@@ -424,8 +425,8 @@ def cmd_validate(args: argparse.Namespace) -> int:
     for cam_id, model in cell.camera_models.items():
         print(f"{args.file}: camera '{cam_id}': {_horizon_text(model)}")
     active = sum(1 for z in cell.zones if z.enabled)
-    print(f"{args.file}: ok: {len(cell.zones)} zones ({active} enabled), "
-          f"{len(cell.cameras)} cameras, config hash {cell.config_hash}")
+    print(f"{args.file}: ok: {_count(len(cell.zones), 'zone')} ({active} enabled), "
+          f"{_count(len(cell.cameras), 'camera')}, config hash {cell.config_hash}")
     return 0
 
 
@@ -633,3 +634,8 @@ def cmd_calibrate_tool(args: argparse.Namespace) -> int:
     _write(data, args.file)
     print(f"calibrated the tool of {args.file}")
     return 0
+
+
+def _count(n: int, noun: str) -> str:
+    """'1 camera', '2 cameras'."""
+    return f"{n} {noun}" if n == 1 else f"{n} {noun}s"

@@ -169,9 +169,33 @@ def _check_spec(spec: CellSpec, base: Path
         if not has_image and not (has_volume and cam.calibration is not None):
             warnings.append(f"camera '{cam.id}': no enabled protective or warning zone applies "
                             "to it (uncalibrated cameras see image zones only)")
+    errors += _check_horizon(spec, models)
     if not errors:
         warnings += _check_unobserved(spec, models, meshes)
     return errors, warnings, models, meshes
+
+
+def _check_horizon(spec: CellSpec, models: Mapping[str, geo.CameraModel]) -> list[str]:
+    """An enabled protective or warning image zone anchored at the feet marks floor pixels:
+    a calibration whose horizon puts any of its corners on the side that never meets the floor
+    is wrong for this camera (or the polygon is), and a person standing there could not be
+    placed on the floor. Refused, naming the corner and the horizon row."""
+    out = []
+    for z in spec.zones:
+        if not (isinstance(z, PolygonZone) and z.enabled and z.camera in models
+                and z.kind in ("protective", "warning") and z.anchor == "bottom-centre"):
+            continue
+        model = models[z.camera]
+        pts = np.asarray(z.points_px, float).reshape(-1, 2)
+        _, ok = model.pixel_to_floor(pts)
+        if not ok.all():
+            u, v = pts[int(np.flatnonzero(~ok)[0])]
+            row = model.horizon_row_px()
+            where = f" (horizon at row {row:.0f})" if row is not None else ""
+            out.append(f"zone '{z.id}': corner ({u:g}, {v:g}) lies beyond camera "
+                       f"'{z.camera}''s horizon{where}: the calibration says it never sees "
+                       "the floor there; check the calibration or the polygon")
+    return out
 
 
 def _check_unobserved(spec: CellSpec, models: Mapping[str, geo.CameraModel],
