@@ -261,6 +261,10 @@ def place_persons(boxes_px: np.ndarray, model: geo.CameraModel, width: int, heig
     return Placement(near, far, located, hidden, u, y_far, bottom_px)
 
 
+# how far along a level or rising sight line a person's head may be (metres): beyond any cell
+FAR_M = 50.0
+
+
 def _widen_tall_boxes(boxes: np.ndarray, model: geo.CameraModel, u: np.ndarray,
                       near: np.ndarray, far: np.ndarray, located: np.ndarray,
                       y_far: np.ndarray, centre: np.ndarray,
@@ -280,15 +284,16 @@ def _widen_tall_boxes(boxes: np.ndarray, model: geo.CameraModel, u: np.ndarray,
     tall = front & (boxes[idx, 1] < px[:, 1] - band_px) & (boxes[idx, 1] > EDGE_TOLERANCE_PX)
     for i in idx[tall].tolist():
         ray = pixel_rays(model, np.array([[u[i], boxes[i, 1]]]))[0]
-        if ray[2] >= -1e-9:  # a level or rising sight line: the head may be anywhere beyond
-            far_xy = None
-        else:
-            s_far = (height_range_m[0] - centre[2]) / ray[2]
-            far_xy = centre[:2] + s_far * ray[:2] if s_far > 0 else None
-        if far_xy is None:
-            located[i] = False  # unbounded: fail safe, inside every volume
-            continue
+        s_far = (height_range_m[0] - centre[2]) / ray[2] if ray[2] < -1e-9 else -1.0
         c = centre[:2]
+        if s_far > 0:
+            far_xy = c + s_far * ray[:2]
+        else:  # a level or rising sight line: the head may be anywhere along it, beyond
+            flat = float(np.hypot(*ray[:2]))
+            if flat < 1e-9:
+                located[i] = False  # straight up: cannot be placed (inside every volume)
+                continue
+            far_xy = c + FAR_M * ray[:2] / flat
         if np.hypot(*(far_xy - c)) > np.hypot(*(far[i] - c)):
             far[i] = far_xy
             row, ok = project_px(model, np.array([[far_xy[0], far_xy[1], 0.0]]))
