@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import socket
 import threading
 import time
 
@@ -26,22 +25,7 @@ from monitor.policy import Command, Reason, ResetOutcome
 from monitor.resets import request_reset
 from monitor.signing import load_private_key, new_key_pair
 from monitor.types import Alert, FrameInfo, Persons, ZoneHit, ZoneReport
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def wait_for(cond, timeout: float = 3.0) -> bool:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if cond():
-            return True
-        time.sleep(0.005)
-    return cond()
-
+from tests.helpers import free_port, wait_for
 
 RUN_CMD = Command("RUN", 1.0, (), since=1.0)
 SLOW_CMD = Command("SLOW", 0.4, (Reason("warning_zone", "person 0 in zone W1", zone_id="W1",

@@ -28,6 +28,7 @@ from monitor.pose import (
     pose_from_json,
     pose_to_json,
 )
+from tests.helpers import free_port
 
 
 def sample(t: float = 1.0, x: float = 0.5, **kw) -> OtusSample:
@@ -171,11 +172,6 @@ def test_pose_json_round_trip_and_malformed():
 
 # --- Zenoh and UDP -----------------------------------------------------------------------------
 
-
-def free_port(kind: int = socket.SOCK_STREAM) -> int:
-    with socket.socket(socket.AF_INET, kind) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def test_pose_subscriber_keeps_latest_accepted_sample_and_its_age():

@@ -26,15 +26,11 @@ from monitor.policy import PolicyConfig
 from monitor.resets import signed_reset
 from monitor.scene import DemoScene
 from monitor.zones import load_cell
+from tests.helpers import free_port
 
 POLICY = PolicyConfig()
 TICK_S = 0.05  # service.tick_s default: timers run at least this often without frames
 
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def wait_for(cond: Callable[[], object], timeout: float, what: str, proc=None):

@@ -20,14 +20,11 @@ import time
 
 import pytest
 
+from tests.helpers import free_port
+
 LIMIT_S = 2.0
 _READY_S: dict[str, float] = {}  # last measured start-up time per command (s)
 
-
-def free_port(kind=socket.SOCK_STREAM) -> int:
-    with socket.socket(socket.AF_INET, kind) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def command(name: str) -> tuple[list[str], str]:

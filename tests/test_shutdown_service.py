@@ -19,14 +19,10 @@ import pytest
 
 from monitor.config import demo_cell_path
 from monitor.scene import DemoScene
+from tests.helpers import free_port
 
 GONE_WITHIN_S = 2.0
 
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def empty_cell_video(path: Path, frames: int = 15) -> Path:

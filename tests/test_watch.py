@@ -6,7 +6,6 @@ import json
 import multiprocessing
 import os
 import signal
-import socket
 import subprocess
 import sys
 import threading
@@ -15,6 +14,7 @@ import time
 import pytest
 
 from monitor.bus import BusConfig, BusKeys, open_session
+from tests.helpers import free_port
 
 TTL_MS = 300
 HZ = 10.0
@@ -80,11 +80,6 @@ class Watcher:
             _, err = self.proc.communicate()
         return err
 
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 @pytest.mark.slow

@@ -11,7 +11,6 @@ from __future__ import annotations
 import os
 import re
 import shutil
-import socket
 import subprocess
 import sys
 import sysconfig
@@ -19,6 +18,8 @@ import tomllib
 from pathlib import Path
 
 import pytest
+
+from tests.helpers import free_port
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -39,11 +40,6 @@ def test_every_package_of_the_source_tree_is_in_the_wheel_list():
              for p in (ROOT / "monitor").rglob("__init__.py")}
     assert found - listed == set(), "add these to [tool.setuptools] packages in pyproject.toml"
 
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def _run(args: list[str], cwd: Path, timeout: float = 300) -> subprocess.CompletedProcess:
@@ -86,7 +82,7 @@ def test_wheel_installs_and_runs_outside_the_checkout(tmp_path):
 
     # `monitor run` with the demo defaults: synthetic camera, synthetic model, demo zones
     config = elsewhere / "monitor.toml"
-    config.write_text(f'[bus]\nlisten = ["tcp/127.0.0.1:{_free_port()}"]\n')
+    config.write_text(f'[bus]\nlisten = ["tcp/127.0.0.1:{free_port()}"]\n')
     run = _run([str(venv / "bin" / "monitor"), "run", "--config", str(config), "--duration",
                 "3"], elsewhere)
     assert run.returncode == 0, run.stderr[-3000:]
