@@ -57,9 +57,6 @@ TARGETS = {
 
 # mutant name -> why no test can tell it from the original (the behaviour is the same)
 EQUIVALENT: dict[str, str] = {
-    "monitor.policy.causes.x_frame_causes__mutmut_5":
-        "scale = 1.0 -> 2.0: the scale returned is min(scale, 1.0) and is used only when a "
-        "SLOW cause gave its own (lower) scale",
     **{f"monitor.bus.xǁCommandWatchdogǁ__init____mutmut_{n}":
        "received/boot/seq_error start as '' instead of None: each is set before it is read, or "
        "read only for truth (both falsy)" for n in (6, 7, 8)},
