@@ -57,9 +57,15 @@ TARGETS = {
 
 # mutant name -> why no test can tell it from the original (the behaviour is the same)
 EQUIVALENT: dict[str, str] = {
-    "monitor.policy.causes.x_frame_causes__mutmut_5":
-        "scale = 1.0 -> 2.0: the scale returned is min(scale, 1.0) and is used only when a "
-        "SLOW cause gave its own (lower) scale",
+    **{f"monitor.bus.xǁCommandWatchdogǁ__init____mutmut_{n}":
+       "received/boot/seq_error start as '' instead of None: each is set before it is read, or "
+       "read only for truth (both falsy)" for n in (6, 7, 8)},
+    **{f"monitor.bus.xǁCommandWatchdogǁon_command__mutmut_{n}":
+       "the text of a ValueError that is caught and counted as 'invalid' is never seen"
+       for n in (7, 8, 9, 43, 44, 45)},
+    **{f"monitor.bus.xǁCommandWatchdogǁon_liveliness__mutmut_{n}":
+       "rsplit('/') / rsplit('/', 2) / [+1] of rsplit('/', 1): all give the key's last "
+       "segment" for n in (5, 8, 9)},
 }
 
 _SKIP = {".git", ".venv", "mutants", "__pycache__", ".pytest_cache", ".hypothesis",

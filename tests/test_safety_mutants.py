@@ -13,7 +13,7 @@ import pytest
 
 from monitor import geometry as geo
 from monitor import zones as zn
-from monitor.bus import COMMAND_SCHEMA, CommandWatchdog
+from monitor.bus import COMMAND_SCHEMA, CommandWatchdog, Verdict
 from monitor.config import demo_cell_path
 from monitor.health import CameraHealth, HealthConfig
 from monitor.pipeline import Pipeline
@@ -259,3 +259,41 @@ def test_pipeline_merges_cameras_towards_danger_and_waits_for_every_camera(detec
     img, info = next(_frames(1, camera="cam1"))
     r = pipe.process(img, info, 0.75)
     assert r.command.state == STOP and "frame_stale" in {x.code for x in r.command.reasons}
+
+
+def test_watchdog_verdicts_exactly():
+    """Whole verdicts, not only the state: a STOP verdict that said speed 1.0, or lost the seq
+    or the command it refers to, would mislead a controller or its log."""
+    dog = _live_dog()
+    assert dog.verdict(0.0) == Verdict("STOP", 0.0, "silence: no command received yet",
+                                       code="no_command")
+    stop = _command(seq=1, state="STOP", speed_scale=0.0)
+    assert dog.on_command(stop, 0.0) is None  # received at time 0.0
+    assert dog.verdict(0.0) == Verdict("STOP", 0.0, "", 1, json.loads(stop))
+    assert dog.verdict(0.5) == Verdict("STOP", 0.0, "silence: last command 500 ms ago "
+                                       "(ttl 300 ms)", 1, json.loads(stop), "ttl")
+    run = _command(seq=2)
+    assert dog.on_command(run, 1.0) is None
+    assert dog.verdict(1.0) == Verdict("RUN", 1.0, "", 2, json.loads(run))
+    assert dog.verdict(1.5) == Verdict("STOP", 0.0, "silence: last command 500 ms ago "
+                                       "(ttl 300 ms)", 2, json.loads(run), "ttl")
+    assert dog.on_command(_command(seq=2), 1.1) == "seq"
+    assert dog.verdict(1.1) == Verdict("STOP", 0.0, "sequence: seq went backwards (2 after 2)",
+                                       2, json.loads(run), "sequence")
+    run3 = _command(seq=3)
+    assert dog.on_command(run3, 1.2) is None  # a newer one clears the sequence error
+    dog.on_liveliness(ALIVE, False)
+    assert dog.verdict(1.2) == Verdict("STOP", 0.0, "silence: liveliness token of mon1 vanished",
+                                       3, json.loads(run3), "liveliness")
+    anonymous = _command(seq=4, instance=_DROP)
+    assert dog.on_command(anonymous, 1.3) is None
+    assert dog.verdict(1.3) == Verdict("STOP", 0.0, "silence: liveliness token of  not seen",
+                                       4, json.loads(anonymous), "liveliness")
+
+
+def test_watchdog_counts_every_rejection():
+    dog = _live_dog(instance="mon1")
+    for _ in range(2):
+        assert dog.on_command(b"{bad", 1.0) == "invalid"
+        assert dog.on_command(_command(instance="rogue"), 1.0) == "other_instance"
+    assert dog.rejected == {"invalid": 2, "other_instance": 2}

@@ -72,7 +72,7 @@ def frame_causes(report: ZoneReport | None) -> FrameCauses:
             slows.append(Reason("separation_speed", f"separation allows {v:.2f} of the "
                                 "programmed speed", distance_m=sep, required_m=req))
             scale = min(scale, v)
-    return FrameCauses(tuple(stops), tuple(slows), min(scale, 1.0))
+    return FrameCauses(tuple(stops), tuple(slows), scale)  # never above the 1.0 start
 
 
 def _older_than(now: float, then: float, limit: float) -> bool:
