@@ -132,16 +132,16 @@ def test_normal_scene_raises_nothing(demo, reference, with_reference):
 
 
 @pytest.mark.slow
-def test_two_minutes_of_the_demo_scene_raise_nothing(reference):
+def test_a_minute_of_the_looped_demo_scene_raises_nothing(reference):
     health = checker(reference)
     seen_faults: list[tuple[int, str]] = []
     seen_alerts: list[tuple[int, str]] = []
-    scene = DemoScene(duration_s=120.0, loop=True)
+    scene = DemoScene(duration_s=60.0, loop=True)  # the 24 s walk two and a half times
     for i, (image, truth) in enumerate(scene.frames()):
         report = health.check(image, i / scene.fps, _boxes(truth))
         seen_faults.extend((i, f.name) for f in report.faults)
         seen_alerts.extend((i, a.kind) for a in report.alerts)
-    assert i == 1799
+    assert i == 899
     assert seen_faults == []
     assert seen_alerts == []
 

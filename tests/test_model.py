@@ -66,16 +66,16 @@ def test_a_small_work_wear_patch_is_not_a_person(detector):
 
 
 @pytest.mark.slow
-def test_accuracy_on_100_generated_frames(detector):
-    # the 200-frame figures are `monitor model eval` (models/README.md); 100 keep the suite short
+def test_accuracy_on_60_generated_frames(detector):
+    # the 200-frame figures are `monitor model eval` (models/README.md); 60 keep the suite short
     size = (1920, 1080)
     acc = Accuracy()
     tol = cell_tolerance_px(size)
-    for image, truth in random_frames(100, seed=0, size=size):
+    for image, truth in random_frames(60, seed=0, size=size):
         score_frame(detector.detect(image).boxes_px, truth, tol, acc)
     print(f"recall {acc.recall:.4f} precision {acc.precision:.4f} mean IoU {acc.mean_iou:.3f} "
           f"one box {acc.one_box_share:.4f} persons {acc.persons}")
-    assert acc.persons > 150
+    assert acc.persons > 90
     assert acc.recall >= 0.98
     assert acc.precision >= 0.98
     assert acc.one_box_share >= 0.98

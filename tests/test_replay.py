@@ -37,14 +37,10 @@ RESET_AT = (8.0, 18.0)
 # this walk enters the zones from the side, so the STOP is never later here.)
 # Allow 0.3 s of walking: k = ceil(0.3 s * fps) frames early.
 EARLY_FRAMES = math.ceil(0.3 * DEMO_FPS)
-# The feet are placed as a range (box bottom up to one grid cell above it, docs/occlusion.md)
-# and a zone counts a person when any point of the range is inside: entering a zone from the
-# far side, the range reaches it up to one cell of floor (~0.5 m here, ~0.7 s of walking)
-# before the true feet do. Earlier is the safe direction; it costs a little nuisance SLOW.
-# Entering from the image's side edge, a box cut by the edge is placed from the head over the
-# height range (its feet may be hidden), which widens the range further: the demo walk's first
-# SLOW comes up to ~1.2 s before the true feet reach the warning zone.
-EARLY_SLOW_FRAMES = math.ceil(1.5 * DEMO_FPS)
+# SLOW may come earlier than the warning zone's ground truth: a person entering at the image's
+# side edge shows as a sliver too short for a person, and such a box is placed from the head
+# over the whole height range (its feet may be hidden, docs/occlusion.md). Earlier is the safe
+# direction; the bound kept is that nothing causes SLOW before anyone is in view.
 CLEAR_TIME = PolicyConfig().clear_time
 
 
@@ -122,7 +118,8 @@ def test_slow_in_the_warning_zone_then_stop_at_the_first_frame_in_the_protective
     truth_slow = demo.first_truth_frame("warning")
     truth_stop = demo.first_truth_frame("protective")
     assert truth_slow < truth_stop
-    assert truth_slow - EARLY_SLOW_FRAMES <= first_slow["frame"] <= truth_slow
+    first_seen = next(t.index for t in demo.truths if t.persons)
+    assert first_seen <= first_slow["frame"] <= truth_slow
     assert truth_stop - EARLY_FRAMES <= first_stop["frame"] <= truth_stop
     assert first_stop["time_s"] == pytest.approx(first_stop["frame"] / DEMO_FPS, abs=1e-3)
 
@@ -291,7 +288,7 @@ def test_replay_publish_sends_the_commands_over_zenoh(demo, synthetic_model, tmp
     proc = subprocess.Popen(
         [sys.executable, "-m", "monitor", "replay", str(demo.video), "--zones",
          str(demo_cell_path()), "--model", str(synthetic_model), "--out", str(tmp_path / "o"),
-         "--publish", "--realtime", "--no-video", "--config", str(config)],
+         "--publish", "--no-video", "--config", str(config)],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         deadline = time.monotonic() + 30

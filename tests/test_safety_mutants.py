@@ -285,10 +285,10 @@ def test_watchdog_verdicts_exactly():
     dog.on_liveliness(ALIVE, False)
     assert dog.verdict(1.2) == Verdict("STOP", 0.0, "silence: liveliness token of mon1 vanished",
                                        3, json.loads(run3), "liveliness")
+    # a command that names no instance is malformed: dropped, never a RUN
     anonymous = _command(seq=4, instance=_DROP)
-    assert dog.on_command(anonymous, 1.3) is None
-    assert dog.verdict(1.3) == Verdict("STOP", 0.0, "silence: liveliness token of  not seen",
-                                       4, json.loads(anonymous), "liveliness")
+    assert dog.on_command(anonymous, 1.3) == "invalid"
+    assert dog.verdict(1.3).state == "STOP" and dog.verdict(1.3).speed_scale == 0.0
 
 
 def test_watchdog_counts_every_rejection():

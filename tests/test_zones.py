@@ -400,6 +400,8 @@ def test_any_overlap_anchor_agrees_with_shapely():
 def test_unplaceable_person_hits_every_volume_zone():
     data = base_data()
     data["cameras"][0]["calibration"] = pinhole(eye=(0, -6, 1.5), target=(0, 0, 1.5))
+    # the image zones were drawn for a camera looking down: beyond this level one's horizon
+    data["zones"] = [z for z in data["zones"] if z.get("shape") != "polygon"]
     cell = zn.parse_cell(data)
     boxes = np.array([[600, 100, 680, 300]])  # bottom at row 300: above the horizon (row 360)
     rep = zn.check_persons(cell, "cam0", boxes)
