@@ -282,24 +282,29 @@ def _widen_tall_boxes(boxes: np.ndarray, model: geo.CameraModel, u: np.ndarray,
     px, front = project_px(model, heads)
     # a top cut by the image edge is no head (the hidden-feet pass places such boxes)
     tall = front & (boxes[idx, 1] < px[:, 1] - band_px) & (boxes[idx, 1] > EDGE_TOLERANCE_PX)
-    for i in idx[tall].tolist():
-        ray = pixel_rays(model, np.array([[u[i], boxes[i, 1]]]))[0]
-        s_far = (height_range_m[0] - centre[2]) / ray[2] if ray[2] < -1e-9 else -1.0
-        c = centre[:2]
-        if s_far > 0:
-            far_xy = c + s_far * ray[:2]
-        else:  # a level or rising sight line: the head may be anywhere along it, beyond
-            flat = float(np.hypot(*ray[:2]))
-            if flat < 1e-9:
-                located[i] = False  # straight up: cannot be placed (inside every volume)
-                continue
-            far_xy = c + FAR_M * ray[:2] / flat
-        if np.hypot(*(far_xy - c)) > np.hypot(*(far[i] - c)):
-            far[i] = far_xy
-            row, ok = project_px(model, np.array([[far_xy[0], far_xy[1], 0.0]]))
-            if ok[0]:
-                y_far[i] = min(y_far[i], float(row[0, 1]))
-
+    rows = idx[tall]
+    if not len(rows):
+        return
+    c = centre[:2]
+    rays = pixel_rays(model, np.c_[u[rows], boxes[rows, 1]])  # one call for every tall box
+    down = rays[:, 2] < -1e-9
+    s_far = np.where(down, (height_range_m[0] - centre[2]) / np.where(down, rays[:, 2], -1.0),
+                     -1.0)
+    flat = np.hypot(rays[:, 0], rays[:, 1])
+    # a level or rising sight line: the head may be anywhere along it, beyond
+    along = np.where(flat[:, None] > 1e-9, rays[:, :2] / np.maximum(flat, 1e-12)[:, None], 0.0)
+    far_xy = np.where((s_far > 0)[:, None], c + s_far[:, None] * rays[:, :2], c + FAR_M * along)
+    placeable = (s_far > 0) | (flat > 1e-9)
+    located[rows[~placeable]] = False  # straight up: cannot be placed (inside every volume)
+    wider = placeable & (np.hypot(*(far_xy - c).T) > np.hypot(*(far[rows] - c).T))
+    if not wider.any():
+        return
+    grow = rows[wider]
+    far[grow] = far_xy[wider]
+    pts = np.zeros((len(grow), 3))
+    pts[:, :2] = far_xy[wider]
+    row_px, ok = project_px(model, pts)
+    y_far[grow] = np.where(ok, np.minimum(y_far[grow], row_px[:, 1]), y_far[grow])
 
 def occluder_outline_px(points_m: np.ndarray, model: geo.CameraModel) -> np.ndarray | None:
     """Image outline (convex hull, raw pixels) of an occluder given by its corner points, or
