@@ -1,4 +1,4 @@
-"""The synthetic tiny-YOLOv3 model: the seeds' layer table with analytically set weights.
+"""The synthetic tiny-YOLOv3 model: the JKU Linz 2024 thesis' layer table, analytic weights.
 
 Not trained, not random: every weight is chosen so that the network is a genuine detector of the
 persons drawn by ``monitor.scene`` (saturated magenta work wear). See models/README.md (the model
@@ -19,7 +19,7 @@ How the weights work (input: RGB in [0, 1], NCHW 1x3x416x416, Darknet letterbox)
    cell wide plus a small margin. A person is the union of the cells it covers (see
    ``monitor.boxes.merge_touching``). The 13x13 head never fires (objectness bias -20).
 
-All other weights are zero: the graph still has exactly the seeds' 8,849,182 parameters and costs
+All other weights are zero: the graph still has exactly the thesis' 8,849,182 parameters and costs
 the same inference time as a trained tiny-YOLOv3.
 """
 
@@ -147,7 +147,7 @@ def build_weights(p: SyntheticWeights) -> dict[str, tuple[np.ndarray, np.ndarray
 
 def build_model(p: SyntheticWeights | None = None, input_size: int = INPUT_SIZE,
                 ) -> onnx.ModelProto:
-    """The ONNX graph of the seeds' Table A.9 (Darknet yolov3-tiny), opset 13.
+    """The ONNX graph of the thesis' Table A.9 (Darknet yolov3-tiny), opset 13.
 
     ``input_size`` (a multiple of 32) changes only the input and grid sizes: the weights are
     the same, so 320 or 256 trade accuracy on small persons for speed.

@@ -3,10 +3,11 @@
 Boxes are float arrays (N, 4) of ``x1, y1, x2, y2`` in one pixel frame. Everything here is a pure,
 vectorised function: no I/O, no state.
 
-Why merging: the seeds saw two boxes drawn over one person, and a cell-wise detector (our
-synthetic model) reports one box per grid cell a person covers. Boxes that overlap strongly, lie
-mostly inside one another, or touch along a grid edge belong to one person and become one box:
-their union (a safety monitor should err on the large side), with the highest score.
+Why merging: the research prototype saw two boxes drawn over one person, and a cell-wise
+detector (our synthetic model) reports one box per grid cell a person covers. Boxes that overlap
+strongly, lie mostly inside one another, or touch along a grid edge belong to one person and
+become one box: their union (a safety monitor should err on the large side), with the highest
+score.
 """
 
 from __future__ import annotations

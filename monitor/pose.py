@@ -1,11 +1,11 @@
 """OTUS tool-tracker pose stream: UDP codec, plausibility checks, Zenoh pose samples.
 
-The OTUS tracker (see shared SEEDS.md) sends one UDP datagram per pose: 23 little-endian IEEE-754
-doubles, 184 bytes, in this order: device id, timestamp, position xyz, linear velocity xyz,
-linear acceleration xyz, orientation quaternion xyzw, angular velocity xyz, angular acceleration
-xyz, button 1, button 2. Units are taken as SI: metres, seconds, radians (the vendor's
-OpenVR-based software works in metres); the frame is the tracker's own frame, before the tool
-mounting offset is applied.
+The OTUS tracker (ZČU Plzeň tracker report, 2018) sends one UDP datagram per pose: 23 little-
+endian IEEE-754 doubles, 184 bytes, in this order: device id, timestamp, position xyz, linear
+velocity xyz, linear acceleration xyz, orientation quaternion xyzw, angular velocity xyz,
+angular acceleration xyz, button 1, button 2. Units are taken as SI: metres, seconds, radians
+(the vendor's OpenVR-based software works in metres); the frame is the tracker's own frame,
+before the tool mounting offset is applied.
 
 The tracker's measurements contain unflagged "nonsense values", so nothing is trusted:
 ``PoseValidator`` rejects a sample with a named reason (``REJECT_REASONS``) and the pipeline
@@ -118,7 +118,7 @@ def decode_otus(packet: bytes) -> OtusSample:
 class PoseLimits:
     """Plausibility limits for a hand-guided tool. Metres, seconds, radians.
 
-    The tolerances absorb the tracker's measured errors (SEEDS: up to ~25 mm and ~3° in
+    The tolerances absorb the tracker's measured errors (the tracker report: up to ~25 mm and ~3° in
     dynamic motion, ~40 mm/s velocity error) so that jitter at 400 Hz does not read as a jump.
     """
 

@@ -94,7 +94,8 @@ def tool_transform(pose: ToolPose, offset: np.ndarray) -> np.ndarray:
     """Cell-from-tool transform: the tracker pose composed with the fixed mounting offset.
 
     ``offset`` is the tool frame expressed in the tracker frame (4x4, tool_in_tracker). The
-    seeds' calibration gives the other direction: the tracker's mounting on the robot flange
+    tracker report's calibration gives the other direction: the tracker's mounting on the
+    robot flange
     (tracker in flange frame: translation [13.55, 1.82, 49.17] mm, about 180 deg about z; its
     quaternion is printed w-first, [0.004 0.005 -0.002 -1] = w, x, y, z). With the tool frame
     at the flange, ``offset`` is the inverse of that (the zone file's ``given_as:
