@@ -220,7 +220,7 @@ def test_edits_keep_the_files_comments_and_layout(tmp_path):
     assert main("disable", str(f), "shelf-watch") == 0
     text = f.read_text()
     for comment in ("# person model: vertical cylinder standing on the floor",
-                    "# the seeds' calibrated offset of the tracker on the flange",
+                    "# the OTUS tracker report's (ZČU Plzeň 2018) calibrated offset on the flange",
                     "# look-at from eye (0, -6.0, 3.2) to target (0, 0, 0.8), up +z"):
         assert comment in text
     assert "- [900.0, 400.0]" in text  # points in flow style, one per line
