@@ -329,6 +329,18 @@ def random_frames(n: int, seed: int = 0, size: tuple[int, int] = (1280, 720),
         yield _add_noise(img, rng), truth
 
 
+
+def path_position(path, t: float) -> tuple[float, float]:
+    """Floor position (metres) at time ``t`` on a walk of (time, x, y) waypoints, linearly
+    interpolated; the first point before it starts, the last after it ends."""
+    if t <= path[0][0]:
+        return path[0][1], path[0][2]
+    for (t0, x0, y0), (t1, x1, y1) in itertools.pairwise(path):
+        if t <= t1:
+            a = (t - t0) / max(t1 - t0, 1e-9)
+            return x0 + a * (x1 - x0), y0 + a * (y1 - y0)
+    return path[-1][1], path[-1][2]
+
 @dataclass(frozen=True)
 class DemoScene:
     """A person walks from outside the view, through the warning zone, into the protective zone
@@ -352,14 +364,7 @@ class DemoScene:
         cycle = self.path[-1][0]
         if self.loop:
             t = t % cycle
-        pts = self.path
-        if t <= pts[0][0]:
-            return pts[0][1], pts[0][2]
-        for (t0, x0, y0), (t1, x1, y1) in itertools.pairwise(pts):
-            if t <= t1:
-                a = (t - t0) / max(t1 - t0, 1e-9)
-                return x0 + a * (x1 - x0), y0 + a * (y1 - y0)
-        return pts[-1][1], pts[-1][2]
+        return path_position(self.path, t)
 
     def figure_at(self, t: float) -> Figure | None:
         x, y = self.position_at(t)

@@ -34,6 +34,7 @@ from monitor.scene import (
     _limb,
     draw_figure,
     draw_robot,
+    path_position,
     render_background,
 )
 
@@ -58,14 +59,7 @@ class Walker:
     leave_s: float = math.inf
 
     def position_at(self, t: float) -> tuple[float, float]:
-        pts = self.path
-        if t <= pts[0][0]:
-            return pts[0][1], pts[0][2]
-        for (t0, x0, y0), (t1, x1, y1) in itertools.pairwise(pts):
-            if t <= t1:
-                a = (t - t0) / max(t1 - t0, 1e-9)
-                return x0 + a * (x1 - x0), y0 + a * (y1 - y0)
-        return pts[-1][1], pts[-1][2]
+        return path_position(self.path, t)
 
     def speed_at(self, t: float) -> float:
         a, b = self.position_at(max(0.0, t - 0.05)), self.position_at(t + 0.05)
