@@ -1,8 +1,10 @@
-"""Small helpers shared by the test files (one copy each)."""
+"""Small helpers shared by the test files (one copy each): loopback ports, polling, and the
+checks that an error is one clear line."""
 
 from __future__ import annotations
 
 import socket
+import subprocess
 import time
 from collections.abc import Callable
 
@@ -22,3 +24,22 @@ def wait_for(cond: Callable[[], object], timeout: float = 3.0) -> bool:
             return True
         time.sleep(0.005)
     return bool(cond())
+
+
+def assert_one_line(exc: BaseException, *needles: str) -> None:
+    text = str(exc)
+    assert "\n" not in text and text.strip() == text and text
+    for needle in needles:
+        assert needle in text, f"{needle!r} not in {text!r}"
+
+
+def assert_one_line_error(proc: subprocess.CompletedProcess, *needles: str) -> str:
+    assert proc.returncode == 2, (proc.returncode, proc.stderr)
+    assert "Traceback" not in proc.stderr
+    errors = [line for line in proc.stderr.splitlines() if line.startswith("monitor: error:")]
+    assert len(errors) == 1, proc.stderr
+    # FFmpeg/OpenCV may log before it; our message is the last line
+    assert proc.stderr.rstrip("\n").splitlines()[-1] == errors[0]
+    for needle in needles:
+        assert needle in errors[0], f"{needle!r} not in {errors[0]!r}"
+    return errors[0]

@@ -9,7 +9,7 @@ from monitor.detector import Detector
 from monitor.errors import InputError
 from monitor.scene import random_frames
 from monitor.types import FrameInfo
-from tests.test_quantize import bright_squares, yolov8_like
+from tests.onnx_models import bright_squares, yolov8_like
 
 
 def camera_frames() -> list[np.ndarray]:

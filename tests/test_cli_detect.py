@@ -77,7 +77,7 @@ def test_model_build_and_info(tmp_path):
 @pytest.mark.parametrize("case", ["missing-model", "corrupt-model", "unknown-layout",
                                   "missing-input", "bad-image", "bad-video"])
 def test_bad_input_gives_one_line_error(tmp_path, person_image, synthetic_model, case):
-    from tests.test_detector import const_model
+    from tests.onnx_models import const_model
 
     model = str(synthetic_model)
     target = str(person_image)
@@ -207,7 +207,7 @@ def test_detect_and_model_options_all_have_help_text():
 
 
 def test_nan_model_is_a_one_line_error_never_nan_json(tmp_path, person_image):
-    from tests.test_detector import const_model
+    from tests.onnx_models import const_model
 
     heads = {f"h{i}": np.full((1, 255, g, g), np.nan, np.float32) for i, g in ((0, 13), (1, 26))}
     model = const_model(tmp_path / "nan.onnx", heads, inputs={"images": [1, 3, 416, 416]})
@@ -218,9 +218,9 @@ def test_nan_model_is_a_one_line_error_never_nan_json(tmp_path, person_image):
 
 @pytest.mark.slow
 def test_person_classes_option(tmp_path, person_image):
-    from tests.test_detector import _two_class_model
+    from tests.onnx_models import two_class_model
 
-    model = str(_two_class_model(tmp_path / "fall.onnx"))
+    model = str(two_class_model(tmp_path / "fall.onnx"))
     default = run("detect", str(person_image), "--model", model)
     assert default.returncode == 0 and "set detector.person_classes" in default.stderr
     both = run("detect", str(person_image), "--model", model, "--person-classes", "Normal,Fall")

@@ -22,6 +22,7 @@ from monitor.detector import DetectorConfig
 from monitor.errors import ConfigError
 from monitor.health import HealthConfig
 from monitor.policy import PolicyConfig
+from tests.helpers import assert_one_line
 
 FULL = """\
 [camera]
@@ -71,12 +72,6 @@ def write(tmp_path: Path, text: str, name: str = "monitor.toml") -> Path:
     path.write_text(text)
     return path
 
-
-def assert_one_line(exc: BaseException, *needles: str) -> None:
-    text = str(exc)
-    assert text and "\n" not in text and text == text.strip()
-    for needle in needles:
-        assert needle in text, f"{needle!r} not in {text!r}"
 
 
 def test_no_config_is_the_embedded_demo():

@@ -7,71 +7,28 @@ import math
 from pathlib import Path
 
 import numpy as np
-import onnx
 import pytest
-from onnx import TensorProto, helper, numpy_helper
 
 from monitor.detector import TINY_ANCHORS, TINY_MASKS, V3_ANCHORS, V3_MASKS, Detector, letterbox
 from monitor.errors import ModelError
-
-FRAME_W, FRAME_H, INPUT = 640, 480, 320
-SCALE, PAD_X, PAD_Y = 0.5, 0.0, 40.0  # centred letterbox of 640x480 into 320x320
-# persons in frame pixels (x1, y1, x2, y2), and one non-person that must be ignored
-PERSONS = np.array([[100, 50, 200, 300], [400, 200, 520, 430]], np.float32)
-OTHER = np.array([250, 100, 330, 180], np.float32)
-WEAK = np.array([20, 300, 80, 420], np.float32)  # a person below the score threshold
-C = 3  # classes: person, other, other
-
-
-def to_input(box: np.ndarray, pad: tuple[float, float] = (PAD_X, PAD_Y)) -> np.ndarray:
-    return box * SCALE + np.array([pad[0], pad[1], pad[0], pad[1]], np.float32)
-
-
-def cxcywh(box: np.ndarray) -> list[float]:
-    x1, y1, x2, y2 = box
-    return [(x1 + x2) / 2, (y1 + y2) / 2, x2 - x1, y2 - y1]
-
-
-def const_model(path: Path, outputs: dict[str, np.ndarray],
-                inputs: dict[str, list[int | str]] | None = None,
-                metadata: dict[str, str] | None = None,
-                declared: dict[str, list[int | str]] | None = None) -> Path:
-    """A model whose outputs are constants (plus 0 x the inputs, so every input is used).
-
-    ``declared`` overrides an output's shape as written in the file (e.g. symbolic dims)."""
-    declared = declared or {}
-    inputs = inputs or {"images": [1, 3, INPUT, INPUT]}
-    nodes, zero_terms = [], []
-    for name in inputs:
-        nodes.append(helper.make_node("ReduceSum", [name], [f"{name}_sum"], keepdims=0))
-        nodes.append(helper.make_node("Mul", [f"{name}_sum", "zero"], [f"{name}_zero"]))
-        zero_terms.append(f"{name}_zero")
-    inits = [numpy_helper.from_array(np.array(0, np.float32), "zero")]
-    outs = []
-    for name, value in outputs.items():
-        inits.append(numpy_helper.from_array(value, f"{name}_const"))
-        if value.dtype == np.float32:
-            last = f"{name}_const"
-            for k, term in enumerate(zero_terms):
-                nodes.append(helper.make_node("Add", [last, term], [f"{name}_{k}"]))
-                last = f"{name}_{k}"
-            nodes.append(helper.make_node("Identity", [last], [name]))
-            outs.append(helper.make_tensor_value_info(name, TensorProto.FLOAT,
-                                                      declared.get(name, list(value.shape))))
-        else:
-            nodes.append(helper.make_node("Identity", [f"{name}_const"], [name]))
-            outs.append(helper.make_tensor_value_info(name, TensorProto.INT32, list(value.shape)))
-    graph = helper.make_graph(
-        nodes, "const",
-        [helper.make_tensor_value_info(n, TensorProto.FLOAT, s) for n, s in inputs.items()],
-        outs, inits)
-    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 13)])
-    model.ir_version = 8
-    for key, value in (metadata or {}).items():
-        entry = model.metadata_props.add()
-        entry.key, entry.value = key, value
-    onnx.save(model, path)
-    return path
+from tests.onnx_models import (
+    FRAME_H,
+    FRAME_W,
+    INPUT,
+    OTHER,
+    PAD_X,
+    PAD_Y,
+    PERSONS,
+    SCALE,
+    WEAK,
+    C,
+    const_model,
+    cxcywh,
+    darknet_heads,
+    logit,
+    to_input,
+    two_class_model,
+)
 
 
 def rows_v5() -> np.ndarray:
@@ -92,37 +49,8 @@ def rows_e2e() -> np.ndarray:
     return rows
 
 
-def _logit(p: float) -> float:
-    return math.log(p / (1 - p))
 
 
-def darknet_heads(grids: list[int], anchors, masks, nhwc: bool = False) -> dict[str, np.ndarray]:
-    per = 5 + C
-    heads = {g: np.zeros((3, per, g, g), np.float32) for g in grids}
-    for h in heads.values():
-        h[:, 4] = -12.0  # no object anywhere else
-    coarse_first = sorted(grids)
-    for k, box in enumerate([*PERSONS, OTHER]):
-        g = coarse_first[k % len(grids)]  # spread boxes over heads
-        rank = coarse_first.index(g)
-        stride = INPUT / g
-        cx, cy, w, h = cxcywh(to_input(box))
-        gx, gy = int(cx // stride), int(cy // stride)
-        slot = 1
-        aw, ah = anchors[masks[rank][slot]]
-        head = heads[g]
-        head[slot, 0, gy, gx] = _logit(cx / stride - gx)
-        head[slot, 1, gy, gx] = _logit(cy / stride - gy)
-        head[slot, 2, gy, gx] = math.log(w / aw)
-        head[slot, 3, gy, gx] = math.log(h / ah)
-        head[slot, 4, gy, gx] = 6.0
-        head[slot, 5, gy, gx] = 6.0 if k < len(PERSONS) else -6.0
-        head[slot, 6, gy, gx] = -6.0 if k < len(PERSONS) else 6.0
-    out = {}
-    for i, g in enumerate(grids):
-        t = heads[g].reshape(1, 3 * per, g, g)
-        out[f"head{i}"] = np.ascontiguousarray(t.transpose(0, 2, 3, 1)) if nhwc else t
-    return out
 
 
 def yolox_rows() -> np.ndarray:
@@ -300,7 +228,7 @@ def test_darknet_with_a_non_square_input(tmp_path):
         gx, gy = int(cx // stride), int(cy // stride)
         aw, ah = TINY_ANCHORS[TINY_MASKS[rank][0]]
         head = heads[grid]
-        head[0, :6, gy, gx] = [_logit(cx / stride - gx), _logit(cy / stride - gy),
+        head[0, :6, gy, gx] = [logit(cx / stride - gx), logit(cy / stride - gy),
                                math.log(w / aw), math.log(h / ah), 6.0, 6.0]
     outputs = {f"head{i}": t.reshape(1, 3 * (5 + C), *g) for i, (g, t) in enumerate(heads.items())}
     path = const_model(tmp_path / "m.onnx", outputs, inputs={"images": [1, 3, ih, iw]})
@@ -310,17 +238,11 @@ def test_darknet_with_a_non_square_input(tmp_path):
     np.testing.assert_allclose(_found(detector), PERSONS, atol=1.0)
 
 
-def _two_class_model(path: Path) -> Path:
-    """A fall detector: class 0 'Normal' (PERSONS[0]), class 1 'Fall' (PERSONS[1])."""
-    rows = np.zeros((1, 20, 7), np.float32)
-    rows[0, 0] = [*cxcywh(to_input(PERSONS[0])), 0.9, 0.95, 0.02]
-    rows[0, 1] = [*cxcywh(to_input(PERSONS[1])), 0.9, 0.03, 0.9]
-    return const_model(path, {"output0": rows}, metadata={"names": "{0: 'Normal', 1: 'Fall'}"})
 
 
 def test_two_person_classes_unset_takes_class_0_and_warns(tmp_path, caplog):
     with caplog.at_level("WARNING"):
-        detector = _detector(_two_class_model(tmp_path / "m.onnx"))
+        detector = _detector(two_class_model(tmp_path / "m.onnx"))
     assert detector.layout.persons == (0,)
     assert "0: Normal, 1: Fall" in detector.warning and "person_classes" in detector.warning
     assert detector.warning in caplog.text
@@ -329,7 +251,7 @@ def test_two_person_classes_unset_takes_class_0_and_warns(tmp_path, caplog):
 
 @pytest.mark.parametrize("wanted", [("Normal", "fall"), (0, 1)], ids=["names", "ids"])
 def test_two_person_classes_set_finds_both(tmp_path, wanted):
-    detector = _detector(_two_class_model(tmp_path / "m.onnx"), person_classes=wanted)
+    detector = _detector(two_class_model(tmp_path / "m.onnx"), person_classes=wanted)
     assert detector.layout.persons == (0, 1) and detector.warning is None
     np.testing.assert_allclose(_found(detector), PERSONS, atol=1.0)
 
@@ -338,7 +260,7 @@ def test_unknown_person_class_names_the_classes(tmp_path):
     from monitor.errors import ConfigError
 
     with pytest.raises(ConfigError, match=r"no class named 'person'.*0: Normal, 1: Fall"):
-        _detector(_two_class_model(tmp_path / "m.onnx"), person_classes=("person",))
+        _detector(two_class_model(tmp_path / "m.onnx"), person_classes=("person",))
 
 
 def test_a_threshold_below_one_in_a_thousand_is_honoured(tmp_path):

@@ -5,7 +5,6 @@ from __future__ import annotations
 import functools
 import http.server
 import socket
-import struct
 import threading
 import time
 from pathlib import Path
@@ -33,6 +32,8 @@ from monitor.frames import (
 )
 from monitor.scene import DemoScene
 from monitor.types import FrameInfo
+from tests.helpers import assert_one_line, wait_for
+from tests.videos import faststart
 
 W, H = 160, 120
 
@@ -56,54 +57,10 @@ def write_video(path: Path, n: int, fps: float = 10.0, fourcc: str = "mp4v",
     return path
 
 
-def _boxes(data: bytes | bytearray, start: int, end: int):
-    i = start
-    while i < end:
-        size, kind = struct.unpack(">I4s", data[i:i + 8])
-        head = 8
-        if size == 1:
-            size, head = struct.unpack(">Q", data[i + 8:i + 16])[0], 16
-        elif size == 0:
-            size = end - i
-        yield kind.decode("latin1"), i, size, head
-        i += size
 
 
-def faststart(path: Path) -> Path:
-    """Move the MP4 'moov' index before 'mdat' (as ``-movflags faststart`` does) so a cut file
-    keeps its index; chunk offsets (stco/co64) shift by the size of moov."""
-    data = bytearray(path.read_bytes())
-    top = {k: (o, s) for k, o, s, _ in _boxes(data, 0, len(data))}
-    offset, size = top["moov"]
-    moov = bytearray(data[offset:offset + size])
-
-    def patch(start: int, end: int) -> None:
-        for kind, o, s, head in _boxes(moov, start, end):
-            if kind in ("trak", "mdia", "minf", "stbl"):
-                patch(o + head, o + s)
-            elif kind in ("stco", "co64"):
-                width, fmt = (4, ">I") if kind == "stco" else (8, ">Q")
-                (count,) = struct.unpack(">I", moov[o + 12:o + 16])
-                for k in range(count):
-                    p = o + 16 + width * k
-                    struct.pack_into(fmt, moov, p, struct.unpack(fmt, moov[p:p + width])[0] + size)
-
-    patch(8, len(moov))
-    out = bytearray()
-    for kind, o, s, _ in _boxes(data, 0, len(data)):
-        if kind == "mdat":
-            out += moov
-        if kind != "moov":
-            out += data[o:o + s]
-    path.write_bytes(bytes(out))
-    return path
 
 
-def assert_one_line(exc: BaseException, *needles: str) -> None:
-    text = str(exc)
-    assert "\n" not in text and text.strip() == text and text
-    for needle in needles:
-        assert needle in text, f"{needle!r} not in {text!r}"
 
 
 # --- pure helpers -------------------------------------------------------------------------------
@@ -403,14 +360,6 @@ class GatedSource(FrameSource):
         self._open = False
 
 
-def wait_until(cond, timeout: float = 5.0) -> None:
-    deadline = time.monotonic() + timeout
-    while not cond():
-        if time.monotonic() > deadline:
-            raise AssertionError("condition not reached in time")
-        time.sleep(0.005)
-
-
 def test_grabber_hands_out_the_newest_frame_and_counts_dropped():
     ticks = iter(range(1000, 2000))
     source = GatedSource()
@@ -418,7 +367,7 @@ def test_grabber_hands_out_the_newest_frame_and_counts_dropped():
                             clock=lambda: float(next(ticks))) as grabber:
         for _ in range(5):
             source.gate.release()
-        wait_until(lambda: grabber.grabbed == 5)
+        assert wait_for(lambda: grabber.grabbed == 5, 5.0)
         frame = grabber.get(timeout=1)
         assert frame.info.seq == 4 and frame.info.capture_time == 1004.0
         assert frame.image.mean() == pytest.approx(50)  # the 5th frame served
@@ -438,10 +387,10 @@ def test_grabber_reconnects_with_backoff_after_a_loss_and_reports_it():
     try:
         for _ in range(3):
             source.gate.release()
-        wait_until(lambda: grabber.losses == 1)
+        assert wait_for(lambda: grabber.losses == 1, 5.0)
         assert not grabber.connected
         assert grabber.last_error == "gated test source: read failed"
-        wait_until(lambda: source.opens >= 4)  # retried while the camera is gone
+        assert wait_for(lambda: source.opens >= 4, 5.0)  # retried while the camera is gone
         assert grabber.last_error == "gated test source: camera gone"
         assert grabber.reconnects == 0 and grabber.losses == 1  # one loss episode
         assert grabber.get(timeout=0.5).info.seq == 1  # newest before the loss, stamped then
@@ -461,7 +410,7 @@ def test_grabber_refuses_frames_of_the_wrong_size():
     with LatestFrameGrabber(source, stop=source.stop, expected_size=(W, H),
                             backoff=Backoff(0.01, 0.02)) as grabber:
         source.gate.release()
-        wait_until(lambda: grabber.losses == 1)
+        assert wait_for(lambda: grabber.losses == 1, 5.0)
         assert grabber.get(timeout=0.05) is None and not grabber.connected
         assert_one_line(grabber.last_error, "32x24", f"{W}x{H}")
 
@@ -470,7 +419,7 @@ def test_grabber_plays_a_file_to_its_end(tmp_path):
     path = write_video(tmp_path / "v.mp4", 5)
     source = open_source(str(path), "cam0", realtime=False)
     grabber = LatestFrameGrabber(source).start()
-    wait_until(lambda: grabber.ended)
+    assert wait_for(lambda: grabber.ended, 5.0)
     assert grabber.join(2) and grabber.grabbed == 5 and not grabber.connected
     last = grabber.get(timeout=0.1)
     assert last is not None and last.info.seq == 4  # the last frame is still handed out
@@ -494,7 +443,7 @@ def test_stop_is_bounded_while_waiting_for_a_long_backoff():
     source = GatedSource()
     source.down.set()  # never opens: the grabber waits 30 s between tries
     grabber = LatestFrameGrabber(source, stop=source.stop, backoff=Backoff(30.0, 60.0)).start()
-    wait_until(lambda: source.opens == 1)
+    assert wait_for(lambda: source.opens == 1, 5.0)
     t0 = time.monotonic()
     assert grabber.stop(timeout=2)
     assert time.monotonic() - t0 < 2

@@ -16,7 +16,7 @@ from monitor.policy import PolicyConfig
 from monitor.scene import DemoScene, Figure, draw_figure
 from monitor.types import FrameInfo
 from monitor.zones import load_cell
-from tests.test_service import Service, codes, wait_for
+from tests.processes import Service, codes, wait_for
 
 POLICY = PolicyConfig(clear_time=0.3, restart_interlock="auto", max_frame_age=0.3)
 

@@ -13,12 +13,13 @@ import numpy as np
 import onnx
 import pytest
 from monitor.models import synthetic
-from onnx import TensorProto, helper, numpy_helper
+from onnx import TensorProto
 
 from monitor import quantize
 from monitor.accuracy import Accuracy, cell_tolerance_px, score_frame
 from monitor.detector import Detector
 from monitor.scene import random_frames
+from tests.onnx_models import bright_squares, yolov8_like
 
 SIZE = (768, 432)  # small frames, 256 model input: the tests stay quick
 
@@ -104,82 +105,8 @@ def test_head_nodes_are_the_last_convolutions_and_after(model256):
 # ----------------------------------------------------------------------------- a YOLOv8 export
 
 
-def yolov8_like(path: Path, size: int = 256, seed: int = 0) -> Path:
-    """A small graph shaped like an Ultralytics YOLOv8 export: SiLU convolutions, a box branch
-    with a grid of anchor points, sigmoid class scores, output 1x84xN. Channel 0 carries
-    "bright square here"; the other channels hold random weights like a trained model's."""
-    rng = np.random.default_rng(seed)
-    g = size // 8
-    inits, nodes = [], []
-
-    def init(name, array):
-        inits.append(numpy_helper.from_array(np.asarray(array, np.float32), name))
-        return name
-
-    def silu(x, name):
-        nodes.append(helper.make_node("Sigmoid", [x], [f"{name}.sig"], name=f"{name}.sig"))
-        nodes.append(helper.make_node("Mul", [x, f"{name}.sig"], [f"{name}.act"],
-                                      name=f"{name}.mul"))
-        return f"{name}.act"
-
-    w1 = rng.normal(0, 0.05, (16, 3, 8, 8))
-    w1[0] = 1.0 / (3 * 64)
-    b1 = rng.normal(0, 0.1, 16)
-    b1[0] = -0.5
-    nodes.append(helper.make_node("Conv", ["images", init("w1", w1), init("b1", b1)], ["c1"],
-                                  name="c1", kernel_shape=[8, 8], strides=[8, 8]))
-    a1 = silu("c1", "c1")
-    w2 = rng.normal(0, 0.05, (16, 16, 3, 3))
-    w2[0] = 0.0
-    w2[0, 0, 1, 1] = 4.0
-    nodes.append(helper.make_node("Conv", [a1, init("w2", w2), init("b2", np.zeros(16))], ["c2"],
-                                  name="c2", kernel_shape=[3, 3], pads=[1, 1, 1, 1]))
-    a2 = silu("c2", "c2")
-    wc = rng.normal(0, 0.05, (80, 16, 1, 1))
-    wc[0] = 0.0
-    wc[0, 0] = 20.0
-    nodes.append(helper.make_node("Conv", [a2, init("wc", wc), init("bc", np.full(80, -8.0))],
-                                  ["cls.logit"], name="cls", kernel_shape=[1, 1]))
-    nodes.append(helper.make_node("Sigmoid", ["cls.logit"], ["cls.score"], name="cls.sig"))
-    nodes.append(helper.make_node("Reshape", ["cls.score", init("shape80", [1, 80, g * g])],
-                                  ["cls.flat"], name="cls.flat"))
-    inits[-1] = numpy_helper.from_array(np.array([1, 80, g * g], np.int64), "shape80")
-    wb = np.zeros((2, 16, 1, 1))
-    nodes.append(helper.make_node("Conv", [a2, init("wb", wb), init("bb", [16.0, 16.0])],
-                                  ["wh"], name="box.wh", kernel_shape=[1, 1]))
-    nodes.append(helper.make_node("Reshape", ["wh", "shape2"], ["wh.flat"], name="wh.flat"))
-    inits.append(numpy_helper.from_array(np.array([1, 2, g * g], np.int64), "shape2"))
-    yy, xx = np.mgrid[0:g, 0:g]
-    grid = np.stack([xx.ravel(), yy.ravel()])[None] * 8.0 + 4.0
-    nodes.append(helper.make_node("Concat", [init("anchor_points", grid), "wh.flat"], ["box"],
-                                  axis=1, name="box"))
-    nodes.append(helper.make_node("Concat", ["box", "cls.flat"], ["output0"], axis=1,
-                                  name="head"))
-    graph = helper.make_graph(
-        nodes, "yolov8_like",
-        [helper.make_tensor_value_info("images", TensorProto.FLOAT, [1, 3, size, size])],
-        [helper.make_tensor_value_info("output0", TensorProto.FLOAT, [1, 84, g * g])], inits)
-    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 13)])
-    model.ir_version = 8
-    entry = model.metadata_props.add()
-    entry.key, entry.value = "names", str({i: ("person" if i == 0 else f"c{i}")
-                                           for i in range(80)})
-    onnx.checker.check_model(model)
-    onnx.save(model, str(path))
-    return path
 
 
-def bright_squares(n: int, seed: int, size: int = 512) -> list[np.ndarray]:
-    rng = np.random.default_rng(seed)
-    frames = []
-    for _ in range(n):
-        img = rng.normal(60, 6, (size, size, 3)).clip(0, 255).astype(np.uint8)
-        for _ in range(int(rng.integers(1, 3))):
-            s = int(rng.integers(90, 150))
-            x, y = (int(v) for v in rng.integers(0, size - s, 2))
-            img[y:y + s, x:x + s] = 235
-        frames.append(img)
-    return frames
 
 
 def test_a_yolov8_shaped_export_quantizes_and_still_decodes(tmp_path):

@@ -21,7 +21,8 @@ from monitor.policy import RUN, SLOW, STOP, PolicyConfig
 from monitor.replay import ReplaySettings, replay
 from monitor.scene import DEMO_CAMERA, DemoScene, FrameTruth, write_video
 from monitor.zones import Cell, check_persons, load_cell
-from tests.test_frames import faststart
+from tests.helpers import assert_one_line_error
+from tests.videos import faststart
 
 # The demo walk sampled at 7.5 fps (`monitor demo` writes 15 fps): same path, camera and zones,
 # half the frames, so the two replays of this file stay within the suite's time budget.
@@ -200,16 +201,6 @@ def test_annotated_video_has_every_frame(demo, cli_replay):
 
 # --- bad input: one line `monitor: error: ...`, exit 2, no traceback ----------------------------
 
-def assert_one_line_error(proc: subprocess.CompletedProcess, *needles: str) -> str:
-    assert proc.returncode == 2, (proc.returncode, proc.stderr)
-    assert "Traceback" not in proc.stderr
-    errors = [line for line in proc.stderr.splitlines() if line.startswith("monitor: error:")]
-    assert len(errors) == 1, proc.stderr
-    # FFmpeg/OpenCV may log before it; our message is the last line
-    assert proc.stderr.rstrip("\n").splitlines()[-1] == errors[0]
-    for needle in needles:
-        assert needle in errors[0], f"{needle!r} not in {errors[0]!r}"
-    return errors[0]
 
 
 def _clip(path: Path, frames: int, size: tuple[int, int] = (1280, 720)) -> Path:

@@ -11,10 +11,10 @@ import pytest
 from onnx import TensorProto, helper, numpy_helper
 
 from monitor.config import load_config
-from monitor.detector import Detector, DetectorConfig
+from monitor.detector import TINY_ANCHORS, TINY_MASKS, Detector, DetectorConfig
 from monitor.detector.selftest import builtin_case
 from monitor.errors import ConfigError, DetectorError
-from tests.test_detector import TINY_ANCHORS, TINY_MASKS, darknet_heads
+from tests.onnx_models import darknet_heads
 
 
 def broken_synthetic(src: Path, dst: Path, layer: str, value: float) -> Path:
@@ -62,7 +62,7 @@ def test_nan_outputs_raise_detector_error_not_no_persons(tmp_path):
 
 
 def test_infinite_box_is_a_detector_error_not_a_full_frame_box(tmp_path):
-    from tests.test_detector import const_model
+    from tests.onnx_models import const_model
 
     heads = darknet_heads([10, 20], TINY_ANCHORS, TINY_MASKS)
     head = next(iter(heads.values())).reshape(3, 8, 10, 10)
@@ -128,7 +128,7 @@ def self_test_image(tmp_path) -> tuple[Path, tuple[float, float, float, float]]:
 
 
 def test_all_zero_outputs_fail_a_user_self_test(tmp_path, self_test_image):
-    from tests.test_detector import const_model
+    from tests.onnx_models import const_model
 
     heads = {f"head{i}": np.zeros((1, 24, g, g), np.float32) for i, g in enumerate((10, 20))}
     image, box = self_test_image

@@ -13,142 +13,31 @@ import sys
 import threading
 import time
 import urllib.request
-from collections.abc import Callable
 from pathlib import Path
 
 import cv2
 import pytest
-import zenoh
 
-from monitor.bus import BusConfig, BusKeys, open_session, reset_payload
+from monitor.bus import reset_payload
 from monitor.config import demo_cell_path
 from monitor.policy import PolicyConfig
 from monitor.resets import signed_reset
 from monitor.scene import DemoScene
 from monitor.zones import load_cell
-from tests.helpers import free_port
+from tests.helpers import assert_one_line_error, free_port
+from tests.processes import Service, codes, wait_for
 
 POLICY = PolicyConfig()
 TICK_S = 0.05  # service.tick_s default: timers run at least this often without frames
 
 
 
-def wait_for(cond: Callable[[], object], timeout: float, what: str, proc=None):
-    """Poll until ``cond()`` is truthy; fail with the service's log if it died or timed out."""
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        value = cond()
-        if value:
-            return value
-        if proc is not None and proc.poll() is not None:
-            raise AssertionError(f"service exited ({proc.returncode}) waiting for {what}: "
-                                 f"{proc.log()}")
-        time.sleep(0.02)
-    raise AssertionError(f"timed out waiting for {what}" + (f": {proc.log()}" if proc else ""))
 
 
-def summary_of(commands: list[dict]) -> list[tuple]:
-    """(seq, state, reason codes) at each change, for failure messages."""
-    out, prev = [], None
-    for c in commands:
-        key = (c["state"], tuple(r["code"] for r in c["reasons"]))
-        if key != prev:
-            out.append((c["seq"], *key))
-            prev = key
-    return out
 
 
-class Service:
-    """`monitor run --config <tmp>/monitor.toml --log-json` and a Zenoh peer in this process
-    connected to it, recording commands, detections and the liveliness token."""
-
-    def __init__(self, tmp: Path, model: Path, camera: str, extra: str = "") -> None:
-        self.bus_port, self.metrics_port = free_port(), free_port()
-        self.keys = BusKeys.of("workcell/t5/")
-        # a real operator key: the monitor refuses unsigned resets from a config file
-        from monitor.signing import load_private_key, new_key_pair
-
-        private, _, public = new_key_pair(tmp / "tester.key")
-        self.operator = load_private_key(private)
-        (tmp / "operators").write_text(f"tester {public}\n")
-        self.config = tmp / "monitor.toml"
-        self.config.write_text(
-            f'[camera]\nsource = "{camera}"\n'
-            f'[model]\npath = "{model}"\n'
-            f'[bus]\ncell = "t5"\ninstance = "svc-test"\noperators_file = "operators"\n'
-            f'listen = ["tcp/127.0.0.1:{self.bus_port}"]\n'
-            f'[service]\nmetrics_port = {self.metrics_port}\n' + extra)
-        self.stderr_path = tmp / "service.log"
-        self.commands: list[dict] = []
-        self.detections: list[dict] = []
-        self.alive: list[bool] = []
-
-    def log(self) -> str:
-        return (f"received {summary_of(self.commands)[-12:]}; log: "
-                + self.stderr_path.read_text()[-2000:])
-
-    def poll(self):
-        return self.proc.poll()
-
-    def __enter__(self) -> Service:
-        self._err = self.stderr_path.open("w")
-        self.proc = subprocess.Popen(
-            [sys.executable, "-m", "monitor", "run", "--config", str(self.config), "--log-json"],
-            stdout=subprocess.DEVNULL, stderr=self._err)
-        try:
-            wait_for(self._listening, 60, "the bus port", self)
-            cfg = BusConfig(cell="t5", instance="test-peer",
-                            connect=(f"tcp/127.0.0.1:{self.bus_port}",))
-            self.session = open_session(cfg)  # a second process: this test
-            s = self.session
-            s.declare_subscriber(self.keys.command, lambda x: self.commands.append(
-                json.loads(x.payload.to_bytes())))
-            s.declare_subscriber(self.keys.detections, lambda x: self.detections.append(
-                json.loads(x.payload.to_bytes())))
-            s.liveliness().declare_subscriber(
-                self.keys.alive + "/*", lambda x: self.alive.append(
-                    x.kind == zenoh.SampleKind.PUT), history=True)
-        except BaseException:
-            self._kill()
-            raise
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.session.close()
-        self._kill()
-
-    def _kill(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.kill()
-            self.proc.wait(10)
-        self._err.close()
-
-    def _listening(self) -> bool:
-        with socket.socket() as s:
-            return s.connect_ex(("127.0.0.1", self.bus_port)) == 0
-
-    def stop(self, sig: int) -> int:
-        self.proc.send_signal(sig)
-        return self.proc.wait(20)
-
-    def next_command(self, start: int, pred: Callable[[dict], bool], timeout: float, what: str
-                     ) -> tuple[int, dict]:
-        """The first command at index >= ``start`` of the received list matching ``pred``."""
-        def find():
-            for i in range(start, len(self.commands)):
-                if pred(self.commands[i]):
-                    return i, self.commands[i]
-            return None
-        return wait_for(find, timeout, what, self)
-
-    def status(self) -> dict:
-        replies = list(self.session.get(self.keys.status, timeout=3.0))
-        assert len(replies) == 1 and replies[0].ok is not None
-        return json.loads(replies[0].ok.payload.to_bytes())
 
 
-def codes(command: dict) -> set[str]:
-    return {r["code"] for r in command["reasons"]}
 
 
 def test_sigterm_after_commands_over_zenoh_status_and_metrics(tmp_path, synthetic_model):
@@ -306,14 +195,6 @@ def run_monitor(*args: str | Path) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "monitor", *map(str, args)],
                           capture_output=True, text=True, timeout=60)
 
-
-def assert_one_line_error(proc: subprocess.CompletedProcess, *needles: str) -> None:
-    assert proc.returncode == 2, (proc.returncode, proc.stderr)
-    assert "Traceback" not in proc.stderr
-    lines = [line for line in proc.stderr.splitlines() if line.startswith("monitor: error:")]
-    assert len(lines) == 1 and proc.stderr.rstrip("\n").splitlines()[-1] == lines[0]
-    for needle in needles:
-        assert needle in lines[0], f"{needle!r} not in {lines[0]!r}"
 
 
 @pytest.mark.parametrize(("text", "needles"), [

@@ -5,108 +5,14 @@ phase 20 times and prints a table."""
 
 from __future__ import annotations
 
-import contextlib
-import json
 import signal
-import socket
 import subprocess
 import sys
-import time
 from pathlib import Path
 
-import cv2
 import pytest
 
-from monitor.config import demo_cell_path
-from monitor.scene import DemoScene
-from tests.helpers import free_port
-
-GONE_WITHIN_S = 2.0
-
-
-
-def empty_cell_video(path: Path, frames: int = 15) -> Path:
-    """The first second of the demo scene (nobody in the cell yet), to be looped."""
-    writer = None
-    for _, (image, truth) in zip(range(frames), DemoScene().frames(), strict=False):
-        if truth.persons:
-            raise AssertionError("the demo scene has a person in its first second")
-        if writer is None:
-            writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), 15,
-                                     (image.shape[1], image.shape[0]))
-        writer.write(image)
-    writer.release()
-    return path
-
-
-def write_config(tmp: Path, model: Path, extra: str = "") -> tuple[Path, int]:
-    """monitor.toml: the looped empty cell, the demo zones, a free loopback port."""
-    video = empty_cell_video(tmp / "empty-cell.mp4")
-    port = free_port()
-    config = tmp / "monitor.toml"
-    config.write_text(
-        f'[camera]\nsource = "{video}"\nloop = true\nrealtime = true\n'
-        f'[model]\npath = "{model}"\n'
-        f'[zones]\nfile = "{demo_cell_path()}"\n'
-        f'[bus]\ncell = "t6"\ninstance = "shutdown-test"\n'
-        f'listen = ["tcp/127.0.0.1:{port}"]\n' + extra)
-    return config, port
-
-
-class Monitor:
-    """`monitor run --config ... --log-json` as a subprocess, its log in a file."""
-
-    def __init__(self, config: Path, port: int, log: Path) -> None:
-        self.port = port
-        self.log_path = log
-        self._log = log.open("w")
-        self.proc = subprocess.Popen(
-            [sys.executable, "-m", "monitor", "run", "--config", str(config), "--log-json"],
-            stdout=subprocess.DEVNULL, stderr=self._log)
-
-    def events(self) -> list[str]:
-        out = []
-        for line in self.log_path.read_text().splitlines():
-            try:
-                out.append(json.loads(line)["event"])
-            except (ValueError, KeyError):
-                out.append(line)
-        return out
-
-    def wait_for(self, cond, timeout: float, what: str) -> None:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            if cond():
-                return
-            if self.proc.poll() is not None:
-                raise AssertionError(f"monitor exited ({self.proc.returncode}) waiting for "
-                                     f"{what}: {self.log_path.read_text()[-2000:]}")
-            time.sleep(0.01)
-        raise AssertionError(f"timed out waiting for {what}: "
-                             f"{self.log_path.read_text()[-2000:]}")
-
-    def listening(self) -> bool:
-        with socket.socket() as s:
-            return s.connect_ex(("127.0.0.1", self.port)) == 0
-
-    def signal_and_time(self, *signals: tuple[int, float]) -> float:
-        """Send each (signal, delay before it); seconds from the first signal to exit."""
-        first = None
-        for sig, delay in signals:
-            if delay:
-                time.sleep(delay)  # the gap between two signals is what is tested
-            if self.proc.poll() is None:
-                self.proc.send_signal(sig)
-            first = first or time.monotonic()
-        with contextlib.suppress(subprocess.TimeoutExpired):
-            self.proc.wait(GONE_WITHIN_S + 3.0)
-        return (time.monotonic() - first) if self.proc.poll() is not None else float("inf")
-
-    def close(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.kill()
-            self.proc.wait(10)
-        self._log.close()
+from tests.processes import GONE_WITHIN_S, Monitor, write_config
 
 
 class CpuLoad:

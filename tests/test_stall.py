@@ -11,23 +11,10 @@ import time
 import pytest
 
 from monitor.bus import BusConfig, BusKeys, open_session
-from tests.test_shutdown_service import Monitor, write_config
+from tests.processes import Monitor, wait_for, write_config
 
 FREEZE_S = 2.5
 CLEAR_TIME = 1.0  # policy.clear_time default: RUN could return this long after a cause
-
-
-def wait_until(cond, timeout: float, what: str, mon: Monitor):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        value = cond()
-        if value:
-            return value
-        if mon.proc.poll() is not None:
-            raise AssertionError(f"monitor exited waiting for {what}: "
-                                 f"{mon.log_path.read_text()[-2000:]}")
-        time.sleep(0.02)
-    raise AssertionError(f"timed out waiting for {what}: {mon.log_path.read_text()[-2000:]}")
 
 
 @pytest.mark.slow
@@ -43,7 +30,7 @@ def test_sigstop_then_sigcont_stays_stopped_latched_with_a_stall_alert(tmp_path,
     mon = Monitor(config, port, tmp_path / "monitor.log")
     session = None
     try:
-        wait_until(mon.listening, 120, "the bus port", mon)
+        wait_for(mon.listening, 120, "the bus port", mon)
         session = open_session(BusConfig(cell="t6", instance="stall-test", lease_ms=6000,
                                          connect=(f"tcp/127.0.0.1:{port}",)))
         keys = BusKeys.of("workcell/t6/")
@@ -54,7 +41,7 @@ def test_sigstop_then_sigcont_stays_stopped_latched_with_a_stall_alert(tmp_path,
         session.declare_subscriber(keys.alert, lambda s: alerts.append(
             json.loads(s.payload.to_bytes())))
         # the empty cell: start-up STOP, then RUN after clear_time
-        wait_until(lambda: any(c["state"] == "RUN" for c in commands), 120, "RUN", mon)
+        wait_for(lambda: any(c["state"] == "RUN" for c in commands), 120, "RUN", mon)
 
         mon.proc.send_signal(signal.SIGSTOP)
         frozen_at = time.monotonic()
@@ -63,12 +50,12 @@ def test_sigstop_then_sigcont_stays_stopped_latched_with_a_stall_alert(tmp_path,
         mon.proc.send_signal(signal.SIGCONT)
         resumed_at = time.monotonic()
 
-        alert = wait_until(lambda: next((a for a in list(alerts)
+        alert = wait_for(lambda: next((a for a in list(alerts)
                                          if a["kind"] == "monitor_stalled"), None),
                            10, "the monitor_stalled alert", mon)
         assert alert["severity"] == "critical" and "stalled for" in alert["message"]
         # long enough after the resume that an unlatched STOP would have become RUN again
-        wait_until(lambda: any(c["mono"] > resumed_at + CLEAR_TIME + 1.0 for c in commands),
+        wait_for(lambda: any(c["mono"] > resumed_at + CLEAR_TIME + 1.0 for c in commands),
                    10, "commands well after the resume", mon)
         after = commands[n_before:]
         assert after, "no command after SIGCONT"

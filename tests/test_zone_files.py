@@ -326,7 +326,7 @@ def test_every_zones_option_documents_its_default(capsys):
 
 
 def test_calibrate_tool_writes_offset_and_frame(tmp_path, capsys):
-    from tests.test_tool_calibration import MOUNT, REFERENCE, pose_pairs
+    from tests.tool_poses import MOUNT, REFERENCE, pose_pairs
 
     path = tmp_path / "cell.yaml"
     path.write_text(DEMO.read_text())

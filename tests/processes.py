@@ -1,0 +1,224 @@
+"""`monitor run` as a real subprocess for the tests: a service with a Zenoh peer in the test
+process (``Service``), a bare monitor with its log (``Monitor``), and their configs."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import cv2
+import zenoh
+
+from monitor.bus import BusConfig, BusKeys, open_session
+from monitor.config import demo_cell_path
+from monitor.scene import DemoScene
+from tests.helpers import free_port
+
+
+def wait_for(cond: Callable[[], object], timeout: float, what: str, proc=None):
+    """Poll until ``cond()`` is truthy; fail with the service's log if it died or timed out."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        value = cond()
+        if value:
+            return value
+        if proc is not None and proc.poll() is not None:
+            raise AssertionError(f"service exited ({proc.returncode}) waiting for {what}: "
+                                 f"{proc.log()}")
+        time.sleep(0.02)
+    raise AssertionError(f"timed out waiting for {what}" + (f": {proc.log()}" if proc else ""))
+
+
+def summary_of(commands: list[dict]) -> list[tuple]:
+    """(seq, state, reason codes) at each change, for failure messages."""
+    out, prev = [], None
+    for c in commands:
+        key = (c["state"], tuple(r["code"] for r in c["reasons"]))
+        if key != prev:
+            out.append((c["seq"], *key))
+            prev = key
+    return out
+
+
+class Service:
+    """`monitor run --config <tmp>/monitor.toml --log-json` and a Zenoh peer in this process
+    connected to it, recording commands, detections and the liveliness token."""
+
+    def __init__(self, tmp: Path, model: Path, camera: str, extra: str = "") -> None:
+        self.bus_port, self.metrics_port = free_port(), free_port()
+        self.keys = BusKeys.of("workcell/t5/")
+        # a real operator key: the monitor refuses unsigned resets from a config file
+        from monitor.signing import load_private_key, new_key_pair
+
+        private, _, public = new_key_pair(tmp / "tester.key")
+        self.operator = load_private_key(private)
+        (tmp / "operators").write_text(f"tester {public}\n")
+        self.config = tmp / "monitor.toml"
+        self.config.write_text(
+            f'[camera]\nsource = "{camera}"\n'
+            f'[model]\npath = "{model}"\n'
+            f'[bus]\ncell = "t5"\ninstance = "svc-test"\noperators_file = "operators"\n'
+            f'listen = ["tcp/127.0.0.1:{self.bus_port}"]\n'
+            f'[service]\nmetrics_port = {self.metrics_port}\n' + extra)
+        self.stderr_path = tmp / "service.log"
+        self.commands: list[dict] = []
+        self.detections: list[dict] = []
+        self.alive: list[bool] = []
+
+    def log(self) -> str:
+        return (f"received {summary_of(self.commands)[-12:]}; log: "
+                + self.stderr_path.read_text()[-2000:])
+
+    def poll(self):
+        return self.proc.poll()
+
+    def __enter__(self) -> Service:
+        self._err = self.stderr_path.open("w")
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "monitor", "run", "--config", str(self.config), "--log-json"],
+            stdout=subprocess.DEVNULL, stderr=self._err)
+        try:
+            wait_for(self._listening, 60, "the bus port", self)
+            cfg = BusConfig(cell="t5", instance="test-peer",
+                            connect=(f"tcp/127.0.0.1:{self.bus_port}",))
+            self.session = open_session(cfg)  # a second process: this test
+            s = self.session
+            s.declare_subscriber(self.keys.command, lambda x: self.commands.append(
+                json.loads(x.payload.to_bytes())))
+            s.declare_subscriber(self.keys.detections, lambda x: self.detections.append(
+                json.loads(x.payload.to_bytes())))
+            s.liveliness().declare_subscriber(
+                self.keys.alive + "/*", lambda x: self.alive.append(
+                    x.kind == zenoh.SampleKind.PUT), history=True)
+        except BaseException:
+            self._kill()
+            raise
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.session.close()
+        self._kill()
+
+    def _kill(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait(10)
+        self._err.close()
+
+    def _listening(self) -> bool:
+        with socket.socket() as s:
+            return s.connect_ex(("127.0.0.1", self.bus_port)) == 0
+
+    def stop(self, sig: int) -> int:
+        self.proc.send_signal(sig)
+        return self.proc.wait(20)
+
+    def next_command(self, start: int, pred: Callable[[dict], bool], timeout: float, what: str
+                     ) -> tuple[int, dict]:
+        """The first command at index >= ``start`` of the received list matching ``pred``."""
+        def find():
+            for i in range(start, len(self.commands)):
+                if pred(self.commands[i]):
+                    return i, self.commands[i]
+            return None
+        return wait_for(find, timeout, what, self)
+
+    def status(self) -> dict:
+        replies = list(self.session.get(self.keys.status, timeout=3.0))
+        assert len(replies) == 1 and replies[0].ok is not None
+        return json.loads(replies[0].ok.payload.to_bytes())
+
+
+def codes(command: dict) -> set[str]:
+    return {r["code"] for r in command["reasons"]}
+
+
+GONE_WITHIN_S = 2.0
+
+
+def empty_cell_video(path: Path, frames: int = 15) -> Path:
+    """The first second of the demo scene (nobody in the cell yet), to be looped."""
+    writer = None
+    for _, (image, truth) in zip(range(frames), DemoScene().frames(), strict=False):
+        if truth.persons:
+            raise AssertionError("the demo scene has a person in its first second")
+        if writer is None:
+            writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), 15,
+                                     (image.shape[1], image.shape[0]))
+        writer.write(image)
+    writer.release()
+    return path
+
+
+def write_config(tmp: Path, model: Path, extra: str = "") -> tuple[Path, int]:
+    """monitor.toml: the looped empty cell, the demo zones, a free loopback port."""
+    video = empty_cell_video(tmp / "empty-cell.mp4")
+    port = free_port()
+    config = tmp / "monitor.toml"
+    config.write_text(
+        f'[camera]\nsource = "{video}"\nloop = true\nrealtime = true\n'
+        f'[model]\npath = "{model}"\n'
+        f'[zones]\nfile = "{demo_cell_path()}"\n'
+        f'[bus]\ncell = "t6"\ninstance = "shutdown-test"\n'
+        f'listen = ["tcp/127.0.0.1:{port}"]\n' + extra)
+    return config, port
+
+
+class Monitor:
+    """`monitor run --config ... --log-json` as a subprocess, its log in a file."""
+
+    def __init__(self, config: Path, port: int, log: Path) -> None:
+        self.port = port
+        self.log_path = log
+        self._log = log.open("w")
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "monitor", "run", "--config", str(config), "--log-json"],
+            stdout=subprocess.DEVNULL, stderr=self._log)
+
+    def events(self) -> list[str]:
+        out = []
+        for line in self.log_path.read_text().splitlines():
+            try:
+                out.append(json.loads(line)["event"])
+            except (ValueError, KeyError):
+                out.append(line)
+        return out
+
+    def poll(self) -> int | None:
+        return self.proc.poll()
+
+    def log(self) -> str:
+        return self.log_path.read_text()[-2000:]
+
+    def wait_for(self, cond, timeout: float, what: str):
+        """Poll until ``cond()`` is truthy; fail with the log if the monitor died or timed out."""
+        return wait_for(cond, timeout, what, self)
+
+    def listening(self) -> bool:
+        with socket.socket() as s:
+            return s.connect_ex(("127.0.0.1", self.port)) == 0
+
+    def signal_and_time(self, *signals: tuple[int, float]) -> float:
+        """Send each (signal, delay before it); seconds from the first signal to exit."""
+        first = None
+        for sig, delay in signals:
+            if delay:
+                time.sleep(delay)  # the gap between two signals is what is tested
+            if self.proc.poll() is None:
+                self.proc.send_signal(sig)
+            first = first or time.monotonic()
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            self.proc.wait(GONE_WITHIN_S + 3.0)
+        return (time.monotonic() - first) if self.proc.poll() is not None else float("inf")
+
+    def close(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait(10)
+        self._log.close()
