@@ -321,13 +321,15 @@ class Pipeline:
                     faults.append(Fault("camera_waiting", f"{cid}: no frame processed yet",
                                         True, cid))
                 continue
-            times.append(cam.frame_time)
+            times.append((cam.frame_time, cid))
             if cam.report is not None:
                 reports.append(cam.report)
         report = functools.reduce(merge_towards_danger, reports) if reports else None
         # the oldest camera's frame: a camera that falls behind or stops makes the cell STOP
-        frame_time = min(times) if with_frame and times else None
-        return PolicyInputs(frame_time=frame_time, zone_report=report if with_frame else None,
+        oldest = min(times) if with_frame and times else (None, None)
+        frame_time, frame_source = oldest
+        return PolicyInputs(frame_time=frame_time, frame_source=frame_source,
+                            zone_report=report if with_frame else None,
                             faults=tuple(faults), detector_error=detector_error,
                             pose_time=pose_time, zone_error=self.zone_error,
                             reset_request=reset)

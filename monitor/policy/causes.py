@@ -93,8 +93,9 @@ def fail_safe_causes(inputs: PolicyInputs, now: float, config: PolicyConfig,
         causes.append(Reason("frame_timeout", f"no frame for {now - prev_frame:.3f} s "
                              f"(> {config.frame_timeout} s)"))
     if has_frame and _older_than(now, inputs.frame_time, config.max_frame_age):
-        causes.append(Reason("frame_stale", f"frame is {now - inputs.frame_time:.3f} s old "
-                             f"(> {config.max_frame_age} s)"))
+        of = f"{inputs.frame_source}: " if inputs.frame_source else ""
+        causes.append(Reason("frame_stale", f"{of}frame is {now - inputs.frame_time:.3f} s old "
+                             f"(> {config.max_frame_age} s)", source=inputs.frame_source))
     if inputs.detector_error:
         causes.append(Reason("detector_error", inputs.detector_error, fault="detector_error",
                              source="detector"))

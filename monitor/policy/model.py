@@ -130,6 +130,8 @@ class PolicyInputs:
     the step only evaluates timers. ``zone_report``: zone answer for that frame (None = no frame,
     or zones not evaluated). ``pose_time``: receive time (s, monotonic) of the newest accepted
     tool pose, None if none yet. ``zone_error``: set when the zone file is invalid.
+    ``frame_source``: the camera whose frame ``frame_time`` is (with several cameras, the one
+    furthest behind), so a stale-frame STOP names it.
     """
 
     frame_time: float | None = None
@@ -139,6 +141,7 @@ class PolicyInputs:
     pose_time: float | None = None
     zone_error: str | None = None
     reset_request: ResetRequest | None = None
+    frame_source: str | None = None
 
 
 @dataclass(frozen=True)
