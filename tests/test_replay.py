@@ -118,6 +118,30 @@ def causes(event: dict) -> set[str]:
     return {r["code"] for r in event["reasons"]} - {"startup", "clearing", "latched"}
 
 
+def test_fast_end_to_end_a_person_walking_in_stops_the_replay_in_time(detector, tmp_path):
+    """Not slow on purpose: the one end-to-end STOP-timing test every quick run includes. A
+    real MP4 of a person walking from the warning zone into the protective zone (2.4 s at
+    10 fps), `replay` with the real model, zone check and policy: the first STOP for the
+    protective zone comes no later than the ground truth's entry (and at most 0.3 s before it),
+    and every frame from the entry on is STOP."""
+    fps = 10.0
+    scene = DemoScene(fps=fps, duration_s=2.4,
+                      path=((0.0, -2.6, -0.3), (2.4, -0.4, -0.3), (9.0, -0.4, -0.3)))
+    video = tmp_path / "walk-in.mp4"
+    demo = Demo(video, write_video(video, scene.frames(), fps), load_cell(demo_cell_path()))
+    truth_stop = demo.first_truth_frame("protective")
+    assert 5 <= truth_stop <= len(demo.truths) - 5  # the entry lies well inside the clip
+    results: list[StepResult] = []
+    settings = ReplaySettings(out_dir=tmp_path / "out", annotate=False, progress=False)
+    replay(video, detector, demo.cell, settings, publish=results.append)
+    by_frame = {r.frame.seq: r for r in results if r.frame is not None}
+    assert sorted(by_frame) == list(range(len(demo.truths)))  # every frame was processed
+    first_stop = min(i for i, r in by_frame.items()
+                     if any(x.code == "protective_zone" for x in r.command.reasons))
+    assert truth_stop - math.ceil(0.3 * fps) <= first_stop <= truth_stop, (first_stop, truth_stop)
+    assert all(by_frame[i].command.state == STOP for i in range(truth_stop, len(demo.truths)))
+
+
 @pytest.mark.slow
 def test_slow_in_the_warning_zone_then_stop_at_the_first_frame_in_the_protective_zone(
         demo, cli_replay):
