@@ -49,7 +49,8 @@ TARGETS = {
         Target("pipeline", ("monitor/pipeline.py",),
                ("tests/test_pipeline.py", "tests/test_safety_mutants.py", "-m", "not slow")),
         Target("detector_decode", ("monitor/boxes.py",),
-               ("tests/test_boxes.py", "tests/test_safety_mutants.py", "-m", "not slow")),
+               ("tests/test_boxes.py", "tests/test_boxes_edges.py",
+                "tests/test_safety_mutants.py", "-m", "not slow")),
         Target("health", ("monitor/health.py",),
                ("tests/test_health.py", "tests/test_safety_mutants.py", "-m", "not slow")),
     )
@@ -66,6 +67,21 @@ EQUIVALENT: dict[str, str] = {
     **{f"monitor.bus.xǁCommandWatchdogǁon_liveliness__mutmut_{n}":
        "rsplit('/') / rsplit('/', 2) / [+1] of rsplit('/', 1): all give the key's last "
        "segment" for n in (5, 8, 9)},
+    # detector post-processing (monitor/boxes.py)
+    "monitor.boxes.x_iou_matrix__mutmut_17":
+        "union >= 0 vs > 0: a union of 0 means both boxes are empty, so inter is 0 and 0/1e-12 "
+        "is the same 0.0",
+    "monitor.boxes.x_ios_matrix__mutmut_19":
+        "smaller >= 0 vs > 0: the intersection is never larger than the smaller box, so it is "
+        "0 and 0/1e-12 is the same 0.0",
+    "monitor.boxes.x_connected_groups__mutmut_5":
+        "an early return for one box gives arange(1) = [0], exactly what the loop computes",
+    "monitor.boxes.x_nms__mutmut_16": "numpy reads sort kinds case-insensitively: 'STABLE' is "
+                                      "'stable'",
+    "monitor.boxes.x_merge_boxes__mutmut_124": "numpy reads sort kinds case-insensitively: "
+                                               "'STABLE' is 'stable'",
+    "monitor.boxes.x_merge_boxes__mutmut_12":
+        "reshape(None) of the empty 1-D score array is the same (0,) array",
 }
 
 _SKIP = {".git", ".venv", "mutants", "__pycache__", ".pytest_cache", ".hypothesis",
