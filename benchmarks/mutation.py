@@ -17,6 +17,7 @@ Slow (minutes per target on two cores): a benchmark, never part of the test suit
 from __future__ import annotations
 
 import argparse
+import fnmatch
 import os
 import re
 import shutil
@@ -36,6 +37,8 @@ class Target:
     files: tuple[str, ...]  # files mutmut mutates (globs relative to the project)
     tests: tuple[str, ...]  # pytest selection: the fast tests that cover them
     functions: str = ""  # regex on mutant names: only these count (e.g. one class of a file)
+    # mutmut name patterns: only these mutants are run (the decision functions of a big module)
+    names: tuple[str, ...] = ()
 
 
 TARGETS = {
@@ -45,14 +48,26 @@ TARGETS = {
         Target("watchdog", ("monitor/bus.py",),
                ("tests/test_safety_mutants.py", "-k", "watchdog"), r"CommandWatchdog"),
         Target("zone_check", ("monitor/zones/check.py",),
-               ("tests/test_zones.py", "tests/test_safety_mutants.py", "-m", "not slow")),
+               ("tests/test_zones.py", "tests/test_safety_mutants.py", "-m", "not slow"),
+               names=("monitor.zones.check.x_check_persons*", "monitor.zones.check.x__check_*",
+                      "monitor.zones.check.x__volume_hits*", "monitor.zones.check.x__overlaps*",
+                      "monitor.zones.check.x_merge_towards_danger*",
+                      "monitor.zones.check.x__worse*")),
         Target("pipeline", ("monitor/pipeline.py",),
-               ("tests/test_pipeline.py", "tests/test_safety_mutants.py", "-m", "not slow")),
+               ("tests/test_pipeline.py", "tests/test_safety_mutants.py", "-m", "not slow"),
+               names=("monitor.pipeline.xǁPipelineǁ_inputs*", "monitor.pipeline.xǁPipelineǁtick*",
+                      "monitor.pipeline.xǁPipelineǁ_decide*",
+                      "monitor.pipeline.xǁPipelineǁ_confirm_clear*")),
         Target("detector_decode", ("monitor/boxes.py",),
                ("tests/test_boxes.py", "tests/test_boxes_edges.py",
                 "tests/test_safety_mutants.py", "-m", "not slow")),
+        # the fault decisions (the STOP faults and their timers), not the drawing and scene code
         Target("health", ("monitor/health.py",),
-               ("tests/test_health.py", "tests/test_safety_mutants.py", "-m", "not slow")),
+               ("tests/test_health.py", "tests/test_safety_mutants.py", "-m", "not slow"),
+               names=("monitor.health.xǁ_Timerǁ*", "monitor.health.xǁCameraHealthǁcheck_lost*",
+                      "monitor.health.xǁCameraHealthǁ_check_blinded*",
+                      "monitor.health.xǁCameraHealthǁ_check_frozen*",
+                      "monitor.health.xǁCameraHealthǁ_check_moved*")),
     )
 }
 
@@ -137,11 +152,12 @@ def run_target(target: Target, mutmut: str, show_survivors: bool, keep: bool,
         _configure(work, target)
         env = {**os.environ, "POLICY_PROPERTY_EXAMPLES": examples}
         t0 = time.perf_counter()
-        subprocess.run([mutmut, "run", "--max-children", "2"], cwd=work, env=env,
+        subprocess.run([mutmut, "run", "--max-children", "2", *target.names], cwd=work, env=env,
                        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, check=False)
         seconds = time.perf_counter() - t0
         results = {n: s for n, s in _results(work, mutmut).items()
-                   if re.search(target.functions, n)}
+                   if re.search(target.functions, n)
+                   and (not target.names or any(fnmatch.fnmatchcase(n, p) for p in target.names))}
         counts = {"mutants": len(results), "killed": 0, "survived": 0, "equivalent": 0,
                   "no tests": 0, "timeout": 0, "other": 0, "seconds": round(seconds)}
         survivors = []
