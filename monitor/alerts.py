@@ -12,27 +12,20 @@ snapshot travels as the sample's *attachment* (raw JPEG bytes), and ``snapshot``
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
-from monitor.errors import ConfigError
+from monitor.schema import NonNegative, section
 from monitor.types import Alert
 
 SEVERITIES = ("info", "warning", "critical")
 
 
-@dataclass(frozen=True)
+@section("alerts")
 class AlertLimits:
     """Minimum seconds between two published alerts of the same kind."""
 
-    min_interval: float = 5.0
-    critical_min_interval: float = 1.0
-
-    def __post_init__(self) -> None:
-        for name in ("min_interval", "critical_min_interval"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0):
-                raise ConfigError(f"alerts.{name}: must be >= 0 seconds, got {value!r}")
+    min_interval: NonNegative = 5.0
+    critical_min_interval: NonNegative = 1.0
 
 
 @dataclass

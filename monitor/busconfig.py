@@ -4,20 +4,32 @@ expressions, the Zenoh config built from them, and opening a session with one-li
 from __future__ import annotations
 
 import json
-import math
 import os
 import re
 import socket
 from dataclasses import dataclass, field
+from typing import Annotated, Literal
 
 import zenoh
+from pydantic import AfterValidator, Field, model_validator
 
 from monitor.errors import ConfigError
+from monitor.schema import Bool, ConfigPath, Float, Int, Seconds, Text, section
 
 MODES = ("peer", "client", "router")
 
 
-@dataclass(frozen=True)
+def _key_chunk(value: str) -> str:
+    if not value or any(c in value for c in "/*$?#"):
+        raise ValueError(f"{value!r} must be a non-empty key chunk (no / * $ ? #)")
+    return value
+
+
+KeyChunk = Annotated[Text, AfterValidator(_key_chunk)]
+WithinTenMinutes = Annotated[Float, Field(gt=0, le=600)]
+
+
+@section("bus")
 class BusConfig:
     """Where and how the monitor talks Zenoh. Times in ms unless the name says otherwise.
 
@@ -25,54 +37,45 @@ class BusConfig:
     file's value). Without a file: mode peer, multicast scouting off.
     """
 
-    cell: str = "cell1"
-    prefix: str | None = None  # default f"workcell/{cell}/"
-    instance: str = field(default_factory=lambda: default_instance("monitor"))
-    mode: str | None = None  # "peer" | "client" | "router"; None = file's value or peer
-    listen: tuple[str, ...] = ()
-    connect: tuple[str, ...] = ()
-    multicast_scouting: bool = False
-    zenoh_config_file: str | None = None
-    tls_root_ca: str | None = None  # CA that signed the other side's certificate
-    tls_cert: str | None = None  # this side's certificate (listen side, and client for mTLS)
-    tls_key: str | None = None
-    tls_mutual: bool | None = None
-    user: str | None = None
-    password: str | None = None
-    heartbeat_hz: float = 10.0
-    ttl_ms: int = 300  # consumers treat a command older than this as STOP
-    stall_timeout: float = 0.5  # s without publish_command -> heartbeat sends STOP "stalled"
-    block_wait_ms: int = 50  # bounded wait of BLOCK congestion control before the link closes
-    lease_ms: int | None = 2000  # link lease: a hung peer's liveliness token vanishes after it
-    config_hash: str = ""
-    signing_key: str | None = None  # Ed25519 private key (PEM, 0600) that signs commands
-    operators_file: str | None = None  # "<operator> ed25519:<base64>" per line: who may reset
-    allow_unsigned_resets: bool = False  # closed lab setups only: accept resets without keys
-    reset_window_s: float = 30.0  # a reset's wall time must be this close to the monitor's
-    reset_answer_s: float = 2.0  # a verified reset the policy did not decide on is refused
+    cell: KeyChunk = "cell1"
+    prefix: Text | None = None  # default f"workcell/{cell}/"
+    instance: KeyChunk = field(default_factory=lambda: default_instance("monitor"))
+    mode: Literal["peer", "client", "router"] | None = None  # None = file's value or peer
+    listen: tuple[Text, ...] = ()
+    connect: tuple[Text, ...] = ()
+    multicast_scouting: Bool = False
+    zenoh_config_file: ConfigPath = None
+    tls_root_ca: ConfigPath = None  # CA that signed the other side's certificate
+    tls_cert: ConfigPath = None  # this side's certificate (listen side, and client for mTLS)
+    tls_key: ConfigPath = None
+    tls_mutual: Bool | None = None
+    user: Text | None = None
+    password: Text | None = None
+    heartbeat_hz: Annotated[Float, Field(ge=0.1, le=1000)] = 10.0
+    ttl_ms: Annotated[Int, Field(gt=0)] = 300  # consumers treat an older command as STOP
+    stall_timeout: Seconds = 0.5  # s without publish_command -> heartbeat sends STOP "stalled"
+    # bounded wait of BLOCK congestion control before the link closes
+    block_wait_ms: Annotated[Int, Field(gt=0)] = 50
+    # link lease: a hung peer's liveliness token vanishes after it
+    lease_ms: Annotated[Int, Field(gt=0)] | None = 2000
+    config_hash: Text = ""
+    signing_key: ConfigPath = None  # Ed25519 private key (PEM, 0600) that signs commands
+    operators_file: ConfigPath = None  # "<operator> ed25519:<base64>" per line: who may reset
+    allow_unsigned_resets: Bool = False  # closed lab setups only: accept resets without keys
+    reset_window_s: WithinTenMinutes = 30.0  # a reset's wall time must be this close to ours
+    # a verified reset the policy did not decide on is refused after this
+    reset_answer_s: WithinTenMinutes = 2.0
 
-    def __post_init__(self) -> None:
-        if self.mode is not None and self.mode not in MODES:
-            raise ConfigError(f"bus.mode: {self.mode!r} is not one of {', '.join(MODES)}")
-        if not self.cell or any(c in self.cell for c in "/*$?#"):
-            raise ConfigError(f"bus.cell: {self.cell!r} must be a non-empty key chunk")
-        if not self.instance or any(c in self.instance for c in "/*$?#"):
-            raise ConfigError(f"bus.instance: {self.instance!r} must be a non-empty key chunk")
-        if not (math.isfinite(self.heartbeat_hz) and 0.1 <= self.heartbeat_hz <= 1000):
-            raise ConfigError(f"bus.heartbeat_hz: {self.heartbeat_hz!r} not within 0.1..1000")
+    @model_validator(mode="after")
+    def _rules(self) -> BusConfig:
         if self.ttl_ms <= 1000.0 / self.heartbeat_hz:
-            raise ConfigError(f"bus.ttl_ms: {self.ttl_ms} must exceed the heartbeat period "
-                              f"{1000.0 / self.heartbeat_hz:.0f} ms")
+            raise ValueError(f"ttl_ms: {self.ttl_ms} must exceed the heartbeat period "
+                             f"{1000.0 / self.heartbeat_hz:.0f} ms")
         if (self.user is None) != (self.password is None):
-            raise ConfigError("bus.user/password: give both or neither")
+            raise ValueError("user/password: give both or neither")
         if (self.tls_cert is None) != (self.tls_key is None):
-            raise ConfigError("bus.tls_cert/tls_key: give both or neither")
-        if self.block_wait_ms <= 0 or self.stall_timeout <= 0:
-            raise ConfigError("bus.block_wait_ms/stall_timeout: must be positive")
-        for name in ("reset_window_s", "reset_answer_s"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and 0 < value <= 600):
-                raise ConfigError(f"bus.{name}: {value!r} not within (0, 600] seconds")
+            raise ValueError("tls_cert/tls_key: give both or neither")
+        return self
 
     @property
     def key_prefix(self) -> str:

@@ -1,23 +1,31 @@
 """The service config (TOML): validated before anything starts; one-line errors.
 
-Each section maps onto the frozen dataclass of its stage (``[policy]`` -> PolicyConfig,
-``[health]`` -> HealthConfig, ``[bus]`` -> BusConfig, ``[detector]`` -> DetectorConfig,
-``[alerts]`` -> AlertLimits). Unknown sections and keys are refused, types are checked by
-pydantic, and the stages' own bounds checks run at load time. Validation has no side effects:
-nothing is opened, downloaded or built.
+One schema (monitor/schema.py): ``MonitorConfig`` is the root, and each section is the frozen
+pydantic dataclass of its stage (``[policy]`` -> PolicyConfig, ``[health]`` -> HealthConfig,
+``[bus]`` -> BusConfig, ``[detector]`` -> DetectorConfig, ``[alerts]`` -> AlertLimits, and the
+camera, model, zones and service sections here). Unknown sections and keys are refused, types
+and bounds are in the fields' annotations, cross-field rules are validators, and path fields
+resolve against the config file's folder. Validation has no side effects: nothing is opened,
+downloaded or built.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import math
 import tomllib
-import typing
-from dataclasses import dataclass, field
+from dataclasses import field
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
-from pydantic import TypeAdapter, ValidationError
+from pydantic import (
+    AfterValidator,
+    BeforeValidator,
+    Field,
+    TypeAdapter,
+    ValidationError,
+    ValidationInfo,
+    model_validator,
+)
 
 from monitor.alerts import AlertLimits
 from monitor.bus import BusConfig
@@ -25,52 +33,73 @@ from monitor.detector import DetectorConfig
 from monitor.errors import ConfigError
 from monitor.health import HealthConfig
 from monitor.policy import PolicyConfig
+from monitor.schema import Bool, ConfigPath, Float, Int, Text, describe, section
 
 DEMO_SOURCE = "synthetic:demo"
 DEMO_LISTEN = ("tcp/127.0.0.1:7447",)
 
 
-@dataclass(frozen=True)
+def _camera_index(value: Any) -> Any:
+    """TOML ``source = 0`` (a camera index) is the string "0"."""
+    return str(value) if isinstance(value, int) and not isinstance(value, bool) else value
+
+
+def _video_path(value: str, info: ValidationInfo) -> str:
+    """A file or image source is a path (relative to the config file); "0", rtsp:// and
+    synthetic:demo are not."""
+    from monitor.frames import source_kind
+
+    base = (info.context or {}).get("base")
+    if base is not None and source_kind(value) in ("file", "image") \
+            and not Path(value).is_absolute():
+        return str(Path(base) / value)
+    return value
+
+
+@section("camera")
 class CameraConfig:
-    id: str = "cam0"
-    source: str = DEMO_SOURCE  # camera index ("0"), file, rtsp:// / http:// URL, synthetic:demo
-    reference: str | None = None  # commissioning image for the "moved" and defocus checks
-    realtime: bool = True  # pace files and synthetic scenes at their frame rate
-    loop: bool = True  # loop files and synthetic scenes (a service runs until stopped)
+    id: Text = "cam0"
+    # camera index ("0"), file, rtsp:// / http:// URL, synthetic:demo
+    source: Annotated[Text, BeforeValidator(_camera_index), AfterValidator(_video_path)] = \
+        DEMO_SOURCE
+    reference: ConfigPath = None  # commissioning image for the "moved" and defocus checks
+    realtime: Bool = True  # pace files and synthetic scenes at their frame rate
+    loop: Bool = True  # loop files and synthetic scenes (a service runs until stopped)
 
 
-@dataclass(frozen=True)
+@section("model")
 class ModelConfig:
-    path: str | None = None  # None: the synthetic model (built on first use)
+    path: ConfigPath = None  # None: the synthetic model (built on first use)
 
 
-@dataclass(frozen=True)
+@section("zones")
 class ZonesConfig:
-    file: str | None = None  # None: the demo cell with the demo source, else no zones
+    file: ConfigPath = None  # None: the demo cell with the demo source, else no zones
     # A cell without an enabled protective zone (or without a zone file) can never STOP for a
     # person: the monitor refuses to start unless this says it is meant (then it says so).
-    allow_no_protective: bool = False
+    allow_no_protective: Bool = False
 
 
-@dataclass(frozen=True)
+@section("service")
 class ServiceConfig:
-    metrics_port: int = 0  # Prometheus endpoint on 127.0.0.1; 0 = off
-    metrics_host: str = "127.0.0.1"
-    log_json: bool = False
-    tick_s: float = 0.05  # policy timers are evaluated at least this often without frames
-
-    def __post_init__(self) -> None:
-        if not 0 <= self.metrics_port <= 65535:
-            raise ConfigError(f"service.metrics_port: {self.metrics_port} is not a port "
-                              f"(0 = off, 1..65535)")
-        if not (math.isfinite(self.tick_s) and 0 < self.tick_s <= 1.0):
-            raise ConfigError(f"service.tick_s: must be within (0, 1] seconds, got {self.tick_s}")
+    # Prometheus endpoint on 127.0.0.1; 0 = off
+    metrics_port: Annotated[Int, Field(ge=0, le=65535)] = 0
+    metrics_host: Text = "127.0.0.1"
+    log_json: Bool = False
+    # policy timers are evaluated at least this often without frames
+    tick_s: Annotated[Float, Field(gt=0, le=1.0)] = 0.05
 
 
-@dataclass(frozen=True)
+def _cameras(value: Any) -> Any:
+    """``[camera]`` (one table) or ``[[camera]]`` (an array of tables)."""
+    return [value] if isinstance(value, dict) else value
+
+
+@section("config")
 class MonitorConfig:
     # ``[camera]`` for one camera, ``[[camera]]`` (an array of tables) for several
-    cameras: tuple[CameraConfig, ...] = (CameraConfig(),)
+    cameras: Annotated[tuple[CameraConfig, ...], BeforeValidator(_cameras),
+                       Field(min_length=1)] = (CameraConfig(),)
     model: ModelConfig = field(default_factory=ModelConfig)
     zones: ZonesConfig = field(default_factory=ZonesConfig)
     detector: DetectorConfig = field(default_factory=DetectorConfig)
@@ -79,7 +108,15 @@ class MonitorConfig:
     bus: BusConfig = field(default_factory=lambda: BusConfig(listen=DEMO_LISTEN))
     alerts: AlertLimits = field(default_factory=AlertLimits)
     service: ServiceConfig = field(default_factory=ServiceConfig)
-    source_file: str | None = None
+    source_file: Text | None = None
+
+    @model_validator(mode="after")
+    def _unique_cameras(self) -> MonitorConfig:
+        ids = [c.id for c in self.cameras]
+        dup = next((i for i in ids if ids.count(i) > 1), None)
+        if dup is not None:
+            raise ValueError(f"camera id {dup!r} is given twice")
+        return self
 
     @property
     def camera(self) -> CameraConfig:
@@ -87,77 +124,55 @@ class MonitorConfig:
         return self.cameras[0]
 
 
-_TYPES = {"camera": CameraConfig, "model": ModelConfig, "zones": ZonesConfig,
-          "detector": DetectorConfig, "policy": PolicyConfig, "health": HealthConfig,
-          "bus": BusConfig, "alerts": AlertLimits, "service": ServiceConfig}
+SECTIONS = ("camera", "model", "zones", "detector", "policy", "health", "bus", "alerts",
+            "service")
+_CLASSES = {"camera": CameraConfig, "model": ModelConfig, "zones": ZonesConfig,
+            "detector": DetectorConfig, "policy": PolicyConfig, "health": HealthConfig,
+            "bus": BusConfig, "alerts": AlertLimits, "service": ServiceConfig}
 
 
-def build_section(name: str, data: Any, where: str) -> Any:
-    """One section's dataclass from a TOML table; ConfigError names the file, section and key."""
-    cls = _TYPES[name]
-    if not isinstance(data, dict):
-        raise ConfigError(f"{where}: [{name}] must be a table")
-    known = {f.name for f in dataclasses.fields(cls)}
-    unknown = sorted(set(data) - known)
-    if unknown:
-        raise ConfigError(f"{where}: [{name}] unknown key {unknown[0]!r} "
-                          f"(known: {', '.join(sorted(known))})")
-    if name == "camera" and isinstance(data.get("source"), int) \
-            and not isinstance(data["source"], bool):
-        data = {**data, "source": str(data["source"])}
-    # Strict per field: TOML has real types, so "1" or true where seconds are expected is a
-    # mistake, not something to coerce. Integers still pass as floats, arrays as tuples.
-    hints = typing.get_type_hints(cls)
-    values = {}
-    for key, value in data.items():
-        try:
-            values[key] = TypeAdapter(hints[key]).validate_python(_tuples(value), strict=True)
-        except ValidationError as exc:
-            err = exc.errors()[0]
-            loc = ".".join(str(p) for p in (key, *err["loc"]))
-            msg = err["msg"].replace("a valid tuple", "an array")
-            raise ConfigError(f"{where}: [{name}] {loc}: {msg} (got {_toml_type(value)})"
-                              ) from None
-    try:
-        return cls(**values)
-    except ConfigError as exc:
-        raise ConfigError(f"{where}: {exc}") from None
+def section_keys(name: str) -> list[str]:
+    """The keys a section accepts (the sections themselves for the whole config)."""
+    if name in _CLASSES:
+        return sorted(f.name for f in dataclasses.fields(_CLASSES[name]))
+    return list(SECTIONS)
 
 
-def _tuples(value: Any) -> Any:
-    """TOML arrays (lists) as tuples, for the frozen dataclasses' tuple fields."""
-    return tuple(_tuples(v) for v in value) if isinstance(value, list) else value
+def _where_in_file(loc: tuple) -> tuple[str, tuple]:
+    """(section, key path) of an error location in the whole config."""
+    if not loc:
+        return "config", ()
+    head, rest = str(loc[0]), tuple(loc[1:])
+    if head == "cameras":  # the file's [camera] / [[camera]]
+        head = "camera"
+    if head == "camera" and rest and isinstance(rest[0], int):
+        rest = rest[1:]  # which [[camera]] table: its id names it in the message already
+    return head, rest
 
 
-def _toml_type(value: Any) -> str:
-    """The TOML name of a value's type (never the value: it may be a password)."""
-    for kind, label in ((bool, "a boolean"), (int, "an integer"), (float, "a float"),
-                        (str, "a string"), (list, "an array"), (dict, "a table")):
-        if isinstance(value, kind):
-            return label
-    return type(value).__name__
-
-
-def parse_config(data: dict, where: str = "config") -> MonitorConfig:
-    unknown = sorted(set(data) - set(_TYPES))
+def parse_config(data: dict, where: str = "config", base: Path | None = None) -> MonitorConfig:
+    """Validate a parsed TOML document against the one schema. ``base``: the folder relative
+    file paths are taken from (the config file's)."""
+    unknown = sorted(set(data) - set(SECTIONS))
     if unknown:
         raise ConfigError(f"{where}: unknown section [{unknown[0]}] "
-                          f"(known: {', '.join(sorted(_TYPES))})")
-    sections = {name: build_section(name, data[name], where) for name in data
-                if name != "camera"}
-    if "bus" not in sections:
-        sections["bus"] = BusConfig(listen=DEMO_LISTEN)
+                          f"(known: {', '.join(sorted(SECTIONS))})")
+    for name, value in data.items():
+        tables = value if name == "camera" and isinstance(value, list) else [value]
+        if not all(isinstance(t, dict) for t in tables):
+            raise ConfigError(f"{where}: [{name}] must be a table")
+    if data.get("camera") == []:
+        raise ConfigError(f"{where}: [[camera]] is empty; name at least one camera")
+    data = {**data}
     if "camera" in data:
-        tables = data["camera"] if isinstance(data["camera"], list) else [data["camera"]]
-        if not tables:
-            raise ConfigError(f"{where}: [[camera]] is empty; name at least one camera")
-        cameras = tuple(build_section("camera", t, where) for t in tables)
-        ids = [c.id for c in cameras]
-        dup = next((i for i in ids if ids.count(i) > 1), None)
-        if dup is not None:
-            raise ConfigError(f"{where}: camera id {dup!r} is given twice")
-        sections["cameras"] = cameras
-    return MonitorConfig(**sections, source_file=where)
+        data["cameras"] = data.pop("camera")
+    data.setdefault("bus", {"listen": list(DEMO_LISTEN)})
+    try:
+        config = _ADAPTER.validate_python({**data, "source_file": where},
+                                          context={"base": base})
+    except ValidationError as exc:
+        raise ConfigError(describe(exc, "config", where, _where_in_file)) from None
+    return config
 
 
 def load_config(path: str | Path | None) -> MonitorConfig:
@@ -178,33 +193,10 @@ def load_config(path: str | Path | None) -> MonitorConfig:
         raise ConfigError(f"{path}: not valid TOML: {exc}") from None
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read: {exc.strerror}") from None
-    return resolve_paths(parse_config(data, str(path)), path.parent)
+    return parse_config(data, str(path), path.parent)
 
 
-def resolve_paths(config: MonitorConfig, base: Path) -> MonitorConfig:
-    """Relative file paths in a config file are relative to that file, not to the working
-    directory (a service started by systemd has another one than the person who tested it)."""
-    from monitor.frames import source_kind
-
-    def fix(value: str | None) -> str | None:
-        return str(base / value) if value and not Path(value).is_absolute() else value
-
-    def fix_camera(camera: CameraConfig) -> CameraConfig:
-        if source_kind(camera.source) in ("file", "image"):
-            camera = dataclasses.replace(camera, source=fix(camera.source))
-        return dataclasses.replace(camera, reference=fix(camera.reference))
-
-    bus = dataclasses.replace(config.bus, zenoh_config_file=fix(config.bus.zenoh_config_file),
-                              tls_root_ca=fix(config.bus.tls_root_ca),
-                              tls_cert=fix(config.bus.tls_cert), tls_key=fix(config.bus.tls_key),
-                              signing_key=fix(config.bus.signing_key),
-                              operators_file=fix(config.bus.operators_file))
-    detector = dataclasses.replace(config.detector,
-                                   self_test_image=fix(config.detector.self_test_image))
-    return dataclasses.replace(
-        config, cameras=tuple(fix_camera(c) for c in config.cameras), bus=bus, detector=detector,
-        model=ModelConfig(fix(config.model.path)),
-        zones=dataclasses.replace(config.zones, file=fix(config.zones.file)))
+_ADAPTER = TypeAdapter(MonitorConfig)
 
 
 def demo_cell_path() -> Path:

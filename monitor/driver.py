@@ -142,14 +142,51 @@ class Driver:
         self.stalls = 0
         self.steps = 0
 
-    def run(self, feed: Feed, stop: threading.Event) -> None:
-        """Step until the feed ends or ``stop`` is set."""
+    def run(self, feed: Feed, stop: threading.Event, batch: bool = False) -> None:
+        """Step until the feed ends or ``stop`` is set. ``batch``: take every camera's frame
+        that is ready together from ``feed.next_batch()`` and detect them as one batch."""
         while not stop.is_set():
-            item = feed.next()
+            item = feed.next_batch() if batch else feed.next()  # type: ignore[attr-defined]
             if item is None or stop.is_set():
                 break
-            frame, now = item
-            self.step(frame, now, feed.inputs(now))
+            frames, now = item
+            if not batch:
+                self.step(frames, now, feed.inputs(now))
+            elif len(frames) <= 1:
+                self.step(frames[0] if frames else None, now, feed.inputs(now))
+            else:
+                self.step_batch(frames, now, feed.inputs(now))
+
+    def step_batch(self, frames: Sequence[Frame], now: float,
+                   inputs: StepInputs = StepInputs()) -> list[Step]:
+        """Frames of several cameras ready together: one detector batch, one Step per frame
+        (each a decision with every camera's newest answer), stall detection as ``step``."""
+        start = self.clock() if self.stall_after_s is not None else 0.0
+        if self._stall_gap(start, self._last_end) is not None:
+            return [self._stalled(start - self._last_end, inputs)]
+        if self._discard_before is not None:
+            frames = [f for f in frames if f.info.capture_time >= self._discard_before]
+        if len(frames) <= 1:
+            return [self.step(frames[0] if frames else None, now, inputs)]
+        faults = inputs.extra_faults + self._run_self_test(now)
+        results = self.pipeline.process_batch(
+            [(f.image, f.info) for f in frames], now, tool_pose=inputs.tool_pose,
+            tool_speed_mps=inputs.tool_speed_mps, pose_time=inputs.pose_time,
+            reset=inputs.reset, extra_faults=faults)
+        if self.stall_after_s is not None:
+            done = self.clock()
+            if self._stall_gap(done, start) is not None:  # frozen while deciding: stale results
+                steps = []
+                for frame, result in zip(frames, results, strict=True):
+                    self._index = frame.info.seq
+                    steps.append(self._stalled(done - start, inputs, result, frame))
+                return steps
+        self._armed = True
+        steps = []
+        for frame, result in zip(frames, results, strict=True):
+            self._index = frame.info.seq
+            steps.append(self._emit(result, frame))
+        return steps
 
     def step(self, frame: Frame | None, now: float, inputs: StepInputs = StepInputs()
              ) -> Step:

@@ -25,13 +25,16 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Annotated, Any
 
 import cv2
 import numpy as np
+from pydantic import Field
 
 from monitor.errors import ConfigError, InputError
+from monitor.schema import Float, Int, NonNegative, Seconds, section
 from monitor.types import Alert, Fault
 
 # Fault and alert names this module produces.
@@ -42,56 +45,52 @@ DEFOCUSED_CLEARED = "camera_defocused_cleared"
 CHECKS = ("prepare", "blinded", "frozen", "defocus", "moved", "scene")  # keys of timings_ms
 
 
-@dataclass(frozen=True)
+def _within(lo: float, hi: float) -> Any:
+    return Field(ge=lo, le=hi)
+
+
+@section("health")
 class HealthConfig:
     """Thresholds of the health checks. Grey levels are 0..255; areas and shifts are in pixels
-    of the camera's full-resolution frame; times in seconds."""
+    of the camera's full-resolution frame; times in seconds. Every value is finite and >= 0."""
 
-    analysis_width: int = 320  # px width of the grey image the checks use (height keeps aspect)
-    lost_after_s: float = 1.0  # no frame for this long: camera_lost
-    frozen_diff: float = 0.3  # mean |difference| of consecutive frames (grey levels) below ...
-    frozen_after_s: float = 1.0  # ... for this long: camera_frozen
-    dark_mean: float = 25.0  # mean brightness below this: blinded, too dark
-    saturated_level: int = 250  # a pixel at or above this grey level is saturated ...
-    overexposed_fraction: float = 0.5  # ... and more than this fraction saturated: overexposed
-    covered_contrast: float = 6.0  # std of grey levels below this: blinded, covered (no contrast)
-    blinded_after_s: float = 0.0  # 0: blinded at the first such frame
-    defocus_ratio: float = 0.45  # sharpness below this fraction of the reference's ...
+    # px width of the grey image the checks use (height keeps aspect)
+    analysis_width: Annotated[Int, _within(64, 1280)] = 320
+    lost_after_s: NonNegative = 1.0  # no frame for this long: camera_lost
+    frozen_diff: NonNegative = 0.3  # mean |difference| of consecutive frames (grey levels) ...
+    frozen_after_s: NonNegative = 1.0  # ... below that for this long: camera_frozen
+    dark_mean: Annotated[Float, _within(0.0, 254.0)] = 25.0  # mean below this: blinded, dark
+    # a pixel at or above this grey level is saturated ...
+    saturated_level: Annotated[Int, _within(1, 255)] = 250
+    # ... and more than this fraction saturated: overexposed
+    overexposed_fraction: Annotated[Float, _within(0.01, 1.0)] = 0.5
+    covered_contrast: NonNegative = 6.0  # std of grey levels below this: blinded, covered
+    blinded_after_s: NonNegative = 0.0  # 0: blinded at the first such frame
+    # sharpness below this fraction of the reference's ...
     # (sharpness: variance of the Laplacian / variance of the image, on the analysis image)
-    defocus_after_s: float = 2.0  # ... for this long: camera_defocused (warning)
-    moved_px: float = 8.0  # view shifted more than this against the reference ...
-    moved_min_match: float = 0.2  # ... or phase-correlation peak below this (view replaced) ...
-    moved_after_s: float = 0.5  # ... for this long: camera_moved
-    moved_interval_s: float = 0.25  # run the moved check (0.6 ms) at most this often
-    scene_diff: float = 25.0  # levels (any colour channel) a pixel must differ from the zone's
-    # background, beyond its 3x3 neighbourhood and after matching the lighting
-    scene_min_area_px: float = 400.0  # changed area (px²) that counts as a change (20x20 px)
-    persist_time_s: float = 3.0  # a change must last this long to raise scene_change
-    clear_time_s: float = 2.0  # warnings clear after the scene/sharpness is normal this long
-    learn_time_s: float = 10.0  # time constant of the background's adaptation (lighting drift)
-    person_margin: float = 0.15  # person boxes grow by this fraction of their size on each side
-    min_visible_fraction: float = 0.3  # zone less visible than this (persons): no decision
-    baseline_frames: int = 15  # frames for the sharpness baseline when there is no reference
-    snapshot_max_width: int = 1280  # px; snapshots are scaled down to at most this width
-    snapshot_quality: int = 85  # JPEG quality 1..100
-
-    def __post_init__(self) -> None:
-        for f in fields(self):
-            value = getattr(self, f.name)
-            if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0):
-                raise ConfigError(f"health.{f.name}: must be a number >= 0, got {value!r}")
-        _bounds = {"analysis_width": (64, 1280), "saturated_level": (1, 255),
-                   "overexposed_fraction": (0.01, 1.0), "defocus_ratio": (0.01, 1.0),
-                   "moved_min_match": (0.0, 1.0), "min_visible_fraction": (0.01, 1.0),
-                   "baseline_frames": (1, 1000), "snapshot_max_width": (64, 8192),
-                   "snapshot_quality": (1, 100), "person_margin": (0.0, 2.0),
-                   "scene_diff": (1.0, 255.0), "dark_mean": (0.0, 254.0)}
-        for name, (lo, hi) in _bounds.items():
-            value = getattr(self, name)
-            if not lo <= value <= hi:
-                raise ConfigError(f"health.{name}: must be in [{lo}, {hi}], got {value!r}")
-        if self.learn_time_s <= 0:
-            raise ConfigError(f"health.learn_time_s: must be > 0, got {self.learn_time_s!r}")
+    defocus_ratio: Annotated[Float, _within(0.01, 1.0)] = 0.45
+    defocus_after_s: NonNegative = 2.0  # ... for this long: camera_defocused (warning)
+    moved_px: NonNegative = 8.0  # view shifted more than this against the reference ...
+    # ... or phase-correlation peak below this (view replaced) ...
+    moved_min_match: Annotated[Float, _within(0.0, 1.0)] = 0.2
+    moved_after_s: NonNegative = 0.5  # ... for this long: camera_moved
+    moved_interval_s: NonNegative = 0.25  # run the moved check (0.6 ms) at most this often
+    # levels (any colour channel) a pixel must differ from the zone's background, beyond its
+    # 3x3 neighbourhood and after matching the lighting
+    scene_diff: Annotated[Float, _within(1.0, 255.0)] = 25.0
+    scene_min_area_px: NonNegative = 400.0  # changed area (px²) that counts (20x20 px)
+    persist_time_s: NonNegative = 3.0  # a change must last this long to raise scene_change
+    clear_time_s: NonNegative = 2.0  # warnings clear after the scene is normal this long
+    learn_time_s: Seconds = 10.0  # time constant of the background's adaptation (lighting)
+    # person boxes grow by this fraction of their size on each side
+    person_margin: Annotated[Float, _within(0.0, 2.0)] = 0.15
+    # zone less visible than this (persons): no decision
+    min_visible_fraction: Annotated[Float, _within(0.01, 1.0)] = 0.3
+    # frames for the sharpness baseline when there is no reference
+    baseline_frames: Annotated[Int, _within(1, 1000)] = 15
+    # px; snapshots are scaled down to at most this width
+    snapshot_max_width: Annotated[Int, _within(64, 8192)] = 1280
+    snapshot_quality: Annotated[Int, _within(1, 100)] = 85  # JPEG quality 1..100
 
 
 @dataclass(frozen=True)

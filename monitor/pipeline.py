@@ -166,34 +166,87 @@ class Pipeline:
         """The first camera's health checker (single-camera use)."""
         return self.cameras[self.camera_id].health
 
+    def _camera(self, frame: FrameInfo) -> _Camera:
+        cam = self.cameras.get(frame.camera_id)
+        if cam is None:
+            raise ValueError(f"frame of unknown camera {frame.camera_id!r} "
+                             f"(known: {', '.join(self.camera_ids)})")
+        return cam
+
+    def _pre_merge(self, frame: FrameInfo, counter: list[int]):
+        """The camera's mask rule as the detector's pre-merge filter (None: no masks); counts
+        the raw boxes it drops in ``counter[0]``."""
+        rule = self.mask_rule(frame)
+        if rule is None:
+            return None
+
+        def pre_merge(boxes: np.ndarray) -> np.ndarray:
+            keep = rule.keep(boxes)
+            counter[0] += int(len(keep) - keep.sum())
+            return keep
+
+        return pre_merge
+
     def process(self, image: np.ndarray, frame: FrameInfo, now: float,
                 tool_pose=None, tool_speed_mps: float | None = None,
                 pose_time: float | None = None, reset: ResetRequest | None = None,
                 extra_faults: tuple[Fault, ...] = ()) -> StepResult:
         """Run every stage on one frame captured at ``frame.capture_time``; decide at ``now``."""
-        cam = self.cameras.get(frame.camera_id)
-        if cam is None:
-            raise ValueError(f"frame of unknown camera {frame.camera_id!r} "
-                             f"(known: {', '.join(self.camera_ids)})")
-        stage: dict[str, float] = {}
-        faults: list[Fault] = []
-        detector_error = None
-        persons = Persons.empty(frame)
-        masked = 0
-        rule = None
+        self._camera(frame)
+        masked = [0]
+        t0 = time.perf_counter()
+        detection, detector_error = None, None
+        try:  # the mask rule inside: a mask that cannot be applied is a detector error too
+            detection = self.detector.detect_timed(image, frame,
+                                                   pre_merge=self._pre_merge(frame, masked))
+        except Exception as exc:  # any failure of the detector is a STOP, never a crash or RUN
+            detector_error = _one_line(exc)
+        return self._finish(image, frame, now, detection, detector_error, masked[0], t0,
+                            tool_pose, tool_speed_mps, pose_time, reset, extra_faults)
+
+    def process_batch(self, frames: Sequence[tuple[np.ndarray, FrameInfo]], now: float,
+                      tool_pose=None, tool_speed_mps: float | None = None,
+                      pose_time: float | None = None, reset: ResetRequest | None = None,
+                      extra_faults: tuple[Fault, ...] = ()) -> list[StepResult]:
+        """Frames of different cameras that are ready together: one inference for all of them
+        (when the model has a dynamic batch; else one after the other), then each camera's
+        zones, tracks and health and a decision per frame, exactly as ``process`` in turn would
+        give. The reset (if any) is judged at the last decision, after every camera's answer."""
+        if len(frames) == 1:
+            image, frame = frames[0]
+            return [self.process(image, frame, now, tool_pose, tool_speed_mps, pose_time, reset,
+                                 extra_faults)]
+        for _, frame in frames:
+            self._camera(frame)
+        masked = [[0] for _ in frames]
         t0 = time.perf_counter()
         try:
-            rule = self.mask_rule(frame)
-            if rule is None:
-                detection = self.detector.detect_timed(image, frame)
-            else:
-                def pre_merge(boxes: np.ndarray) -> np.ndarray:
-                    nonlocal masked
-                    keep = rule.keep(boxes)
-                    masked += int(len(keep) - keep.sum())
-                    return keep
+            detections: list = self.detector.detect_batch_timed(
+                [im for im, _ in frames], [fr for _, fr in frames],
+                [self._pre_merge(fr, m) for (_, fr), m in zip(frames, masked, strict=True)])
+            errors: list[str | None] = [None] * len(frames)
+        except Exception as exc:  # the whole batch failed: every frame is a detector error
+            detections, errors = [None] * len(frames), [_one_line(exc)] * len(frames)
+        results = []
+        for i, ((image, frame), detection, error) in enumerate(
+                zip(frames, detections, errors, strict=True)):
+            last = i == len(frames) - 1
+            results.append(self._finish(image, frame, now, detection, error, masked[i][0], t0,
+                                        tool_pose, tool_speed_mps, pose_time,
+                                        reset if last else None, extra_faults))
+            t0 = time.perf_counter()  # the next frame's stages start here (inference shared)
+        return results
 
-                detection = self.detector.detect_timed(image, frame, pre_merge=pre_merge)
+    def _finish(self, image: np.ndarray, frame: FrameInfo, now: float, detection,
+                detector_error: str | None, masked: int, t0: float, tool_pose,
+                tool_speed_mps: float | None, pose_time: float | None,
+                reset: ResetRequest | None, extra_faults: tuple[Fault, ...]) -> StepResult:
+        """Everything after detection for one frame: zones, tracks, health, decision."""
+        cam = self._camera(frame)
+        stage: dict[str, float] = {}
+        faults: list[Fault] = []
+        persons = Persons.empty(frame)
+        if detection is not None:
             persons = detection.persons
             stage.update(preprocess=detection.preprocess_ms, inference=detection.inference_ms,
                          decode=detection.decode_ms)
@@ -201,8 +254,6 @@ class Pipeline:
                 faults.append(Fault("detector_overflow", f"{detection.candidates} candidates "
                                     f"exceed top-k {self.detector.config.top_k}", True,
                                     "detector"))
-        except Exception as exc:  # any failure of the detector is a STOP, never a crash or RUN
-            detector_error = _one_line(exc)
         t1 = time.perf_counter()
         report = None
         if self.prepared is not None and detector_error is None:

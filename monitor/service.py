@@ -256,7 +256,12 @@ def _serve(config: MonitorConfig, pipeline: Pipeline, bus: SafetyBus, expected: 
                         sink.alert, pipeline.prepared)
         driver = Driver(pipeline, [sink], stall_after_s=config.policy.frame_timeout,
                         self_test_period_s=getattr(config.detector, "self_test_period_s", None))
-        driver.run(feed, stop)
+        # cameras whose frames are ready together share one inference (dynamic-batch models)
+        batch = config.detector.batch_cameras and len(grabbers) > 1 \
+            and pipeline.detector.batchable
+        if batch:
+            event("batching the cameras' frames", cameras=len(grabbers))
+        driver.run(feed, stop, batch=batch)
     finally:
         stop.set()
         for grabber in reversed(grabbers):
@@ -297,6 +302,24 @@ class LiveFeed:
         if frame is None and not grabber.alive:  # the source ended: get() no longer waits
             self.stop.wait(self.wait)
         return frame, time.monotonic()
+
+    def next_batch(self):
+        """Every camera's newest frame that is ready now (waiting, bounded, only for the camera
+        whose turn it is): ``(frames, now)``, frames possibly empty (a timer tick)."""
+        if self.end is not None and time.monotonic() >= self.end:
+            return None
+        n = len(self.grabbers)
+        first = self.turn % n
+        self.turn += 1
+        frames = []
+        for k in range(n):
+            grabber = self.grabbers[(first + k) % n]
+            frame = grabber.get(timeout=self.wait if k == 0 else 0.0)
+            if frame is not None:
+                frames.append(frame)
+        if not frames and not any(g.alive for g in self.grabbers):
+            self.stop.wait(self.wait)  # every source ended: get() no longer waits
+        return frames, time.monotonic()
 
     def inputs(self, now: float) -> StepInputs:
         resets = self.bus.poll_resets()

@@ -730,9 +730,9 @@ def test_command_to_dict_has_every_field():
 
 @pytest.mark.parametrize(("kwargs", "message"), [
     ({"restart_interlock": "sometimes"},
-     "policy.restart_interlock: 'sometimes' is not 'manual' or 'auto'"),
-    ({"clear_time": 0}, "policy.clear_time: must be a positive number of seconds, got 0"),
-    ({"pose_timeout": "1"}, "policy.pose_timeout: must be a positive number of seconds, got '1'"),
+     "policy.restart_interlock: should be 'manual' or 'auto' (got 'sometimes')"),
+    ({"clear_time": 0}, "policy.clear_time: should be greater than 0 (got 0)"),
+    ({"pose_timeout": "1"}, "policy.pose_timeout: should be a valid number (got a string)"),
 ])
 def test_config_errors_name_the_key_and_value(kwargs, message):
     with pytest.raises(ConfigError) as err:

@@ -68,7 +68,9 @@ def test_sigterm_after_commands_over_zenoh_status_and_metrics(tmp_path, syntheti
         values = wait_for(lambda: (m := metrics()).get("monitor_fps") and m, 10, "metrics", svc)
         assert values["monitor_state"] in (0.0, 1.0, 2.0)  # RUN, SLOW, STOP
         assert values["monitor_inference_ms"] > 0 and "monitor_dropped_frames" in values
-
+        # heartbeats (10 Hz) and changes: wait for ten of them rather than hoping the steps
+        # above took long enough (they do not on a fast machine, and under load they may not)
+        wait_for(lambda: len(svc.commands) >= 10, 10, "ten commands", svc)
         assert svc.stop(signal.SIGTERM) == 0
         assert wait_for(lambda: svc.alive == [True, False], 5, "the token to vanish")
         log = [json.loads(line) for line in svc.stderr_path.read_text().splitlines()]

@@ -2,64 +2,61 @@
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass
+from typing import Annotated
 
-from monitor.errors import ConfigError
+from pydantic import Field, model_validator
+
+from monitor.schema import Bool, ConfigPath, Float, Fraction, Int, NonNegative, Text, section
+
+Box = tuple[Float, Float, Float, Float]
 
 
-@dataclass(frozen=True)
+@section("detector")
 class DetectorConfig:
     # Trades missed persons against false stops; any value in [0, 1] is honoured as given.
-    score_threshold: float = 0.5
-    nms_iou: float = 0.45
-    top_k: int = 512  # candidates kept before NMS; more is reported as an overflow fault
-    merge_iou: float = 0.5
-    merge_ios: float = 0.7
-    merge_touch_px: float = 1.0  # in model-input pixels; < 0 disables merging by touch
-    threads: int = 2
-    input_size: int = 416  # for models with a dynamic input size
-    layout: str | None = None  # force a layout instead of detecting it
-    anchors: tuple[tuple[float, float], ...] | None = None  # darknet: override anchors
-    masks: tuple[tuple[int, ...], ...] | None = None  # darknet: override anchor masks
+    score_threshold: Fraction = 0.5
+    nms_iou: Fraction = 0.45
+    # candidates kept before NMS; more is reported as an overflow fault
+    top_k: Annotated[Int, Field(ge=1)] = 512
+    merge_iou: Fraction = 0.5
+    merge_ios: Fraction = 0.7
+    merge_touch_px: Float = 1.0  # in model-input pixels; < 0 disables merging by touch
+    threads: Annotated[Int, Field(ge=1)] = 2
+    input_size: Annotated[Int, Field(ge=32)] = 416  # for models with a dynamic input size
+    layout: Text | None = None  # force a layout instead of detecting it
+    anchors: tuple[tuple[Float, Float], ...] | None = None  # darknet: override anchors
+    masks: tuple[tuple[Int, ...], ...] | None = None  # darknet: override anchor masks
     # Which classes are persons: names (as in the model's metadata) or class ids. None: every
     # class named "person", else class 0 with a warning naming the classes found.
-    person_classes: tuple[str | int, ...] | None = None
+    person_classes: tuple[Text | Int, ...] | None = None
     # How far a box's bottom edge may lie below the real feet, in cells of the finest output
     # grid: the zone checks also test the feet this much higher (see zones.check_persons).
-    foot_uncertainty_cells: float = 1.0
+    foot_uncertainty_cells: Annotated[Float, Field(ge=0, le=10)] = 1.0
+    # several cameras: frames that are ready together run as one batch (models with a dynamic
+    # batch dimension; others run them one after the other)
+    batch_cameras: Bool = True
     # onnxruntime's workers spin after each run by default; on a 2-core box that steals the CPU
     # the rest of the pipeline (video decode, health) needs right after inference.
-    spin_wait: bool = False
+    spin_wait: Bool = False
     # Self-test: an image with one known person (x1 y1 x2 y2 in that image's pixels) the model
     # must find. Built in for the synthetic model; needed for any other model.
-    self_test_image: str | None = None
-    self_test_box: tuple[float, float, float, float] | None = None
-    self_test_period_s: float = 10.0  # 0 = only at start
-    self_test_min_iou: float = 0.5  # how well a detected box must cover the known one
+    self_test_image: ConfigPath = None
+    self_test_box: Box | None = None
+    self_test_period_s: NonNegative = 10.0  # 0 = only at start
+    # how well a detected box must cover the known one
+    self_test_min_iou: Annotated[Float, Field(gt=0, le=1)] = 0.5
 
-    def __post_init__(self) -> None:
-        if not (math.isfinite(self.score_threshold) and 0.0 <= self.score_threshold <= 1.0):
-            raise ConfigError(f"detector.score_threshold: {self.score_threshold} not in [0, 1]")
-        if self.top_k < 1 or self.threads < 1 or self.input_size < 32:
-            raise ConfigError("detector.top_k, threads must be >= 1 and input_size >= 32")
-        if not 0.0 <= self.foot_uncertainty_cells <= 10.0:
-            raise ConfigError("detector.foot_uncertainty_cells: must be within [0, 10]")
+    @model_validator(mode="after")
+    def _rules(self) -> DetectorConfig:
         if self.person_classes is not None and len(self.person_classes) == 0:
-            raise ConfigError("detector.person_classes: empty; name at least one class "
-                              "(or leave it out for every class named person)")
-        if not (math.isfinite(self.self_test_period_s) and self.self_test_period_s >= 0):
-            raise ConfigError(f"detector.self_test_period_s: {self.self_test_period_s} is not "
-                              f"a number of seconds >= 0 (0 = only at start)")
-        if not (math.isfinite(self.self_test_min_iou) and 0.0 < self.self_test_min_iou <= 1.0):
-            raise ConfigError(f"detector.self_test_min_iou: {self.self_test_min_iou} not in "
-                              f"(0, 1]")
+            raise ValueError("person_classes: empty; name at least one class (or leave it out "
+                             "for every class named person)")
         if (self.self_test_image is None) != (self.self_test_box is None):
-            raise ConfigError("detector.self_test_image and detector.self_test_box go together: "
-                              "the image and the box of the person in it")
+            raise ValueError("self_test_image and self_test_box go together: the image and the "
+                             "box of the person in it")
         if self.self_test_box is not None:
             x1, y1, x2, y2 = self.self_test_box
-            if not (all(math.isfinite(v) for v in self.self_test_box) and 0 <= x1 < x2
-                    and 0 <= y1 < y2):
-                raise ConfigError(f"detector.self_test_box: {list(self.self_test_box)} is not "
-                                  f"x1 y1 x2 y2 pixels with x1 < x2, y1 < y2")
+            if not (0 <= x1 < x2 and 0 <= y1 < y2):
+                raise ValueError(f"self_test_box: {list(self.self_test_box)} is not x1 y1 x2 y2 "
+                                 f"pixels with x1 < x2, y1 < y2")
+        return self

@@ -5,10 +5,10 @@ Times are seconds on the clock passed to ``step`` (monotonic live, the video's c
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
+from typing import Literal
 
-from monitor.errors import ConfigError
+from monitor.schema import Bool, Seconds, section
 from monitor.types import Fault, ZoneReport
 
 RUN, SLOW, STOP = "RUN", "SLOW", "STOP"
@@ -25,30 +25,19 @@ LEVEL_OF = {RUN_CLEAR: RUN, SLOW_ACTIVE: SLOW, SLOW_CLEARING: SLOW, STOP_ACTIVE:
             STOP_CLEARING: STOP, STOP_LATCHED: STOP}
 
 
-@dataclass(frozen=True)
+@section("policy")
 class PolicyConfig:
-    """Policy timing and limits. Times in seconds."""
+    """Policy timing and limits. Times in seconds (positive and finite)."""
 
-    clear_time: float = 1.0  # a cause must be absent this long before the level drops
-    restart_interlock: str = "manual"  # "manual": STOP latches until reset; "auto": no latch
-    frame_timeout: float = 0.5  # no frame processed for this long -> STOP
-    max_frame_age: float = 0.3  # frame captured longer ago than this at decision time -> STOP
-    pose_timeout: float = 0.1  # newest accepted pose older than this -> STOP (separation on)
-    separation_monitoring: bool = False  # use the tool pose and ISO/TS 15066 separation
-    reset_max_age: float = 2.0  # a reset request older than this (since arrival) is ignored
-    startup_requires_reset: bool = False  # manual interlock also latches the start-up STOP
-
-    def __post_init__(self) -> None:
-        if self.restart_interlock not in ("manual", "auto"):
-            raise ConfigError(
-                f"policy.restart_interlock: {self.restart_interlock!r} is not 'manual' or 'auto'"
-            )
-        for name in ("clear_time", "frame_timeout", "max_frame_age", "pose_timeout",
-                     "reset_max_age"):
-            value = getattr(self, name)
-            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
-                raise ConfigError(f"policy.{name}: must be a positive number of seconds, "
-                                  f"got {value!r}")
+    clear_time: Seconds = 1.0  # a cause must be absent this long before the level drops
+    # "manual": STOP latches until reset; "auto": no latch
+    restart_interlock: Literal["manual", "auto"] = "manual"
+    frame_timeout: Seconds = 0.5  # no frame processed for this long -> STOP
+    max_frame_age: Seconds = 0.3  # frame captured longer ago than this at decision time -> STOP
+    pose_timeout: Seconds = 0.1  # newest accepted pose older than this -> STOP (separation on)
+    separation_monitoring: Bool = False  # use the tool pose and ISO/TS 15066 separation
+    reset_max_age: Seconds = 2.0  # a reset request older than this (since arrival) is ignored
+    startup_requires_reset: Bool = False  # manual interlock also latches the start-up STOP
 
 
 @dataclass(frozen=True)
