@@ -63,7 +63,8 @@ TARGETS = {
                 "tests/test_safety_mutants.py", "-m", "not slow")),
         # the fault decisions (the STOP faults and their timers), not the drawing and scene code
         Target("health", ("monitor/health.py",),
-               ("tests/test_health.py", "tests/test_safety_mutants.py", "-m", "not slow"),
+               ("tests/test_health.py", "tests/test_health_edges.py",
+                "tests/test_safety_mutants.py", "-m", "not slow"),
                names=("monitor.health.xǁ_Timerǁ*", "monitor.health.xǁCameraHealthǁcheck_lost*",
                       "monitor.health.xǁCameraHealthǁ_check_blinded*",
                       "monitor.health.xǁCameraHealthǁ_check_frozen*",
@@ -95,6 +96,9 @@ EQUIVALENT: dict[str, str] = {
                                       "'stable'",
     "monitor.boxes.x_merge_boxes__mutmut_124": "numpy reads sort kinds case-insensitively: "
                                                "'STABLE' is 'stable'",
+    # camera health fault decisions (monitor/health.py)
+    "monitor.health.xǁ_Timerǁupdate__mutmut_2": "the 'not holding' sentinel -1.0 vs -2.0: "
+                                                "only compared with limits >= 0",
     "monitor.boxes.x_merge_boxes__mutmut_12":
         "reshape(None) of the empty 1-D score array is the same (0,) array",
 }
