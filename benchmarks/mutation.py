@@ -97,8 +97,17 @@ EQUIVALENT: dict[str, str] = {
     "monitor.boxes.x_merge_boxes__mutmut_124": "numpy reads sort kinds case-insensitively: "
                                                "'STABLE' is 'stable'",
     # camera health fault decisions (monitor/health.py)
-    "monitor.health.xǁ_Timerǁupdate__mutmut_2": "the 'not holding' sentinel -1.0 vs -2.0: "
+    "monitor.health.xǁ_Timerǁupdate__mutmut_4": "the 'not holding' sentinel -1.0 vs -2.0: "
                                                 "only compared with limits >= 0",
+    "monitor.health.xǁCameraHealthǁ_check_blinded__mutmut_39":
+        "'reason or held >= limit': without a reason the timer says -1, below every limit >= 0",
+    **{f"monitor.health.xǁCameraHealthǁ_check_{check}__mutmut_{n}":
+       "held > limit vs >=: the timer adds 1e-9 to what has held, so the two differ only when "
+       "float sums meet a limit exactly" for check, n in (("blinded", 40), ("frozen", 21))},
+    "monitor.health.xǁCameraHealthǁ_check_moved__mutmut_42":
+        "_moved_raw None vs False: it is only read for truth",
+    "monitor.health.xǁCameraHealthǁ_check_moved__mutmut_5":
+        "margin=None vs False: _small_boxes reads it only for truth",
     "monitor.boxes.x_merge_boxes__mutmut_12":
         "reshape(None) of the empty 1-D score array is the same (0,) array",
 }
