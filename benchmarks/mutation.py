@@ -54,7 +54,8 @@ TARGETS = {
                       "monitor.zones.check.x_merge_towards_danger*",
                       "monitor.zones.check.x__worse*")),
         Target("pipeline", ("monitor/pipeline.py",),
-               ("tests/test_pipeline.py", "tests/test_safety_mutants.py", "-m", "not slow"),
+               ("tests/test_pipeline.py", "tests/test_pipeline_edges.py",
+                "tests/test_safety_mutants.py", "-m", "not slow"),
                names=("monitor.pipeline.xǁPipelineǁ_inputs*", "monitor.pipeline.xǁPipelineǁtick*",
                       "monitor.pipeline.xǁPipelineǁ_decide*",
                       "monitor.pipeline.xǁPipelineǁ_confirm_clear*")),
@@ -108,6 +109,11 @@ EQUIVALENT: dict[str, str] = {
         "_moved_raw None vs False: it is only read for truth",
     "monitor.health.xǁCameraHealthǁ_check_moved__mutmut_5":
         "margin=None vs False: _small_boxes reads it only for truth",
+    # the pipeline's timer step and confirm-clear (monitor/pipeline.py)
+    "monitor.pipeline.xǁPipelineǁtick__mutmut_11":
+        "with_frame=None vs False: it is only read for truth",
+    "monitor.pipeline.xǁPipelineǁ_confirm_clear__mutmut_6":
+        "break vs continue on a camera without a tracker: every camera gets one in __init__",
     "monitor.boxes.x_merge_boxes__mutmut_12":
         "reshape(None) of the empty 1-D score array is the same (0,) array",
 }
