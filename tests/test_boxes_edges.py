@@ -126,3 +126,10 @@ def test_merged_box_is_the_union_coordinate_by_coordinate() -> None:
     boxes = b([40, 5, 60, 30], [50, 10, 80, 25])
     merged, _ = merge_boxes(boxes, np.array([0.6, 0.9]))
     assert merged.tolist() == [[40.0, 5.0, 80.0, 30.0]]
+
+
+def test_the_default_thresholds_without_touch_merge_strong_overlaps_only() -> None:
+    overlap = b([0, 0, 10, 10], [2, 0, 12, 10])  # IoU 0.67 > the default 0.5
+    assert len(merge_boxes(overlap, np.array([0.9, 0.8]), touch_px=-1)[0]) == 1
+    weak = b([0, 0, 10, 10], [6, 0, 16, 10])  # IoU 0.25, IoS 0.4: two persons side by side
+    assert len(merge_boxes(weak, np.array([0.9, 0.8]), touch_px=-1)[0]) == 2
