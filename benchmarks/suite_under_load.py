@@ -69,8 +69,8 @@ def main() -> int:
                   flush=True)
             if proc.returncode != 0:
                 failing = [line for line in proc.stdout.splitlines()
-                           if line.startswith(("FAILED", "ERROR"))]
-                print("\n".join(failing[:20]), flush=True)
+                           if line.startswith(("FAILED", "ERROR", "E   "))]
+                print("\n".join(failing[:40]), flush=True)
     finally:
         stop.set()
         for hog in hogs:
