@@ -100,6 +100,8 @@ EQUIVALENT: dict[str, str] = {
     # camera health fault decisions (monitor/health.py)
     "monitor.health.xǁ_Timerǁupdate__mutmut_4": "the 'not holding' sentinel -1.0 vs -2.0: "
                                                 "only compared with limits >= 0",
+    "monitor.health.xǁCameraHealthǁ_check_blinded__mutmut_17":
+        "reason None vs '' before a check sets it: both falsy, and only read for truth",
     "monitor.health.xǁCameraHealthǁ_check_blinded__mutmut_39":
         "'reason or held >= limit': without a reason the timer says -1, below every limit >= 0",
     **{f"monitor.health.xǁCameraHealthǁ_check_{check}__mutmut_{n}":
