@@ -143,7 +143,11 @@ def test_publisher_and_watcher_in_two_processes():
             pub.kill()
         pub.join(5)
         err = watcher.stop()
-    assert watcher.proc.returncode == 0, err
+    # a clean exit; on a loaded machine the Zenoh close may outlast the 1.5 s shutdown
+    # deadline, and then the forced exit (130) must say so (the deadline itself is tested in
+    # tests/test_shutdown_bus.py)
+    assert watcher.proc.returncode == 0 or (watcher.proc.returncode == 130
+                                            and "exiting anyway" in err), err
 
 
 def test_watch_without_monitor_reports_stop_and_exits_cleanly():
