@@ -49,7 +49,7 @@ TARGETS = {
                ("tests/test_safety_mutants.py", "-k", "watchdog"), r"CommandWatchdog"),
         Target("zone_check", ("monitor/zones/check.py",),
                ("tests/test_zones.py", "tests/test_zone_merge.py", "tests/test_mesh_zones.py",
-                "tests/test_occlusion.py",
+                "tests/test_zone_check_edges.py", "tests/test_occlusion.py",
                 "tests/test_separation.py", "tests/test_masks.py", "tests/test_safety_mutants.py",
                 "-m", "not slow"),
                names=("monitor.zones.check.x_check_persons*", "monitor.zones.check.x__check_*",
@@ -114,6 +114,27 @@ EQUIVALENT: dict[str, str] = {
         "_moved_raw None vs False: it is only read for truth",
     "monitor.health.xǁCameraHealthǁ_check_moved__mutmut_5":
         "margin=None vs False: _small_boxes reads it only for truth",
+    # the zone check (monitor/zones/check.py)
+    **{f"monitor.zones.check.x__check__mutmut_{n}":
+       "zip(strict=...) of np.nonzero's two index lists, always of equal length"
+       for n in (110, 113, 114)},
+    **{f"monitor.zones.check.x__volume_hits__mutmut_{n}":
+       "zip(strict=...) of np.nonzero's two index lists, always of equal length"
+       for n in (29, 32, 33)},
+    **{f"monitor.zones.check.x__check__mutmut_{n}":
+       "asarray without dtype float64: integer boxes give the same floats one step later"
+       for n in (18, 20)},
+    "monitor.zones.check.x__check__mutmut_22": "reshape(-2, 4): NumPy reads any negative size "
+                                               "as 'infer', like -1",
+    **{f"monitor.zones.check.x__check__mutmut_{n}":
+       "camera_centre None / missing: place_persons computes the same centre itself"
+       for n in (49, 57, 59)},
+    "monitor.zones.check.x__check__mutmut_106": "distance_m=None passed or left to its default",
+    "monitor.zones.check.x__volume_hits__mutmut_81": "distance_m=None passed or left to its "
+                                                     "default",
+    **{f"monitor.zones.check.x__volume_hits__mutmut_{n}":
+       "a miss of the per-person shape cache: the same shapes are built again"
+       for n in (35, 36)},
     # the pipeline's timer step and confirm-clear (monitor/pipeline.py)
     "monitor.pipeline.xǁPipelineǁtick__mutmut_11":
         "with_frame=None vs False: it is only read for truth",
