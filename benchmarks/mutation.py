@@ -58,7 +58,7 @@ TARGETS = {
                       "monitor.zones.check.x__worse*")),
         Target("pipeline", ("monitor/pipeline.py",),
                ("tests/test_pipeline.py", "tests/test_pipeline_edges.py",
-                "tests/test_safety_mutants.py", "-m", "not slow"),
+                "tests/test_multicamera.py", "tests/test_safety_mutants.py", "-m", "not slow"),
                names=("monitor.pipeline.xǁPipelineǁ_inputs*", "monitor.pipeline.xǁPipelineǁtick*",
                       "monitor.pipeline.xǁPipelineǁ_decide*",
                       "monitor.pipeline.xǁPipelineǁ_confirm_clear*")),

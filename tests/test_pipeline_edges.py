@@ -110,3 +110,33 @@ def test_a_tick_with_a_fresh_pose_is_not_pose_stale(detector):
     assert "pose_stale" not in {r.code for r in fresh.command.reasons}
     stale = pipe.tick(0.45, pose_time=0.24)
     assert "pose_stale" in {r.code for r in stale.command.reasons}
+
+
+def test_one_camera_before_its_first_frame_waits_in_the_start_up_stop_only(detector):
+    pipe = Pipeline(detector, "cam0", AUTO, load_cell(demo_cell_path()))
+    result = pipe.tick(0.1)
+    assert result.command.state == "STOP"
+    assert [r.code for r in result.command.reasons] == ["startup"]  # no camera_waiting
+
+
+def test_a_camera_not_yet_delivering_does_not_hide_another_cameras_person(detector, tmp_path):
+    import yaml
+
+    data = yaml.safe_load(demo_cell_path().read_text())
+    data["cameras"].append(dict(data["cameras"][0], id="cam1"))
+    path = tmp_path / "two.yaml"
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    pipe = Pipeline(detector, ["cam0", "cam1"], AUTO, load_cell(path))
+    result = pipe.process(inside(), FrameInfo("cam1", 0, 0.0, 1280, 720), 0.05)
+    waiting = [f for f in result.faults if f.name == "camera_waiting"]
+    assert waiting and waiting[0].source == "cam0" and waiting[0].reason == \
+        "cam0: no frame processed yet"
+    assert "protective_zone" in {r.code for r in result.command.reasons}
+
+
+def test_an_invalid_zone_file_stops_on_ticks_too(detector):
+    pipe = Pipeline(detector, "cam0", AUTO, None, zone_error="cell.yaml: zone 'x': bad")
+    pipe.process(empty(), frame(0, 0.0), 0.0)
+    result = pipe.tick(0.5)
+    assert result.command.state == "STOP"
+    assert "zone_invalid" in {r.code for r in result.command.reasons}
