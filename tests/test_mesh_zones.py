@@ -26,8 +26,10 @@ def person_box(x: float, y: float, height_m: float = 1.75) -> np.ndarray:
 @pytest.fixture(scope="module")
 def cell(tmp_path_factory: pytest.TempPathFactory):
     tmp = tmp_path_factory.mktemp("mesh")
-    big = trimesh.creation.box(extents=(3.0, 2.0, 2.5))
-    big.apply_translation((1.8, -1.5, 1.25))  # a room-sized zone: 1.5 x 1 m around its centre
+    # a room-sized zone: 1.5 x 1 m around its centre, from below the floor to 2.5 m, so a
+    # person standing at its centre touches none of its faces (FCL sees surfaces only)
+    big = trimesh.creation.box(extents=(3.0, 2.0, 3.0))
+    big.apply_translation((1.8, -1.5, 1.0))
     big.export(tmp / "big.stl")
     small = trimesh.creation.box(extents=(0.1, 0.1, 0.1))
     small.apply_translation((-1.8, -1.5, 0.1))  # a pedal-sized zone on the floor
