@@ -185,7 +185,9 @@ def test_camera_loss_stops_at_once_then_frames_reset_and_clear_time_give_run(
         assert all(c["state"] == "STOP" for c in svc.commands[i_stop:i_run2])
         # the last STOP cause was seen at most one tick before the first frame came back
         assert run["mono"] - back >= POLICY.clear_time - 2 * TICK_S
-        assert run["mono"] - outcome["mono"] > 0.5 * POLICY.clear_time  # not at the reset
+        # the STOP latched: RUN only after the accepted reset (a loaded machine may handle
+        # the reset late, when clear_time has already run out: then RUN follows it at once)
+        assert run["mono"] >= outcome["mono"]
         assert svc.stop(signal.SIGINT) == 0  # SIGINT stops it like SIGTERM
     last = svc.commands[-1]
     assert last["state"] == "STOP" and codes(last) == {"shutdown"}

@@ -78,3 +78,41 @@ def test_an_unknown_camera_names_the_cameras_there_are(tmp_path):
     path.write_text(yaml.safe_dump(data, sort_keys=False))
     with pytest.raises(ConfigError, match=r"unknown camera 'cam7' \(cameras: cam0, cam1\)"):
         check_persons(load_cell(path), "cam7", np.zeros((0, 4)))
+
+
+@pytest.mark.parametrize("gap_m", [0.8, 1.37, 2.05])
+def test_a_hidden_feet_persons_tool_separation_never_exceeds_the_true_distance(gap_m):
+    """A person whose feet may be hidden is a range of floor positions, which the check samples
+    every 0.1 m and then takes half a step off: the separation it reports is a lower bound of
+    the true distance (never more), and no more than half a step below it. The tool stands on
+    the range's line beyond its near end, so the true distance is known exactly."""
+    from monitor import occlusion as occ
+
+    cell = load_cell(demo_cell_path())
+    prep, cam = cell.prepared, cell.cameras["cam0"]
+    model = cell.camera_models["cam0"]
+    # only the upper 60 cm of a standing person at (0.5, -2.5) show: the feet may be hidden
+    foot, cut, head = model.project(np.array([[0.5, -2.5, 0.0], [0.5, -2.5, 1.15],
+                                              [0.5, -2.5, 1.75]]))[0]
+    box = np.array([[foot[0] - 40.0, head[1], foot[0] + 40.0, cut[1]]])
+    place = occ.place_persons(box, model, cam.width, cam.height, band_px=(0.0, 0.0),
+                              height_range_m=prep.height_range_m,
+                              occluder_columns=prep.occluder_columns.get("cam0"),
+                              camera_centre=prep.camera_centres.get("cam0"))
+    assert place.located[0] and place.hidden[0]
+    near, far = place.near_m[0], place.far_m[0]
+    length = float(np.hypot(*(near - far)))
+    assert length > 0.3  # a real range, several samples long
+    # the demo tool is a vertical cylinder of radius 0.05 beside the person's (0.3): along the
+    # line the distance between the two surfaces is gap_m. The pose is the tracker's, a few mm
+    # off the tool's axis (the calibrated offset): place the axis itself.
+    outward = (near - far) / length
+    axis_xy = near + outward * (gap_m + prep.person.radius_m + 0.05)
+    unit = geo.ToolPose((0.0, 0.0, 1.0), (0.0, 0.0, 0.0, 1.0), 0.0)
+    shift = geo.tool_transform(unit, prep.tool.offset)[:2, 3]
+    pose = geo.ToolPose((float(axis_xy[0] - shift[0]), float(axis_xy[1] - shift[1]), 1.0),
+                        (0.0, 0.0, 0.0, 1.0), 0.0)
+    report = check_persons(cell, "cam0", box, tool_pose=pose, tool_speed_mps=0.1,
+                           foot_band_px=(0.0, 0.0))
+    # (FCL measures a cylinder to within a millimetre)
+    assert gap_m - 0.05 - 1e-3 <= report.tool_separation_m <= gap_m + 1e-6
