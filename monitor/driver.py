@@ -267,11 +267,14 @@ class Driver:
         became_possible = possible and not self._reset_possible
         self._reset_possible = possible
         step = Step(result, frame, self._index, stalled_s, became_possible)
+        if self.stall_after_s is not None:
+            # the loop's gap is measured from the decision, before the sinks: a freeze while
+            # publishing (a large share of a step) is then seen by the next step as a stall,
+            # instead of hiding between the decision and a clock read after the sinks
+            self._last_end = self.clock()
         for sink in self.sinks:
             sink.on_step(step)
         self.steps += 1
-        if self.stall_after_s is not None:
-            self._last_end = self.clock()
         return step
 
     def close(self) -> None:

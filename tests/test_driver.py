@@ -181,6 +181,42 @@ def test_a_freeze_inside_a_step_never_publishes_the_command_decided_before_it(
     assert STALL_FAULT in {f.name for f in step.result.faults}
 
 
+class FreezingSink(Recorder):
+    """Freezes the process (moves ``clock`` on by ``by`` s) while publishing its ``at``-th step:
+    a SIGSTOP that lands in the sinks, after the decision."""
+
+    def __init__(self, clock: Clock, at: int, by: float) -> None:
+        super().__init__()
+        self.clock, self.at, self.by = clock, at, by
+
+    def on_step(self, step: Step) -> None:
+        super().on_step(step)
+        if len(self.steps) == self.at:
+            self.clock.t += self.by
+
+
+def test_a_freeze_while_the_sinks_publish_is_a_stall_at_the_next_step(
+        detector, empty_cell_image):
+    """Found on a loaded machine: the process stopped while publishing a step, and the loop's
+    gap was measured from after the sinks, so the freeze went unseen (only the frame's age
+    gave a STOP, without the stall alert and with the old frame processed)."""
+    clock = Clock()
+    sink = FreezingSink(clock, at=2, by=2.0)
+    policy = PolicyConfig(restart_interlock="auto")
+    driver = Driver(Pipeline(detector, "cam0", policy, load_cell(demo_cell_path())), [sink],
+                    stall_after_s=0.5, clock=clock)
+    driver.step(frame_at(empty_cell_image, 0, clock.t), clock.t)
+    clock.t += 0.05
+    grabbed = frame_at(empty_cell_image, 1, clock.t)
+    driver.step(grabbed, clock.t)  # frozen for 2 s while its command goes out
+    before = frame_at(empty_cell_image, 2, clock.t - 2.0 + 0.01)  # grabbed before the freeze
+    step = driver.step(before, clock.t)
+    assert step.stalled_s == pytest.approx(2.0)
+    assert step.frame is None  # the frame grabbed before the freeze is dropped
+    assert STALL_FAULT in {f.name for f in step.result.faults}
+    assert step.result.command.state == STOP and driver.stalls == 1
+
+
 def test_no_stall_detection_before_the_first_frame_or_in_replay(detector, empty_cell_image):
     clock = Clock()
     driver = Driver(Pipeline(detector, "cam0", POLICY, None), [],
