@@ -138,6 +138,9 @@ def _read_yaml(path: str | os.PathLike, load: Any, errors: tuple[type[Exception]
         mark = getattr(exc, "problem_mark", None)
         where = f":{mark.line + 1}:{mark.column + 1}" if mark is not None else ""
         problem = getattr(exc, "problem", None) or _first_line(exc)
+        if "nesting depth" in str(problem):  # ruamel.yaml >= 0.19 has a depth limit of its own
+            raise ConfigError(f"{p}{where}: nested more than {MAX_NESTING} levels deep: not a "
+                              "zone file") from None
         raise ConfigError(f"{p}{where}: YAML syntax error: {problem}") from None
     except RecursionError:
         raise ConfigError(f"{p}: nested too deeply: not a zone file") from None
