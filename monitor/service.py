@@ -378,7 +378,9 @@ class ServiceSink:
 
     def on_step(self, step: Step) -> None:
         result = step.result
-        self.bus.publish_command(result.command)  # the safety message first, dashboards after
+        # the safety message first, dashboards after; a command that waited past the bus's
+        # stall_timeout since its decision (the process froze) goes out as a STOP instead
+        self.bus.publish_command(result.command, decided_at=step.decided_at)
         if step.frame is not None:
             # the body's "frame" holds camera, seq, capture time and size (no override here)
             self.bus.publish_detections(result.persons, result.zone_report)
