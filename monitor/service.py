@@ -259,8 +259,9 @@ def _serve(config: MonitorConfig, pipeline: Pipeline, bus: SafetyBus, expected: 
         # cameras whose frames are ready together share one inference (dynamic-batch models)
         batch = config.detector.batch_cameras and len(grabbers) > 1 \
             and pipeline.detector.batchable
-        if batch:
-            event("batching the cameras' frames", cameras=len(grabbers))
+        if len(grabbers) > 1:
+            event("batching the cameras' frames" if batch else "cameras' frames run in turn",
+                  cameras=len(grabbers))
         driver.run(feed, stop, batch=batch)
     finally:
         stop.set()
