@@ -338,11 +338,23 @@ class SafetyBus:
         self._put(self._pub_command, self.keys.command, payload, signature)
         return body["seq"]
 
-    def publish_command(self, command: Command) -> int | None:
+    def publish_command(self, command: Command, decided_at: float | None = None) -> int | None:
         """Hand in the policy's newest command (call every step). It goes out at once when it
         differs from the last one sent (or carries a reset outcome); otherwise the heartbeat
         repeats it. Returns the seq sent, or None when left to the heartbeat. A reset outcome
-        is also the answer to that reset's query (``monitor reset`` waits for it)."""
+        is also the answer to that reset's query (``monitor reset`` waits for it).
+
+        ``decided_at`` (this bus's clock): when the policy decided it. A command older than
+        ``stall_timeout`` by now was decided before the process froze (between the decision
+        and this call): it says nothing about the cell now, so a "stalled" STOP goes out in
+        its place, as the heartbeat would send after the same silence."""
+        if decided_at is not None and command.state != STOP:
+            age = self._clock() - decided_at
+            if age > self.config.stall_timeout:
+                command = Command(STOP, 0.0, (Reason(
+                    "stalled", f"command decided {age:.2f} s before it could be published "
+                    f"(limit {self.config.stall_timeout:g} s): the monitor was frozen"),),
+                    since=self._clock(), reset=command.reset)
         with self._cmd_lock:  # decide and send as one step: concurrent callers stay ordered
             with self._lock:
                 self._latest = command

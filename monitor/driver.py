@@ -57,6 +57,7 @@ class Step:
     index: int  # seq of the newest processed frame (-1 before the first)
     stalled_s: float | None = None  # loop gap when this step reports a stall
     reset_possible: bool = False  # a reset became possible at this step (it was not before)
+    decided_at: float | None = None  # the driver's clock at the decision (live only)
 
 
 class Sink(Protocol):
@@ -266,12 +267,13 @@ class Driver:
         possible = bool(reset_possible(result.command))
         became_possible = possible and not self._reset_possible
         self._reset_possible = possible
-        step = Step(result, frame, self._index, stalled_s, became_possible)
+        decided_at = None
         if self.stall_after_s is not None:
             # the loop's gap is measured from the decision, before the sinks: a freeze while
             # publishing (a large share of a step) is then seen by the next step as a stall,
             # instead of hiding between the decision and a clock read after the sinks
-            self._last_end = self.clock()
+            decided_at = self._last_end = self.clock()
+        step = Step(result, frame, self._index, stalled_s, became_possible, decided_at)
         for sink in self.sinks:
             sink.on_step(step)
         self.steps += 1

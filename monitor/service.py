@@ -259,8 +259,9 @@ def _serve(config: MonitorConfig, pipeline: Pipeline, bus: SafetyBus, expected: 
         # cameras whose frames are ready together share one inference (dynamic-batch models)
         batch = config.detector.batch_cameras and len(grabbers) > 1 \
             and pipeline.detector.batchable
-        if batch:
-            event("batching the cameras' frames", cameras=len(grabbers))
+        if len(grabbers) > 1:
+            event("batching the cameras' frames" if batch else "cameras' frames run in turn",
+                  cameras=len(grabbers))
         driver.run(feed, stop, batch=batch)
     finally:
         stop.set()
@@ -378,7 +379,9 @@ class ServiceSink:
 
     def on_step(self, step: Step) -> None:
         result = step.result
-        self.bus.publish_command(result.command)  # the safety message first, dashboards after
+        # the safety message first, dashboards after; a command that waited past the bus's
+        # stall_timeout since its decision (the process froze) goes out as a STOP instead
+        self.bus.publish_command(result.command, decided_at=step.decided_at)
         if step.frame is not None:
             # the body's "frame" holds camera, seq, capture time and size (no override here)
             self.bus.publish_detections(result.persons, result.zone_report)

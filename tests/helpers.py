@@ -7,6 +7,9 @@ import socket
 import subprocess
 import time
 from collections.abc import Callable
+from typing import TypeVar
+
+T = TypeVar("T")
 
 
 def free_port(kind: int = socket.SOCK_STREAM) -> int:
@@ -16,14 +19,15 @@ def free_port(kind: int = socket.SOCK_STREAM) -> int:
         return s.getsockname()[1]
 
 
-def wait_for(cond: Callable[[], object], timeout: float = 3.0) -> bool:
+def wait_for(cond: Callable[[], T], timeout: float = 3.0) -> T:
     """Poll ``cond()`` every 5 ms until it is truthy or ``timeout`` s pass; its last answer."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
-        if cond():
-            return True
+        value = cond()
+        if value:
+            return value
         time.sleep(0.005)
-    return bool(cond())
+    return cond()
 
 
 def assert_one_line(exc: BaseException, *needles: str) -> None:

@@ -122,6 +122,24 @@ def test_open_session_on_a_taken_port_is_a_config_error():
 # --- publishing ------------------------------------------------------------------------------
 
 
+def test_a_command_decided_before_a_freeze_goes_out_as_a_stalled_stop(bus_and_listener):
+    """The process froze between the decision and the publishing (SIGSTOP, a paused VM): the
+    RUN decided before says nothing about the cell now. A STOP "stalled" goes out instead, and
+    the heartbeat repeats that STOP, never the RUN."""
+    bus, ctl = bus_and_listener
+    assert bus.publish_command(SLOW_CMD, decided_at=time.monotonic()) is not None
+    assert bus.publish_command(RUN_CMD, decided_at=time.monotonic() - 0.7) is not None
+    stalled = wait_for(lambda: [c for c in list(ctl.commands)
+                                if {r["code"] for r in c["reasons"]} == {"stalled"}])
+    assert stalled[0]["state"] == "STOP" and not stalled[0]["heartbeat"]
+    assert "decided 0.7" in stalled[0]["reasons"][0]["message"]
+    time.sleep(0.15)  # three heartbeats at 20 Hz
+    assert not any(c["state"] == "RUN" for c in list(ctl.commands))
+    # a fresh decision (age within stall_timeout = 0.6 s) goes out as decided
+    assert bus.publish_command(RUN_CMD, decided_at=time.monotonic() - 0.5) is not None
+    assert wait_for(lambda: any(c["state"] == "RUN" for c in list(ctl.commands)))
+
+
 def test_commands_carry_the_envelope_and_go_out_on_change(bus_and_listener):
     bus, ctl = bus_and_listener
     assert bus.publish_command(RUN_CMD) is not None

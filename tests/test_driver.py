@@ -215,6 +215,9 @@ def test_a_freeze_while_the_sinks_publish_is_a_stall_at_the_next_step(
     assert step.frame is None  # the frame grabbed before the freeze is dropped
     assert STALL_FAULT in {f.name for f in step.result.faults}
     assert step.result.command.state == STOP and driver.stalls == 1
+    # live steps carry their decision time: the bus refuses to send one that waited too long
+    times = [s.decided_at for s in sink.steps]
+    assert None not in times and times == sorted(times) and times[1] < times[2] - 1.9
 
 
 def test_no_stall_detection_before_the_first_frame_or_in_replay(detector, empty_cell_image):

@@ -113,18 +113,26 @@ def test_config_names_several_cameras():
 
 
 @pytest.mark.slow
-def test_service_with_two_cameras(tmp_path, synthetic_model):
+@pytest.mark.parametrize("batch", [False, True], ids=["in-turn", "batched"])
+def test_service_with_two_cameras(tmp_path, synthetic_model, batch):
     cell = two_camera_cell(tmp_path)
     svc = Service(tmp_path, synthetic_model, "synthetic:demo")
     text = svc.config.read_text().replace(
         '[camera]\nsource = "synthetic:demo"\n',
         '[[camera]]\nid = "cam0"\nsource = "synthetic:demo"\n'
         '[[camera]]\nid = "cam1"\nsource = "synthetic:demo"\n')
-    svc.config.write_text(text + f'[zones]\nfile = "{cell}"\n')
+    svc.config.write_text(text + f'[zones]\nfile = "{cell}"\n'
+                          f'[detector]\nbatch_cameras = {str(batch).lower()}\n')
     with svc:
         svc.next_command(0, lambda c: codes(c) - {"startup", "clearing"} or
                          c["state"] != "STOP", 60, "a decision after start-up")
         status = wait_for(lambda: (s := svc.status()).get("fps") and s, 10, "status", svc)
         assert [c["id"] for c in status["cameras"]] == ["cam0", "cam1"]
         assert all(c["connected"] for c in status["cameras"])
+        # both cameras' frames reach the decisions, batched or in turn
+        wait_for(lambda: {d["frame"]["camera_id"] for d in list(svc.detections)}
+                 >= {"cam0", "cam1"}, 10, "detections of both cameras", svc)
         assert svc.stop(signal.SIGTERM) == 0
+    log = svc.stderr_path.read_text()
+    assert ("batching the cameras' frames" in log) is batch
+    assert ("cameras' frames run in turn" in log) is not batch

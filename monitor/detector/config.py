@@ -33,8 +33,10 @@ class DetectorConfig:
     # grid: the zone checks also test the feet this much higher (see zones.check_persons).
     foot_uncertainty_cells: Annotated[Float, Field(ge=0, le=10)] = 1.0
     # several cameras: frames that are ready together run as one batch (models with a dynamic
-    # batch dimension; others run them one after the other)
-    batch_cameras: Bool = True
+    # batch dimension; others run them one after the other). Off by default: on 2-core CPUs a
+    # batch of n frames costs n single inferences, and every frame of it waits for the whole
+    # batch (4 cameras at 10 fps: p99 capture-to-command 189 ms batched, 94 ms in turn, int8)
+    batch_cameras: Bool = False
     # onnxruntime's workers spin after each run by default; on a 2-core box that steals the CPU
     # the rest of the pipeline (video decode, health) needs right after inference.
     spin_wait: Bool = False
