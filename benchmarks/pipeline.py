@@ -1,7 +1,7 @@
 """Whole-pipeline benchmark on a 1080p video at 416: throughput against bare inference, and the
 latency from frame capture to command published.
 
-Run: /work/venv/bin/python benchmarks/pipeline.py [--seconds 12] [--threads 2]
+Run: .venv/bin/python benchmarks/pipeline.py [--seconds 12] [--threads 2] [--int8]
 
 The video is the demo walk (the person enters the warning and the protective zone) rendered at
 1280x720 and scaled to 1920x1080, with the demo cell's zones and calibration scaled to match, so
@@ -187,8 +187,8 @@ class _TimedBus(SafetyBus):
         self.latency_ms: list[float] = []
         self.capture_of_seq: dict[int, float] = {}
 
-    def publish_command(self, command):
-        seq = super().publish_command(command)
+    def publish_command(self, command, decided_at=None):
+        seq = super().publish_command(command, decided_at)
         done = time.monotonic()
         capture, self.pipeline.pending = self.pipeline.pending, None
         if capture is not None:  # a step that processed a frame (not a timer tick)
@@ -244,6 +244,8 @@ def main() -> int:
     parser.add_argument("--seconds", type=float, default=12.0,
                         help="video length (the walk enters both zones by 6 s)")
     parser.add_argument("--threads", type=int, default=2, help="onnxruntime intra-op threads")
+    parser.add_argument("--int8", action="store_true",
+                        help="the synthetic model's int8 file (as `monitor model build --int8`)")
     args = parser.parse_args()
     med = statistics.median
     logging.getLogger("monitor").setLevel(logging.ERROR)  # the loop's event lines
@@ -252,14 +254,24 @@ def main() -> int:
         video = tmp / "demo-1080p.mp4"
         n = make_video(video, args.seconds)
         cell = cell_1080p(tmp)
-        detector = Detector(synthetic.ensure_model(), DetectorConfig(threads=args.threads))
+        model = synthetic.ensure_model()
+        if args.int8:
+            from monitor import quantize
+            from monitor.scene import random_frames
+
+            calib = [f for f, _ in random_frames(8, seed=1000, size=SIZE)]
+            model = quantize.quantize_model(
+                model, tmp / "m.int8.onnx", calib,
+                quantize.QuantizeOptions(ranges=synthetic.int8_ranges()))
+        detector = Detector(model, DetectorConfig(threads=args.threads))
         t = throughput_inline(video, detector, cell)
         th = throughput_threaded(video, detector, cell)
         dr = throughput_driver(video, detector, cell)
         lat = latency(video, detector, cell, args.seconds)
 
     bare_ms, whole_ms = sum(t["bare"]) / n, sum(t["whole"]) / n
-    print(f"1080p video, {n} frames ({args.seconds:g} s, 15 fps), model input 416, "
+    print(f"1080p video, {n} frames ({args.seconds:g} s, 15 fps), model input 416 "
+          f"{'int8' if args.int8 else 'fp32'}, "
           f"{args.threads} threads, {t['persons']} person detections\n")
     print("| throughput | ms per frame (mean) | median ms | fps | / bare inference |")
     print("|---|---|---|---|---|")
