@@ -5,11 +5,20 @@ from __future__ import annotations
 
 import socket
 import subprocess
+import sys
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import TypeVar
 
 T = TypeVar("T")
+
+
+def run_monitor(*args: object, timeout: float = 120, cwd: Path | None = None
+                ) -> subprocess.CompletedProcess:
+    """``python -m monitor ARGS`` in a fresh process (what a user types), output as text."""
+    return subprocess.run([sys.executable, "-m", "monitor", *map(str, args)], cwd=cwd,
+                          capture_output=True, text=True, timeout=timeout)
 
 
 def free_port(kind: int = socket.SOCK_STREAM) -> int:

@@ -11,11 +11,9 @@ import numpy as np
 import pytest
 
 from monitor.scene import Figure, draw_figure
+from tests.helpers import run_monitor
 
-
-def run(*args: str, timeout: float = 120) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "monitor", *args], capture_output=True,
-                          text=True, timeout=timeout)
+run = run_monitor
 
 
 def one_line_error(proc: subprocess.CompletedProcess) -> str:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import subprocess
-import sys
 from pathlib import Path
 
 import cv2
@@ -13,6 +12,7 @@ import pytest
 from monitor import cli
 from monitor import geometry as geo
 from monitor import zones as zn
+from tests.helpers import run_monitor
 
 DEMO = Path(__file__).resolve().parents[1] / "zones" / "demo-cell.yaml"
 ROOT = Path(__file__).resolve().parents[1]
@@ -21,8 +21,7 @@ ROOT = Path(__file__).resolve().parents[1]
 def run(*args: str, cwd: Path) -> subprocess.CompletedProcess:
     """One ``monitor zones ...`` command in a fresh process (the zone commands' own entry point,
     the same ``register`` the ``monitor`` command uses)."""
-    return subprocess.run([sys.executable, "-m", "monitor", "zones", *args], cwd=cwd,
-                          capture_output=True, text=True, timeout=60)
+    return run_monitor("zones", *args, cwd=cwd, timeout=60)
 
 
 def ok(*args: str, cwd: Path) -> str:

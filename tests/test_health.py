@@ -9,8 +9,6 @@ default HealthConfig: blinded at once, frozen after 1.0 s, moved after the next 
 from __future__ import annotations
 
 import math
-import subprocess
-import sys
 
 import cv2
 import numpy as np
@@ -33,6 +31,7 @@ from monitor.health import (
     load_reference,
 )
 from monitor.scene import DemoScene, Figure, draw_figure, write_video
+from tests.helpers import run_monitor
 
 FPS = 15.0
 SHELF = np.array([[1000, 120], [1200, 120], [1200, 300], [1000, 300]], float)
@@ -342,9 +341,7 @@ def test_person_walking_through_watch_zone_raises_nothing(reference):
 
 # --- reference capture (real subprocess, real files) --------------------------------------------
 
-def _cli(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "monitor", *args], capture_output=True,
-                          text=True, timeout=120)
+_cli = run_monitor
 
 
 def test_reference_capture_accepts_a_deliberate_change(demo, reference, tmp_path):

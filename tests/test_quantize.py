@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import re
 import subprocess
-import sys
 from pathlib import Path
 
 import cv2
@@ -19,14 +18,14 @@ from monitor import quantize
 from monitor.accuracy import Accuracy, cell_tolerance_px, score_frame
 from monitor.detector import Detector
 from monitor.scene import random_frames
+from tests.helpers import run_monitor
 from tests.onnx_models import bright_squares, yolov8_like
 
 SIZE = (768, 432)  # small frames, 256 model input: the tests stay quick
 
 
-def run(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "monitor", *map(str, args)],
-                          capture_output=True, text=True, timeout=timeout)
+def run(*args: object, timeout: float = 300) -> subprocess.CompletedProcess:
+    return run_monitor(*args, timeout=timeout)  # quantizing takes longer than other commands
 
 
 def one_line_error(proc: subprocess.CompletedProcess) -> str:

@@ -21,7 +21,7 @@ from monitor.policy import RUN, SLOW, STOP, PolicyConfig
 from monitor.replay import ReplaySettings, replay
 from monitor.scene import DEMO_CAMERA, DemoScene, FrameTruth, write_video
 from monitor.zones import Cell, check_persons, load_cell
-from tests.helpers import assert_one_line_error
+from tests.helpers import assert_one_line_error, run_monitor
 from tests.videos import faststart
 
 # The demo walk sampled at 7.5 fps (`monitor demo` writes 15 fps): same path, camera and zones,
@@ -48,9 +48,6 @@ EARLY_SLOW_FRAMES = math.ceil(2.0 * DEMO_FPS)
 CLEAR_TIME = PolicyConfig().clear_time
 
 
-def run_monitor(*args: str | Path, timeout: float = 120) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "monitor", *map(str, args)],
-                          capture_output=True, text=True, timeout=timeout)
 
 
 @dataclass(frozen=True)

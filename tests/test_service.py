@@ -8,12 +8,9 @@ import http.server
 import json
 import signal
 import socket
-import subprocess
-import sys
 import threading
 import time
 import urllib.request
-from pathlib import Path
 
 import cv2
 import pytest
@@ -24,7 +21,7 @@ from monitor.policy import PolicyConfig
 from monitor.resets import signed_reset
 from monitor.scene import DemoScene
 from monitor.zones import load_cell
-from tests.helpers import assert_one_line_error, free_port
+from tests.helpers import assert_one_line_error, free_port, run_monitor
 from tests.processes import Service, codes, wait_for
 
 POLICY = PolicyConfig()
@@ -195,9 +192,6 @@ def test_camera_loss_stops_at_once_then_frames_reset_and_clear_time_give_run(
 
 # --- bad monitor.toml and files: one line, exit 2, no traceback -------------------------------
 
-def run_monitor(*args: str | Path) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "monitor", *map(str, args)],
-                          capture_output=True, text=True, timeout=60)
 
 
 
