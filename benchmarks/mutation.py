@@ -146,6 +146,9 @@ EQUIVALENT: dict[str, str] = {
     # the pipeline's timer step and confirm-clear (monitor/pipeline.py)
     "monitor.pipeline.xǁPipelineǁtick__mutmut_11":
         "with_frame=None vs False: it is only read for truth",
+    "monitor.pipeline.xǁPipelineǁ_inputs__mutmut_66":
+        "the zone report handed in on a tick too: the policy reads zone_report only when the "
+        "step has a frame (frame_time set), and a tick has none",
     "monitor.pipeline.xǁPipelineǁ_confirm_clear__mutmut_6":
         "break vs continue on a camera without a tracker: every camera gets one in __init__",
     "monitor.boxes.x_merge_boxes__mutmut_12":
