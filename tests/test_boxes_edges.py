@@ -133,3 +133,15 @@ def test_the_default_thresholds_without_touch_merge_strong_overlaps_only() -> No
     assert len(merge_boxes(overlap, np.array([0.9, 0.8]), touch_px=-1)[0]) == 1
     weak = b([0, 0, 10, 10], [6, 0, 16, 10])  # IoU 0.25, IoS 0.4: two persons side by side
     assert len(merge_boxes(weak, np.array([0.9, 0.8]), touch_px=-1)[0]) == 2
+
+
+def test_the_default_iou_rule_merges_just_above_one_half_and_not_below():
+    """Equal boxes sliding apart, merging by touch off: at IoU 0.515 (overlap over the smaller
+    box 0.68, below its 0.7 rule) only the default IoU threshold (0.5) merges them; at IoU 0.49
+    (overlap 0.66) nothing does."""
+    scores = np.array([0.9, 0.8])
+    above = np.array([[0.0, 0.0, 100.0, 100.0], [32.0, 0.0, 132.0, 100.0]])
+    below = np.array([[0.0, 0.0, 100.0, 100.0], [34.0, 0.0, 134.0, 100.0]])
+    merged, _ = merge_boxes(above, scores, touch_px=-1)
+    assert merged.tolist() == [[0.0, 0.0, 132.0, 100.0]]
+    assert len(merge_boxes(below, scores, touch_px=-1)[0]) == 2
