@@ -73,6 +73,8 @@ class CameraSource:
     """A local camera by index (V4L2 on Linux). ``capture_time`` is the monotonic clock when
     ``read()`` returned. ``request_size`` asks the driver for a resolution (it may refuse)."""
 
+    read_failure = "read failed (camera disconnected?)"  # the loss as the user sees it
+
     def __init__(self, index: int, camera_id: str, *, request_size: Size | None = None,
                  backend: int = cv2.CAP_ANY, clock: Clock = time.monotonic):
         self.index = index
@@ -109,7 +111,7 @@ class CameraSource:
             raise InputError(f"{self.description}: not open")
         ok, image = self._cap.read()
         if not ok or image is None:
-            raise InputError(f"{self.description}: read failed (camera disconnected?)")
+            raise InputError(f"{self.description}: {self.read_failure}")
         return _stamped(image, self.camera_id, self._next_seq(), self.clock())
 
     def _next_seq(self) -> int:
@@ -126,6 +128,8 @@ class StreamSource(CameraSource):
     """An RTSP/HTTP/... stream through OpenCV's FFmpeg backend, with open and read timeouts so a
     dead network camera raises instead of blocking. RTSP over TCP: set the environment variable
     ``OPENCV_FFMPEG_CAPTURE_OPTIONS=rtsp_transport;tcp`` before start."""
+
+    read_failure = "stream lost (read failed or timed out)"
 
     def __init__(self, url: str, camera_id: str, *, open_timeout_s: float = 5.0,
                  read_timeout_s: float = 5.0, clock: Clock = time.monotonic):
@@ -148,13 +152,6 @@ class StreamSource(CameraSource):
         self.fps = fps if math.isfinite(fps) and fps > 0 else None
         self._cap = cap
 
-    def read(self) -> Frame | None:
-        if self._cap is None:
-            raise InputError(f"{self.description}: not open")
-        ok, image = self._cap.read()
-        if not ok or image is None:
-            raise InputError(f"{self.description}: stream lost (read failed or timed out)")
-        return _stamped(image, self.camera_id, self._next_seq(), self.clock())
 
 
 def _stamped(image: np.ndarray, camera_id: str, seq: int, t: float) -> Frame:
