@@ -97,6 +97,51 @@ def test_a_camera_that_falls_silent_stops_the_cell(pipeline):
     assert t - cam1_last <= POLICY.max_frame_age + 0.05 + 1e-9  # within one frame of the limit
 
 
+@pytest.mark.parametrize("requires_reset", [False, True], ids=["default", "startup_requires_reset"])
+def test_a_camera_late_at_start_up_never_latches_unless_configured(tmp_path, detector,
+                                                                   requires_reset):
+    """A restart of a two-camera cell (manual interlock): cam1 delivers 0.5 s after cam0. Its
+    wait is a STOP, but like the start-up STOP it does not latch, so the cell reaches RUN
+    without an operator (with ``startup_requires_reset`` it waits for one)."""
+    policy = PolicyConfig(clear_time=0.3, restart_interlock="manual", max_frame_age=0.3,
+                          startup_requires_reset=requires_reset)
+    pipe = Pipeline(detector, ["cam0", "cam1"], policy, load_cell(two_camera_cell(tmp_path)))
+    t, results = 0.0, []
+    for i in range(10):  # cam0 alone: cam1 is waiting
+        t += 0.05
+        results.append(step(pipe, "cam0", i, t, empty_frame(i)))
+    assert "camera_waiting" in {r.fault for r in results[-1].command.reasons}
+    assert results[-1].command.state == "STOP"
+    for i in range(10, 40):  # both deliver an empty cell
+        t += 0.05
+        results.append(step(pipe, ("cam0", "cam1")[i % 2], i, t, empty_frame(i)))
+    final = results[-1].command
+    if requires_reset:
+        assert final.state == "STOP" and final.latched
+    else:
+        assert final.state == "RUN" and not final.latched
+        assert not any(r.command.latched for r in results)
+
+
+def test_a_person_seen_by_the_late_camera_at_start_up_latches(tmp_path, detector):
+    """The non-latching wait never hides a person: the late camera's first frame shows one in
+    the protective zone, and that STOP latches as usual."""
+    policy = PolicyConfig(clear_time=0.3, restart_interlock="manual", max_frame_age=0.3)
+    pipe = Pipeline(detector, ["cam0", "cam1"], policy, load_cell(two_camera_cell(tmp_path)))
+    t = 0.0
+    for i in range(6):
+        t += 0.05
+        step(pipe, "cam0", i, t, empty_frame(i))
+    t += 0.05
+    seen = step(pipe, "cam1", 6, t, person_in_protective_zone())
+    assert seen.command.state == "STOP" and seen.command.latched
+    assert "protective_zone" in codes_of(seen)
+    for i in range(7, 30):  # the person leaves: the latch holds until a reset
+        t += 0.05
+        result = step(pipe, ("cam0", "cam1")[i % 2], i, t, empty_frame(i))
+    assert result.command.state == "STOP" and result.command.latched
+
+
 def codes_of(result) -> set[str]:
     return {r.code for r in result.command.reasons}
 

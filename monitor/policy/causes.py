@@ -114,6 +114,18 @@ def fail_safe_causes(inputs: PolicyInputs, now: float, config: PolicyConfig,
     return tuple(causes)
 
 
+# Faults that only say the monitor has not started watching yet (a camera of several that has
+# not delivered its first frame): a STOP like the start-up one, and like it never latched by
+# the manual interlock (unless ``startup_requires_reset``), so a restart of a multi-camera cell
+# never waits for an operator. A latching fault (``Fault.latch``) still latches.
+STARTUP_FAULTS = frozenset({"camera_waiting"})
+
+
+def is_startup(reason: Reason) -> bool:
+    """The start-up STOP or a camera still waiting for its first frame."""
+    return reason.code == "startup" or (reason.code == "fault" and reason.fault in STARTUP_FAULTS)
+
+
 def stops(fault: Fault) -> bool:
     """A latching fault is a STOP fault even if it forgot to say so."""
     return fault.stop or fault.latch

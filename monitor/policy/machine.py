@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 
-from monitor.policy.causes import FrameCauses, fail_safe_causes, frame_causes
+from monitor.policy.causes import FrameCauses, fail_safe_causes, frame_causes, is_startup
 from monitor.policy.model import (
     LEVEL_OF,
     RUN,
@@ -39,7 +39,8 @@ CONFIRM_CLEAR_HINT = ("wait until the person is seen leaving, or `monitor reset 
 def latch(current: Latch | None, stop_causes: tuple[Reason, ...], faults: tuple[Fault, ...],
           now: float, config: PolicyConfig) -> Latch | None:
     """The latch after this step's causes. Manual interlock: any STOP cause but the start-up
-    one latches (that one too with ``startup_requires_reset``). A fault with ``latch=True``
+    one latches (that one and a camera waiting for its first frame too with
+    ``startup_requires_reset``). A fault with ``latch=True``
     latches always. An existing latch keeps its first cause."""
     if current is not None:
         return current
@@ -50,7 +51,7 @@ def latch(current: Latch | None, stop_causes: tuple[Reason, ...], faults: tuple[
     if config.restart_interlock != "manual":
         return None
     for r in stop_causes:
-        if r.code != "startup" or config.startup_requires_reset:
+        if not is_startup(r) or config.startup_requires_reset:
             return Latch(r.code, r.message, now, r.zone_id, r.person)
     return None
 
