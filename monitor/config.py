@@ -70,6 +70,9 @@ class CameraConfig:
 @section("model")
 class ModelConfig:
     path: ConfigPath = None  # None: the synthetic model (built on first use)
+    # The synthetic model detects only the demo's test figures: on a live camera or stream it is
+    # refused unless this says the bench is meant (then log, status and commands say so).
+    allow_test_model: Bool = False
 
 
 @section("zones")

@@ -27,6 +27,7 @@ from pathlib import Path
 
 from monitor.bus import BusConfig, SafetyBus
 from monitor.config import DEMO_SOURCE, MonitorConfig, demo_cell_path, load_config
+from monitor.detector.test_model import TEST_MODEL_REASON, require_real_model
 from monitor.driver import (
     Driver,
     Step,
@@ -118,7 +119,8 @@ STATE_LEVEL = {"RUN": 0, "SLOW": 1, "STOP": 2}
 
 
 def build_pipeline(config: MonitorConfig):
-    """Model, zones, health checker and pipeline from a validated config (I/O: files only)."""
+    """Model, zones, health checker and pipeline from a validated config (I/O: files only);
+    also the warning to carry when the synthetic test model is allowed on a live camera."""
     from monitor.detector import Detector
     from monitor.health import CameraHealth, load_reference
     from monitor.models import synthetic
@@ -147,11 +149,13 @@ def build_pipeline(config: MonitorConfig):
         require_separation_ready(cell)
     model = Path(config.model.path) if config.model.path else synthetic.ensure_model()
     detector = Detector(model, config.detector)  # one model, shared by the cameras in turn
+    test_model = require_real_model(detector.test_model, config.cameras,
+                                    config.model.allow_test_model)
     pipeline = Pipeline(detector, [c.id for c in config.cameras], config.policy, cell, health)
     if config.policy.separation_monitoring:
         # T_r is never smaller than the delays this configuration lets pass (ISO/TS 15066)
         pipeline.prepared = with_reaction_time(pipeline.prepared, reaction_budget(config))
-    return pipeline, cell, expected
+    return pipeline, cell, expected, test_model
 
 
 def reaction_budget(config: MonitorConfig) -> ReactionBudget:
@@ -193,7 +197,7 @@ def _run(config_path, log_json: bool, duration: float | None, signals: StopSigna
     config = load_config(config_path)
     if log_json is False and config.service.log_json:
         setup_logging(True)
-    pipeline, cell, expected = build_pipeline(config)
+    pipeline, cell, expected, test_model = build_pipeline(config)
     if stop.is_set():  # told to stop while the model loaded: nothing opened yet
         event("stopped before start")
         return 0
@@ -204,6 +208,8 @@ def _run(config_path, log_json: bool, duration: float | None, signals: StopSigna
     warning = protective_warning(cell)
     if warning:
         event(warning, logging.WARNING)
+    if test_model:
+        event(test_model, logging.WARNING)
     if config.bus.allow_unsigned_resets:
         event("resets are accepted without an operator key (embedded demo on 127.0.0.1, or "
               "allow_unsigned_resets = true): not for a production cell", logging.WARNING)
@@ -219,9 +225,11 @@ def _run(config_path, log_json: bool, duration: float | None, signals: StopSigna
                   listen=",".join(bus.config.listen), connect=",".join(bus.config.connect))
             if warning:
                 bus.update_status(protective_zone=False, warning=warning)
+            if test_model:
+                bus.update_status(test_model=test_model)
             try:
                 _serve(config, pipeline, bus, expected, metrics, stop, duration,
-                       LatestFrameGrabber, SourceOptions, open_source)
+                       LatestFrameGrabber, SourceOptions, open_source, test_model)
             finally:
                 forget()
             event("shutting down: final STOP published")
@@ -238,7 +246,7 @@ def shutdown_forced() -> Command:
 
 def _serve(config: MonitorConfig, pipeline: Pipeline, bus: SafetyBus, expected: dict, metrics,
            stop: threading.Event, duration: float | None, grabber_cls, options_cls,
-           open_source) -> None:
+           open_source, test_model: str | None = None) -> None:
     pose = bus.pose_subscriber() if config.policy.separation_monitoring else None
     if pose is not None:
         pose.__enter__()
@@ -251,7 +259,7 @@ def _serve(config: MonitorConfig, pipeline: Pipeline, bus: SafetyBus, expected: 
                                  options=options_cls(loop=cam.loop), stop=stop)
             grabbers.append(grabber_cls(source, stop=stop,
                                         expected_size=expected[cam.id]).start())
-        sink = ServiceSink(bus, metrics, grabbers)
+        sink = ServiceSink(bus, metrics, grabbers, notice=test_model)
         feed = LiveFeed(grabbers, bus, pose, config.service.tick_s, stop, duration,
                         sink.alert, pipeline.prepared)
         driver = Driver(pipeline, [sink], stall_after_s=config.policy.frame_timeout,
@@ -369,8 +377,11 @@ class ServiceSink:
     first), alerts on the bus and in the log, the log line of each command change and stall,
     the status queryable and the Prometheus gauges once a second."""
 
-    def __init__(self, bus: SafetyBus, metrics: Metrics, grabbers: list) -> None:
+    def __init__(self, bus: SafetyBus, metrics: Metrics, grabbers: list,
+                 notice: str | None = None) -> None:
         self.bus = bus
+        # said in every command's reasons (the synthetic test model on a live camera)
+        self.notice = Reason(TEST_MODEL_REASON, notice) if notice else None
         self.metrics = metrics
         self.grabbers = grabbers
         self.frame_times: deque[float] = deque(maxlen=30)
@@ -379,9 +390,12 @@ class ServiceSink:
 
     def on_step(self, step: Step) -> None:
         result = step.result
+        cmd = result.command
+        if self.notice is not None:
+            cmd = dataclasses.replace(cmd, reasons=(*cmd.reasons, self.notice))
         # the safety message first, dashboards after; a command that waited past the bus's
         # stall_timeout since its decision (the process froze) goes out as a STOP instead
-        self.bus.publish_command(result.command, decided_at=step.decided_at)
+        self.bus.publish_command(cmd, decided_at=step.decided_at)
         if step.frame is not None:
             # the body's "frame" holds camera, seq, capture time and size (no override here)
             self.bus.publish_detections(result.persons, result.zone_report)
@@ -390,7 +404,6 @@ class ServiceSink:
         if step.stalled_s is not None:
             event("monitor stalled: STOP latched", logging.ERROR, gap_s=round(step.stalled_s, 3))
         if result.changed:
-            cmd = result.command
             describe = getattr(cmd, "describe", None)
             event(f"command {cmd.state}", logging.WARNING if cmd.state != "RUN" else logging.INFO,
                   speed_scale=cmd.speed_scale, latched=cmd.latched,

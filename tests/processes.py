@@ -50,7 +50,8 @@ class Service:
     """`monitor run --config <tmp>/monitor.toml --log-json` and a Zenoh peer in this process
     connected to it, recording commands, detections and the liveliness token."""
 
-    def __init__(self, tmp: Path, model: Path, camera: str, extra: str = "") -> None:
+    def __init__(self, tmp: Path, model: Path, camera: str, extra: str = "",
+                 allow_test_model: bool = False) -> None:
         self.bus_port, self.metrics_port = free_port(), free_port()
         self.keys = BusKeys.of("workcell/t5/")
         # a real operator key: the monitor refuses unsigned resets from a config file
@@ -63,7 +64,8 @@ class Service:
         self.config.write_text(
             f'[camera]\nsource = "{camera}"\n'
             f'[model]\npath = "{model}"\n'
-            f'[bus]\ncell = "t5"\ninstance = "svc-test"\noperators_file = "operators"\n'
+            + ("allow_test_model = true\n" if allow_test_model else "")
+            + f'[bus]\ncell = "t5"\ninstance = "svc-test"\noperators_file = "operators"\n'
             f'listen = ["tcp/127.0.0.1:{self.bus_port}"]\n'
             f'[service]\nmetrics_port = {self.metrics_port}\n' + extra)
         self.stderr_path = tmp / "service.log"

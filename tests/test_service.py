@@ -145,12 +145,19 @@ def test_camera_loss_stops_at_once_then_frames_reset_and_clear_time_give_run(
         tmp_path, synthetic_model):
     with MjpegCamera(demo_jpegs()) as camera, \
             Service(tmp_path, synthetic_model, camera.url,  # no zone file: none apply
-                    "[zones]\nallow_no_protective = true\n") as svc:
+                    "[zones]\nallow_no_protective = true\n", allow_test_model=True) as svc:
         i_run, _ = svc.next_command(0, lambda c: c["state"] == "RUN", 60, "RUN")
         wait_for(lambda: len(svc.detections) >= 3, 10, "detections", svc)
         status = svc.status()  # said at start and in status: no person can cause a STOP here
         assert status["protective_zone"] is False and "allow_no_protective" in status["warning"]
+        # the test model on a live stream, allowed: status, log and every command say so
+        assert "TEST model" in status["test_model"] and camera.url in status["test_model"]
+        # every command the policy decided (the bus's own "not decided yet" STOP before the
+        # first step is the only one without it)
+        decided = [c for c in svc.commands if codes(c) != {"startup"}]
+        assert decided and all("test_model" in codes(c) for c in decided)
         log = svc.stderr_path.read_text()
+        assert "the synthetic TEST model watches live camera cam0" in log
         assert "no zone file: persons cannot cause STOP" in log
         assert "camera lost" not in log and "camera connected" in log  # no false loss at start
 
@@ -225,6 +232,32 @@ def test_no_protective_zone_refuses_to_start_unless_allowed(tmp_path, synthetic_
                       '[camera]\nsource = "nowhere.mp4"\n')  # another camera, no zone file
     assert_one_line_error(run_monitor("run", "--config", config, "--duration", "1"),
                           "no zone file is given")
+
+
+@pytest.mark.parametrize("source", ["0", "rtsp://127.0.0.1:1/cam", "http://127.0.0.1:1/cam.mjpg"],
+                         ids=["camera-index", "rtsp", "http"])
+def test_the_test_model_on_a_live_camera_refuses_to_start(tmp_path, synthetic_model, source):
+    """The synthetic model sees only the demo's magenta figures (and its self-test passes on
+    them): on a real camera it would say RUN with a person in the cell. Refused before any
+    camera or bus opens, the one line naming the way out."""
+    config = tmp_path / "monitor.toml"
+    config.write_text(f'[model]\npath = "{synthetic_model}"\n[camera]\nsource = "{source}"\n'
+                      f'[zones]\nfile = "{demo_cell_path()}"\n'
+                      f'[bus]\nlisten = ["tcp/127.0.0.1:{free_port()}"]\n')
+    assert_one_line_error(run_monitor("run", "--config", config, "--duration", "1"),
+                          "synthetic test model", "camera cam0", "allow_test_model = true")
+
+
+def test_model_info_names_the_synthetic_model_a_test_model(synthetic_model, tmp_path):
+    info = run_monitor("model", "info", "--model", synthetic_model)
+    assert info.returncode == 0, info.stderr
+    line = [x for x in info.stdout.splitlines() if x.startswith("test_model")]
+    assert line and "TEST model" in line[0] and "never a real person" in line[0]
+    from tests.onnx_models import yolov8_like  # any other model: no such line
+
+    other = run_monitor("model", "info", "--model", yolov8_like(tmp_path / "other.onnx"))
+    assert other.returncode == 0 and "layout" in other.stdout, other.stderr
+    assert not [x for x in other.stdout.splitlines() if x.startswith("test_model")]
 
 
 def test_missing_config_file_and_taken_metrics_port(tmp_path, synthetic_model):

@@ -57,6 +57,7 @@ from monitor.detector.preprocess import Letterbox, Letterboxer, letterbox
 from monitor.detector.selftest import SelfTestCase, builtin_case, load_case
 from monitor.detector.selftest import check as check_self_test
 from monitor.detector.session import open_session
+from monitor.detector.test_model import TEST_MODEL_NOTE
 from monitor.errors import DetectorError, InputError
 from monitor.types import Fault, FrameInfo, Persons
 
@@ -95,6 +96,10 @@ class Detector:
         if self.warning:
             log.warning("%s: %s", self.model_path.name, self.warning)
         self.output_names = [o.name for o in self.session.get_outputs()]
+        # the synthetic model: finds only the magenta test figures of monitor.scene, never a
+        # real person (see monitor/detector/test_model.py)
+        meta = self.session.get_modelmeta().custom_metadata_map or {}
+        self.test_model = "synthetic_weights" in meta
         self._letterbox = Letterboxer(self.layout)
         self.self_test_case = self._self_test_case()
         self._self_test_letterbox: Letterboxer | None = None
@@ -267,6 +272,7 @@ def describe(detector: Detector) -> dict:
         params = -1
     return {
         "model": str(detector.model_path),
+        **({"test_model": TEST_MODEL_NOTE} if detector.test_model else {}),
         "layout": layout.kind,
         "input": f"{layout.input_width}x{layout.input_height}",
         "input_order": ("NHWC" if layout.input_nhwc else "NCHW")
