@@ -45,6 +45,7 @@ from __future__ import annotations
 import collections
 import contextlib
 import json
+import logging
 import threading
 import time
 from collections.abc import Callable
@@ -68,6 +69,8 @@ from monitor.resets import RESET_SCHEMA, ResetGate, ResetPolicy, ResetRefused, r
 from monitor.signals import close_bounded
 from monitor.signing import Signer, load_operators, load_private_key
 from monitor.types import Alert, Fault, Persons, ZoneReport
+
+_log = logging.getLogger("monitor.bus")
 
 __all__ = ["COMMAND_SCHEMA", "MODES", "RESET_SCHEMA", "BusConfig", "BusKeys", "CommandWatchdog",
            "DuplicateMonitor", "SafetyBus", "Verdict", "_zenoh_error", "default_instance",
@@ -383,6 +386,10 @@ class SafetyBus:
             with self._lock:
                 if self._published is None or self._published.state != STOP:
                     self._published = cmd
+                    # consumers STOP now: the monitor's own log says so too (once a stall)
+                    _log.warning("bus: STOP stalled: the pipeline handed in no command for "
+                                 "%.2f s (bus.stall_timeout %g s)", now - when,
+                                 self.config.stall_timeout)
             return cmd
         return Command(latest.state, latest.speed_scale, latest.reasons, latest.since,
                        latest.latched)

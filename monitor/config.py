@@ -15,7 +15,7 @@ import dataclasses
 import tomllib
 from dataclasses import field
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 from pydantic import (
     AfterValidator,
@@ -65,6 +65,10 @@ class CameraConfig:
     reference: ConfigPath = None  # commissioning image for the "moved" and defocus checks
     realtime: Bool = True  # pace files and synthetic scenes at their frame rate
     loop: Bool = True  # loop files and synthetic scenes (a service runs until stopped)
+    # process this camera at most this often (frames a second); None: as fast as frames come.
+    # Its newest processed frame is then up to 1/max_fps old: the start-up capacity check
+    # refuses a rate too low for [policy] max_frame_age, and rates the host cannot process.
+    max_fps: Annotated[Float, Field(gt=0, le=1000)] | None = None
 
 
 @section("model")
@@ -91,6 +95,10 @@ class ServiceConfig:
     log_json: Bool = False
     # policy timers are evaluated at least this often without frames
     tick_s: Annotated[Float, Field(gt=0, le=1.0)] = 0.05
+    # At start the detector is timed on each camera's frame size and compared with the policy's
+    # and the bus's limits (monitor/capacity.py): "refuse" a host that cannot watch the cell in
+    # time, "warn" only, or "off".
+    capacity_check: Literal["refuse", "warn", "off"] = "refuse"
 
 
 def _cameras(value: Any) -> Any:

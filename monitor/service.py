@@ -26,6 +26,8 @@ from collections import deque
 from pathlib import Path
 
 from monitor.bus import BusConfig, SafetyBus
+from monitor.capacity import CameraDemand, Limits
+from monitor.capacity import check as capacity_check
 from monitor.config import DEMO_SOURCE, MonitorConfig, demo_cell_path, load_config
 from monitor.detector.test_model import TEST_MODEL_REASON, require_real_model
 from monitor.driver import (
@@ -158,6 +160,17 @@ def build_pipeline(config: MonitorConfig):
     return pipeline, cell, expected, test_model
 
 
+def check_capacity(config: MonitorConfig, detector, expected: dict, mode: str,
+                   stopped=lambda: False):
+    """Time the detector on each camera's frame size (the zone file's, else 1920x1080) and
+    refuse (or warn about) a host that cannot watch the cell within the limits."""
+    demands = [CameraDemand(c.id, *(expected.get(c.id) or (1920, 1080)), c.max_fps)
+               for c in config.cameras]
+    limits = Limits(config.policy.frame_timeout, config.policy.max_frame_age,
+                    config.bus.stall_timeout)
+    return capacity_check(detector.detect, demands, limits, mode, stopped)
+
+
 def reaction_budget(config: MonitorConfig) -> ReactionBudget:
     """The worst-case delays of this configuration (seconds): a frame may arrive as late as
     ``frame_timeout`` before the cell STOPs anyway, be ``max_frame_age`` old when decided on, a
@@ -198,6 +211,10 @@ def _run(config_path, log_json: bool, duration: float | None, signals: StopSigna
     if log_json is False and config.service.log_json:
         setup_logging(True)
     pipeline, cell, expected, test_model = build_pipeline(config)
+    # the embedded demo only warns: it is a demonstration, not a cell
+    capacity = check_capacity(config, pipeline.detector, expected,
+                              "warn" if config_path is None else config.service.capacity_check,
+                              stop.is_set)
     if stop.is_set():  # told to stop while the model loaded: nothing opened yet
         event("stopped before start")
         return 0
@@ -210,6 +227,10 @@ def _run(config_path, log_json: bool, duration: float | None, signals: StopSigna
         event(warning, logging.WARNING)
     if test_model:
         event(test_model, logging.WARNING)
+    if capacity is not None:
+        event(capacity.describe())
+        for line in capacity.warnings:
+            event(f"capacity: {line}", logging.WARNING)
     if config.bus.allow_unsigned_resets:
         event("resets are accepted without an operator key (embedded demo on 127.0.0.1, or "
               "allow_unsigned_resets = true): not for a production cell", logging.WARNING)
@@ -227,6 +248,8 @@ def _run(config_path, log_json: bool, duration: float | None, signals: StopSigna
                 bus.update_status(protective_zone=False, warning=warning)
             if test_model:
                 bus.update_status(test_model=test_model)
+            if capacity is not None:
+                bus.update_status(capacity=capacity.to_dict())
             try:
                 _serve(config, pipeline, bus, expected, metrics, stop, duration,
                        LatestFrameGrabber, SourceOptions, open_source, test_model)
@@ -261,7 +284,8 @@ def _serve(config: MonitorConfig, pipeline: Pipeline, bus: SafetyBus, expected: 
                                         expected_size=expected[cam.id]).start())
         sink = ServiceSink(bus, metrics, grabbers, notice=test_model)
         feed = LiveFeed(grabbers, bus, pose, config.service.tick_s, stop, duration,
-                        sink.alert, pipeline.prepared)
+                        sink.alert, pipeline.prepared,
+                        max_fps={c.id: c.max_fps for c in config.cameras})
         driver = Driver(pipeline, [sink], stall_after_s=config.policy.frame_timeout,
                         self_test_period_s=getattr(config.detector, "self_test_period_s", None))
         # cameras whose frames are ready together share one inference (dynamic-batch models)
@@ -286,8 +310,13 @@ class LiveFeed:
     ``tick_s / cameras``, so the policy's timers run without frames."""
 
     def __init__(self, grabbers: list, bus: SafetyBus, pose, tick_s: float,
-                 stop: threading.Event, duration: float | None, alert, prepared=None) -> None:
+                 stop: threading.Event, duration: float | None, alert, prepared=None,
+                 max_fps: dict[str, float | None] | None = None) -> None:
         self.grabbers = grabbers
+        # [camera] max_fps: a camera is taken at most this often (its frames in between wait
+        # in the grabber, which keeps only the newest)
+        self.min_interval = {cid: 1.0 / fps for cid, fps in (max_fps or {}).items() if fps}
+        self.last_taken: dict[str, float] = {}
         # the tool points whose speed bounds the whole tool's (none without a tool)
         self.tool_points = tool_points_in_tracker(prepared) if prepared is not None else None
         self.unknown_speed = (prepared.separation.robot_speed_default_mps
@@ -320,15 +349,25 @@ class LiveFeed:
         n = len(self.grabbers)
         first = self.turn % n
         self.turn += 1
-        frames = []
+        frames, waited = [], False
         for k in range(n):
             grabber = self.grabbers[(first + k) % n]
-            frame = grabber.get(timeout=self.wait if k == 0 else 0.0)
+            if not self._due(grabber.camera_id):
+                continue
+            frame = grabber.get(timeout=0.0 if waited else self.wait)
+            waited = True
             if frame is not None:
                 frames.append(frame)
-        if not frames and not any(g.alive for g in self.grabbers):
-            self.stop.wait(self.wait)  # every source ended: get() no longer waits
+                self.last_taken[grabber.camera_id] = time.monotonic()
+        if not frames and (not waited or not any(g.alive for g in self.grabbers)):
+            # every camera throttled by max_fps, or every source ended (get() no longer waits)
+            self.stop.wait(self.wait)
         return frames, time.monotonic()
+
+    def _due(self, camera_id: str) -> bool:
+        interval = self.min_interval.get(camera_id)
+        last = self.last_taken.get(camera_id)
+        return interval is None or last is None or time.monotonic() - last >= interval
 
     def inputs(self, now: float) -> StepInputs:
         resets = self.bus.poll_resets()

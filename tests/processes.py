@@ -20,6 +20,11 @@ from monitor.config import demo_cell_path
 from monitor.scene import DemoScene
 from tests.helpers import free_port
 
+# The tests run beside other tests and load (benchmarks/suite_under_load.py): the start-up
+# capacity check only warns here, as a slow CI machine is not what these tests are about
+# (tests/test_capacity.py tests the check itself).
+CAPACITY = 'capacity_check = "warn"\n'
+
 
 def wait_for(cond: Callable[[], object], timeout: float, what: str, proc=None):
     """Poll until ``cond()`` is truthy; fail with the service's log if it died or timed out."""
@@ -67,7 +72,7 @@ class Service:
             + ("allow_test_model = true\n" if allow_test_model else "")
             + f'[bus]\ncell = "t5"\ninstance = "svc-test"\noperators_file = "operators"\n'
             f'listen = ["tcp/127.0.0.1:{self.bus_port}"]\n'
-            f'[service]\nmetrics_port = {self.metrics_port}\n' + extra)
+            f'[service]\nmetrics_port = {self.metrics_port}\n{CAPACITY}' + extra)
         self.stderr_path = tmp / "service.log"
         self.commands: list[dict] = []
         self.detections: list[dict] = []
@@ -167,6 +172,7 @@ def write_config(tmp: Path, model: Path, extra: str = "") -> tuple[Path, int]:
         f'[camera]\nsource = "{video}"\nloop = true\nrealtime = true\n'
         f'[model]\npath = "{model}"\n'
         f'[zones]\nfile = "{demo_cell_path()}"\n'
+        f'[service]\n{CAPACITY}'
         f'[bus]\ncell = "t6"\ninstance = "shutdown-test"\n'
         f'listen = ["tcp/127.0.0.1:{port}"]\n' + extra)
     return config, port

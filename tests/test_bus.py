@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import logging
 import threading
 import time
 
@@ -167,6 +168,10 @@ def test_commands_carry_the_envelope_and_go_out_on_change(bus_and_listener):
 
 def test_heartbeat_repeats_the_latest_command_and_stops_for_a_stalled_pipeline(bus_and_listener):
     bus, ctl = bus_and_listener
+    records: list[logging.LogRecord] = []
+    handler = logging.Handler()
+    handler.emit = records.append
+    logging.getLogger("monitor.bus").addHandler(handler)
     bus.publish_command(RUN_CMD)
     assert wait_for(lambda: sum(c["heartbeat"] and c["state"] == "RUN"
                                 for c in ctl.commands) >= 3)
@@ -176,6 +181,10 @@ def test_heartbeat_repeats_the_latest_command_and_stops_for_a_stalled_pipeline(b
     last_run = max(c["mono"] for c in ctl.commands if c["state"] == "RUN")
     first_stall = min(c["mono"] for c in ctl.commands if c["state"] == "STOP")
     assert first_stall - last_run <= 0.6 + 2 / 20 + 0.1
+    # the STOP a consumer acts on is in the monitor's own log too, once (not every heartbeat)
+    logging.getLogger("monitor.bus").removeHandler(handler)
+    said = [r.getMessage() for r in records if "STOP stalled" in r.getMessage()]
+    assert len(said) == 1 and "bus.stall_timeout 0.6 s" in said[0]
 
 
 def test_close_sends_stop_shutdown_and_drops_the_liveliness_token():

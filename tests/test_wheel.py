@@ -82,7 +82,9 @@ def test_wheel_installs_and_runs_outside_the_checkout(tmp_path):
 
     # `monitor run` with the demo defaults: synthetic camera, synthetic model, demo zones
     config = elsewhere / "monitor.toml"
-    config.write_text(f'[bus]\nlisten = ["tcp/127.0.0.1:{free_port()}"]\n')
+    # capacity only warns: this test may run beside others on a loaded machine
+    config.write_text(f'[bus]\nlisten = ["tcp/127.0.0.1:{free_port()}"]\n'
+                      '[service]\ncapacity_check = "warn"\n')
     run = _run([str(venv / "bin" / "monitor"), "run", "--config", str(config), "--duration",
                 "3"], elsewhere)
     assert run.returncode == 0, run.stderr[-3000:]

@@ -1,0 +1,126 @@
+"""The start-up capacity check: a host too slow for its config is refused with one line, not
+left to STOP (or flip RUN/STOP on a consumer) all day without saying why."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import yaml
+
+from monitor.capacity import (
+    PIPELINE_FACTOR,
+    READ_S,
+    CameraDemand,
+    Limits,
+    assess,
+    check,
+    measure_detect_s,
+)
+from monitor.config import demo_cell_path
+from monitor.errors import ConfigError
+from tests.helpers import assert_one_line_error, free_port, run_monitor
+
+DEFAULTS = Limits(frame_timeout=0.5, max_frame_age=0.3, stall_timeout=0.5)
+
+
+def cams(n: int, max_fps: float | None = None) -> list[CameraDemand]:
+    return [CameraDemand(f"cam{i}", 1920, 1080, max_fps) for i in range(n)]
+
+
+def test_four_cameras_at_30_fps_on_a_20_ms_model_are_refused_and_lower_rates_start():
+    refused = assess(0.020, cams(4, 30.0), DEFAULTS)
+    assert refused.refusal is not None and "\n" not in refused.refusal
+    assert "ask for 120 frames/s" in refused.refusal
+    frame_s = 0.020 * PIPELINE_FACTOR + READ_S
+    assert math.isclose(refused.frames_per_s, 1 / frame_s)
+    assert "fewer cameras" in refused.refusal and "int8" in refused.refusal
+    assert "lower max_fps" in refused.refusal
+    started = assess(0.020, cams(4, 5.0), DEFAULTS)
+    assert started.refusal is None
+    # cameras in turn: each is processed at most every cycle, here limited by max_fps (0.2 s)
+    assert all(math.isclose(f, 5.0) for f in started.processed_fps.values())
+    assert all(math.isclose(a, 0.2 + frame_s) for a in started.frame_age_s.values())
+
+
+def test_a_cycle_longer_than_frame_timeout_is_refused():
+    verdict = assess(0.120, cams(4), DEFAULTS)  # 4 x 0.165 s = 0.66 s > 0.5 s
+    assert verdict.refusal and "a cycle of 4 camera(s)" in verdict.refusal
+    assert "policy.frame_timeout 500 ms" in verdict.refusal
+
+
+def test_a_max_fps_too_low_for_max_frame_age_is_refused():
+    """One camera processed 2 times a second: its newest frame is 0.5 s old before the next
+    one, which is a frame_stale STOP every time with max_frame_age 0.3 s."""
+    verdict = assess(0.010, cams(1, 2.0), DEFAULTS)
+    assert verdict.refusal and "cam0's frame age" in verdict.refusal
+    assert "policy.max_frame_age 300 ms" in verdict.refusal
+    assert "a higher max_fps" in verdict.refusal
+    assert assess(0.010, cams(1, 5.0), DEFAULTS).refusal is None  # 0.2 s + one frame
+
+
+def test_a_step_longer_than_the_bus_stall_timeout_is_refused():
+    """Else the bus publishes a "stalled" STOP between two decisions: a consumer flips
+    RUN/STOP on every frame (what an integrator saw at 1-2 fps)."""
+    limits = Limits(frame_timeout=5.0, max_frame_age=5.0, stall_timeout=0.5)
+    verdict = assess(0.450, cams(1), limits)
+    assert verdict.refusal and "bus.stall_timeout" in verdict.refusal
+
+
+def test_a_thin_margin_is_a_warning_not_a_refusal():
+    verdict = assess(0.080, cams(1), DEFAULTS)  # age 2 x 0.111 = 0.222 s of 0.3 s
+    assert verdict.refusal is None
+    assert any("thin margin" in w and "max_frame_age" in w for w in verdict.warnings)
+    assert assess(0.010, cams(1), DEFAULTS).warnings == ()
+
+
+@pytest.mark.parametrize("bad", [0.0, -1.0, math.nan, math.inf])
+def test_an_unmeasurable_time_is_an_error_not_a_pass(bad):
+    with pytest.raises(ConfigError, match="could not be measured"):
+        assess(bad, cams(1), DEFAULTS)
+
+
+def test_measured_on_a_real_detector_and_the_modes(detector):
+    detect_s = measure_detect_s(detector.detect, [(1280, 720)], runs=3)
+    assert detect_s is not None and 0 < detect_s < 10
+    assert measure_detect_s(detector.detect, [(1280, 720)], stopped=lambda: True) is None
+    impossible = cams(4, 1000.0)  # 4000 frames/s: no host does that
+    with pytest.raises(ConfigError) as refused:
+        check(detector.detect, impossible, DEFAULTS, "refuse")
+    assert_one_line = str(refused.value)
+    assert "\n" not in assert_one_line and 'capacity_check = "warn"' in assert_one_line
+    warned = check(detector.detect, impossible, DEFAULTS, "warn")
+    assert warned is not None and warned.refusal is None
+    assert "cannot watch the cell in time" in warned.warnings[0]
+    assert check(detector.detect, impossible, DEFAULTS, "off") is None
+
+
+def four_camera_config(tmp_path, model, max_fps: float, extra: str = ""):
+    data = yaml.safe_load(demo_cell_path().read_text())
+    data["cameras"] = [dict(data["cameras"][0], id=f"cam{i}") for i in range(4)]
+    cell = tmp_path / "four.yaml"
+    cell.write_text(yaml.safe_dump(data, sort_keys=False))
+    cameras = "".join(f'[[camera]]\nid = "cam{i}"\nsource = "synthetic:demo"\n'
+                      f'max_fps = {max_fps}\n' for i in range(4))
+    config = tmp_path / "monitor.toml"
+    config.write_text(cameras + f'[model]\npath = "{model}"\n[zones]\nfile = "{cell}"\n'
+                      '[detector]\nthreads = 2\ninput_size = 640\n'
+                      f'[bus]\nlisten = ["tcp/127.0.0.1:{free_port()}"]\n' + extra)
+    return config
+
+
+@pytest.mark.slow
+def test_monitor_run_refuses_a_config_the_host_cannot_serve_and_starts_with_lower_rates(
+        tmp_path, synthetic_model):
+    config = four_camera_config(tmp_path, synthetic_model, 30)
+    assert_one_line_error(run_monitor("run", "--config", config, "--duration", "2"),
+                          "this host cannot watch the cell in time", "ask for 120 frames/s")
+    # the same cell at 1 frame a second per camera, with limits that allow that rate: starts
+    # (limits this loose leave room for a loaded test machine; the pure tests above check
+    # the arithmetic at the defaults)
+    config = four_camera_config(tmp_path, synthetic_model, 1,
+                                "stall_timeout = 1.0\n"
+                                "[policy]\nframe_timeout = 3.0\nmax_frame_age = 2.5\n")
+    started = run_monitor("run", "--config", config, "--duration", "3")
+    assert started.returncode == 0, started.stderr[-2000:]
+    assert "capacity: " in started.stderr and "cam3 1.0 fps" in started.stderr
