@@ -211,10 +211,6 @@ def _run(config_path, log_json: bool, duration: float | None, signals: StopSigna
     if log_json is False and config.service.log_json:
         setup_logging(True)
     pipeline, cell, expected, test_model = build_pipeline(config)
-    # the embedded demo only warns: it is a demonstration, not a cell
-    capacity = check_capacity(config, pipeline.detector, expected,
-                              "warn" if config_path is None else config.service.capacity_check,
-                              stop.is_set)
     if stop.is_set():  # told to stop while the model loaded: nothing opened yet
         event("stopped before start")
         return 0
@@ -227,10 +223,6 @@ def _run(config_path, log_json: bool, duration: float | None, signals: StopSigna
         event(warning, logging.WARNING)
     if test_model:
         event(test_model, logging.WARNING)
-    if capacity is not None:
-        event(capacity.describe())
-        for line in capacity.warnings:
-            event(f"capacity: {line}", logging.WARNING)
     if config.bus.allow_unsigned_resets:
         event("resets are accepted without an operator key (embedded demo on 127.0.0.1, or "
               "allow_unsigned_resets = true): not for a production cell", logging.WARNING)
@@ -248,11 +240,11 @@ def _run(config_path, log_json: bool, duration: float | None, signals: StopSigna
                 bus.update_status(protective_zone=False, warning=warning)
             if test_model:
                 bus.update_status(test_model=test_model)
-            if capacity is not None:
-                bus.update_status(capacity=capacity.to_dict())
             try:
+                # the embedded demo's capacity only warns: a demonstration, not a cell
                 _serve(config, pipeline, bus, expected, metrics, stop, duration,
-                       LatestFrameGrabber, SourceOptions, open_source, test_model)
+                       LatestFrameGrabber, SourceOptions, open_source, test_model,
+                       "warn" if config_path is None else config.service.capacity_check)
             finally:
                 forget()
             event("shutting down: final STOP published")
@@ -269,7 +261,7 @@ def shutdown_forced() -> Command:
 
 def _serve(config: MonitorConfig, pipeline: Pipeline, bus: SafetyBus, expected: dict, metrics,
            stop: threading.Event, duration: float | None, grabber_cls, options_cls,
-           open_source, test_model: str | None = None) -> None:
+           open_source, test_model: str | None = None, capacity_mode: str = "refuse") -> None:
     pose = bus.pose_subscriber() if config.policy.separation_monitoring else None
     if pose is not None:
         pose.__enter__()
@@ -282,6 +274,15 @@ def _serve(config: MonitorConfig, pipeline: Pipeline, bus: SafetyBus, expected: 
                                  options=options_cls(loop=cam.loop), stop=stop)
             grabbers.append(grabber_cls(source, stop=stop,
                                         expected_size=expected[cam.id]).start())
+        # after every file and camera opened (their errors come first), with the grabbers
+        # already decoding: the load the loop will see
+        capacity = check_capacity(config, pipeline.detector, expected, capacity_mode,
+                                  stop.is_set)
+        if capacity is not None:
+            event(capacity.describe())
+            for line in capacity.warnings:
+                event(f"capacity: {line}", logging.WARNING)
+            bus.update_status(capacity=capacity.to_dict())
         sink = ServiceSink(bus, metrics, grabbers, notice=test_model)
         feed = LiveFeed(grabbers, bus, pose, config.service.tick_s, stop, duration,
                         sink.alert, pipeline.prepared,
