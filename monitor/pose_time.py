@@ -92,9 +92,11 @@ class TrackerClock:
         self._learn_lo, self._learn_hi = min(self._learn_lo, offset), max(self._learn_hi, offset)
         if self._learn_hi - self._learn_lo > self.config.max_jump_s:
             r0, t0 = self._learn_start
-            return self._fail(f"tracker time ran {tracker_time - t0:.4g} s in "
-                              f"{received - r0:.4g} s of receive time (max_jump_s "
-                              f"{self.config.max_jump_s:g}; timestamps not in seconds?)",
+            ran, passed = tracker_time - t0, received - r0
+            units = "; timestamps not in seconds?" if abs(ran) > 100 * max(passed, 1e-3) \
+                or abs(ran) < passed / 100 else ""
+            return self._fail(f"tracker time ran {ran:.4g} s in {passed:.4g} s of receive "
+                              f"time (max_jump_s {self.config.max_jump_s:g}{units})",
                               tracker_time, received)
         if received - self._learn_start[0] >= self.config.learn_s:
             # the least delayed pose is the best estimate: delivery only ever adds delay
