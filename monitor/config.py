@@ -2,8 +2,9 @@
 
 One schema (monitor/schema.py): ``MonitorConfig`` is the root, and each section is the frozen
 pydantic dataclass of its stage (``[policy]`` -> PolicyConfig, ``[health]`` -> HealthConfig,
-``[bus]`` -> BusConfig, ``[detector]`` -> DetectorConfig, ``[alerts]`` -> AlertLimits, and the
-camera, model, zones and service sections here). Unknown sections and keys are refused, types
+``[bus]`` -> BusConfig, ``[detector]`` -> DetectorConfig, ``[alerts]`` -> AlertLimits,
+``[tracker_clock]`` -> TrackerClockConfig, and the camera, model, zones and service sections
+here). Unknown sections and keys are refused, types
 and bounds are in the fields' annotations, cross-field rules are validators, and path fields
 resolve against the config file's folder. Validation has no side effects: nothing is opened,
 downloaded or built.
@@ -33,6 +34,7 @@ from monitor.detector import DetectorConfig
 from monitor.errors import ConfigError
 from monitor.health import HealthConfig
 from monitor.policy import PolicyConfig
+from monitor.pose_time import TrackerClockConfig
 from monitor.schema import Bool, ConfigPath, Float, Int, Text, describe, section
 
 DEMO_SOURCE = "synthetic:demo"
@@ -115,6 +117,7 @@ class MonitorConfig:
     zones: ZonesConfig = field(default_factory=ZonesConfig)
     detector: DetectorConfig = field(default_factory=DetectorConfig)
     policy: PolicyConfig = field(default_factory=PolicyConfig)
+    tracker_clock: TrackerClockConfig = field(default_factory=TrackerClockConfig)
     health: HealthConfig = field(default_factory=HealthConfig)
     bus: BusConfig = field(default_factory=lambda: BusConfig(listen=DEMO_LISTEN))
     alerts: AlertLimits = field(default_factory=AlertLimits)
@@ -135,10 +138,11 @@ class MonitorConfig:
         return self.cameras[0]
 
 
-SECTIONS = ("camera", "model", "zones", "detector", "policy", "health", "bus", "alerts",
-            "service")
+SECTIONS = ("camera", "model", "zones", "detector", "policy", "tracker_clock", "health", "bus",
+            "alerts", "service")
 _CLASSES = {"camera": CameraConfig, "model": ModelConfig, "zones": ZonesConfig,
-            "detector": DetectorConfig, "policy": PolicyConfig, "health": HealthConfig,
+            "detector": DetectorConfig, "policy": PolicyConfig,
+            "tracker_clock": TrackerClockConfig, "health": HealthConfig,
             "bus": BusConfig, "alerts": AlertLimits, "service": ServiceConfig}
 
 

@@ -27,6 +27,7 @@ checks every sample again (``PoseSubscriber``): anything may publish on a key.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import socket
@@ -38,6 +39,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from monitor.errors import ConfigError, InputError
+from monitor.pose_time import TrackerClock, TrackerClockConfig
 from monitor.tool_motion import MotionLimits, ToolMotion, ToolSpeed, estimate_tool_speed
 
 OTUS_FORMAT = "<23d"
@@ -352,12 +354,18 @@ class PoseReading:
     age: float  # seconds since ``received`` at the time of the query
     history: tuple[OtusSample, ...] = ()
     motion_limits: MotionLimits = field(default_factory=MotionLimits)
+    clock_fault: object | None = None  # monitor.types.Fault: tracker time disagrees (pose_time)
 
     def tool_speed(self, tool_points: object = None, unknown_mps: float = 0.0) -> ToolSpeed:
         """Speed of the fastest tool point to use for S_p (``estimate_tool_speed``); the
-        service passes ``speed_mps`` as ``tool_speed_mps`` and ``fault`` as an extra fault."""
+        service passes ``speed_mps`` as ``tool_speed_mps`` and ``fault`` as an extra fault.
+        While the tracker's time is in doubt the history is empty (the speed falls back to
+        ``unknown_mps``) and ``fault`` is the clock's."""
         history = self.history or (self.sample,)
-        return estimate_tool_speed(history, tool_points, self.motion_limits, unknown_mps)
+        speed = estimate_tool_speed(history, tool_points, self.motion_limits, unknown_mps)
+        if self.clock_fault is not None:
+            speed = dataclasses.replace(speed, fault=self.clock_fault)
+        return speed
 
     def tool_pose(self):
         """As ``monitor.geometry.ToolPose`` (time = receive time, monotonic s)."""
@@ -371,15 +379,19 @@ class PoseSubscriber:
     accepted sample. Re-checks every sample with its own ``PoseValidator``.
 
     Use as a context manager (undeclares the subscriber on exit); ``latest()`` and
-    ``pose_time()`` are what the service feeds to the policy.
+    ``pose_time()`` are what the service feeds to the policy. Every sample's tracker time is
+    checked against its receive time (``monitor.pose_time``): while it disagrees the speed
+    history stays empty and ``latest().clock_fault`` is a ``pose_implausible`` fault.
     """
 
     def __init__(self, session, key: str, limits: PoseLimits | None = None,
                  clock: Callable[[], float] = time.monotonic,
                  on_reject: Callable[[Rejection], None] | None = None,
-                 motion: MotionLimits | None = None) -> None:
+                 motion: MotionLimits | None = None,
+                 tracker_clock: TrackerClockConfig | None = None) -> None:
         self._session = session
         self._motion = ToolMotion(motion)
+        self._tracker_clock = TrackerClock(tracker_clock or TrackerClockConfig())
         self._key = key
         self._clock = clock
         self._validator = PoseValidator(limits or PoseLimits())
@@ -399,19 +411,27 @@ class PoseSubscriber:
             self._sub = None
 
     def _on_sample(self, zsample) -> None:
-        now = self._clock()
+        self.receive(zsample.payload.to_bytes(), self._clock())
+
+    def receive(self, payload: bytes, now: float) -> None:
+        """One ``tracker/pose`` payload received at ``now`` (this process's clock)."""
         try:
-            sample, _ = pose_from_json(zsample.payload.to_bytes())
+            sample, _ = pose_from_json(payload)
         except PacketError as err:
             with self._lock:
                 bad = self._validator.reject_packet(err)
                 self._rejections.append(bad)
         else:
             with self._lock:
+                # every decoded sample, accepted or not: a step back is seen at the step
+                time_fault = self._tracker_clock.check(sample.timestamp, now)
+                if time_fault is not None:
+                    self._motion.clear()  # no speed window may span the tracker's jump
                 bad = self._validator.check(sample)
                 if bad is None:
                     self._latest = (sample, now)
-                    self._motion.add(sample)
+                    if time_fault is None:
+                        self._motion.add(sample)
                 else:
                     self._rejections.append(bad)
         if bad is not None and self._on_reject is not None:
@@ -423,8 +443,9 @@ class PoseSubscriber:
                 return None
             sample, received = self._latest
             history = self._motion.history()
+            clock_fault = self._tracker_clock.fault
         return PoseReading(sample, received, self._clock() - received, history,
-                           self._motion.limits)
+                           self._motion.limits, clock_fault)
 
     def pose_time(self) -> float | None:
         """Receive time of the newest accepted sample (for ``PolicyInputs.pose_time``)."""
@@ -439,7 +460,8 @@ class PoseSubscriber:
     def stats(self) -> dict:
         with self._lock:
             v = self._validator
-            return {"accepted": v.accepted, "rejected": dict(v.rejected), "resyncs": v.resyncs}
+            return {"accepted": v.accepted, "rejected": dict(v.rejected), "resyncs": v.resyncs,
+                    "clock_faults": self._tracker_clock.faults}
 
 
 # --- UDP bridge -------------------------------------------------------------------------------

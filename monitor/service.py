@@ -262,7 +262,8 @@ def shutdown_forced() -> Command:
 def _serve(config: MonitorConfig, pipeline: Pipeline, bus: SafetyBus, expected: dict, metrics,
            stop: threading.Event, duration: float | None, grabber_cls, options_cls,
            open_source, test_model: str | None = None, capacity_mode: str = "refuse") -> None:
-    pose = bus.pose_subscriber() if config.policy.separation_monitoring else None
+    pose = (bus.pose_subscriber(tracker_clock=config.tracker_clock)
+            if config.policy.separation_monitoring else None)
     if pose is not None:
         pose.__enter__()
     grabbers: list = []

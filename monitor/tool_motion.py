@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from collections import deque
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -39,9 +40,12 @@ class MotionLimits:
     """How the tool speed is measured from the stream and when the reported rates are not
     believed. Metres, seconds, radians.
 
-    ``window_s``: the speed is measured between the newest sample and one at least this much
+    ``window_s``: the speed is measured between the newest sample and ones at least this much
     older (tracker time): at 400 Hz two consecutive samples are 2.5 ms apart and ±1 mm of
-    tracker precision alone would read as 0.8 m/s. ``speed_tolerance_m_s`` and
+    tracker precision alone would read as 0.8 m/s. Every window from ``window_s`` up to the
+    whole history counts (at most ``windows`` of them, spread evenly) and the largest speed
+    wins, so no single window length can alias with the motion. ``max_samples`` bounds the
+    history in samples whatever the timestamps say. ``speed_tolerance_m_s`` and
     ``relative_tolerance``: how far the reported mean velocity over the window may differ from
     the displacement over it; ``angular_tolerance_rad_s`` the same for the rotation.
     """
@@ -51,6 +55,8 @@ class MotionLimits:
     speed_tolerance_m_s: float = 0.15
     angular_tolerance_rad_s: float = 0.5
     relative_tolerance: float = 0.2
+    max_samples: int = 1000  # 0.5 s at 2 kHz
+    windows: int = 32
 
     def __post_init__(self) -> None:
         for name in ("window_s", "history_s", "speed_tolerance_m_s", "angular_tolerance_rad_s"):
@@ -61,6 +67,8 @@ class MotionLimits:
             raise ConfigError("pose.history_s: must be at least window_s")
         if not (math.isfinite(self.relative_tolerance) and self.relative_tolerance >= 0):
             raise ConfigError("pose.relative_tolerance: must be >= 0")
+        if self.max_samples < 2 or self.windows < 1:
+            raise ConfigError("pose.max_samples: must be >= 2 and pose.windows >= 1")
 
 
 @dataclass(frozen=True)
@@ -147,26 +155,39 @@ def estimate_tool_speed(history: tuple[OtusSample, ...] | list[OtusSample],
         pts += [tuple(float(c) for c in p) for p in tool_points]  # type: ignore[union-attr]
     new = history[-1]
     reported = _point_speeds(new, pts)
-    old = None
-    for sample in reversed(history[:-1]):
-        if new.timestamp - sample.timestamp >= lim.window_s:
-            old = sample
-            break
-    if old is None:
+    # the newest sample at least window_s older; every older one is a longer window
+    last = next((k for k in range(len(history) - 2, -1, -1)
+                 if new.timestamp - history[k].timestamp >= lim.window_s), None)
+    if last is None:
         return ToolSpeed(max(reported, unknown_mps), None, reported)
-    dt = new.timestamp - old.timestamp
-    m0, m1 = _rotation(old.quaternion_xyzw), _rotation(new.quaternion_xyzw)
-    measured = 0.0
-    for r in pts:
-        a = tuple(p + q for p, q in zip(old.position_m, _rotate(m0, r), strict=True))
-        b = tuple(p + q for p, q in zip(new.position_m, _rotate(m1, r), strict=True))
-        measured = max(measured, _norm(_sub(b, a)) / dt)
-    fault = _plausibility_fault(history, old, new, dt, lim, Fault)
+    m1 = _rotation(new.quaternion_xyzw)
+    ends = [tuple(p + q for p, q in zip(new.position_m, _rotate(m1, r), strict=True))
+            for r in pts]
+    stride = max(1, -(-(last + 1) // lim.windows))
+    measured, best = -1.0, history[last]
+    for k in range(last, -1, -stride):
+        old = history[k]
+        dt = new.timestamp - old.timestamp
+        if dt < lim.window_s:  # a history whose time is not in order: not a window
+            continue
+        m0 = _rotation(old.quaternion_xyzw)
+        for r, b in zip(pts, ends, strict=True):
+            a = tuple(p + q for p, q in zip(old.position_m, _rotate(m0, r), strict=True))
+            speed = _norm(_sub(b, a)) / dt
+            if speed > measured:
+                measured, best = speed, old
+    old = history[last]
+    fault = _plausibility_fault(history, old, new, new.timestamp - old.timestamp, lim, Fault)
+    if fault is None and best is not old:
+        # the fastest window against the reported velocity too (linear only: a rotation
+        # vector over a long window wraps at pi and is no mean of the angular velocity)
+        fault = _plausibility_fault(history, best, new, new.timestamp - best.timestamp, lim,
+                                    Fault, angular=False)
     return ToolSpeed(max(measured, reported), measured, reported, fault)
 
 
 def _plausibility_fault(history, old: OtusSample, new: OtusSample, dt: float,
-                        lim: MotionLimits, fault_type) -> object | None:
+                        lim: MotionLimits, fault_type, angular: bool = True) -> object | None:
     """Mean reported velocity and angular velocity over [old, new] (trapezoid rule) against
     the displacement and rotation over the same span."""
     span = [s for s in history if old.timestamp <= s.timestamp <= new.timestamp]
@@ -190,7 +211,7 @@ def _plausibility_fault(history, old: OtusSample, new: OtusSample, dt: float,
                           f"tracker reports {_norm(tuple(v_mean)):.2f} m/s but its positions "
                           f"moved at {_norm(v_meas):.2f} m/s over {dt * 1000:.0f} ms", True,
                           "pose")
-    if dw > w_tol:
+    if angular and dw > w_tol:
         return fault_type("pose_implausible",
                           f"tracker reports {_norm(tuple(w_mean)):.2f} rad/s but its "
                           f"orientation turned at {_norm(w_meas):.2f} rad/s over "
@@ -199,24 +220,26 @@ def _plausibility_fault(history, old: OtusSample, new: OtusSample, dt: float,
 
 
 class ToolMotion:
-    """Keeps the accepted samples of the last ``history_s`` (tracker time) for
-    ``estimate_tool_speed``. Not thread-safe: ``PoseSubscriber`` calls it under its lock."""
+    """Keeps the accepted samples of the last ``history_s`` (tracker time), at most
+    ``max_samples`` of them, for ``estimate_tool_speed``. Not thread-safe: ``PoseSubscriber``
+    calls it under its lock."""
 
     def __init__(self, limits: MotionLimits | None = None) -> None:
         self.limits = limits or MotionLimits()
-        self._samples: list[OtusSample] = []
+        self._samples: deque[OtusSample] = deque(maxlen=self.limits.max_samples)
 
     def add(self, sample: OtusSample) -> None:
         self._samples.append(sample)
         cut = sample.timestamp - self.limits.history_s
-        k = 0
-        while k < len(self._samples) - 1 and self._samples[k + 1].timestamp <= cut:
-            k += 1
-        if k:
-            del self._samples[:k]
+        while len(self._samples) > 1 and self._samples[1].timestamp <= cut:
+            self._samples.popleft()
+
+    def clear(self) -> None:
+        """Forget the history (the tracker's time base changed: no window may span it)."""
+        self._samples.clear()
 
     def history(self) -> tuple[OtusSample, ...]:
         return tuple(self._samples)
 
     def tool_speed(self, tool_points: object = None, unknown_mps: float = 0.0) -> ToolSpeed:
-        return estimate_tool_speed(self._samples, tool_points, self.limits, unknown_mps)
+        return estimate_tool_speed(tuple(self._samples), tool_points, self.limits, unknown_mps)
