@@ -19,6 +19,7 @@ import yaml
 
 from monitor import geometry as geo
 from monitor import zones as zn
+from monitor.cli.tool_calibration import positive_number
 from monitor.errors import ConfigError, InputError
 
 
@@ -121,15 +122,27 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("file", type=Path)
     p.add_argument("--csv", type=Path, required=True,
                    help="CSV of pose pairs, 14 numbers a row (header optional)")
-    p.add_argument("--max-residual-mm", type=float, default=5.0,
+    p.add_argument("--tracker-noise-mm", type=positive_number, default=1.0,
+                   help="expected tracker noise per axis, one standard deviation (mm; OTUS: "
+                   "±1 mm precision)")
+    p.add_argument("--tracker-noise-deg", type=positive_number, default=1.0,
+                   help="expected tracker orientation noise per axis, one standard deviation "
+                   "(degrees; OTUS: ±1 deg)")
+    p.add_argument("--max-error-mm", type=positive_number, default=10.0,
+                   help="refuse when the poses leave the mounting or the tracker frame this "
+                   "uncertain under the tracker noise (mm; the OTUS accuracy is ±10 mm)")
+    p.add_argument("--max-error-deg", type=positive_number, default=1.0,
+                   help="the same for their rotations (degrees)")
+    p.add_argument("--max-residual-mm", type=positive_number,
                    help="refuse to write when a pose's residual is larger (mm)")
-    p.add_argument("--max-residual-deg", type=float, default=3.0,
+    p.add_argument("--max-residual-deg", type=positive_number,
                    help="refuse to write when a pose's residual is larger (degrees)")
     p.add_argument("--dry-run", action="store_true", help="print the residuals, write nothing")
     p.set_defaults(func=cmd_calibrate_tool)
 
     for name, action in sub.choices.items():
-        _document_defaults(action, "unchanged" if name == "edit" else "not set")
+        none_text = {"edit": "unchanged", "calibrate-tool": "what the tracker noise explains"}
+        _document_defaults(action, none_text.get(name, "not set"))
 
 
 _POSITIONAL_HELP = {"file": "zone file (YAML)", "id": "zone id", "ids": "zone ids"}
@@ -566,74 +579,10 @@ def cmd_hash(args: argparse.Namespace) -> int:
     return 0
 
 
-def _read_pose_pairs(path: Path) -> tuple[list[np.ndarray], list[np.ndarray]]:
-    flange, tracker = [], []
-    try:
-        with path.open(newline="", encoding="utf-8") as fh:
-            for n, row in enumerate(csv.reader(fh)):
-                cells = [c.strip() for c in row if c.strip()]
-                if not cells or cells[0].startswith("#"):
-                    continue
-                try:
-                    v = [float(c) for c in cells]
-                except ValueError:
-                    if n == 0:
-                        continue  # header line
-                    raise InputError(f"{path}:{n + 1}: not numbers: {row}") from None
-                if len(v) != 14 or not np.all(np.isfinite(v)):
-                    raise InputError(f"{path}:{n + 1}: a row needs 14 finite numbers (flange "
-                                     "x,y,z,qx,qy,qz,qw, tracker x,y,z,qx,qy,qz,qw), got "
-                                     f"{len(v)}")
-                try:
-                    flange.append(geo.rigid(geo.quaternion_to_matrix(v[3:7]), v[0:3]))
-                    tracker.append(geo.rigid(geo.quaternion_to_matrix(v[10:14]), v[7:10]))
-                except geo.GeometryError as exc:
-                    raise InputError(f"{path}:{n + 1}: {exc}") from None
-    except OSError as exc:
-        raise InputError(f"{path}: cannot read: {exc}") from None
-    return flange, tracker
-
-
 def cmd_calibrate_tool(args: argparse.Namespace) -> int:
-    data = _read(args.file)
-    if not isinstance(data.get("tool"), dict):
-        raise ConfigError(f"{args.file}: no 'tool:' section to calibrate (add the tool's shape "
-                          "first, zones/README.md)")
-    flange, tracker = _read_pose_pairs(args.csv)
-    try:
-        cal = geo.calibrate_tool(flange, tracker)
-    except geo.GeometryError as exc:
-        raise ConfigError(f"calibrate-tool: {exc}") from None
-    print(f"{'pose':>4}  {'residual_mm':>11}  {'residual_deg':>12}")
-    for n, (mm, deg) in enumerate(zip(cal.residual_mm, cal.residual_deg, strict=True)):
-        print(f"{n + 1:>4}  {mm:>11.2f}  {deg:>12.2f}")
-    print(f"RMS {float(np.sqrt(np.mean(cal.residual_mm ** 2))):.2f} mm, "
-          f"{float(np.sqrt(np.mean(cal.residual_deg ** 2))):.2f} deg over {len(flange)} poses; "
-          f"largest relative rotation {cal.rotation_spread_deg:.0f} deg")
-    x, y = cal.flange_T_tracker, cal.cell_T_reference
-    offset = {"translation_mm": [round(float(v) * 1000, 3) for v in x[:3, 3]],
-              "rpy_deg": [round(v, 4) for v in geo.matrix_to_rpy_deg(x[:3, :3])],
-              "given_as": "tracker_in_tool"}
-    frame = {"translation_m": [round(float(v), 5) for v in y[:3, 3]],
-             "rpy_deg": [round(v, 4) for v in geo.matrix_to_rpy_deg(y[:3, :3])]}
-    print(f"tool.offset: {offset}")
-    print(f"tracker_frame: {frame}")
-    if len(flange) < 10:
-        print(f"monitor: warning: only {len(flange)} poses: the residuals say little; use 20 "
-              "or more, turning the flange about different axes", file=sys.stderr)
-    worst_mm, worst_deg = float(cal.residual_mm.max()), float(cal.residual_deg.max())
-    if worst_mm > args.max_residual_mm or worst_deg > args.max_residual_deg:
-        raise ConfigError(f"calibrate-tool: residual {worst_mm:.1f} mm / {worst_deg:.1f} deg "
-                          f"exceeds --max-residual-mm {args.max_residual_mm:g} / "
-                          f"--max-residual-deg {args.max_residual_deg:g}: nothing written "
-                          "(check the pose pairs: same order? same units?)")
-    if args.dry_run:
-        return 0
-    data["tool"]["offset"] = offset
-    data["tracker_frame"] = frame
-    _write(data, args.file)
-    print(f"calibrated the tool of {args.file}")
-    return 0
+    from monitor.cli.tool_calibration import calibrate_tool
+
+    return calibrate_tool(args, _read, _write)
 
 
 def _count(n: int, noun: str) -> str:

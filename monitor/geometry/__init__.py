@@ -13,7 +13,8 @@ Python-fcl does the 3-D overlap and distance tests; the helpers that build its o
 that tests can check them against closed-form distances.
 
 One module per job: ``poses`` (rotations, tool pose), ``polygons``, ``camera`` (homography,
-camera models, horizon), ``separation`` (ISO/TS 15066 arithmetic, reaction time), ``shapes`` (FCL
+camera models, horizon), ``distortion`` (is a lens model one-to-one over
+the image), ``separation`` (ISO/TS 15066 arithmetic, reaction time), ``shapes`` (FCL
 objects), ``calibration`` (tracker-to-flange and tracker-to-cell calibration, AX = XB).
 """
 
@@ -32,6 +33,7 @@ from monitor.geometry.camera import (
     look_at,
     reprojection_errors_px,
 )
+from monitor.geometry.distortion import distortion_fault
 from monitor.geometry.errors import GeometryError
 from monitor.geometry.polygons import (
     _first_self_intersection,
@@ -94,6 +96,7 @@ __all__ = [
     "calibrate_tool",
     "clip_polygon_to_rect",
     "describe_separation",
+    "distortion_fault",
     "fcl_box",
     "fcl_mesh",
     "fcl_prism_parts",

@@ -11,6 +11,7 @@ import numpy as np
 from pydantic import ValidationError
 
 from monitor import geometry as geo
+from monitor.geometry.distortion import distortion_fault
 from monitor.occlusion import unobserved_floor
 from monitor.zones.schema import (
     BoxZone,
@@ -319,6 +320,8 @@ def _check_calibration(cam: CameraSpec) -> tuple[list[str], geo.CameraModel | No
         r = np.array(cal.rotation, dtype=float)
         if np.abs(r @ r.T - np.eye(3)).max() > 1e-4 or np.linalg.det(r) < 0:
             faults.append("rotation is not a rotation matrix (R R^T != I or det < 0)")
+        if not faults:
+            faults += _fold_fault(k, cal.distortion, cam)
         if faults:
             return faults, None
         try:
@@ -344,6 +347,8 @@ def _check_calibration(cam: CameraSpec) -> tuple[list[str], geo.CameraModel | No
             faults.append(f"pair {n + 1}: pixel ({u:g}, {v:g}) is outside the "
                           f"{cam.width}x{cam.height} image")
             break
+    if not faults and k is not None:
+        faults += _fold_fault(k, cal.distortion, cam)
     if faults:
         return faults, None
     dist = np.array(cal.distortion) if cal.distortion else None
@@ -353,6 +358,12 @@ def _check_calibration(cam: CameraSpec) -> tuple[list[str], geo.CameraModel | No
     except geo.GeometryError as exc:
         return [str(exc)], None
     return [], geo.CameraModel.from_homography(cam.width, cam.height, h, pairs[:, :2], k, dist)
+
+
+def _fold_fault(k: np.ndarray, distortion: Sequence[float], cam: CameraSpec) -> list[str]:
+    """A lens model that folds over the image maps one pixel to two floor points."""
+    fault = distortion_fault(k, np.array(distortion, dtype=float), cam.width, cam.height)
+    return [] if fault is None else [fault]
 
 
 def _check_k(k: np.ndarray) -> list[str]:
