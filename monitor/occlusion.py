@@ -13,7 +13,9 @@ direction, from ``near_m`` (nearer the camera) to ``far_m``:
   image edge, or the box is shorter than a person of ``height_range_m[0]`` standing where its
   bottom says): the head (box top) is placed on every height in ``height_range_m`` and the feet
   may be anywhere from under the lowest head to under the highest, but never farther than the
-  visible bottom allows.
+  visible bottom allows. The visible bottom itself stays in the range (the union of both,
+  merged into one range towards danger): a short box is also a crouching, kneeling or lying
+  person whose feet are in view, and their head is below ``height_range_m[0]``.
 
 The zone check then tests the person cylinder swept along that segment (a stadium on the floor,
 extruded to the person height), so every position the evidence allows is tested: a person behind
@@ -237,14 +239,12 @@ def place_persons(boxes_px: np.ndarray, model: geo.CameraModel, width: int, heig
         head_near = cands[int(np.argmin(dist))] if cands and not top_cut else c_xy.copy()
         d_near = min(dist) if cands and not top_cut else 0.0
         d_vis = float(np.hypot(*(far[i] - c_xy))) if located[i] else np.inf
-        d_far = np.inf if unbounded else max(dist)
-        head_far = far[i] if unbounded else cands[int(np.argmax(dist))]
-        # the feet are hidden below the visible bottom: never farther than it allows
-        if d_far <= d_vis:
-            new_near, new_far = head_near, head_far
-        elif d_near <= d_vis:
+        # the feet are hidden below the visible bottom (never farther than it allows), or they
+        # are at it: a crouching, kneeling or lying person is short with the feet in view.
+        # Keep both, the head's range and the feet's, as one range (merged towards danger).
+        if d_near <= d_vis:
             new_near, new_far = head_near, far[i].copy()
-        else:  # the head says nearer than the box bottom allows: cover both
+        else:  # the head says farther than the box bottom allows: cover both
             new_near, new_far = far[i].copy(), head_near
         if not located[i] or float(np.hypot(*(new_near - c_xy))) < \
                 float(np.hypot(*(near[i] - c_xy))):
