@@ -218,3 +218,16 @@ def test_floors_change_the_config_hash_and_a_file_without_keeps_its_own():
     renamed = with_platform(1.0)
     renamed["floors"][0]["name"] = "another name"
     assert zn.parse_cell(renamed).config_hash == raised.config_hash
+
+
+def test_preview_draws_a_platform_at_its_height():
+    cell = zn.parse_cell(with_platform(1.0))
+    frame = np.full((720, 1280, 3), 128, np.uint8)
+    drawn = zn.draw_zones(frame, cell, "cam0")
+    plain = zn.draw_zones(frame, zn.load_cell(DEMO), "cam0")
+    # the middle of the platform's top, and where the same floor point would be at z = 0 is
+    # not what is drawn (the surface is at 1.0 m)
+    top = DEMO_CAMERA.project(np.array([[0.0, 1.0, 1.0]]))[0]
+    u, v = int(top[0]), int(top[1])
+    assert not np.array_equal(drawn[v, u], plain[v, u])
+    assert drawn[v, u, 1] > drawn[v, u, 2]  # green-ish: the floor colour
