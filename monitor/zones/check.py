@@ -33,7 +33,10 @@ def check_persons(cell: Cell | PreparedCell, camera_id: str, boxes_px: np.ndarra
     detector's box-bottom error; ``foot_uncertainty_px`` alone means (0, that)); with the feet
     possibly hidden (box bottom on an occluder's outline or the image edge, or box shorter than
     a person of the zone file's lowest ``person.height_range_m``), from the head over that height
-    range. Volume zones test the person cylinder (radius + Z_d, person height) swept along the
+    range (the feet-in-view answer kept too: a crouching person is short). Floor regions of
+    the zone file (``floors:``, platforms and pits) add the positions where the sight lines
+    meet them, and the person cylinder then spans every surface the range may stand on.
+    Volume zones test the person cylinder (radius + Z_d, person height) swept along the
     range with FCL: a hit has ``distance_m`` 0.0. Image zones with the bottom-centre anchor count
     the box when any point of the feet's pixel range is inside. A person who cannot be placed
     (feet range reaching the horizon) hits every protective and warning volume zone with
