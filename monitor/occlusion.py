@@ -13,7 +13,9 @@ direction, from ``near_m`` (nearer the camera) to ``far_m``:
   image edge, or the box is shorter than a person of ``height_range_m[0]`` standing where its
   bottom says): the head (box top) is placed on every height in ``height_range_m`` and the feet
   may be anywhere from under the lowest head to under the highest, but never farther than the
-  visible bottom allows.
+  visible bottom allows. The visible bottom itself stays in the range (the union of both,
+  merged into one range towards danger): a short box is also a crouching, kneeling or lying
+  person whose feet are in view, and their head is below ``height_range_m[0]``.
 
 The zone check then tests the person cylinder swept along that segment (a stadium on the floor,
 extruded to the person height), so every position the evidence allows is tested: a person behind
@@ -37,6 +39,7 @@ import cv2
 import numpy as np
 
 from monitor import geometry as geo
+from monitor.geometry.floors import FloorRegion, plane_hits
 
 # How close (pixels) a box bottom must come to an occluder outline or the image edge for the
 # feet to count as possibly hidden, besides the detector's foot band.
@@ -56,7 +59,9 @@ class Placement:
     (its feet range reaches the horizon): such a person must count as everywhere.
     ``hidden`` (N,): the feet may be hidden, the range comes from the head. ``feet_top_px`` and
     ``feet_bottom_px`` (N,): image rows between which the feet may be (for image zones with the
-    bottom-centre anchor); ``feet_u_px`` (N,) the column.
+    bottom-centre anchor); ``feet_u_px`` (N,) the column. ``stand_lo_m``/``stand_hi_m`` (N,):
+    the lowest and highest surface the person may stand on along the range (0 = the cell floor;
+    a declared floor region's height where the range reaches onto it).
     """
 
     near_m: np.ndarray
@@ -66,6 +71,8 @@ class Placement:
     feet_u_px: np.ndarray
     feet_top_px: np.ndarray
     feet_bottom_px: np.ndarray
+    stand_lo_m: np.ndarray | None = None
+    stand_hi_m: np.ndarray | None = None
 
     @property
     def length_m(self) -> np.ndarray:
@@ -178,12 +185,15 @@ def place_persons(boxes_px: np.ndarray, model: geo.CameraModel, width: int, heig
                   height_range_m: tuple[float, float] = (1.0, 2.0),
                   occluder_outlines_px: Sequence[np.ndarray] = (),
                   occluder_columns: OccluderColumns | None = None,
-                  camera_centre: np.ndarray | None = None) -> Placement:
+                  camera_centre: np.ndarray | None = None,
+                  floors: Sequence[FloorRegion] = ()) -> Placement:
     """Where each box's person may stand (see the module docstring).
 
     ``band_px`` = (lo, hi): the feet lie ``lo`` .. ``hi`` pixels above the box's bottom edge.
     ``occluder_columns`` and ``camera_centre`` are prepared forms (built once per camera) of
-    ``occluder_outlines_px`` and ``camera_centre_m(model)``.
+    ``occluder_outlines_px`` and ``camera_centre_m(model)``. ``floors``: raised or sunken floor
+    regions (``monitor.geometry.floors``); a foot or head sight line that meets one adds that
+    position, and the range spans every candidate (pinhole cameras only).
     """
     boxes = np.asarray(boxes_px, float).reshape(-1, 4)
     n = len(boxes)
@@ -200,21 +210,37 @@ def place_persons(boxes_px: np.ndarray, model: geo.CameraModel, width: int, heig
     hidden = feet_may_be_hidden(boxes, model, width, height, occluder_outlines_px,
                                 height_range_m[0], hi, occluder_columns, bottom)
     centre = camera_centre if camera_centre is not None else camera_centre_m(model)
+    stand_lo, stand_hi = np.zeros(n), np.zeros(n)
+    floors = tuple(floors) if centre is not None and model.can_project_3d else ()
     if centre is not None and model.can_project_3d:
         _widen_tall_boxes(boxes, model, u, near, far, located, y_far, centre,
                           height_range_m, hi)
+        if floors and n:
+            _feet_on_floors(model, centre, floors, u, y_far, y_near, near, far, located,
+                            stand_lo, stand_hi)
     todo = np.flatnonzero(hidden)
     if centre is None or not len(todo):
-        return Placement(near, far, located, hidden, u, y_far, bottom_px)
+        return Placement(near, far, located, hidden, u, y_far, bottom_px, stand_lo, stand_hi)
     h_min, h_max = height_range_m
     c_xy = centre[:2]
     # the head is at the box top, or up to the band lower (a box may reach above the head too)
     heads = np.r_[np.c_[u[todo], boxes[todo, 1]], np.c_[u[todo], boxes[todo, 1] + hi]]
     rays = pixel_rays(model, heads)
     m = len(todo)
+    # heads over a floor region: the floor points under them, where they lie on the region
+    raised = [plane_hits(centre, rays, floors, above) for above in (h_min, h_max)] \
+        if floors else []
+    region_h = np.array([f.height_m for f in floors])
     moved: list[int] = []
     for j, i in enumerate(todo.tolist()):
         cands = []  # floor points under the head at each end of the height range
+        for xy, ok in raised:
+            for row in (j, m + j):
+                on = np.flatnonzero(ok[row])
+                cands.extend(xy[row, on])
+                if len(on):
+                    stand_lo[i] = min(stand_lo[i], float(region_h[on].min()))
+                    stand_hi[i] = max(stand_hi[i], float(region_h[on].max()))
         # a level or rising sight line: the head may be arbitrarily far
         # a head cut by the image's top edge may be anywhere above it: from right under the
         # camera out to as far as the feet allow
@@ -237,14 +263,12 @@ def place_persons(boxes_px: np.ndarray, model: geo.CameraModel, width: int, heig
         head_near = cands[int(np.argmin(dist))] if cands and not top_cut else c_xy.copy()
         d_near = min(dist) if cands and not top_cut else 0.0
         d_vis = float(np.hypot(*(far[i] - c_xy))) if located[i] else np.inf
-        d_far = np.inf if unbounded else max(dist)
-        head_far = far[i] if unbounded else cands[int(np.argmax(dist))]
-        # the feet are hidden below the visible bottom: never farther than it allows
-        if d_far <= d_vis:
-            new_near, new_far = head_near, head_far
-        elif d_near <= d_vis:
+        # the feet are hidden below the visible bottom (never farther than it allows), or they
+        # are at it: a crouching, kneeling or lying person is short with the feet in view.
+        # Keep both, the head's range and the feet's, as one range (merged towards danger).
+        if d_near <= d_vis:
             new_near, new_far = head_near, far[i].copy()
-        else:  # the head says nearer than the box bottom allows: cover both
+        else:  # the head says farther than the box bottom allows: cover both
             new_near, new_far = far[i].copy(), head_near
         if not located[i] or float(np.hypot(*(new_near - c_xy))) < \
                 float(np.hypot(*(near[i] - c_xy))):
@@ -258,7 +282,31 @@ def place_persons(boxes_px: np.ndarray, model: geo.CameraModel, width: int, heig
         pts[:, :2] = near[idx]
         px, front = project_px(model, pts)
         bottom_px[idx] = np.where(front, np.maximum(bottom_px[idx], px[:, 1]), float(height))
-    return Placement(near, far, located, hidden, u, y_far, bottom_px)
+    return Placement(near, far, located, hidden, u, y_far, bottom_px, stand_lo, stand_hi)
+
+
+def _feet_on_floors(model: geo.CameraModel, centre: np.ndarray, floors: Sequence[FloorRegion],
+                    u: np.ndarray, y_far: np.ndarray, y_near: np.ndarray, near: np.ndarray,
+                    far: np.ndarray, located: np.ndarray, stand_lo: np.ndarray,
+                    stand_hi: np.ndarray) -> None:
+    """Widen each feet range (in place) over the floor regions its foot rows' sight lines
+    meet: a foot pixel is a point on the cell floor *and* on every region its ray meets there,
+    and the evidence cannot tell which, so the range runs from the nearest of them to the
+    farthest (merged towards danger). A person on a 1 m platform is otherwise placed metres
+    beyond it, where the same pixel meets the floor."""
+    n = len(u)
+    rays = pixel_rays(model, np.c_[np.r_[u, u], np.r_[y_far, y_near]])
+    xy, ok = plane_hits(centre, rays, floors)
+    heights = np.array([f.height_m for f in floors])
+    c = centre[:2]
+    for i in np.flatnonzero(located & (ok[:n].any(axis=1) | ok[n:].any(axis=1))).tolist():
+        on_far, on_near = np.flatnonzero(ok[i]), np.flatnonzero(ok[n + i])
+        pts = np.r_[near[i][None], far[i][None], xy[i, on_far], xy[n + i, on_near]]
+        dist = np.hypot(*(pts - c).T)
+        near[i], far[i] = pts[int(np.argmin(dist))], pts[int(np.argmax(dist))]
+        h = heights[np.r_[on_far, on_near]]
+        stand_lo[i] = min(stand_lo[i], float(h.min()))
+        stand_hi[i] = max(stand_hi[i], float(h.max()))
 
 
 # how far along a level or rising sight line a person's head may be (metres): beyond any cell

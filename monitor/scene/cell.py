@@ -7,7 +7,9 @@ robot base on the floor) with
   stride, crouching or kneeling, each with its own height);
 * ``Block``s: fixtures as cell volumes (benches, crates, cabinets, the robot base) drawn as
   shaded boxes in perspective; every block is also an ``occluder`` of the scene's zone file;
-* ``CutOut``s: static person-coloured cardboard figures (what a mask zone is for).
+* ``CutOut``s: static person-coloured cardboard figures (what a mask zone is for);
+* ``Platform``s: raised floor regions persons stand on (a walker's ``floor_z_m``), drawn into
+  the background and declared in the scene's zone file under ``floors:``.
 
 Everything is drawn in painter's order (farthest first, by the camera depth of each item's
 floor point nearest to the camera), so a bench in front of a person hides the legs.
@@ -57,6 +59,7 @@ class Walker:
     running: bool = False
     appear_s: float = 0.0
     leave_s: float = math.inf
+    floor_z_m: float = 0.0  # the surface the person stands on (a platform's height)
 
     def position_at(self, t: float) -> tuple[float, float]:
         return path_position(self.path, t)
@@ -80,6 +83,23 @@ class Block:
     max_m: tuple[float, float, float]
     colour: tuple[int, int, int] = (70, 95, 115)
     occluder: bool = True
+
+
+@dataclass(frozen=True)
+class Platform:
+    """A raised floor region: the floor rectangle ``min_m`` .. ``max_m`` (x, y, metres) at
+    ``height_m``, a solid block under it, drawn in ``colour`` (BGR, never work wear)."""
+
+    floor_id: str
+    min_m: tuple[float, float]
+    max_m: tuple[float, float]
+    height_m: float
+    colour: tuple[int, int, int] = (95, 115, 120)
+
+    @property
+    def block(self) -> Block:
+        return Block(self.floor_id, (*self.min_m, 0.0), (*self.max_m, self.height_m),
+                     self.colour, occluder=False)
 
 
 @dataclass(frozen=True)
@@ -122,6 +142,7 @@ class CellScene:
     robot: bool = True
     noise: bool = True
     extra: dict = field(default_factory=dict, compare=False)
+    platforms: tuple[Platform, ...] = ()  # drawn under everything else (persons stand on them)
 
     @property
     def n_frames(self) -> int:
@@ -130,6 +151,8 @@ class CellScene:
     def background(self) -> np.ndarray:
         cam = self.camera
         img = render_background(cam.width, cam.height, np.random.default_rng(self.seed))
+        for p in self.platforms:
+            _draw_block(img, cam, p.block)
         if self.robot:
             base = cam.project(np.array([[0.0, 0.0, 0.9]]))[0]
             draw_robot(img, (int(base[0]), int(base[1])), cam.height / 720 * 1.4, 0.3)
@@ -206,7 +229,8 @@ class CellScene:
         w = self.walkers[k]
         cam = self.camera
         x, y = w.position_at(t)
-        feet, head = cam.project(np.array([[x, y, 0.0], [x, y, w.figure_height_m]]))
+        z = w.floor_z_m
+        feet, head = cam.project(np.array([[x, y, z], [x, y, z + w.figure_height_m]]))
         height_px = float(feet[1] - head[1])
         if height_px <= 2:
             return None
@@ -318,10 +342,15 @@ def zone_data(scene: CellScene, protective: tuple[tuple[float, float], tuple[flo
     ]
     zones += [{"id": b.zone_id, "kind": "occluder", "shape": "box", "min_m": list(b.min_m),
                "max_m": list(b.max_m)} for b in scene.blocks if b.occluder]
-    return {"version": 1, "name": "scenario",
+    data = {"version": 1, "name": "scenario",
             "cameras": [{"id": cam.camera_id, "width": cam.width, "height": cam.height,
                          "calibration": camera_calibration(cam)}],
             "zones": zones}
+    if scene.platforms:
+        data["floors"] = [{"id": p.floor_id, "height_m": p.height_m, "points_m": [
+            [p.min_m[0], p.min_m[1]], [p.max_m[0], p.min_m[1]], [p.max_m[0], p.max_m[1]],
+            [p.min_m[0], p.max_m[1]]]} for p in scene.platforms]
+    return data
 
 
 __all__ = [
@@ -332,6 +361,7 @@ __all__ = [
     "CellScene",
     "CutOut",
     "PersonState",
+    "Platform",
     "Walker",
     "camera_calibration",
     "draw_posed",

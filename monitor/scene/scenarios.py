@@ -25,7 +25,7 @@ import math
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
-from monitor.scene.cell import Block, CellScene, CutOut, Walker, zone_data
+from monitor.scene.cell import Block, CellScene, CutOut, Platform, Walker, zone_data
 
 RESET_PERIOD_S = 0.5
 CLEAR_VIEW_FRACTION = 0.95
@@ -42,11 +42,14 @@ class Scenario:
     extra_zones: tuple[dict, ...] = ()
     check_false_stops: bool = True
     declare_occluders: bool = True  # False: the zone file leaves the fixtures out
+    declare_floors: bool = True  # False: the zone file leaves the platforms out
 
     def zone_data(self) -> dict:
         data = zone_data(self.scene, PROTECTIVE)
         if not self.declare_occluders:
             data["zones"] = [z for z in data["zones"] if z["kind"] != "occluder"]
+        if not self.declare_floors:
+            data.pop("floors", None)
         data["zones"] += [dict(z) for z in self.extra_zones]
         return data
 
@@ -123,6 +126,25 @@ def scenarios(fps: float = 10.0) -> list[Scenario]:
         "kneeling", "kneels inside the protective zone in clear view",
         CellScene((_walk((0.0, 2.4, -0.6), (2.0, 0.6, -0.6), (5.0, 0.6, -0.6),
                          posture="kneeling"),), fps=fps, duration_s=5.0)))
+    out.append(Scenario(
+        "crouch-open", "crouches in clear view (head 0.6 m) at the camera-side edge of the "
+        "protective zone, stays, leaves",
+        CellScene((_walk((0.0, 0.4, -2.6), (2.0, 0.4, -1.2), (4.0, 0.4, -1.2),
+                         (6.0, 0.4, -2.6), height_m=1.05, posture="crouching"),),
+                  fps=fps, duration_s=6.0)))
+    out.append(Scenario(
+        "kneel-edge", "kneels in clear view (head 0.8 m) at the camera-side edge of the "
+        "protective zone",
+        CellScene((_walk((0.0, -0.4, -2.6), (2.0, -0.4, -1.2), (5.0, -0.4, -1.2),
+                         height_m=1.1, posture="kneeling"),), fps=fps, duration_s=5.0)))
+    for h in (0.5, 1.0):
+        out.append(Scenario(
+            f"platform-{h:.1f}", f"walks on a {h:.1f} m platform behind the robot into the "
+            "protective zone, stays, leaves",
+            CellScene((_walk((0.0, 0.6, 2.2), (2.0, 0.1, 1.1), (4.0, 0.1, 1.1),
+                             (6.0, 0.6, 2.2), floor_z_m=h),),
+                      fps=fps, duration_s=6.0,
+                      platforms=(Platform("platform", (-0.9, 0.4), (0.9, 2.6), h),))))
     out.append(Scenario(
         "running", "runs straight through the protective zone",
         CellScene((_walk((0.0, -2.6, -2.2), (2.6, 2.6, 1.2), (4.0, 2.6, 1.2), running=True),),

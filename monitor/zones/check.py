@@ -33,7 +33,10 @@ def check_persons(cell: Cell | PreparedCell, camera_id: str, boxes_px: np.ndarra
     detector's box-bottom error; ``foot_uncertainty_px`` alone means (0, that)); with the feet
     possibly hidden (box bottom on an occluder's outline or the image edge, or box shorter than
     a person of the zone file's lowest ``person.height_range_m``), from the head over that height
-    range. Volume zones test the person cylinder (radius + Z_d, person height) swept along the
+    range (the feet-in-view answer kept too: a crouching person is short). Floor regions of
+    the zone file (``floors:``, platforms and pits) add the positions where the sight lines
+    meet them, and the person cylinder then spans every surface the range may stand on.
+    Volume zones test the person cylinder (radius + Z_d, person height) swept along the
     range with FCL: a hit has ``distance_m`` 0.0. Image zones with the bottom-centre anchor count
     the box when any point of the feet's pixel range is inside. A person who cannot be placed
     (feet range reaching the horizon) hits every protective and warning volume zone with
@@ -115,7 +118,8 @@ def _check(prep: PreparedCell, camera_id: str, boxes_px: np.ndarray,
         place = occ.place_persons(boxes, model, cam.width, cam.height, band_px=(lo, hi),
                                   height_range_m=prep.height_range_m,
                                   occluder_columns=prep.occluder_columns.get(camera_id),
-                                  camera_centre=prep.camera_centres.get(camera_id))
+                                  camera_centre=prep.camera_centres.get(camera_id),
+                                  floors=prep.floors)
     img = prep.image_zones.get(camera_id)
     if img is not None and n:
         if place is not None:
@@ -135,9 +139,9 @@ def _check(prep: PreparedCell, camera_id: str, boxes_px: np.ndarray,
     def measure() -> float | None:
         if place is None or not len(place.located):
             return None
-        centres, located, slack = _sample_ranges(prep, place)
+        centres, located, slack, tall = _sample_ranges(prep, place)
         return max(_tool_separation(prep, tool_pose, centres, located,
-                                    np.ones(len(centres), dtype=bool)) - slack, 0.0)
+                                    np.ones(len(centres), dtype=bool), tall) - slack, 0.0)
 
     sep = evaluate_separation(prep, tool_pose, tool_speed_mps, measure)
     return ZoneReport(
@@ -156,15 +160,18 @@ def _volume_hits(prep: PreparedCell, place: occ.Placement) -> list[ZoneHit]:
     out: list[ZoneHit] = []
     lo_xy = np.minimum(place.near_m, place.far_m)
     hi_xy = np.maximum(place.near_m, place.far_m)
-    near = _aabb_all(prep, lo_xy, hi_xy, r) & place.located[:, None] & prep.volume_alert
+    z0, z1 = _stand_span(place, h)
+    near = _aabb_all(prep, lo_xy, hi_xy, r, z0, z1) & place.located[:, None] & prep.volume_alert
     shapes: dict[int, list[fcl.CollisionObject]] = {}
     ks, rows = np.nonzero(near.T)
     for k, i in zip(ks.tolist(), rows.tolist(), strict=True):
         v = prep.volumes[k]
         objs = shapes.get(i)
         if objs is None:
-            objs = shapes[i] = _swept_person(prep, place.near_m[i], place.far_m[i])
-        if _overlaps(objs, v, place.near_m[i], place.far_m[i], r, h):
+            objs = shapes[i] = _swept_person(prep, place.near_m[i], place.far_m[i],
+                                             float(z0[i]), float(z1[i]))
+        if _overlaps(objs, v, place.near_m[i], place.far_m[i], r, float(z1[i] - z0[i]),
+                     float(z0[i])):
             out.append(ZoneHit(v.id, v.kind, i, v.speed_scale, 0.0))
     lost = np.flatnonzero(~place.located)
     # cannot be placed on the floor: inside every protective and warning volume (fail safe)
@@ -173,31 +180,47 @@ def _volume_hits(prep: PreparedCell, place: occ.Placement) -> list[ZoneHit]:
     return out
 
 
-def _swept_person(prep: PreparedCell, a: np.ndarray, b: np.ndarray
-                  ) -> list[fcl.CollisionObject]:
+def _stand_span(place: occ.Placement, height_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """(N,) lowest foot and highest head of each person over every surface their range may
+    put them on (the cell floor, declared floor regions)."""
+    n = len(place.located)
+    lo = place.stand_lo_m if place.stand_lo_m is not None else np.zeros(n)
+    hi = place.stand_hi_m if place.stand_hi_m is not None else np.zeros(n)
+    return np.minimum(lo, 0.0), np.maximum(hi, 0.0) + height_m
+
+
+def _swept_person(prep: PreparedCell, a: np.ndarray, b: np.ndarray, z0: float = 0.0,
+                  z1: float | None = None) -> list[fcl.CollisionObject]:
     """The zone cylinder swept from floor point ``a`` to ``b``: one cylinder, or a box between
-    two end cylinders (exactly the swept volume)."""
+    two end cylinders (exactly the swept volume); from ``z0`` to ``z1`` (the person height
+    over the floor by default; taller over floor regions)."""
     r, h = prep.person.zone_radius_m, prep.person.height_m
+    span = h if z1 is None else z1 - z0
+    cyl = prep.zone_cylinder if z0 == 0.0 and span == h else fcl.Cylinder(r, span)
+    zc = z0 + span / 2
     d = b - a
     length = float(np.hypot(*d))
-    ends = [np.array((a[0], a[1], h / 2))]
+    ends = [np.array((a[0], a[1], zc))]
     if length < 1e-4:
-        return [fcl.CollisionObject(prep.zone_cylinder, fcl.Transform(ends[0]))]
-    ends.append(np.array((b[0], b[1], h / 2)))
+        return [fcl.CollisionObject(cyl, fcl.Transform(ends[0]))]
+    ends.append(np.array((b[0], b[1], zc)))
     c, s = d[0] / length, d[1] / length  # turn the box's x axis onto the segment
     rot = np.array(((c, -s, 0.0), (s, c, 0.0), (0.0, 0.0, 1.0)))
-    mid = np.array(((a[0] + b[0]) / 2, (a[1] + b[1]) / 2, h / 2))
-    objs = [fcl.CollisionObject(fcl.Box(length, 2 * r, h), fcl.Transform(rot, mid))]
-    objs += [fcl.CollisionObject(prep.zone_cylinder, fcl.Transform(e)) for e in ends]
+    mid = np.array(((a[0] + b[0]) / 2, (a[1] + b[1]) / 2, zc))
+    objs = [fcl.CollisionObject(fcl.Box(length, 2 * r, span), fcl.Transform(rot, mid))]
+    objs += [fcl.CollisionObject(cyl, fcl.Transform(e)) for e in ends]
     return objs
 
 
 def _sample_ranges(prep: PreparedCell, place: occ.Placement, step_m: float = 0.1
-                   ) -> tuple[np.ndarray, np.ndarray, float]:
-    """Person centres along every range, at most ``step_m`` apart, their located flags, and
-    the slack (half a step) to take off a distance so that it stays a lower bound."""
-    centres, located = [], []
+                   ) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
+    """Person centres along every range, at most ``step_m`` apart, their located flags, the
+    slack (half a step) to take off a distance so that it stays a lower bound, and each
+    centre's cylinder height (the person height, more where floor regions raise or lower the
+    possible surfaces: the cylinder then spans all of them)."""
+    centres, located, tall = [], [], []
     ranged = False
+    z0, z1 = _stand_span(place, prep.person.height_m)
     for i in range(len(place.located)):
         a, b = place.near_m[i], place.far_m[i]
         length = float(np.hypot(*(b - a))) if place.located[i] else 0.0
@@ -205,15 +228,19 @@ def _sample_ranges(prep: PreparedCell, place: occ.Placement, step_m: float = 0.1
         ranged |= length > 1e-4
         t = np.linspace(0.0, 1.0, k + 1)[:, None]
         pts = a + t * (b - a)
-        centres.append(np.c_[pts, np.full(len(pts), prep.person.height_m / 2)])
+        centres.append(np.c_[pts, np.full(len(pts), (z0[i] + z1[i]) / 2)])
         located.append(np.full(len(pts), bool(place.located[i])))
-    return np.concatenate(centres), np.concatenate(located), step_m / 2 if ranged else 0.0
+        tall.append(np.full(len(pts), z1[i] - z0[i]))
+    return (np.concatenate(centres), np.concatenate(located), step_m / 2 if ranged else 0.0,
+            np.concatenate(tall))
 
 
 def _tool_separation(prep: PreparedCell, pose: geo.ToolPose, centres: np.ndarray,
-                     located: np.ndarray, active: np.ndarray) -> float:
+                     located: np.ndarray, active: np.ndarray,
+                     heights: np.ndarray | None = None) -> float:
     """Smallest distance (m) from an active person's nominal cylinder to the tool; 0.0 when one
-    of them cannot be placed (fail safe)."""
+    of them cannot be placed (fail safe). ``heights``: each cylinder's height (the person
+    height by default), centred on its centre."""
     if np.any(active & ~located):
         return 0.0
     tool = tool_object(prep, pose)
@@ -224,13 +251,19 @@ def _tool_separation(prep: PreparedCell, pose: geo.ToolPose, centres: np.ndarray
     idx = np.flatnonzero(active)
     dxy = np.maximum(np.hypot(centres[idx, 0] - c[0], centres[idx, 1] - c[1])
                      - prep.person.radius_m, 0.0)
-    dz = np.maximum(np.maximum(c[2] - prep.person.height_m, -c[2]), 0.0)
+    h = prep.person.height_m
+    tall = np.full(len(centres), h) if heights is None else np.asarray(heights, float)
+    top = centres[idx, 2] + tall[idx] / 2
+    bottom = centres[idx, 2] - tall[idx] / 2
+    dz = np.maximum(np.maximum(c[2] - top, bottom - c[2]), 0.0)
     bound = np.hypot(dxy, dz) - prep.tool.bound_radius
     best = math.inf
     for j in np.argsort(bound).tolist():
         if bound[j] >= best:
             break
-        body = fcl.CollisionObject(prep.body_cylinder, fcl.Transform(centres[idx[j]]))
+        k = idx[j]
+        cyl = prep.body_cylinder if tall[k] == h else fcl.Cylinder(prep.person.radius_m, tall[k])
+        body = fcl.CollisionObject(cyl, fcl.Transform(centres[k]))
         best = min(best, max(float(fcl.distance(body, tool, _DREQ, fcl.DistanceResult())), 0.0))
     return best
 
@@ -265,16 +298,21 @@ def volume_distances(cell: Cell | PreparedCell, camera_id: str, boxes_px: np.nda
     return tuple(v.id for v in vols), out
 
 
-def _aabb_all(prep: PreparedCell, lo_xy: np.ndarray, hi_xy: np.ndarray, r: float) -> np.ndarray:
-    """(N, V) bool: a person range's bounding box overlaps the zone's (broad phase)."""
+def _aabb_all(prep: PreparedCell, lo_xy: np.ndarray, hi_xy: np.ndarray, r: float,
+              z0: np.ndarray | None = None, z1: np.ndarray | None = None) -> np.ndarray:
+    """(N, V) bool: a person range's bounding box overlaps the zone's (broad phase); the
+    persons span ``z0`` .. ``z1`` (floor to person height by default)."""
     lo, hi = prep.volume_lo[None], prep.volume_hi[None]
+    n = len(lo_xy)
+    z0 = np.zeros(n) if z0 is None else z0
+    z1 = np.full(n, prep.person.height_m) if z1 is None else z1
     return (np.all(hi_xy[:, None, :] + r >= lo[..., :2], axis=2)
             & np.all(lo_xy[:, None, :] - r <= hi[..., :2], axis=2)
-            & (prep.person.height_m >= lo[..., 2]) & (hi[..., 2] >= 0.0))
+            & (z1[:, None] >= lo[..., 2]) & (hi[..., 2] >= z0[:, None]))
 
 
 def _overlaps(objs: list[fcl.CollisionObject], v: _Volume, a: np.ndarray, b: np.ndarray,
-              r: float, h: float) -> bool:
+              r: float, h: float, z0: float = 0.0) -> bool:
     for obj in objs:
         for part in v.parts:
             if fcl.collide(obj, part, _REQ, fcl.CollisionResult()):
@@ -283,10 +321,10 @@ def _overlaps(objs: list[fcl.CollisionObject], v: _Volume, a: np.ndarray, b: np.
         return False
     # FCL tests mesh surfaces only: with no surface contact the swept cylinder is wholly
     # inside or wholly outside the closed mesh (or the mesh is inside the swept cylinder)
-    if geo.points_in_mesh(np.r_[a, h / 2][None], *v.mesh)[0]:
+    if geo.points_in_mesh(np.r_[a, z0 + h / 2][None], *v.mesh)[0]:
         return True
     p = v.mesh[0][0]
-    return bool(_point_segment_distance(p[:2], a, b) <= r and 0.0 <= p[2] <= h)
+    return bool(_point_segment_distance(p[:2], a, b) <= r and z0 <= p[2] <= z0 + h)
 
 
 def _point_segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:

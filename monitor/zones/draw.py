@@ -137,6 +137,7 @@ COLOURS_BGR = {
     "occluder": (120, 90, 60),
 }
 SHADOW_BGR = (60, 20, 60)
+FLOOR_BGR = (80, 160, 60)  # raised or sunken floor regions (zone file floors:)
 
 
 def draw_zones(frame_bgr: np.ndarray, cell: Cell, camera_id: str,
@@ -144,7 +145,8 @@ def draw_zones(frame_bgr: np.ndarray, cell: Cell, camera_id: str,
     """A copy of the frame with the camera's zones drawn and labelled.
 
     Image zones are filled (translucent) and outlined; volume zones are projected through the
-    calibration as wireframes with a filled floor footprint. Zones in ``hit_zone_ids`` are drawn
+    calibration as wireframes with a filled floor footprint; floor regions (platforms, pits)
+    as their standing surface, labelled with its height. Zones in ``hit_zone_ids`` are drawn
     thicker and labelled HIT. A frame of another size than the camera is drawn scaled.
     """
     cam = cell.cameras.get(camera_id)
@@ -182,6 +184,7 @@ def draw_zones(frame_bgr: np.ndarray, cell: Cell, camera_id: str,
                              shift=4)
             outlines.append((lines, colour, thick, z.id))
     if model is not None:
+        outlines += _draw_floors(fills, cell, model, scale)
         shadow = shadow_image(cell, camera_id, img.shape[1], img.shape[0])
         if shadow is not None:
             fills[shadow] = SHADOW_BGR
@@ -191,6 +194,25 @@ def draw_zones(frame_bgr: np.ndarray, cell: Cell, camera_id: str,
         cv2.polylines(img, [_i32(p) for p in polys], closed, colour, thick, cv2.LINE_AA, 4)
         _label(img, polys, f"{zid}{' HIT' if zid in hit else ''}", colour)
     return img
+
+
+def _draw_floors(fills: np.ndarray, cell: Cell, model: geo.CameraModel, scale: np.ndarray
+                 ) -> list[tuple[list[np.ndarray], tuple[int, int, int], int, str]]:
+    """Fill each floor region's standing surface (at its height; a homography sees only the
+    cell floor, so there the footprint) and return its wireframe from the cell floor up or
+    down to it, labelled with the height."""
+    out = []
+    for f in cell.spec.floors:
+        base = np.asarray(f.points_m, float)
+        h = f.height_m if model.can_project_3d else 0.0
+        lines = [ln * scale for ln in _project_lines(model, _prism_lines(base, 0.0, h))]
+        top = _project_lines(model, _prism_lines(base, h, h)[:1], samples=8)
+        if len(top) == 1:
+            cv2.fillPoly(fills, [_i32(top[0] * scale)], FLOOR_BGR, lineType=cv2.LINE_AA,
+                         shift=4)
+        if lines:
+            out.append((lines, FLOOR_BGR, 2, f"{f.id} {f.height_m:+g} m"))
+    return out
 
 
 def shadow_image(cell: Cell, camera_id: str, width: int, height: int, step_px: int = 8

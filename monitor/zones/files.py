@@ -437,6 +437,9 @@ def config_hash(spec: CellSpec, meshes_sha: Mapping[str, str] | None = None) -> 
     }
     if spec.tracker_frame is not None:  # only when set: older files keep their hash
         payload["tracker_frame"] = spec.tracker_frame.model_dump(mode="json")
+    if spec.floors:  # only when set: older files keep their hash
+        payload["floors"] = sorted((f.model_dump(mode="json", exclude={"name"})
+                                    for f in spec.floors), key=lambda f: f["id"])
     blob = json.dumps(payload, sort_keys=True, separators=(",", ":"), allow_nan=False)
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
 

@@ -12,6 +12,7 @@ import fcl
 import numpy as np
 
 from monitor import geometry as geo
+from monitor.geometry.floors import FloorRegion
 from monitor.occlusion import (
     OccluderColumns,
     PolygonSegments,
@@ -138,6 +139,7 @@ class PreparedCell:
     height_range_m: tuple[float, float] = (1.0, 2.0)
     occluder_columns: Mapping[str, OccluderColumns | None] = field(default_factory=dict)
     camera_centres: Mapping[str, np.ndarray | None] = field(default_factory=dict)
+    floors: tuple[FloorRegion, ...] = ()  # raised or sunken floor regions (platforms, pits)
 
     def check(self, camera_id: str, boxes_px: np.ndarray, tool_pose: geo.ToolPose | None = None,
               tool_speed_mps: float | None = None) -> ZoneReport:
@@ -158,9 +160,12 @@ def prepare_cell(cell: Cell) -> PreparedCell:
                     if z.is_volume and z.enabled and z.kind not in ("watch", "occluder"))
     occ_zones = [z for z in cell.zones if z.is_volume and z.enabled and z.kind == "occluder"]
     occluders = tuple(_prepare_volume(z, cell) for z in occ_zones)
+    floors = tuple(FloorRegion.of(f.id, f.points_m, f.height_m) for f in cell.spec.floors)
     outlines: dict[str, tuple[np.ndarray, ...]] = {}
     for cam_id, model in cell.camera_models.items():
         hulls = [occluder_outline_px(occluder_corners_m(z, cell), model) for z in occ_zones]
+        # a platform's sides hide the feet of a person behind it (and a pit's, of one in it)
+        hulls += [occluder_outline_px(floor_corners_m(f), model) for f in floors]
         outlines[cam_id] = tuple(h for h in hulls if h is not None)
     columns = {cid: OccluderColumns.build(o, cell.cameras[cid].width, cell.cameras[cid].height)
                for cid, o in outlines.items()}
@@ -187,7 +192,14 @@ def prepare_cell(cell: Cell) -> PreparedCell:
         height_range_m=tuple(p.height_range_m),
         occluder_columns=columns,
         camera_centres=centres,
+        floors=floors,
     )
+
+
+def floor_corners_m(region: FloorRegion) -> np.ndarray:
+    """Corners (M, 3) of the solid between a floor region and the cell floor."""
+    p = region.points_m
+    return np.r_[np.c_[p, np.zeros(len(p))], np.c_[p, np.full(len(p), region.height_m)]]
 
 
 def occluder_corners_m(z: Any, cell: Cell, segments: int = 24) -> np.ndarray:

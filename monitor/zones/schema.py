@@ -232,6 +232,18 @@ class TrackerFrame(_Strict):
         return geo.rigid(geo.rpy_to_matrix(*self.rpy_deg), self.translation_m)
 
 
+class FloorSpec(_Strict):
+    """A raised or sunken floor region where persons can stand: a horizontal surface at
+    ``height_m`` above the cell floor over the floor polygon ``points_m`` (a platform, a
+    mezzanine, a pit's floor: negative). Placement puts a person's feet on it where their
+    sight line meets it inside the polygon, besides the cell floor (docs/occlusion.md)."""
+
+    id: str = Field(pattern=_ID)
+    name: str = ""
+    points_m: tuple[Vec2, ...] = Field(min_length=3, max_length=1000)
+    height_m: float = Field(ge=-10.0, le=20.0)
+
+
 class CellSpec(_Strict):
     """The whole zone file."""
 
@@ -244,5 +256,6 @@ class CellSpec(_Strict):
     tracker_frame: TrackerFrame | None = None
     cameras: tuple[CameraSpec, ...] = Field(min_length=1)
     zones: tuple[ZoneSpec, ...] = ()
+    floors: tuple[FloorSpec, ...] = ()  # raised or sunken floor regions (platforms, pits)
 
 

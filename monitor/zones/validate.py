@@ -13,6 +13,7 @@ from pydantic import ValidationError
 from monitor import geometry as geo
 from monitor.geometry.distortion import distortion_fault
 from monitor.occlusion import unobserved_floor
+from monitor.zones.floors import check_floors
 from monitor.zones.schema import (
     BoxZone,
     CameraSpec,
@@ -87,10 +88,10 @@ def useful_errors(exc: ValidationError, data: Any) -> list:
 def _locate(loc: list, data: dict) -> tuple[str, list]:
     """Split a pydantic location into 'zone 'x'' / 'camera 'y'' / section and the field path,
     dropping the union tags pydantic inserts."""
-    if len(loc) >= 2 and loc[0] in ("zones", "cameras") and isinstance(loc[1], int):
+    if len(loc) >= 2 and loc[0] in ("zones", "cameras", "floors") and isinstance(loc[1], int):
         items = data.get(loc[0]) or []
         item = items[loc[1]] if loc[1] < len(items) and isinstance(items[loc[1]], dict) else {}
-        noun = "zone" if loc[0] == "zones" else "camera"
+        noun = {"zones": "zone", "cameras": "camera", "floors": "floor"}[loc[0]]
         ident = item.get("id")
         where = f"{noun} '{ident}'" if isinstance(ident, str) else f"{noun} #{loc[1] + 1}"
         rest = loc[2:]
@@ -171,6 +172,7 @@ def _check_spec(spec: CellSpec, base: Path
             warnings.append(f"camera '{cam.id}': no enabled protective or warning zone applies "
                             "to it (uncalibrated cameras see image zones only)")
     errors += _check_horizon(spec, models)
+    errors += check_floors(spec)
     if not errors:
         warnings += _check_unobserved(spec, models, meshes)
     return errors, warnings, models, meshes
