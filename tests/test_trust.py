@@ -4,11 +4,13 @@ tests/test_rogue.py (a second process)."""
 
 from __future__ import annotations
 
+import json
 import os
 
 import pytest
 
 from monitor.errors import ConfigError
+from monitor.foreign import ForeignCommands
 from monitor.signing import load_operators, load_private_key, load_public_key, new_key_pair
 from tests.helpers import assert_one_line, assert_one_line_error, free_port, run_monitor
 
@@ -98,3 +100,58 @@ def test_new_key_pairs_are_loadable_under_a_group_writable_umask(tmp_path):
         os.umask(old)
     load_private_key(private)
     load_public_key(public)
+
+
+# --- (b) what counts as a second monitor (pure; the flood over Zenoh is in test_rogue.py) -----
+
+CMD_KEY = "workcell/c1/safety/command"
+
+
+def _cmd(boot: str = "other", wall: float = 1000.0, seq: int = 1) -> bytes:
+    return json.dumps({"schema": "workcell.safety.command/1", "cell": "c1", "seq": seq,
+                       "boot": boot, "instance": "m2", "state": "RUN", "speed_scale": 1.0,
+                       "ttl_ms": 300, "wall": wall, "reasons": []}).encode()
+
+
+def test_only_fresh_commands_signed_with_the_cells_key_from_another_boot_are_a_second_monitor(
+        tmp_path):
+    mon = load_private_key(new_key_pair(tmp_path / "mon.key")[0])
+    rogue = load_private_key(new_key_pair(tmp_path / "rogue.key")[0])
+    seen = ForeignCommands(mon.key.public_key(), CMD_KEY)
+
+    def sort(payload: bytes, signer=None, boot: str = "mine", wall_now: float = 1000.0):
+        sig = signer.sign(CMD_KEY, payload) if signer else None
+        return seen.classify(payload, sig, boot, 0.0, wall_now)
+
+    assert sort(_cmd()) is None  # unsigned
+    assert sort(_cmd(), rogue) is None  # signed by another key
+    assert seen.classify(_cmd(), b"x" * 10, "mine", 0.0, 1000.0) is None
+    assert sort(b"not json", mon) is None
+    assert sort(_cmd(boot="mine"), mon) is None  # our own session, replayed by someone
+    assert sort(_cmd(wall=900.0), mon) is None  # an old recording of another run
+    assert sort(_cmd(), mon) == "other"
+    assert seen.counts() == {"unsigned": 1, "signature": 2, "invalid": 1, "replayed": 1,
+                             "stale": 1}
+    alert = seen.alert("bus", 1.0)
+    assert alert.kind == "foreign_commands" and alert.details["new"]["signature"] == 2
+    assert seen.alert("bus", 2.0) is None  # nothing new: no alert
+
+
+def test_signature_checks_of_foreign_commands_are_budgeted(tmp_path):
+    mon = load_private_key(new_key_pair(tmp_path / "mon.key")[0])
+    rogue = load_private_key(new_key_pair(tmp_path / "rogue.key")[0])
+    seen = ForeignCommands(mon.key.public_key(), CMD_KEY, verify_per_s=10)
+    bad = rogue.sign(CMD_KEY, _cmd())
+    for _ in range(100):  # one instant: at most the budget is verified
+        seen.classify(_cmd(), bad, "mine", 5.0, 1000.0)
+    assert seen.counts() == {"signature": 10, "unchecked": 90}
+    # a second later the budget is back: a genuine second monitor is found
+    good = _cmd()
+    assert seen.classify(good, mon.sign(CMD_KEY, good), "mine", 6.0, 1000.0) == "other"
+
+
+def test_without_a_signing_key_any_well_formed_command_of_another_boot_is_a_second_monitor():
+    seen = ForeignCommands(None, CMD_KEY)  # consumers cannot tell a forger from a monitor
+    assert seen.classify(_cmd(), None, "mine", 0.0, 0.0) == "other"
+    assert seen.classify(_cmd(boot="mine"), None, "mine", 0.0, 0.0) is None
+    assert seen.classify(b"{}", None, "mine", 0.0, 0.0) is None
