@@ -12,7 +12,13 @@ import pytest
 from monitor.errors import ConfigError
 from monitor.foreign import ForeignCommands
 from monitor.signing import load_operators, load_private_key, load_public_key, new_key_pair
-from tests.helpers import assert_one_line, assert_one_line_error, free_port, run_monitor
+from tests.helpers import (
+    assert_one_line,
+    assert_one_line_error,
+    free_port,
+    run_monitor,
+    wait_for,
+)
 
 # --- (a) key and operators files writable (or, private keys, readable) by others ---------------
 
@@ -155,3 +161,51 @@ def test_without_a_signing_key_any_well_formed_command_of_another_boot_is_a_seco
     assert seen.classify(_cmd(), None, "mine", 0.0, 0.0) == "other"
     assert seen.classify(_cmd(boot="mine"), None, "mine", 0.0, 0.0) is None
     assert seen.classify(b"{}", None, "mine", 0.0, 0.0) is None
+
+
+# --- (c) the consumer's inbox under a flood ----------------------------------------------------
+
+
+def test_the_watch_inbox_stays_bounded_under_a_flood_and_the_newest_command_wins():
+    import zenoh
+
+    from monitor.bus import BusConfig, BusKeys, open_session
+    from monitor.cli.bus import _watch_subscriptions
+    from monitor.inbox import Inbox
+
+    port = free_port()
+    keys = BusKeys.of("workcell/flood/")
+    inbox = Inbox(64)
+    with open_session(BusConfig(cell="flood", instance="watch",
+                                listen=(f"tcp/127.0.0.1:{port}",))) as consumer, \
+            open_session(BusConfig(cell="flood", instance="rogue",
+                                   connect=(f"tcp/127.0.0.1:{port}",))) as rogue:
+        subs = _watch_subscriptions(consumer, keys, inbox, lambda: 0.0)
+        token = rogue.liveliness().declare_token(f"{keys.alive}/mon-a")
+        assert wait_for(lambda: inbox.lengths().get("alive") == 1, 10)
+        pub = rogue.declare_publisher(keys.command,
+                                      congestion_control=zenoh.CongestionControl.BLOCK)
+        last = 5000
+        for seq in range(1, last + 1):  # the consumer's loop is not reading: worst case
+            pub.put(_cmd(seq=seq))
+            assert len(inbox) <= 64 + 1  # every kind within its bound, at every moment
+        assert wait_for(lambda: inbox.dropped["command"] >= last - 64 - 100, 10), inbox.dropped
+        assert wait_for(lambda: any(_seq(e) == last for e in _peek(inbox)), 10)
+        assert inbox.lengths() == {"alive": 1, "command": 64}  # the token survived the flood
+        entries = [inbox.get(0.1) for _ in range(65)]
+        assert entries[0][0] == "alive"  # arrival order across kinds
+        seqs = [_seq(e) for e in entries[1:]]
+        assert seqs == sorted(seqs) and seqs[-1] == last  # the newest 64, in order
+        assert inbox.get(0.01) is None
+        token.undeclare()
+        for s in subs:
+            s.undeclare()
+
+
+def _peek(inbox) -> list:
+    with inbox._ready:
+        return [item for q in inbox._queues.values() for _, item in q]
+
+
+def _seq(entry) -> int | None:
+    return json.loads(entry[1])["seq"] if entry[0] == "command" else None
