@@ -354,3 +354,65 @@ def test_unsigned_and_wrongly_signed_commands_are_counted_and_alerted_never_a_se
         if flooder.is_alive():
             flooder.kill()
         flooder.join(10)
+
+
+# --- genuine commands relayed late --------------------------------------------------------------
+
+
+@pytest.mark.slow
+def test_genuine_commands_relayed_3_s_late_never_hold_the_consumer_in_run(tmp_path):
+    """A man in the middle relays the monitor's own signed commands (and forges its liveliness
+    token) 3 s late to a consumer that hears only him: RUN, then the real STOP. Within the
+    consumer's default clock window (one host: 100 ms + ttl) none of them may count."""
+    mon_key, mon_pub, _ = new_key_pair(tmp_path / "monitor.key")
+    mon_port, consumer_port = free_port(), free_port()
+    keys = BusKeys.of(f"workcell/{CELL}/")
+    delay = 3.0
+    cfg = BusConfig(cell=CELL, instance="mon-a", listen=(f"tcp/127.0.0.1:{mon_port}",),
+                    heartbeat_hz=20.0, ttl_ms=300, signing_key=str(mon_key))
+    relayed: list[tuple[float, bytes, bytes | None]] = []
+    with SafetyBus(cfg) as bus, \
+            open_session(BusConfig(cell=CELL, instance="mitm-in",
+                                   connect=(f"tcp/127.0.0.1:{mon_port}",))) as tap, \
+            open_session(BusConfig(cell=CELL, instance="mitm-out",
+                                   listen=(f"tcp/127.0.0.1:{consumer_port}",))) as out:
+        tap.declare_subscriber(keys.command, lambda s: relayed.append((
+            time.monotonic() + delay, s.payload.to_bytes(),
+            s.attachment.to_bytes() if s.attachment is not None else None)))
+        token = out.liveliness().declare_token(f"{keys.alive}/mon-a")  # forged, too
+        watch = subprocess.Popen(
+            [sys.executable, "-m", "monitor", "watch", "--cell", CELL, "--json", "-v",
+             "--monitor-key", str(mon_pub), "--connect", f"tcp/127.0.0.1:{consumer_port}",
+             "--duration", "30"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        events: list[dict] = []
+        threading.Thread(target=lambda: events.extend(json.loads(line) for line in watch.stdout),
+                         daemon=True).start()
+        try:
+            assert wait_for(lambda: any(e["event"] == "liveliness" for e in events), 30), events
+            start = time.monotonic()
+            stopped_at = start + 1.5
+            sent = 0
+            person = (Reason("protective_zone", "person 0 in P1", zone_id="P1", person=0),)
+            while time.monotonic() < stopped_at + delay + 1.0:
+                now = time.monotonic()
+                if now < stopped_at:
+                    bus.publish_command(Command("RUN", 1.0, (), since=start))
+                else:  # the real STOP: the consumer hears it only 3 s from now
+                    bus.publish_command(Command("STOP", 0.0, person, since=stopped_at,
+                                                latched=True))
+                while sent < len(relayed) and relayed[sent][0] <= now:
+                    _, payload, attachment = relayed[sent]
+                    out.put(keys.command, payload, attachment=attachment)
+                    sent += 1
+                time.sleep(0.01)
+        finally:
+            token.undeclare()
+            watch.send_signal(signal.SIGINT)
+            _, err = watch.communicate(timeout=10)
+    assert watch.returncode == 0, err
+    commands = [e for e in events if e["event"] == "command"]
+    verdicts = [e for e in events if e["event"] == "verdict"]
+    assert sum(1 for c in commands if c["body"].get("state") == "RUN") >= 10, commands[:3]
+    # genuine (the signature check comes first) and dropped for lateness alone
+    assert {c["rejected"] for c in commands} == {"window"}, commands[:3]
+    assert not any(v["state"] == "RUN" for v in verdicts), verdicts

@@ -209,3 +209,28 @@ def _peek(inbox) -> list:
 
 def _seq(entry) -> int | None:
     return json.loads(entry[1])["seq"] if entry[0] == "command" else None
+
+
+# --- (d) genuine commands relayed late --------------------------------------------------------
+
+
+def test_a_command_later_than_clock_sync_plus_ttl_is_dropped_the_window_is_the_declared_sync():
+    from monitor.consumer import CommandWatchdog
+
+    def late(seconds: float, **kw) -> str | None:
+        dog = CommandWatchdog(max_ttl_ms=1000, require_liveliness=False, cell="c1", **kw)
+        return dog.on_command(_cmd(wall=1000.0), 5.0, wall_now=1000.0 + seconds)
+
+    # default: one host (or a declared 100 ms sync); the command's ttl is 300 ms
+    assert late(3.0) == "window"  # the assessor's relay: 3 s late never counts
+    assert late(0.5) == "window"
+    assert late(0.35) is None and late(0.0) is None and late(-0.05) is None
+    assert late(-0.2) == "window"  # from the future beyond the declared sync
+    # a deployment that declares a coarser sync gets a wider window, and only that
+    assert late(3.0, clock_sync_ms=3000) is None
+    assert late(3.5, clock_sync_ms=3000) == "window"
+    # the consumer's own ttl cap bounds the window too
+    dog = CommandWatchdog(max_ttl_ms=100, require_liveliness=False, cell="c1")
+    assert dog.on_command(_cmd(wall=1000.0), 5.0, wall_now=1000.25) == "window"
+    with pytest.raises(ValueError, match="clock_sync_ms"):
+        CommandWatchdog(clock_sync_ms=float("nan"))

@@ -27,6 +27,7 @@ from monitor.bus import (
     default_instance,
     open_session,
 )
+from monitor.consumer import DEFAULT_CLOCK_SYNC_MS
 from monitor.errors import ConfigError
 from monitor.inbox import DEFAULT_BOUND, Inbox
 from monitor.pose import OtusBridge, PoseLimits, Rejection, parse_host_port
@@ -162,10 +163,14 @@ def _emit(args, event: dict, text: str) -> None:
 
 def _watchdog(args: argparse.Namespace, bus: BusConfig, keys: BusKeys) -> CommandWatchdog:
     public_keys = tuple(load_public_key(p) for p in args.monitor_key)
-    return CommandWatchdog(max_ttl_ms=args.ttl_ms, instance=args.follow,
-                           require_liveliness=not args.no_liveliness, public_keys=public_keys,
-                           cell=bus.cell if bus.prefix is None else None,
-                           key_expr=keys.command, max_skew_s=args.max_skew)
+    try:
+        return CommandWatchdog(max_ttl_ms=args.ttl_ms, instance=args.follow,
+                               require_liveliness=not args.no_liveliness,
+                               public_keys=public_keys,
+                               cell=bus.cell if bus.prefix is None else None,
+                               key_expr=keys.command, clock_sync_ms=args.clock_sync_ms)
+    except ValueError as exc:  # --ttl-ms / --clock-sync-ms out of range
+        raise ConfigError(f"monitor watch: {exc}") from None
 
 
 def cmd_watch(args: argparse.Namespace) -> int:
@@ -204,7 +209,7 @@ def _watch_subscriptions(session, keys: BusKeys, inbox, clock) -> list:
 
     return [
         session.declare_subscriber(keys.command, lambda s: put(
-            "command", s.payload.to_bytes(), attachment(s), clock())),
+            "command", s.payload.to_bytes(), attachment(s), clock(), time.time())),
         session.declare_subscriber(keys.alert, lambda s: put(
             "alert", s.payload.to_bytes(), attachment(s), clock())),
         session.liveliness().declare_subscriber(keys.alive + "/*", lambda s: put(
@@ -223,9 +228,10 @@ def _watch_loop(args, dog: CommandWatchdog, inbox, stop, clock) -> None:
         entry = inbox.get(timeout=args.tick)
         kind = None
         if entry is not None:
-            kind, payload, extra, t_recv = entry
+            kind, payload, extra, t_recv, *wall_recv = entry
         if kind == "command":
-            why = dog.on_command(payload, t_recv, extra, time.time())
+            # both clocks read on arrival: waiting in the inbox is no reason to drop a command
+            why = dog.on_command(payload, t_recv, extra, wall_recv[0])
             accepted += why is None
             # every rejection code is shown at most once a second (a flood is counted)
             loud = why and t_recv - rejected_shown.get(why, -1e9) >= 1.0
@@ -518,8 +524,11 @@ def register(subparsers) -> None:
                    "it count (repeatable; default none: unauthenticated, with a warning)")
     p.add_argument("--ttl-ms", type=float, default=1000.0,
                    help="this consumer's cap on every command's ttl_ms (default 1000)")
-    p.add_argument("--max-skew", type=float, default=5.0,
-                   help="s a command's wall time may differ from this host's (default 5)")
+    p.add_argument("--clock-sync-ms", type=float, default=DEFAULT_CLOCK_SYNC_MS,
+                   help="how closely this host's clock agrees with the monitor's, as your "
+                   "deployment guarantees (one host, NTP/PTP); a command arriving later than "
+                   "this + its ttl after its signed wall time is dropped (default "
+                   f"{DEFAULT_CLOCK_SYNC_MS:g})")
     p.add_argument("--follow", metavar="INSTANCE",
                    help="only accept this monitor instance (default: any, one at a time)")
     p.add_argument("--no-liveliness", action="store_true",
