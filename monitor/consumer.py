@@ -121,7 +121,7 @@ class CommandWatchdog:
 
     ``public_keys``: trusted monitor keys (Ed25519 public keys); when given, only commands
     signed by one of them count. ``max_ttl_ms`` caps every command's ttl (default 1000 ms).
-    ``cell``/``instance``: accept only this cell / this monitor instance. ``max_skew_s``:
+    ``cell``/``instance``: accept only this cell / this monitor instance.
     ``clock_sync_ms``: the declared accuracy of the clock sync between monitor and consumer;
     a command's ``wall`` may be this far ahead of ``wall_now`` and this plus its ttl behind it
     (checked when the caller passes ``wall_now``, the receive time). ``key_expr``: the key the
