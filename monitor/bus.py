@@ -35,7 +35,8 @@ others itself (answered to the sender, alerted) and hands the pipeline only veri
 One monitor per cell: the instance id is unique by default (host, pid, random); at start the
 bus refuses to run when another monitor's liveliness token is present on the cell, and later it
 reports ``duplicate_monitor`` (``faults()``) and sends STOP while another monitor's token or
-commands are seen.
+commands are seen. Only commands signed with this cell's monitor key count as another
+monitor's; unsigned or wrongly signed ones are counted and alerted (``monitor.foreign``).
 
 Consumer rule: ``monitor.consumer.CommandWatchdog`` (shown by ``monitor watch``; docs/consumer.md).
 """
@@ -62,8 +63,9 @@ from monitor.busconfig import (
     open_session,
     zenoh_config,
 )
-from monitor.consumer import COMMAND_SCHEMA, CommandWatchdog, Verdict, parse_command
+from monitor.consumer import COMMAND_SCHEMA, CommandWatchdog, Verdict
 from monitor.errors import ConfigError
+from monitor.foreign import ForeignCommands
 from monitor.policy import STOP, Command, Reason, ResetRequest
 from monitor.resets import RESET_SCHEMA, ResetGate, ResetPolicy, ResetRefused, reset_payload
 from monitor.signals import close_bounded
@@ -141,6 +143,8 @@ class SafetyBus:
         self._refused_alerts: collections.deque[Alert] = collections.deque(maxlen=16)
         self._others_alive: set[str] = set()  # other monitors' liveliness tokens on this cell
         self._others_seen: dict[str, float] = {}  # other monitors' boots -> last command time
+        self._foreign = ForeignCommands(self._signer.key.public_key() if self._signer else None,
+                                        self.keys.command)
         self._status_extra: dict = {}
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -270,6 +274,10 @@ class SafetyBus:
             seen = {f"boot {b}" for b, t in self._others_seen.items() if now - t < 2.0}
             return sorted(self._others_alive | seen)
 
+    def foreign_commands(self) -> dict[str, int]:
+        """Commands on our key ignored per kind (unsigned, signature, ...; ``monitor.foreign``)."""
+        return self._foreign.counts()
+
     def _on_alive(self, sample: zenoh.Sample) -> None:
         instance = str(sample.key_expr).rsplit("/", 1)[-1]
         if instance == self.config.instance:
@@ -282,15 +290,18 @@ class SafetyBus:
                 self._others_alive.discard(instance)
 
     def _on_command_seen(self, sample: zenoh.Sample) -> None:
-        """Commands on our key from another boot: a second monitor (or a forger) on the cell."""
+        """Commands on our key from another sender: a second monitor when signed with our key
+        (``monitor.foreign``), else counted and alerted."""
         try:
-            body = parse_command(sample.payload.to_bytes())
-        except Exception:
+            signature = sample.attachment.to_bytes() if sample.attachment is not None else None
+            boot = self._foreign.classify(sample.payload.to_bytes(), signature, self._boot,
+                                          self._clock(), time.time())
+        except Exception:  # nothing a sender does may kill this callback
             return
-        if body["boot"] != self._boot:
+        if boot is not None:
             with self._lock:
-                if len(self._others_seen) < 64 or body["boot"] in self._others_seen:
-                    self._others_seen[body["boot"]] = self._clock()
+                if len(self._others_seen) < 64 or boot in self._others_seen:
+                    self._others_seen[boot] = self._clock()
 
     # --- publishing --------------------------------------------------------------------------
 
@@ -526,7 +537,8 @@ class SafetyBus:
         with self._lock:
             alerts = list(self._refused_alerts)
             self._refused_alerts.clear()
-        for alert in alerts:
+        foreign = self._foreign.alert("bus", self._clock())
+        for alert in [*alerts, *([foreign] if foreign else [])]:
             self.publish_alert(alert)
 
     # --- status ------------------------------------------------------------------------------
@@ -552,6 +564,7 @@ class SafetyBus:
                 "puts_unmatched": dict(self._counters["unmatched"]),
                 "put_errors": dict(self._counters["errors"]),
                 "resets_invalid": self._resets_invalid, "resets_refused": self._resets_refused,
+                "commands_foreign": self.foreign_commands(),
                 "alerts_held": self._limiter.held(),
                 "fps": None,  # set by the service with update_status(fps=...)
                 **self._status_extra,

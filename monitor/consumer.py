@@ -10,7 +10,9 @@ this order (docs/consumer.md gives the same list for ports to other languages):
 2. it is signed by a trusted monitor key (Ed25519 over the exact payload bytes, see
    ``monitor.signing``) -- when the consumer has keys, unsigned or wrongly signed is dropped;
 3. it names the expected cell (and instance, when one is followed);
-4. its ``wall`` time is within ``max_skew_s`` of the consumer's clock (old recordings);
+4. its ``wall`` time is at most ``clock_sync_ms`` ahead of the consumer's clock and at most
+   ``clock_sync_ms`` + ttl behind it (recordings, and genuine commands relayed late: a
+   command older than the declared clock-sync accuracy plus its ttl says nothing about now);
 5. its ``boot`` is not one the consumer has already seen replaced, and its ``seq`` grew within
    that boot (repeats and reordering; a seq going backwards forces STOP until a newer one);
 
@@ -38,6 +40,9 @@ MAX_TTL_MS = 60_000.0
 DEFAULT_MAX_TTL_MS = 1000.0
 MAX_ID = 128
 MAX_TRACKED = 256  # boots / instances remembered (a flood of forged ids cannot grow memory)
+# how closely the monitor's and the consumer's wall clocks agree, as the deployment declares it:
+# one host, or a LAN synchronised by NTP/PTP well within this (docs/consumer.md)
+DEFAULT_CLOCK_SYNC_MS = 100.0
 
 
 @dataclass(frozen=True)
@@ -116,15 +121,18 @@ class CommandWatchdog:
 
     ``public_keys``: trusted monitor keys (Ed25519 public keys); when given, only commands
     signed by one of them count. ``max_ttl_ms`` caps every command's ttl (default 1000 ms).
-    ``cell``/``instance``: accept only this cell / this monitor instance. ``max_skew_s``:
-    allowed difference between a command's ``wall`` and ``wall_now`` (checked when the caller
-    passes ``wall_now``). ``key_expr``: the key the commands arrive on (part of the signature).
+    ``cell``/``instance``: accept only this cell / this monitor instance.
+    ``clock_sync_ms``: the declared accuracy of the clock sync between monitor and consumer;
+    a command's ``wall`` may be this far ahead of ``wall_now`` and this plus its ttl behind it
+    (checked when the caller passes ``wall_now``, the receive time). ``key_expr``: the key the
+    commands arrive on (part of the signature).
     """
 
     def __init__(self, max_ttl_ms: float | None = DEFAULT_MAX_TTL_MS,
                  instance: str | None = None, require_liveliness: bool = True, *,
                  public_keys: tuple = (), cell: str | None = None,
-                 key_expr: str | None = None, max_skew_s: float = 5.0) -> None:
+                 key_expr: str | None = None,
+                 clock_sync_ms: float = DEFAULT_CLOCK_SYNC_MS) -> None:
         if max_ttl_ms is None:
             max_ttl_ms = DEFAULT_MAX_TTL_MS
         if not (math.isfinite(max_ttl_ms) and 0 < max_ttl_ms <= MAX_TTL_MS):
@@ -135,7 +143,9 @@ class CommandWatchdog:
         self.public_keys = tuple(public_keys)
         self.cell = cell
         self.key_expr = key_expr or f"workcell/{cell or 'cell1'}/safety/command"
-        self.max_skew_s = max_skew_s
+        if not (math.isfinite(clock_sync_ms) and 0 <= clock_sync_ms <= MAX_TTL_MS):
+            raise ValueError(f"clock_sync_ms must be within [0, {MAX_TTL_MS:.0f}] ms")
+        self.clock_sync_ms = float(clock_sync_ms)
         self.last: dict | None = None
         self.received: float | None = None
         self.boot: str | None = None
@@ -179,8 +189,12 @@ class CommandWatchdog:
             return self._reject("other_instance", instance)
         if wall_now is not None:
             wall = body.get("wall")
-            if wall is None or abs(float(wall) - wall_now) > self.max_skew_s:
-                return self._reject("window", "wall time outside the allowed skew")
+            late_ms = None if wall is None else (wall_now - float(wall)) * 1000.0
+            ttl = min(float(body["ttl_ms"]), self.max_ttl_ms)
+            if late_ms is None or not -self.clock_sync_ms <= late_ms <= self.clock_sync_ms + ttl:
+                return self._reject("window", "no wall time" if late_ms is None else
+                                    f"sent {late_ms:.0f} ms before it arrived (allowed "
+                                    f"-{self.clock_sync_ms:.0f}..{self.clock_sync_ms + ttl:.0f})")
         if boot in self.retired_boots:
             return self._reject("old_boot", boot)
         if self.last is not None and boot == self.boot and seq <= int(self.last["seq"]):

@@ -103,6 +103,9 @@ class Metrics:
                              registry=r)
         self.alerts = Counter("monitor_alerts", "alerts raised", ["kind"], registry=r)
         self.persons = Gauge("monitor_persons", "persons in the last frame", registry=r)
+        self.foreign_commands = Gauge(
+            "monitor_commands_foreign", "commands on the command key not from this monitor "
+            "(unsigned, wrongly signed, ...), ignored", ["kind"], registry=r)
         self.server = None
         if port:
             try:
@@ -481,6 +484,8 @@ class ServiceSink:
         m.inference_ms.set(inf_ms)
         m.state.set(STATE_LEVEL[result.command.state])
         m.dropped.set(sum(s.dropped for s in statuses))
+        for kind, n in self.bus.foreign_commands().items():
+            m.foreign_commands.labels(kind).set(n)
         if result.persons is not None:
             m.persons.set(len(result.persons))
 

@@ -18,6 +18,11 @@ received, then parse them.
 Key files: private keys are PKCS#8 PEM written with 0600 permissions; public keys are one line
 ``ed25519:<base64 of the 32 raw bytes>`` (easy to paste into a controller's config). An
 operators file lists ``<operator> ed25519:<base64>`` per line (``#`` starts a comment).
+
+Whoever can write a key or operators file decides whom the monitor or a consumer trusts, so a
+file that its group or others may write is refused (a private key also when they may read it),
+with the file and its mode in the error. The mode is taken from the opened file (``fstat``),
+so a swap between the check and the read cannot slip in another file.
 """
 
 from __future__ import annotations
@@ -25,6 +30,7 @@ from __future__ import annotations
 import base64
 import binascii
 import os
+import stat
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -37,6 +43,7 @@ from monitor.errors import ConfigError
 DOMAIN = b"workcell-monitor/1\n"
 SIGNATURE_BYTES = 64
 PUBLIC_PREFIX = "ed25519:"
+WRITABLE_BY_OTHERS = 0o022  # group or world write: whoever has it chooses whom we trust
 
 
 def signed_message(key_expr: str, payload: bytes) -> bytes:
@@ -91,20 +98,16 @@ def parse_public_key(text: str, where: str = "public key") -> Ed25519PublicKey:
 
 
 def load_public_key(path: str | Path) -> Ed25519PublicKey:
-    """A public key file (one line ``ed25519:<base64>``)."""
-    return parse_public_key(_read(path).split("\n", 1)[0], str(path))
+    """A public key file (one line ``ed25519:<base64>``); refused when others can write it."""
+    text = _read(path, "public key file", WRITABLE_BY_OTHERS, "chmod 644")
+    return parse_public_key(text.split("\n", 1)[0], str(path))
 
 
 def load_private_key(path: str | Path) -> Signer:
-    """A private key file written by ``monitor keys new``; refused when others can read it."""
+    """A private key file written by ``monitor keys new``; refused when others can read or
+    write it."""
     path = Path(path)
-    data = _read(path).encode()
-    try:
-        mode = path.stat().st_mode
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read: {exc.strerror}") from None
-    if mode & 0o077:
-        raise ConfigError(f"{path}: private key is readable by others (chmod 600 {path})")
+    data = _read(path, "private key", 0o077, "chmod 600").encode()
     try:
         key = serialization.load_pem_private_key(data, password=None)
     except (ValueError, TypeError):
@@ -117,7 +120,8 @@ def load_private_key(path: str | Path) -> Signer:
 def load_operators(path: str | Path) -> dict[str, Ed25519PublicKey]:
     """An operators file: ``<operator> ed25519:<base64>`` per line; duplicates are refused."""
     out: dict[str, Ed25519PublicKey] = {}
-    for n, line in enumerate(_read(path).splitlines(), start=1):
+    text = _read(path, "operators file", WRITABLE_BY_OTHERS, "chmod 644")
+    for n, line in enumerate(text.splitlines(), start=1):
         line = line.split("#", 1)[0].strip()
         if not line:
             continue
@@ -149,6 +153,7 @@ def new_key_pair(private_path: str | Path, force: bool = False) -> tuple[Path, P
         with _open_private(private_path, force) as fh:
             fh.write(pem)
         public_path.write_text(text + "\n", encoding="utf-8")
+        os.chmod(public_path, 0o644)  # a umask of 002 would leave it group-writable: refused
     except OSError as exc:
         raise ConfigError(f"{private_path}: cannot write the key: {exc.strerror}") from None
     return private_path, public_path, text
@@ -161,11 +166,27 @@ def _open_private(path: Path, force: bool):
     return os.fdopen(fd, "wb")
 
 
-def _read(path: str | Path) -> str:
+def _read(path: str | Path, what: str, forbidden: int, fix: str) -> str:
+    """The file's text; ConfigError when its mode has any of the ``forbidden`` bits (checked
+    on the opened file)."""
     try:
-        return Path(path).read_text(encoding="utf-8")
+        with open(path, "rb") as fh:
+            mode = os.fstat(fh.fileno()).st_mode
+            if stat.S_IMODE(mode) & forbidden:
+                raise ConfigError(f"{path}: {what} has mode {stat.S_IMODE(mode):04o}: "
+                                  f"{_who(stat.S_IMODE(mode) & forbidden)}; refused "
+                                  f"({fix} {path})")
+            return fh.read().decode("utf-8")
     except FileNotFoundError:
         raise ConfigError(f"{path}: no such key file") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise ConfigError(f"{path}: cannot read: {getattr(exc, 'strerror', None) or exc}"
                           ) from None
+
+
+def _who(bits: int) -> str:
+    """'group and others can write', ... for the offending permission bits."""
+    who = " and ".join(w for w, m in (("group", 0o070), ("others", 0o007)) if bits & m)
+    can = " and ".join(c for c, m in (("read", 0o044), ("write", 0o022), ("execute", 0o011))
+                       if bits & m)
+    return f"{who} can {can} it"

@@ -28,3 +28,11 @@ def _isolated_home(tmp_path_factory: pytest.TempPathFactory, monkeypatch: pytest
     """Keep the model cache of CLI runs out of the user's home."""
     home = tmp_path_factory.getbasetemp() / "monitor-home"
     monkeypatch.setenv("WORKCELL_MONITOR_HOME", str(home))
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """Files the tests write get the usual 0644/0755: a umask of 002 (group-writable files)
+    would make the monitor refuse the operators and public key files they write."""
+    import os
+
+    os.umask(0o022)

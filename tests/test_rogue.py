@@ -262,3 +262,157 @@ def test_the_default_instance_id_is_unique_per_process():
     here = BusConfig().instance
     assert out.returncode == 0 and out.stdout.strip() != here
     assert str(os.getpid()) in here and here.startswith("monitor-")
+
+
+# --- unsigned traffic on the command key is no second monitor ---------------------------------
+
+
+def flooder_main(port: int, rogue_key: str, monitor_key: str, flood, genuine) -> None:
+    """Floods well-formed unsigned and wrongly signed commands (fresh boots, current wall)
+    while ``flood`` is set; then, once ``genuine`` is set, sends commands signed with the
+    cell's real monitor key from a boot of its own: a true second monitor (without a token)."""
+    keys = BusKeys.of(f"workcell/{CELL}/")
+    wrong, right = load_private_key(rogue_key), load_private_key(monitor_key)
+    with open_session(BusConfig(cell=CELL, instance="flooder",
+                                connect=(f"tcp/127.0.0.1:{port}",))) as s:
+        pub = s.declare_publisher(keys.command)
+        flood.wait(60)
+        n = 0
+        while flood.is_set():
+            n += 1
+            body = {"schema": "workcell.safety.command/1", "cell": CELL, "seq": n,
+                    "boot": f"forged-{n % 50}", "instance": "mon-x", "state": "STOP",
+                    "speed_scale": 0.0, "ttl_ms": 300, "wall": time.time(), "reasons": []}
+            payload = json.dumps(body).encode()
+            pub.put(payload)  # unsigned
+            pub.put(payload, attachment=wrong.sign(keys.command, payload))  # wrong key
+            pub.put(payload, attachment=b"\x00" * 7)  # not even a signature
+        genuine.wait(60)
+        n = 0
+        while True:  # until the test kills this process
+            n += 1
+            body = {"schema": "workcell.safety.command/1", "cell": CELL, "seq": n,
+                    "boot": "second-monitor", "instance": "mon-b", "state": "RUN",
+                    "speed_scale": 1.0, "ttl_ms": 300, "wall": time.time(), "reasons": []}
+            payload = json.dumps(body).encode()
+            pub.put(payload, attachment=right.sign(keys.command, payload))
+            time.sleep(0.05)
+
+
+def test_unsigned_and_wrongly_signed_commands_are_counted_and_alerted_never_a_second_monitor(
+        tmp_path):
+    mon_key, _, _ = new_key_pair(tmp_path / "monitor.key")
+    rogue_key, _, _ = new_key_pair(tmp_path / "rogue.key")
+    port = free_port()
+    ctx = multiprocessing.get_context("spawn")
+    flood, genuine = ctx.Event(), ctx.Event()
+    flooder = ctx.Process(target=flooder_main, args=(port, str(rogue_key), str(mon_key), flood,
+                                                     genuine))
+    cfg = BusConfig(cell=CELL, instance="mon-a", listen=(f"tcp/127.0.0.1:{port}",),
+                    heartbeat_hz=20.0, ttl_ms=300, signing_key=str(mon_key))
+    keys = BusKeys.of(f"workcell/{CELL}/")
+    alerts: list[dict] = []
+    commands: list[dict] = []
+    try:
+        with SafetyBus(cfg) as bus, open_session(BusConfig(
+                cell=CELL, instance="ctl", connect=(f"tcp/127.0.0.1:{port}",))) as peer:
+            peer.declare_subscriber(keys.alert, lambda s: alerts.append(
+                json.loads(s.payload.to_bytes())))
+            peer.declare_subscriber(keys.command, lambda s: commands.append(
+                json.loads(s.payload.to_bytes())))
+            flooder.start()
+            assert wait_for(lambda: bool(list(peer.get(keys.status, timeout=1.0))), 30)
+            flood.set()
+            faults: list = []
+            deadline = time.monotonic() + 2.5
+            while time.monotonic() < deadline:  # the monitor's steps during the flood
+                bus.publish_command(Command("RUN", 1.0, ()))
+                faults += bus.faults()
+                time.sleep(0.01)
+            flood.clear()
+            assert faults == [], faults[:1]
+            assert bus.status()["other_monitors"] == []
+            counts = bus.status()["commands_foreign"]
+            assert counts.get("unsigned", 0) >= 50 and counts.get("signature", 0) >= 50, counts
+            assert not any(any(r["code"] == "duplicate_monitor" for r in c["reasons"])
+                           for c in commands)
+            assert wait_for(lambda: any(a["kind"] == "foreign_commands" for a in alerts), 5)
+            raised = [a for a in alerts if a["kind"] == "foreign_commands"]
+            assert len(raised) <= 2, raised  # rate-limited (5 s), the rest ride on `repeat`
+            assert "not a second monitor" in raised[0]["message"]
+            # a genuinely signed second monitor still stops the cell
+            genuine.set()
+            assert wait_for(lambda: any(f.name == "duplicate_monitor" for f in bus.faults()),
+                            10), bus.status()
+            (fault,) = bus.faults()
+            assert (fault.stop, fault.latch) == (True, True)
+            n = len(commands)
+            bus.publish_command(Command("RUN", 1.0, ()))
+            assert wait_for(lambda: any(c["state"] == "STOP" and any(
+                r["code"] == "duplicate_monitor" for r in c["reasons"]) for c in commands[n:]))
+    finally:
+        if flooder.is_alive():
+            flooder.kill()
+        flooder.join(10)
+
+
+# --- genuine commands relayed late --------------------------------------------------------------
+
+
+@pytest.mark.slow
+def test_genuine_commands_relayed_3_s_late_never_hold_the_consumer_in_run(tmp_path):
+    """A man in the middle relays the monitor's own signed commands (and forges its liveliness
+    token) 3 s late to a consumer that hears only him: RUN, then the real STOP. Within the
+    consumer's default clock window (one host: 100 ms + ttl) none of them may count."""
+    mon_key, mon_pub, _ = new_key_pair(tmp_path / "monitor.key")
+    mon_port, consumer_port = free_port(), free_port()
+    keys = BusKeys.of(f"workcell/{CELL}/")
+    delay = 3.0
+    cfg = BusConfig(cell=CELL, instance="mon-a", listen=(f"tcp/127.0.0.1:{mon_port}",),
+                    heartbeat_hz=20.0, ttl_ms=300, signing_key=str(mon_key))
+    relayed: list[tuple[float, bytes, bytes | None]] = []
+    with SafetyBus(cfg) as bus, \
+            open_session(BusConfig(cell=CELL, instance="mitm-in",
+                                   connect=(f"tcp/127.0.0.1:{mon_port}",))) as tap, \
+            open_session(BusConfig(cell=CELL, instance="mitm-out",
+                                   listen=(f"tcp/127.0.0.1:{consumer_port}",))) as out:
+        tap.declare_subscriber(keys.command, lambda s: relayed.append((
+            time.monotonic() + delay, s.payload.to_bytes(),
+            s.attachment.to_bytes() if s.attachment is not None else None)))
+        token = out.liveliness().declare_token(f"{keys.alive}/mon-a")  # forged, too
+        watch = subprocess.Popen(
+            [sys.executable, "-m", "monitor", "watch", "--cell", CELL, "--json", "-v",
+             "--monitor-key", str(mon_pub), "--connect", f"tcp/127.0.0.1:{consumer_port}",
+             "--duration", "30"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        events: list[dict] = []
+        threading.Thread(target=lambda: events.extend(json.loads(line) for line in watch.stdout),
+                         daemon=True).start()
+        try:
+            assert wait_for(lambda: any(e["event"] == "liveliness" for e in events), 30), events
+            start = time.monotonic()
+            stopped_at = start + 1.5
+            sent = 0
+            person = (Reason("protective_zone", "person 0 in P1", zone_id="P1", person=0),)
+            while time.monotonic() < stopped_at + delay + 1.0:
+                now = time.monotonic()
+                if now < stopped_at:
+                    bus.publish_command(Command("RUN", 1.0, (), since=start))
+                else:  # the real STOP: the consumer hears it only 3 s from now
+                    bus.publish_command(Command("STOP", 0.0, person, since=stopped_at,
+                                                latched=True))
+                while sent < len(relayed) and relayed[sent][0] <= now:
+                    _, payload, attachment = relayed[sent]
+                    out.put(keys.command, payload, attachment=attachment)
+                    sent += 1
+                time.sleep(0.01)
+        finally:
+            token.undeclare()
+            watch.send_signal(signal.SIGINT)
+            _, err = watch.communicate(timeout=10)
+    assert watch.returncode == 0, err
+    commands = [e for e in events if e["event"] == "command"]
+    verdicts = [e for e in events if e["event"] == "verdict"]
+    assert sum(1 for c in commands if c["body"].get("state") == "RUN") >= 10, commands[:3]
+    # genuine (the signature check comes first) and dropped for lateness alone
+    assert {c["rejected"] for c in commands} == {"window"}, commands[:3]
+    assert not any(v["state"] == "RUN" for v in verdicts), verdicts

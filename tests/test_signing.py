@@ -60,7 +60,7 @@ def test_new_key_pair_is_private_and_never_overwritten(tmp_path):
 def test_a_private_key_readable_by_others_is_refused(tmp_path):
     private, _, _ = new_key_pair(tmp_path / "mon.key")
     os.chmod(private, 0o644)
-    with pytest.raises(ConfigError, match="readable by others"):
+    with pytest.raises(ConfigError, match="mode 0644: group and others can read it"):
         load_private_key(private)
 
 

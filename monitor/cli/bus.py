@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import queue
 import socket
 import sys
 import time
@@ -28,7 +27,9 @@ from monitor.bus import (
     default_instance,
     open_session,
 )
+from monitor.consumer import DEFAULT_CLOCK_SYNC_MS
 from monitor.errors import ConfigError
+from monitor.inbox import DEFAULT_BOUND, Inbox
 from monitor.pose import OtusBridge, PoseLimits, Rejection, parse_host_port
 from monitor.resets import request_reset, reset_payload
 from monitor.signals import (
@@ -162,10 +163,14 @@ def _emit(args, event: dict, text: str) -> None:
 
 def _watchdog(args: argparse.Namespace, bus: BusConfig, keys: BusKeys) -> CommandWatchdog:
     public_keys = tuple(load_public_key(p) for p in args.monitor_key)
-    return CommandWatchdog(max_ttl_ms=args.ttl_ms, instance=args.follow,
-                           require_liveliness=not args.no_liveliness, public_keys=public_keys,
-                           cell=bus.cell if bus.prefix is None else None,
-                           key_expr=keys.command, max_skew_s=args.max_skew)
+    try:
+        return CommandWatchdog(max_ttl_ms=args.ttl_ms, instance=args.follow,
+                               require_liveliness=not args.no_liveliness,
+                               public_keys=public_keys,
+                               cell=bus.cell if bus.prefix is None else None,
+                               key_expr=keys.command, clock_sync_ms=args.clock_sync_ms)
+    except ValueError as exc:  # --ttl-ms / --clock-sync-ms out of range
+        raise ConfigError(f"monitor watch: {exc}") from None
 
 
 def cmd_watch(args: argparse.Namespace) -> int:
@@ -173,7 +178,9 @@ def cmd_watch(args: argparse.Namespace) -> int:
         bus = _bus_config(args, instance=args.instance or default_instance("watch"))
         keys = BusKeys.of(bus.key_prefix)
         dog = _watchdog(args, bus, keys)
-        inbox: queue.SimpleQueue = queue.SimpleQueue()
+        if args.inbox < 1:
+            raise ConfigError(f"--inbox {args.inbox}: must be at least 1")
+        inbox = Inbox(args.inbox)
         clock = time.monotonic
         try:
             session = call_interruptible(lambda: open_session(bus), stop)
@@ -197,13 +204,16 @@ def _watch_subscriptions(session, keys: BusKeys, inbox, clock) -> list:
     def attachment(s) -> bytes | None:
         return s.attachment.to_bytes() if s.attachment is not None else None
 
+    def put(kind: str, *item) -> None:
+        inbox.put(kind, (kind, *item))
+
     return [
-        session.declare_subscriber(keys.command, lambda s: inbox.put(
-            ("command", s.payload.to_bytes(), attachment(s), clock()))),
-        session.declare_subscriber(keys.alert, lambda s: inbox.put(
-            ("alert", s.payload.to_bytes(), attachment(s), clock()))),
-        session.liveliness().declare_subscriber(keys.alive + "/*", lambda s: inbox.put(
-            ("alive", str(s.key_expr), s.kind == zenoh.SampleKind.PUT, clock())), history=True),
+        session.declare_subscriber(keys.command, lambda s: put(
+            "command", s.payload.to_bytes(), attachment(s), clock(), time.time())),
+        session.declare_subscriber(keys.alert, lambda s: put(
+            "alert", s.payload.to_bytes(), attachment(s), clock())),
+        session.liveliness().declare_subscriber(keys.alive + "/*", lambda s: put(
+            "alive", str(s.key_expr), s.kind == zenoh.SampleKind.PUT, clock()), history=True),
     ]
 
 
@@ -215,12 +225,13 @@ def _watch_loop(args, dog: CommandWatchdog, inbox, stop, clock) -> None:
     rejected_shown: dict[str, float] = {}
     accepted = 0
     while not stop.is_set() and (end is None or clock() < end):
-        try:
-            kind, payload, extra, t_recv = inbox.get(timeout=args.tick)
-        except queue.Empty:
-            kind = None
+        entry = inbox.get(timeout=args.tick)
+        kind = None
+        if entry is not None:
+            kind, payload, extra, t_recv, *wall_recv = entry
         if kind == "command":
-            why = dog.on_command(payload, t_recv, extra, time.time())
+            # both clocks read on arrival: waiting in the inbox is no reason to drop a command
+            why = dog.on_command(payload, t_recv, extra, wall_recv[0])
             accepted += why is None
             # every rejection code is shown at most once a second (a flood is counted)
             loud = why and t_recv - rejected_shown.get(why, -1e9) >= 1.0
@@ -261,9 +272,11 @@ def _watch_loop(args, dog: CommandWatchdog, inbox, stop, clock) -> None:
             last_summary = now
             _emit(args, {"event": "steady", "mono": now, "state": verdict.state,
                          "for_s": now - shown_at, "seq": verdict.seq, "accepted": accepted,
-                         "rejected": dict(dog.rejected)},
+                         "rejected": dict(dog.rejected), "inbox_dropped": dict(inbox.dropped)},
                   f"  ... {verdict.state} for {now - shown_at:.0f} s (seq {verdict.seq}, "
-                  f"{accepted} commands, {sum(dog.rejected.values())} rejected)")
+                  f"{accepted} commands, {sum(dog.rejected.values())} rejected"
+                  + (f", {sum(inbox.dropped.values())} dropped unread (flood)"
+                     if inbox.dropped else "") + ")")
 
 
 def _emit_verdict(args, v: Verdict, now: float) -> None:
@@ -511,8 +524,11 @@ def register(subparsers) -> None:
                    "it count (repeatable; default none: unauthenticated, with a warning)")
     p.add_argument("--ttl-ms", type=float, default=1000.0,
                    help="this consumer's cap on every command's ttl_ms (default 1000)")
-    p.add_argument("--max-skew", type=float, default=5.0,
-                   help="s a command's wall time may differ from this host's (default 5)")
+    p.add_argument("--clock-sync-ms", type=float, default=DEFAULT_CLOCK_SYNC_MS,
+                   help="how closely this host's clock agrees with the monitor's, as your "
+                   "deployment guarantees (one host, NTP/PTP); a command arriving later than "
+                   "this + its ttl after its signed wall time is dropped (default "
+                   f"{DEFAULT_CLOCK_SYNC_MS:g})")
     p.add_argument("--follow", metavar="INSTANCE",
                    help="only accept this monitor instance (default: any, one at a time)")
     p.add_argument("--no-liveliness", action="store_true",
@@ -525,6 +541,9 @@ def register(subparsers) -> None:
                    help="s between steady-state lines while nothing changes (default 10; 0 off)")
     p.add_argument("--duration", type=float, default=None,
                    help="exit after this many seconds (default: run until SIGINT/SIGTERM)")
+    p.add_argument("--inbox", type=int, default=DEFAULT_BOUND, metavar="N",
+                   help="messages of each kind held while this consumer is busy; when full the "
+                   f"oldest is dropped and counted (default {DEFAULT_BOUND})")
     p.add_argument("--tick", type=float, default=0.01, help=argparse.SUPPRESS)
     p.set_defaults(func=cmd_watch)
 
