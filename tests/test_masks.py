@@ -19,31 +19,58 @@ CUTOUT = Figure((520.0, 640.0), 360.0)  # a person-coloured cut-out in front
 PERSON = Figure((660.0, 560.0), 300.0)  # a real person just behind it, to its right
 
 
-def test_a_box_wholly_inside_a_tight_mask_is_suppressed():
+def _keep(rule: MaskRule, *boxes) -> list[bool]:
+    return rule.keep(np.array(boxes, float)).tolist()
+
+
+def test_a_box_wholly_inside_a_tight_mask_is_suppressed_only_if_it_is_the_object():
     rule = MaskRule([np.array([[100, 100], [300, 100], [300, 500], [100, 500]])], W, H, 0.0)
-    keep = rule.keep(np.array([[100, 100, 300, 500],  # exactly the mask
-                               [150, 200, 250, 400],  # inside
-                               [150, 200, 302, 400],  # two pixels out: kept
-                               [600, 100, 700, 300]]))  # elsewhere
-    assert keep.tolist() == [False, False, True, True]
+    assert _keep(rule, [100, 100, 300, 500]) == [False]  # exactly the mask: the object
+    assert _keep(rule, [150, 200, 250, 400]) == [True]  # smaller than the object: a person
+    assert _keep(rule, [600, 100, 700, 300]) == [True]  # elsewhere
+    # a box reaching 2 px out keeps itself; the object's box inside the mask still goes
+    assert _keep(rule, [100, 100, 300, 500], [250, 200, 302, 400]) == [False, True]
 
 
 def test_the_box_error_margin_suppresses_a_cut_out_but_not_a_box_reaching_out():
     rule = MaskRule([np.array([[100, 100], [300, 100], [300, 500], [100, 500]])], W, H, 50.0)
-    keep = rule.keep(np.array([[60, 80, 340, 540],  # the cut-out's box, one cell too large
-                               [200, 100, 360, 500],  # reaches 60 px out: a person there
-                               [250, 450, 330, 620]]))  # below the mask
-    assert keep.tolist() == [False, True, True]
+    assert _keep(rule, [60, 80, 340, 540]) == [False]  # the cut-out's box, one cell too large
+    assert _keep(rule, [200, 100, 360, 500]) == [True]  # reaches 60 px out: a person there
+    assert _keep(rule, [250, 450, 330, 620]) == [True]  # below the mask
+
+
+def test_a_person_inside_a_loose_mask_is_kept():
+    """A mask 50 px larger than its object: the object alone is not its extent (the mask
+    suppresses nothing), and a person standing in the slack beside it is kept."""
+    obj = [150, 150, 250, 450]
+    rule = MaskRule([np.array([[100, 100], [300, 100], [300, 500], [100, 500]])], W, H, 25.0)
+    assert _keep(rule, obj) == [True]
+    assert _keep(rule, [255, 200, 295, 480]) == [True]  # a slim person in the slack alone
+    assert _keep(rule, obj, [252, 200, 295, 480]) == [True, True]  # touching the object
+    check = rule.check(np.array([obj], float))
+    assert check.unmatched == ("mask0",)
+    tight = MaskRule([np.array([[150, 150], [250, 150], [250, 450], [150, 450]])], W, H, 25.0)
+    assert _keep(tight, obj) == [False]
+    # the same person beside a tight mask reaches out of it: kept, the object still goes
+    assert _keep(tight, obj, [252, 200, 295, 480]) == [False, True]
+
+
+def test_a_larger_person_in_front_of_the_object_is_kept():
+    rule = MaskRule([np.array([[100, 100], [300, 100], [300, 500], [100, 500]])], W, H, 25.0)
+    # wholly inside the grown mask but 24 px taller than the object above and below: kept
+    assert _keep(rule, [90, 76, 290, 524]) == [False]  # within the box error: the object
+    assert _keep(rule, [110, 80, 290, 470]) == [True]  # shorter at the bottom by 30 px
 
 
 def test_non_convex_masks_and_odd_boxes():
     ell = np.array([[0, 0], [400, 0], [400, 100], [100, 100], [100, 400], [0, 400]])
     rule = MaskRule([ell], W, H, 0.0)
-    keep = rule.keep(np.array([[10, 10, 390, 90],  # in the top bar
-                               [10, 10, 390, 390],  # spans the notch: not wholly inside
-                               [np.nan, 0, 10, 10],  # not finite: never suppressed
-                               [50, 50, 50, 50]]))  # empty box: never suppressed
-    assert keep.tolist() == [False, True, True, True]
+    assert _keep(rule, [10, 10, 390, 90]) == [True]  # in the top bar, not the L's extent
+    assert _keep(rule, [0, 0, 400, 400]) == [True]  # the extent, but not wholly inside
+    assert _keep(rule, [np.nan, 0, 10, 10]) == [True]  # not finite: never suppressed
+    assert _keep(rule, [50, 50, 50, 50]) == [True]  # empty box: never suppressed
+    # the L's own extent in pieces that lie inside it: suppressed together
+    assert _keep(rule, [0, 0, 400, 100], [0, 0, 100, 400]) == [False, False]
 
 
 def test_no_masks_keep_everything():
@@ -140,16 +167,20 @@ def test_volume_masks_count_through_their_image_outline():
     data["zones"].append({"id": "mannequin", "kind": "mask", "shape": "box",
                           "min_m": [3.0, 2.0, 0.0], "max_m": [3.6, 2.6, 1.8]})
     cell = zn.parse_cell(data)
-    rule = MaskRule.for_camera(cell, "cam0", W, H, 0.0)
+    rule = MaskRule.for_camera(cell, "cam0", W, H, 30.0)
     (outline,) = rule.polygons
     x1, y1 = outline.min(axis=0)
     x2, y2 = outline.max(axis=0)
     cx, cy = (x1 + x2) / 2, (y1 + y2) / 2
-    inner = [cx - 5, cy - 20, cx + 5, cy + 20]  # well inside the projected box
+    whole = [x1 + 1, y1 + 1, x2 - 1, y2 - 1]  # the mannequin's extent
+    inner = [cx - 5, cy - 20, cx + 5, cy + 20]  # much smaller: a person, not the mannequin
     reaching = [cx - 5, cy - 20, x2 + 60, cy + 20]
-    assert rule.keep(np.array([inner, reaching])).tolist() == [False, True]
-    half = MaskRule.for_camera(cell, "cam0", W // 2, H // 2, 0.0)  # a smaller stream
-    assert half.keep(np.array([inner]) / 2).tolist() == [False]
+    assert rule.keep(np.array([whole])).tolist() == [False]
+    assert rule.keep(np.array([inner])).tolist() == [True]
+    assert rule.keep(np.array([reaching])).tolist() == [True]
+    assert rule.ids == ("mannequin",)
+    half = MaskRule.for_camera(cell, "cam0", W // 2, H // 2, 15.0)  # a smaller stream
+    assert half.keep(np.array([whole]) / 2).tolist() == [False]
 
 
 def test_zones_validate_warns_about_a_mask_near_a_protective_zone(tmp_path, capsys):

@@ -169,6 +169,60 @@ def scenarios(fps: float = 10.0) -> list[Scenario]:
         extra_zones=({"id": "cutout-mask", "kind": "mask", "shape": "cylinder",
                       "center_m": [1.9, -1.9], "radius_m": 0.35, "z_min_m": 0.0,
                       "z_max_m": 2.0},)))
+    out += masked_cutout_scenarios(fps)
+    return out
+
+
+def cutout_box_px(scene: CellScene, cutout: CutOut) -> tuple[int, int, int, int]:
+    """The pixel box (x2/y2 exclusive) of a cut-out as the scene draws it."""
+    import numpy as np
+
+    from monitor.scene import Figure, _box_of, draw_figure
+
+    cam = scene.camera
+    feet, head = cam.project(np.array([[*cutout.floor_m, 0.0], [*cutout.floor_m,
+                                                                  cutout.height_m]]))
+    canvas = np.zeros((cam.height, cam.width), np.uint8)
+    draw_figure(canvas, Figure((float(feet[0]), float(feet[1])), float(feet[1] - head[1]),
+                               arm_raise=0.3, colours=((255,),) * 4))
+    box = _box_of(canvas > 0)
+    assert box is not None, "cut-out out of view"
+    return box
+
+
+def _box_mask(scene: CellScene, cutout: CutOut, loose_px: int) -> dict:
+    x1, y1, x2, y2 = cutout_box_px(scene, cutout)
+    g = loose_px
+    return {"id": "cutout-mask", "kind": "mask", "shape": "polygon",
+            "camera": scene.camera.camera_id,
+            "points_px": [[x1 - g, y1 - g], [x2 + g, y1 - g], [x2 + g, y2 + g],
+                          [x1 - g, y2 + g]]}
+
+
+MASK_LOOSE_PX = {"tight": 0, "loose": 50}
+
+
+def masked_cutout_scenarios(fps: float = 10.0) -> list[Scenario]:
+    """A person standing right behind, and walking in front of, a masked cut-out, with a
+    mask drawn tight around it and one 50 px larger on every side (docs/masks.md). A mask
+    looser than its object suppresses nothing, so the loose scenes report the cut-out as a
+    person (false STOPs are not scored there)."""
+    behind = CutOut((0.5, -1.7))  # in the warning zone, 0.7 m in front of the protective one
+    front = CutOut((0.3, 2.2))  # behind the protective zone
+    out = []
+    for fit, loose in MASK_LOOSE_PX.items():
+        scene = CellScene((_walk((0.0, 2.4, -0.9), (2.5, 0.75, -0.9)),), cutouts=(behind,),
+                          fps=fps, duration_s=5.0)
+        out.append(Scenario(
+            f"mask-{fit}-behind", f"stands right behind a cut-out masked {fit} "
+            f"({loose} px), inside the protective zone", scene, needs=("masks",),
+            extra_zones=(_box_mask(scene, behind, loose),), check_false_stops=not loose))
+        scene = CellScene((_walk((0.0, 2.4, 1.9), (1.5, 2.4, 1.9), (4.0, 0.2, 0.8)),),
+                          cutouts=(front,), fps=fps, duration_s=5.0)
+        out.append(Scenario(
+            f"mask-{fit}-front", f"walks in front of a cut-out masked {fit} ({loose} px) "
+            "into the protective zone", scene, needs=("masks",),
+            extra_zones=(_box_mask(scene, front, loose),), check_false_stops=not loose))
     return out
 
 

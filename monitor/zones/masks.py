@@ -5,13 +5,19 @@ The old rule ignored every *merged* person whose anchor fell in a mask: a real p
 behind a masked cut-out merged with it into one box, the anchor landed in the mask, and the
 person vanished. The rule here:
 
-* a raw detector box is suppressed only when the **whole box** lies inside a mask zone's image
-  region (an image polygon, or the outline of a mask volume seen through the camera's
-  calibration), the region grown by the detector's box error (``margin_px``, about one grid
-  cell of the model) so a tight mask still suppresses its own cut-out;
-* a box reaching out of the region by more than that is kept;
+* raw detector boxes are grouped as merging would join them (touching or overlapping);
+* a group lying wholly inside a mask zone's image region (an image polygon, or the outline of
+  a mask volume through the camera's calibration), grown by the detector's box error
+  (``margin_px``, about one grid cell), is suppressed only when its union **is the masked
+  object's extent**: every edge within ``margin_px`` of the region's bounding box. A person
+  in a mask drawn looser than its object, beside the object or in front of it looking larger,
+  is kept; a mask looser than its object by more than the box error suppresses nothing;
+* a group reaching out of the grown region (a person touching the object) loses only its
+  boxes wholly inside it (else the merged box would be placed at the object's feet);
 * it runs on the raw boxes **before** NMS and merging (``Detector.detect_timed(...,
   pre_merge=rule.keep)``), so a suppressed look-alike never joins a real person's box.
+
+See docs/masks.md for what this protects against and what it cannot.
 
 ``mask_warnings`` lists masks drawn close to a protective or warning zone, for ``zones
 validate``: a person standing there may be hidden by the mask.
@@ -19,11 +25,13 @@ validate``: a person standing there may be hidden by the mask.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import cv2
 import numpy as np
 
+from monitor.boxes import connected_groups, gap_matrix
 from monitor.zones.draw import _volume_region_px
 from monitor.zones.files import Cell
 from monitor.zones.schema import PolygonZone
@@ -68,21 +76,42 @@ def _grow(img: np.ndarray, margin_px: float) -> np.ndarray:
 
 
 class MaskRule:
-    """Which raw boxes a camera's mask zones suppress: boxes wholly inside the grown masks.
+    """Which raw boxes a camera's mask zones suppress: a group of touching boxes that lies
+    wholly inside a grown mask **and is the masked object's own extent**.
 
-    ``keep(boxes_px)`` is True for every box to keep. Containment is exact to the pixel and
-    conservative: a box covers every pixel it touches, so a box that reaches a pixel outside
-    the grown mask is kept. One summed-area lookup per box.
+    ``keep(boxes_px)`` is True for every box to keep. Raw boxes are grouped as merging would
+    join them (overlapping or touching within ``touch_px``). A group is suppressed only when
+
+    * every box of it lies inside one mask's region grown by ``margin_px`` (containment exact
+      to the pixel and conservative: a box covers every pixel it touches), and
+    * the union of the group matches that mask's extent (the bounding box of its region) on
+      every edge within ``margin_px``: the detector saw something exactly as large as, and
+      exactly where, the masked object is.
+
+    Anything else keeps the whole group: a person touching the object (the group reaches out
+    of the mask), a person in a mask drawn looser than its object (the group is smaller than
+    the mask's extent or placed elsewhere in it), a person in front of the object who looks
+    larger than it. A mask drawn looser than its object by more than ``margin_px`` on any side
+    therefore suppresses nothing: its object is reported as a person (a nuisance, never a
+    miss). See docs/masks.md.
     """
 
     def __init__(self, polygons: list[np.ndarray], width: int, height: int,
-                 margin_px: float) -> None:
+                 margin_px: float, ids: tuple[str, ...] | None = None,
+                 touch_px: float = 2.0) -> None:
         self.width, self.height = int(width), int(height)
         self.margin_px = float(margin_px)
+        self.touch_px = float(touch_px)
         self.polygons = [np.asarray(p, np.float32).reshape(-1, 2) for p in polygons]
+        self.ids = tuple(ids) if ids is not None else tuple(
+            f"mask{i}" for i in range(len(self.polygons)))
         self.active = bool(self.polygons)
-        grown = _grow(_raster(self.polygons, self.width, self.height), self.margin_px)
-        self._sum = cv2.integral(grown, sdepth=cv2.CV_64F)
+        self._sums = [cv2.integral(_grow(_raster([p], self.width, self.height), self.margin_px),
+                                   sdepth=cv2.CV_64F) for p in self.polygons]
+        limits = np.array([self.width, self.height, self.width, self.height], np.float64)
+        self.extents = np.array(
+            [np.clip([*p.min(axis=0), *p.max(axis=0)], 0, limits) for p in self.polygons],
+            np.float64).reshape(-1, 4)
 
     @classmethod
     def for_camera(cls, cell: Cell, camera_id: str, width: int, height: int,
@@ -90,28 +119,71 @@ class MaskRule:
         """The rule of ``camera_id``'s mask zones at frame size ``width`` x ``height`` (zone
         pixels are at the camera's full resolution: scaled when the frame differs)."""
         cam = cell.cameras.get(camera_id)
-        polys = [p for _, p in zone_regions_px(cell, camera_id, ("mask",))]
+        regions = zone_regions_px(cell, camera_id, ("mask",))
+        polys = [p for _, p in regions]
         if cam is not None and (cam.width, cam.height) != (width, height):
             sx, sy = width / cam.width, height / cam.height
             polys = [p * np.array([sx, sy], np.float32) for p in polys]
-        return cls(polys, width, height, margin_px)
+        return cls(polys, width, height, margin_px, tuple(z.id for z, _ in regions))
 
-    def keep(self, boxes_px: np.ndarray) -> np.ndarray:
-        boxes = np.asarray(boxes_px, np.float64).reshape(-1, 4)
-        keep = np.ones(len(boxes), bool)
-        if not self.active or not len(boxes):
-            return keep
+    def _inside(self, boxes: np.ndarray) -> np.ndarray:
+        """(M, N) bool: box n lies wholly inside mask m's grown region."""
         finite = np.isfinite(boxes).all(axis=1)
         b = np.where(finite[:, None], boxes, 0.0)
         x1 = np.clip(np.floor(b[:, 0]), 0, self.width).astype(np.int64)
         y1 = np.clip(np.floor(b[:, 1]), 0, self.height).astype(np.int64)
         x2 = np.clip(np.ceil(b[:, 2]), 0, self.width).astype(np.int64)
         y2 = np.clip(np.ceil(b[:, 3]), 0, self.height).astype(np.int64)
-        s = self._sum
-        covered = s[y2, x2] - s[y1, x2] - s[y2, x1] + s[y1, x1]
         pixels = (x2 - x1) * (y2 - y1)
-        inside = finite & (pixels > 0) & (covered >= pixels)
-        return ~inside
+        out = np.zeros((len(self._sums), len(boxes)), bool)
+        for m, s in enumerate(self._sums):
+            covered = s[y2, x2] - s[y1, x2] - s[y2, x1] + s[y1, x1]
+            out[m] = finite & (pixels > 0) & (covered >= pixels)
+        return out
+
+    def check(self, boxes_px: np.ndarray) -> MaskCheck:
+        """Keep flags per raw box, and the masks that held a group they did not suppress."""
+        boxes = np.asarray(boxes_px, np.float64).reshape(-1, 4)
+        keep = np.ones(len(boxes), bool)
+        if not self.active or not len(boxes):
+            return MaskCheck(keep, ())
+        inside = self._inside(boxes)
+        candidates = np.flatnonzero(inside.any(axis=0))
+        if not len(candidates):
+            return MaskCheck(keep, ())
+        finite = np.isfinite(boxes).all(axis=1)
+        safe = np.where(finite[:, None], boxes, 0.0)
+        labels = connected_groups(gap_matrix(safe, safe) <= self.touch_px)
+        limits = np.array([self.width, self.height, self.width, self.height], np.float64)
+        unmatched: list[str] = []
+        for g in np.unique(labels[candidates]):
+            members = labels == g
+            union = np.clip([safe[members, 0].min(), safe[members, 1].min(),
+                             safe[members, 2].max(), safe[members, 3].max()], 0, limits)
+            whole = inside[:, members].all(axis=1)  # masks holding the whole group
+            if not whole.any():
+                # a person touching the object: the boxes inside the mask go (else the merged
+                # box would be placed at the object's feet), the rest of the group stays
+                keep[members & inside.any(axis=0)] = False
+                continue
+            match = whole & (np.abs(self.extents - union).max(axis=1) <= self.margin_px)
+            if match.any():
+                keep[members] = False
+            else:
+                unmatched.extend(self.ids[m] for m in np.flatnonzero(whole))
+        return MaskCheck(keep, tuple(dict.fromkeys(unmatched)))
+
+    def keep(self, boxes_px: np.ndarray) -> np.ndarray:
+        return self.check(boxes_px).keep
+
+
+@dataclass(frozen=True)
+class MaskCheck:
+    """One frame's mask answer: ``keep`` per raw box; ``unmatched``: masks that wholly held a
+    group of boxes unlike their object (kept: a person, or a mask looser than its object)."""
+
+    keep: np.ndarray
+    unmatched: tuple[str, ...] = ()
 
 
 def mask_warnings(cell: Cell, person_width_px: float | None = None) -> list[str]:
