@@ -15,7 +15,7 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 ORDER = ("detector", "quantize", "zones", "tracks", "zone_files", "bus", "health", "frames",
-         "pipeline", "cameras")
+         "pipeline", "cameras", "capacity")
 LONG = ("mutation", "fuzz", "shutdown", "shutdown_service", "scenarios")
 
 

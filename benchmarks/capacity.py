@@ -1,0 +1,67 @@
+"""The start-up capacity check against what the loop then does, per camera, on this machine.
+
+Run: python benchmarks/capacity.py [--seconds S] [--fps F] [--threads T]
+
+For 1, 2 and 4 generated 1080p cameras paced at --fps (their configured ``max_fps``), fp32 and
+int8: what ``monitor.capacity`` predicts at start (processed fps per camera, worst frame age at
+a decision, the verdict at the default limits: frame_timeout 0.5 s, max_frame_age 0.3 s,
+stall_timeout 0.5 s), beside what the service's loop measures (``benchmarks/cameras.py``'s
+``run_one``, cameras in turn: processed fps, capture-to-command latency). A prediction is good
+when the measured fps is at least the predicted one and the measured p99 latency stays under
+the predicted frame age (the age bound adds a whole capture interval the latency does not).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE.parent))
+sys.path.insert(0, str(HERE))
+
+from cameras import make_inputs, run_one  # noqa: E402
+
+from monitor.capacity import CameraDemand, Limits, assess, measure_detect_s  # noqa: E402
+from monitor.detector import Detector, DetectorConfig  # noqa: E402
+
+DEFAULT_LIMITS = Limits(frame_timeout=0.5, max_frame_age=0.3, stall_timeout=0.5)
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--seconds", type=float, default=8.0)
+    parser.add_argument("--fps", type=float, default=10.0)
+    parser.add_argument("--threads", type=int, default=2)
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        fp32, int8, videos = make_inputs(Path(tmp), 4)
+        print(f"1080p cameras paced at {args.fps:g} fps (max_fps), {args.threads} threads, "
+              f"{args.seconds:g} s each")
+        print("| model | cameras | measured detect ms | predicted fps per camera | predicted "
+              "frame age ms | verdict | measured fps per camera | measured p99 latency ms |")
+        print("|---|---|---|---|---|---|---|---|")
+        for name, model in (("int8", int8), ("fp32", fp32)):
+            det = Detector(model, DetectorConfig(threads=args.threads))
+            detect_s = measure_detect_s(det.detect, [(1920, 1080)], runs=10)
+            del det
+            for n in (1, 2, 4):
+                demands = [CameraDemand(f"cam{i}", 1920, 1080, args.fps) for i in range(n)]
+                verdict = assess(detect_s, demands, DEFAULT_LIMITS)
+                measured = run_one(model, videos[:n], args.seconds, args.fps, False,
+                                   args.threads)
+                ages = max(verdict.frame_age_s.values()) * 1e3
+                fps = min(verdict.processed_fps.values())
+                said = "refused" if verdict.refusal else \
+                    ("warns" if verdict.warnings else "ok")
+                print(f"| {name} | {n} | {detect_s * 1e3:.1f} | {fps:.1f} | {ages:.0f} | "
+                      f"{said} | {' / '.join(map(str, measured['fps']))} | "
+                      f"{measured['p99_ms']} |", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
