@@ -67,7 +67,14 @@ from monitor.consumer import COMMAND_SCHEMA, CommandWatchdog, Verdict
 from monitor.errors import ConfigError
 from monitor.foreign import ForeignCommands
 from monitor.policy import STOP, Command, Reason, ResetRequest
-from monitor.resets import RESET_SCHEMA, ResetGate, ResetPolicy, ResetRefused, reset_payload
+from monitor.resets import (
+    RESET_SCHEMA,
+    ResetGate,
+    ResetPolicy,
+    ResetRefused,
+    latch_of,
+    reset_payload,
+)
 from monitor.signals import close_bounded
 from monitor.signing import Signer, load_operators, load_private_key
 from monitor.types import Alert, Fault, Persons, ZoneReport
@@ -345,8 +352,10 @@ class SafetyBus:
     def _put_command_locked(self, command: Command, heartbeat: bool) -> int:
         command = self._guarded(command)
         with self._lock:
+            # boot_wall orders boots: a consumer drops an older boot's commands for good
             body = self._envelope(self.keys.command, COMMAND_SCHEMA,
-                                  {**command.to_dict(), "heartbeat": heartbeat})
+                                  {**command.to_dict(), "heartbeat": heartbeat,
+                                   "boot_wall": self._started_wall})
             if heartbeat:
                 self._heartbeats += 1
         payload = json.dumps(body).encode()
@@ -473,8 +482,9 @@ class SafetyBus:
                     query: zenoh.Query | None) -> None:
         now = self._clock()
         try:
-            with self._lock:
-                req = self._gate.check(payload, signature, now)
+            with self._lock:  # bound to this boot and the latch published now
+                req = self._gate.check(payload, signature, now, boot=self._boot,
+                                       latch=latch_of(self._latest))
         except ResetRefused as exc:
             operator = _operator_of(payload)
             with self._lock:
@@ -556,6 +566,7 @@ class SafetyBus:
                 "started_wall": self._started_wall, "wall": time.time(),
                 "state": latest.state if latest else STOP,
                 "command": latest.to_dict() if latest else None,
+                "latch": latch_of(latest),  # the nonce a reset must name (None: not latched)
                 "last_reset": self._last_reset, "heartbeat_hz": self.config.heartbeat_hz,
                 "ttl_ms": self.config.ttl_ms, "heartbeats": self._heartbeats,
                 "signed": self._signer is not None, "public_key": self.public_key,

@@ -13,8 +13,10 @@ this order (docs/consumer.md gives the same list for ports to other languages):
 4. its ``wall`` time is at most ``clock_sync_ms`` ahead of the consumer's clock and at most
    ``clock_sync_ms`` + ttl behind it (recordings, and genuine commands relayed late: a
    command older than the declared clock-sync accuracy plus its ttl says nothing about now);
-5. its ``boot`` is not one the consumer has already seen replaced, and its ``seq`` grew within
-   that boot (repeats and reordering; a seq going backwards forces STOP until a newer one);
+5. its ``boot`` is not one the consumer has already seen replaced -- by a newer boot (signed
+   ``boot_wall``, the monitor's start time) of any instance, or by another boot of the same
+   instance -- whatever the clock window, and its ``seq`` grew within that boot (repeats and
+   reordering; a seq going backwards forces STOP until a newer one);
 
 and then the cell is STOP unless the newest accepted command is younger than
 ``min(command ttl_ms, max_ttl_ms)`` -- the consumer's own cap always applies -- the sender's
@@ -109,6 +111,8 @@ def parse_command(payload: bytes) -> dict:
         _text(body, "cell")
     if "wall" in body:
         _number(body, "wall", 0.0, 1e11)
+    if "boot_wall" in body:
+        _number(body, "boot_wall", 0.0, 1e11)
     if "latched" in body and not isinstance(body["latched"], bool):
         raise InvalidCommand("latched is not a boolean")
     if "reasons" in body and not isinstance(body["reasons"], list):
@@ -153,6 +157,7 @@ class CommandWatchdog:
         self.alive: set[str] = set()
         self.seen_alive: set[str] = set()
         self.retired_boots: collections.OrderedDict[str, None] = collections.OrderedDict()
+        self.newest_boot: tuple[float, str] | None = None  # (boot_wall, boot) of the newest
         self.last_by_instance: dict[str, float] = {}  # instance -> receive time of valid command
         self.rejected: collections.Counter = collections.Counter()
         self.last_rejection: str = ""
@@ -195,7 +200,13 @@ class CommandWatchdog:
                 return self._reject("window", "no wall time" if late_ms is None else
                                     f"sent {late_ms:.0f} ms before it arrived (allowed "
                                     f"-{self.clock_sync_ms:.0f}..{self.clock_sync_ms + ttl:.0f})")
-        if boot in self.retired_boots:
+        order = (float(body["boot_wall"]), boot) if "boot_wall" in body else None
+        if boot in self.retired_boots or (
+                order is not None and self.newest_boot is not None and order < self.newest_boot):
+            # a boot older than one already seen: a restarted monitor's past, or a recording
+            # of it; never followed again (still a monitor heard, for the duplicate check)
+            self._retire(boot)
+            self._note_instance(instance, now)
             return self._reject("old_boot", boot)
         if self.last is not None and boot == self.boot and seq <= int(self.last["seq"]):
             self.seq_error = f"seq went backwards ({seq} after {self.last['seq']})"
@@ -203,6 +214,10 @@ class CommandWatchdog:
         if self.last is not None and boot != self.boot and self.boot is not None \
                 and str(self.last.get("instance")) == instance:
             self._retire(self.boot)  # the monitor restarted: its old boot never counts again
+        if order is not None and (self.newest_boot is None or order > self.newest_boot):
+            if self.newest_boot is not None:
+                self._retire(self.newest_boot[1])  # a newer boot retires the older for good
+            self.newest_boot = order
         self._note_instance(instance, now)
         self.last, self.received, self.boot, self.seq_error = body, now, boot, None
         return None

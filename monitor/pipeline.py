@@ -16,7 +16,7 @@ from __future__ import annotations
 import functools
 import logging
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 
 import cv2
@@ -32,6 +32,7 @@ from monitor.policy import (
     PolicyState,
     ResetRequest,
     initial_state,
+    stale_latch,
     step,
 )
 from monitor.tracks import Hold, PersonTracker, TrackerConfig
@@ -128,6 +129,9 @@ class Pipeline:
         self._active_faults: dict[tuple[str, str], Fault] = {}  # (name, source) -> fault
         self.state: PolicyState = initial_state()
         self.last_command: Command | None = None
+        # serial -> nonce of a new latch (live: ``monitor.resets.LatchNonces`` of the bus's
+        # boot); None: ``latch-<serial>``, deterministic for replay
+        self.latch_nonces: Callable[[int], str] | None = None
 
     def _to_floor(self, camera_id: str):
         model = self.cell.camera_models.get(camera_id) if self.cell is not None else None
@@ -316,6 +320,8 @@ class Pipeline:
         (seen persons keep their hits), before the policy judges the reset as usual."""
         if reset is None or not reset.confirm_clear:
             return ()
+        if stale_latch(reset, self.state.latched_by) is not None:
+            return ()  # made for another latch: the policy refuses it; it may drop nothing
         dropped: list[tuple[str, Hold]] = []
         for cid, cam in self.cameras.items():
             if cam.tracker is None:
@@ -383,7 +389,9 @@ class Pipeline:
                             zone_report=report if with_frame else None,
                             faults=tuple(faults), detector_error=detector_error,
                             pose_time=pose_time, zone_error=self.zone_error,
-                            reset_request=reset)
+                            reset_request=reset,
+                            latch_nonce=self.latch_nonces(self.state.latches + 1)
+                            if self.latch_nonces is not None else "")
 
     def _decide(self, inputs: PolicyInputs, now: float) -> Command:
         self.state, command = step(self.state, inputs, now, self.policy)

@@ -42,6 +42,7 @@ from monitor.geometry import ReactionBudget, describe_separation
 from monitor.health import LOST
 from monitor.pipeline import Pipeline, StepResult
 from monitor.policy import STOP, Command, Reason
+from monitor.resets import LatchNonces
 from monitor.signals import StopSignals
 from monitor.types import Alert, Fault
 from monitor.zones.separation import (
@@ -237,6 +238,7 @@ def _run(config_path, log_json: bool, duration: float | None, signals: StopSigna
     try:
         with SafetyBus(bus_config_for(config, cell), alert_limits=config.alerts) as bus:
             forget = signals.on_force(lambda: bus.publish_command(shutdown_forced()))
+            pipeline.latch_nonces = LatchNonces(bus.boot)  # resets name this run's latches
             event("bus open", key_prefix=bus.config.key_prefix, zid=bus.boot,
                   listen=",".join(bus.config.listen), connect=",".join(bus.config.connect))
             if warning:

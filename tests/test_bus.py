@@ -412,7 +412,7 @@ def test_secure_router_only_monitor_publishes_commands_only_operators_reset(tmp_
         # a rogue client cannot command the robot nor release a latched STOP
         rogue.put(keys.command, json.dumps({"state": "RUN", "instance": "rogue"}))
         def signed(name):
-            payload = reset_payload(name, cell="sec")
+            payload = reset_payload(name, cell="sec", boot=bus.boot, latch="1-0123456789abcdef")
             return payload, load_private_key(tmp_path / f"{name}.key").sign(keys.reset, payload)
 
         rogue.put(keys.reset, signed("rogue")[0], attachment=signed("rogue")[1])

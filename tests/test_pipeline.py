@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 
 import numpy as np
@@ -192,6 +193,56 @@ def test_a_hidden_person_keeps_the_stop_and_refuses_resets(detector, gap):
     assert confirmed.command.reset is not None and confirmed.command.reset.accepted
     after = [step(empty).command.state for _ in range(6)]
     assert after[-1] == "RUN"
+
+
+def test_a_captured_confirm_clear_reset_never_releases_a_restarted_monitors_latch(detector):
+    """The assessor's attack: a real operator's ``--confirm-clear`` reset, captured and sent
+    again within the 30 s window to a restarted monitor whose STOP is latched by a person lost
+    inside. The reset names the old run's latch nonce: refused (naming that nonce), and it
+    drops no hold; a reset naming the latch of now works as before."""
+    from monitor.policy import ResetRequest
+    from monitor.resets import LatchNonces
+
+    empty, inside = _empty_frame(), _inside_frame()
+
+    def run(boot: str):
+        pipe = Pipeline(detector, "cam0", MANUAL, load_cell(demo_cell_path()))
+        pipe.latch_nonces = LatchNonces(boot)
+        seq = [0]
+
+        def step(img, reset=None):
+            t = seq[0] / 10.0
+            seq[0] += 1
+            return pipe.process(img, FrameInfo("cam0", seq[0] - 1, t, 1280, 720), t,
+                                reset=reset)
+        return pipe, step
+
+    _, step = run("boot-1")  # the first run: a latch, reset by anna (captured on the wire)
+    step(empty)
+    latched = [step(inside) for _ in range(2)][-1].command
+    captured = ResetRequest("anna", 0.0, "anna-1", confirm_clear=True,
+                            latch=latched.latched_by.nonce)
+    assert captured.latch.startswith("1-")
+
+    pipe, step = run("boot-2")  # restarted: a person walks in and is lost inside
+    step(empty)
+    for _ in range(2):
+        step(inside)
+    lost = step(empty)
+    assert lost.command.latched and any(h.lost for h in lost.zone_report.hits)
+    now = lost.command.latched_by.nonce
+    assert now != captured.latch
+    t = lost.now + 0.1
+    replayed = step(empty, dataclasses.replace(captured, time=t))
+    assert replayed.command.state == "STOP" and not replayed.command.reset.accepted
+    assert f"stale latch nonce {captured.latch!r}" in replayed.command.reset.message
+    assert any(h.lost for h in replayed.zone_report.hits)  # the hold stays
+    assert not [a for a in replayed.alerts if a.kind == "confirm_clear"]
+    assert all(step(empty).command.state == "STOP" for _ in range(15))
+    t = pipe.state.last_frame + 0.1
+    bound = step(empty, ResetRequest("anna", t, "anna-2", confirm_clear=True, latch=now))
+    assert bound.command.reset.accepted and not any(h.lost for h in bound.zone_report.hits)
+    assert [step(empty).command.state for _ in range(12)][-1] == "RUN"
 
 
 def test_confirm_clear_keeps_the_stop_of_a_seen_person(detector):

@@ -499,7 +499,8 @@ def test_latched_state_says_by_whom_how_long_clear_and_when_reset_became_possibl
     first, still, possible, later, much_later = cmds
     assert first.latched_by.to_dict() == {"code": "protective_zone", "at": 5.5,
                                           "message": "person 0 in robot-protective",
-                                          "zone_id": "robot-protective", "person": 0}
+                                          "zone_id": "robot-protective", "person": 0,
+                                          "nonce": "latch-1"}
     assert first.describe() == "LATCHED: person 0 in robot-protective"
     assert not first.reset_possible and first.clear_for_s is None
     assert still.same_as(first)
@@ -802,7 +803,8 @@ def test_reset_and_latch_texts_exactly():
     assert none.reset == ResetOutcome("op7", False, "nothing to reset: not latched", "r1.1")
     stall = Fault("monitor_stalled", "no step for 2 s", True, "service", latch=True)
     _s, cmd = step(warmed(AUTO)[0], frame(1.1, faults=(stall,)), 1.1, AUTO)
-    assert cmd.latched_by == Latch("fault", "monitor_stalled: no step for 2 s", 1.1)
+    assert cmd.latched_by == Latch("fault", "monitor_stalled: no step for 2 s", 1.1,
+                                   nonce="latch-1")
 
 
 def test_tick_without_frame_keeps_the_last_frames_speed_scale():
@@ -824,3 +826,42 @@ def test_clearing_reasons_keep_the_cause_they_wait_for():
     _s, cmd = step(state, frame(1.2), 1.2, MANUAL)
     assert [(r.code, r.zone_id) for r in cmd.reasons] == [("protective_zone", "Z1"),
                                                           ("clearing", None), ("latched", None)]
+
+
+def test_each_latch_has_its_own_nonce_and_a_reset_must_name_it():
+    """A reset naming another latch (an earlier one, or one of an earlier run) is refused as
+    stale before anything else is judged, whatever its age; one naming no latch too."""
+    state, first = step(warmed()[0], frame(1.1, prot(), latch_nonce="n-a"), 1.1, MANUAL)
+    assert first.latched_by.nonce == "n-a" and state.latches == 1
+    state, _ = step(state, frame(1.2, latch_nonce="n-b"), 1.2, MANUAL)
+    assert state.latched_by.nonce == "n-a"  # a latch keeps its nonce
+    for t in (1.6, 2.0, 2.3):
+        state, _ = step(state, frame(t), t, MANUAL)
+
+    def ask(t, latch):
+        return step(state, frame(t, reset_request=ResetRequest("op", t, "r", latch=latch)),
+                    t, MANUAL)[1]
+
+    stale = ask(2.4, "n-old")
+    assert stale.state == STOP and stale.latched and not stale.reset.accepted
+    assert stale.reset.message.startswith("refused: stale latch nonce 'n-old': the STOP "
+                                          "latched now has nonce 'n-a'")
+    assert "names no latch nonce" in ask(2.4, "").reset.message
+    assert ask(2.4, "n-a").reset.accepted
+    # released, then a new latch: new nonce (from the caller, else latch-<serial>)
+    state, _ = step(state, frame(2.4, reset_request=ResetRequest("op", 2.4, "r", latch="n-a")),
+                    2.4, MANUAL)
+    for t in (2.5, 3.5, 3.6):
+        state, _ = step(state, frame(t), t, MANUAL)
+    state, second = step(state, frame(3.7, prot()), 3.7, MANUAL)
+    assert second.latched_by.nonce == "latch-2" and state.latches == 2
+    state, _ = step(state, frame(3.8), 3.8, MANUAL)
+    for t in (4.2, 4.6, 4.9):
+        state, _ = step(state, frame(t), t, MANUAL)
+    late = step(state, frame(5.0, reset_request=ResetRequest("op", 5.0, "r2", latch="n-a")),
+                5.0, MANUAL)[1]
+    assert not late.reset.accepted and "stale latch nonce 'n-a'" in late.reset.message
+    # a stale nonce is named even while a cause holds (it is the first thing wrong)
+    held = step(state, frame(5.0, prot(), reset_request=ResetRequest("op", 5.0, "r3",
+                                                                     latch="n-a")), 5.0, MANUAL)[1]
+    assert "stale latch nonce 'n-a'" in held.reset.message

@@ -20,8 +20,8 @@ import time
 import pytest
 
 from monitor.bus import BusConfig, BusKeys, DuplicateMonitor, SafetyBus, open_session
-from monitor.policy import Command, Reason, ResetOutcome
-from monitor.resets import request_reset, reset_payload
+from monitor.policy import Command, Latch, Reason, ResetOutcome
+from monitor.resets import LatchNonces, latch_of_status, request_reset, reset_payload
 from monitor.signing import load_private_key, new_key_pair
 from tests.helpers import free_port
 from tests.helpers import wait_for as _wait_for
@@ -186,8 +186,12 @@ def test_rogue_resets_are_refused_with_an_alert_and_a_signed_one_is_accepted(tmp
             json.loads(s.payload.to_bytes())))
         assert wait_for(lambda: bool(list(peer.get(keys.status, timeout=1.0))))
 
+        nonce = LatchNonces(bus.boot)(1)
+        bus.publish_command(Command("STOP", 0.0, (), latched=True, latched_by=Latch(
+            "protective_zone", "person 0 in P1", 0.0, nonce=nonce)))
+
         def ask(operator: str, by: str | None):
-            payload = reset_payload(operator, cell=CELL)
+            payload = reset_payload(operator, cell=CELL, boot=bus.boot, latch=nonce)
             sig = signer[by].sign(keys.reset, payload) if by else None
             return request_reset(peer, keys.reset, payload, sig, 5.0)
 
@@ -213,6 +217,90 @@ def test_rogue_resets_are_refused_with_an_alert_and_a_signed_one_is_accepted(tmp
             "anna", True, "reset accepted", req.request_id)))
         t.join(10)
         assert answers[0]["accepted"] is True and answers[0]["stage"] == "policy"
+
+
+def test_a_reset_captured_before_a_restart_or_a_new_latch_is_refused_naming_its_nonce(
+        tmp_path):
+    """The assessor's attack over real Zenoh: anna's signed ``--confirm-clear`` reset, bound
+    to the latch read from the status, is captured on the wire. Sent again within the 30 s
+    window to the restarted monitor (new boot, a person lost inside latched it): refused by
+    the bus naming the stale nonce. One captured (never delivered) and sent after a new latch
+    of the same run: refused the same way. The policy never sees either."""
+    private, _, text = new_key_pair(tmp_path / "anna.key")
+    (tmp_path / "operators").write_text(f"anna {text}\n")
+    anna = load_private_key(private)
+    port = free_port()
+    keys = BusKeys.of(f"workcell/{CELL}/")
+    cfg = BusConfig(cell=CELL, instance="mon-r", connect=(f"tcp/127.0.0.1:{port}",),
+                    operators_file=str(tmp_path / "operators"))
+    lost = (Reason("person_lost", "person 3 lost inside P1 at 4.0 s", zone_id="P1",
+                   person=3),)
+
+    def latch(bus, serial: int) -> str:
+        nonce = LatchNonces(bus.boot)(serial)
+        bus.publish_command(Command("STOP", 0.0, lost, latched=True, latched_by=Latch(
+            "person_lost", lost[0].message, 4.0, "P1", 3, nonce)))
+        return nonce
+
+    def status_of(peer) -> dict:
+        got: list = []
+        assert wait_for(lambda: bool(got.extend(
+            json.loads(r.ok.payload.to_bytes()) for r in peer.get(keys.status, timeout=2.0)
+            if r.ok is not None) or got))  # (retried while the monitor connects)
+        return got[0]
+
+    def sign_from_status(peer) -> tuple[bytes, bytes]:
+        boot, nonce = latch_of_status(status_of(peer))
+        payload = reset_payload("anna", cell=CELL, confirm_clear=True, boot=boot, latch=nonce)
+        return payload, anna.sign(keys.reset, payload)
+
+    def answer(bus, peer, payload, sig, outcome: bool | None = None) -> dict:
+        got: list = []
+        t = threading.Thread(target=lambda: got.append(request_reset(
+            peer, keys.reset, payload, sig, 5.0)))
+        t.start()
+        if outcome is not None:  # the policy's answer to a request that passed the bus
+            assert wait_for(lambda: bool(bus._pending))
+            (req,) = bus.poll_resets()
+            bus.publish_command(Command("RUN", 1.0, (), reset=ResetOutcome(
+                "anna", outcome, "reset accepted", req.request_id)))
+        t.join(10)
+        return got[0]
+
+    with open_session(BusConfig(cell=CELL, instance="op",
+                                listen=(f"tcp/127.0.0.1:{port}",))) as peer:
+        with SafetyBus(cfg, startup_check_s=0.2) as first:
+            first_nonce = latch(first, 1)
+            assert status_of(peer)["latch"] == first_nonce
+            captured = sign_from_status(peer)
+            assert json.loads(captured[0])["latch"] == first_nonce
+            assert answer(first, peer, *captured, outcome=True)["accepted"] is True
+        started = time.time()
+        with SafetyBus(cfg, startup_check_s=0.2) as second:  # restarted: new boot, new latch
+            assert second.boot != first.boot
+            now_nonce = latch(second, 1)
+            assert status_of(peer)["boot"] == second.boot
+            replayed = answer(second, peer, *captured)
+            assert time.time() - started < 28.6  # within the reset window
+            assert (replayed["accepted"], replayed["stage"]) == (False, "bus")
+            assert f"stale latch nonce {first_nonce!r}" in replayed["reason"]
+            assert "before a restart" in replayed["reason"]
+            # captured but never delivered; the latch is released by another reset, a new
+            # latch begins; the capture is sent again
+            unsent = sign_from_status(peer)
+            assert answer(second, peer, *sign_from_status(peer), outcome=True)["accepted"]
+            newer = latch(second, 2)
+            assert status_of(peer)["latch"] == newer
+            stale = answer(second, peer, *unsent)
+            assert not stale["accepted"] and stale["stage"] == "bus"
+            assert f"stale latch nonce {now_nonce!r}" in stale["reason"]
+            assert f"has nonce {newer!r}" in stale["reason"]
+            # no nonce at all: refused with the reason
+            bare = reset_payload("anna", cell=CELL, boot=second.boot)
+            naked = answer(second, peer, bare, anna.sign(keys.reset, bare))
+            assert not naked["accepted"] and "names no latch nonce" in naked["reason"]
+            assert second.poll_resets() == []
+            assert second.status()["latch"] == newer
 
 
 # --- one monitor per cell ------------------------------------------------------------------

@@ -18,7 +18,7 @@ import pytest
 from monitor.bus import reset_payload
 from monitor.config import demo_cell_path
 from monitor.policy import PolicyConfig
-from monitor.resets import signed_reset
+from monitor.resets import latch_of_status, signed_reset
 from monitor.scene import DemoScene
 from monitor.zones import load_cell
 from tests.helpers import assert_one_line_error, free_port, run_monitor
@@ -180,7 +180,9 @@ def test_camera_loss_stops_at_once_then_frames_reset_and_clear_time_give_run(
                         15, "frames after the reconnect", svc)[0]
         # the operator resets as soon as the picture is back; RUN still waits for clear_time
         i_reset = len(svc.commands)
-        payload = reset_payload("tester", "r-1", cell="t5")
+        boot, latch = latch_of_status(svc.status())  # the reset names the latch it releases
+        assert latch is not None and latch.startswith("1-") and latch in str(stop)
+        payload = reset_payload("tester", "r-1", cell="t5", boot=boot, latch=latch)
         svc.session.put(svc.keys.reset, payload,
                         attachment=signed_reset(svc.operator, svc.keys.reset, payload))
         _, outcome = svc.next_command(i_reset, lambda c: "reset" in c, 5, "the reset outcome")

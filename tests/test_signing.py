@@ -100,8 +100,11 @@ def gate(keys, **kw) -> ResetGate:
     return ResetGate(ResetPolicy(kw.pop("operators", ops), "c1", RESET_KEY, **kw))
 
 
+BOUND = {"boot": "boot-1", "latch": "1-0123456789abcdef"}  # as read from the status
+
+
 def signed(keys, signer: str, operator: str, **kw):
-    payload = reset_payload(operator, cell="c1", wall=kw.pop("wall", WALL), **kw)
+    payload = reset_payload(operator, cell="c1", wall=kw.pop("wall", WALL), **{**BOUND, **kw})
     return payload, keys[signer][0].sign(RESET_KEY, payload)
 
 
@@ -112,7 +115,7 @@ def test_a_properly_signed_reset_passes_the_gate(keys):
 
 
 @pytest.mark.parametrize("case, reason", [
-    pytest.param(lambda k: (reset_payload("anna", cell="c1", wall=WALL), None),
+    pytest.param(lambda k: (reset_payload("anna", cell="c1", wall=WALL, **BOUND), None),
                  "unsigned reset in the name of 'anna'", id="unsigned"),
     pytest.param(lambda k: signed(k, "rogue", "mallory"), "unknown operator 'mallory'",
                  id="unknown-operator"),
@@ -121,9 +124,9 @@ def test_a_properly_signed_reset_passes_the_gate(keys):
     pytest.param(lambda k: signed(k, "anna", "anna", wall=WALL - 300), "off the monitor's clock",
                  id="old"),
     pytest.param(lambda k: (lambda p: (p, k["anna"][0].sign(RESET_KEY, p)))(
-        reset_payload("anna", cell="c2", wall=WALL)), "is for cell 'c2'", id="other-cell"),
+        reset_payload("anna", cell="c2", wall=WALL, **BOUND)), "is for cell 'c2'", id="other-cell"),
     pytest.param(lambda k: (lambda p: (p, k["anna"][0].sign("workcell/c2/safety/reset", p)))(
-        reset_payload("anna", cell="c1", wall=WALL)), "signature does not match",
+        reset_payload("anna", cell="c1", wall=WALL, **BOUND)), "signature does not match",
         id="signed-for-another-key"),
     pytest.param(lambda k: (b"garbage", None), "not JSON", id="garbage"),
     pytest.param(lambda k: (json.dumps({"operator": "anna", "request_id": "x",
@@ -145,11 +148,50 @@ def test_a_replayed_reset_is_refused(keys):
 
 
 def test_without_operators_resets_are_refused_unless_explicitly_allowed(keys):
-    payload = reset_payload("anna", cell="c1", wall=WALL)
+    payload = reset_payload("anna", cell="c1", wall=WALL, **BOUND)
     with pytest.raises(ResetRefused, match="no operators configured"):
         gate(keys, operators=None).check(payload, None, 1.0, WALL)
     req = gate(keys, operators=None, allow_unsigned=True).check(payload, None, 1.0, WALL)
     assert req.operator == "anna"
+
+
+def test_a_reset_names_the_boot_and_latch_it_releases(keys):
+    """The gate checks the nonce against the latch the monitor publishes now, and the boot
+    against this run: a reset captured earlier is refused naming the stale nonce, whatever
+    its age (here 1 s, well within the 30 s window) and even with a fresh request id."""
+    boot, latch = BOUND["boot"], BOUND["latch"]
+    payload, sig = signed(keys, "anna", "anna", confirm_clear=True)
+    req = gate(keys).check(payload, sig, 1.0, WALL + 1, boot=boot, latch=latch)
+    assert req.latch == latch and req.confirm_clear
+    # the same monitor, a new latch; then a restarted monitor (new boot) with its own latch
+    for now_boot, now_latch, why in [(boot, "2-fedcba9876543210", "has nonce '2-fedcba"),
+                                     ("boot-2", "1-0011223344556677", "boot 'boot-1', this "
+                                      "monitor runs boot 'boot-2'")]:
+        with pytest.raises(ResetRefused, match=f"stale latch nonce '{latch}'.*{why}"):
+            gate(keys).check(payload, sig, 1.0, WALL + 1, boot=now_boot, latch=now_latch)
+    # a fresh gate (a restart forgets request ids) refuses it just the same
+    with pytest.raises(ResetRefused, match="stale latch nonce"):
+        gate(keys).check(payload, sig, 1.0, WALL + 1, boot="boot-2", latch=None)
+
+
+@pytest.mark.parametrize("missing, reason", [
+    ({"latch": ""}, "names no latch nonce"), ({"boot": ""}, "names no monitor boot"),
+    ({"latch": 7}, "malformed latch nonce"), ({"boot": ["b"]}, "malformed boot")])
+def test_a_reset_without_a_latch_nonce_or_boot_is_refused(keys, missing, reason):
+    body = json.loads(signed(keys, "anna", "anna")[0])
+    body.update(missing)
+    payload = json.dumps({k: v for k, v in body.items() if v != ""}).encode()
+    with pytest.raises(ResetRefused, match=reason):
+        gate(keys).check(payload, keys["anna"][0].sign(RESET_KEY, payload), 1.0, WALL,
+                         boot=BOUND["boot"], latch=BOUND["latch"])
+
+
+def test_latch_nonces_are_unique_per_latch_and_per_run():
+    from monitor.resets import LatchNonces
+
+    run1, run2 = LatchNonces("boot-1"), LatchNonces("boot-1")  # even with a repeated boot id
+    nonces = {run1(1), run1(2), run2(1), run2(2)}
+    assert len(nonces) == 4 and run1(1) == run1(1) and run1(3).startswith("3-")
 
 
 # --- consumer --------------------------------------------------------------------------------
@@ -191,6 +233,32 @@ def test_consumer_never_goes_back_to_a_replaced_boot(keys):
     replay = command(51, boot="b1")  # a recording of the old boot, newer seq
     assert dog.on_command(replay, 0.2, mon.sign(CMD_KEY, replay), WALL) == "old_boot"
     assert dog.verdict(0.2).state == "STOP"
+
+
+def test_consumer_drops_an_older_boot_of_any_instance_for_good(keys):
+    """A restarted monitor has a new instance id by default: the old boot is retired by the
+    newer ``boot_wall`` (signed), not by the instance, and never followed again, even inside
+    the wall-clock window and after the new boot goes quiet."""
+    dog = CommandWatchdog(public_keys=(keys["monitor"][1],), cell="c1", key_expr=CMD_KEY)
+    mon = keys["monitor"][0]
+
+    def send(seq, boot, instance, boot_wall, now, state="RUN"):
+        p = command(seq, state, boot=boot, instance=instance, boot_wall=boot_wall)
+        dog.on_liveliness(f"workcell/c1/safety/alive/{instance}", True)
+        return dog.on_command(p, now, mon.sign(CMD_KEY, p), WALL)
+
+    assert send(7, "b1", "mon-a", WALL - 100, 0.0) is None
+    assert send(8, "b1", "mon-a", WALL - 100, 0.1) is None
+    dog.on_liveliness("workcell/c1/safety/alive/mon-a", False)  # the old process is gone
+    assert send(1, "b2", "mon-b", WALL - 2, 3.0, "STOP") is None  # restarted, latched STOP
+    # a captured RUN of the old boot, seq newer than ever: dropped, now and later
+    assert send(9, "b1", "mon-a", WALL - 100, 3.1) == "old_boot"
+    assert dog.verdict(3.1).state == "STOP"
+    assert send(50, "b1", "mon-a", WALL - 100, 9.0) == "old_boot"
+    assert dog.verdict(9.0).state == "STOP" and dog.last["boot"] == "b2"
+    # an older boot never seen before (started before b2) is dropped as well
+    assert send(1, "b0", "mon-z", WALL - 500, 9.1) == "old_boot"
+    assert dog.rejected["old_boot"] == 3 and dog.last["boot"] == "b2"
 
 
 BAD_FIELDS = {

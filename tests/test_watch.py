@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import multiprocessing
 import os
@@ -175,7 +176,8 @@ def test_router_status_and_reset_commands_through_a_router(tmp_path):
     """`monitor router` as the hub; the monitor and the CLI tools are clients of it. `monitor
     reset` waits for the monitor's answer: exit 0 accepted, 1 refused (with the reason)."""
     from monitor.bus import SafetyBus
-    from monitor.policy import Command, ResetOutcome
+    from monitor.policy import Command, Latch, ResetOutcome
+    from monitor.resets import LatchNonces
 
     port = free_port()
     router = subprocess.Popen(
@@ -216,20 +218,34 @@ def test_router_status_and_reset_commands_through_a_router(tmp_path):
             assert out.returncode == 0, out.stderr
             status = json.loads(out.stdout)
             assert status["instance"] == "mon-rt" and status["fps"] == 9.5
-            # accepted by the policy -> exit 0
+            assert status["latch"] is None
+            # not latched: nothing to reset, said by the CLI itself (exit 1), nothing sent
+            out = subprocess.run([sys.executable, "-m", "monitor", "reset", *client,
+                                  "--operator", "anna", "--key", str(key)],
+                                 capture_output=True, text=True, timeout=30)
+            assert out.returncode == 1 and "not latched" in out.stdout, out
+            nonces = LatchNonces(bus.boot)
+            latched = Command("STOP", 0.0, (), latched=True, latched_by=Latch(
+                "protective_zone", "person 0 in P1", 1.0, nonce=nonces(1)))
+            bus.publish_command(latched)
+            # accepted by the policy -> exit 0; the CLI read the latch nonce and signed it
             proc = reset("--note", "cell checked")
             req = next_request(bus)
             assert (req.operator, req.note, req.confirm_clear) == ("anna", "cell checked", False)
+            assert req.latch == nonces(1)
             bus.publish_command(Command("STOP", 0.0, (), reset=ResetOutcome(
                 "anna", True, "reset accepted", req.request_id)))
             stdout, stderr = proc.communicate(timeout=30)
             assert proc.returncode == 0, stderr
             assert "accepted" in stdout
-            # refused by the policy -> exit 1 with the reason
+            # a new latch; refused by the policy -> exit 1 with the reason
+            latched = dataclasses.replace(latched, latched_by=dataclasses.replace(
+                latched.latched_by, nonce=nonces(2)))
+            bus.publish_command(latched)
             proc = reset("--confirm-clear")
             req = next_request(bus)
-            assert req.confirm_clear
-            bus.publish_command(Command("STOP", 0.0, (), reset=ResetOutcome(
+            assert req.confirm_clear and req.latch == nonces(2)
+            bus.publish_command(dataclasses.replace(latched, reset=ResetOutcome(
                 "anna", False, "refused: person 0 in zone P1", req.request_id)))
             stdout, stderr = proc.communicate(timeout=30)
             assert proc.returncode == 1 and "REFUSED" in stdout and "person 0 in zone P1" in stdout
@@ -251,6 +267,53 @@ def test_router_status_and_reset_commands_through_a_router(tmp_path):
         router.send_signal(signal.SIGTERM)
         router.communicate(timeout=10)
     assert router.returncode == 0
+
+
+def test_the_demos_unsigned_reset_is_bound_to_the_latch_too(tmp_path):
+    """The embedded demo accepts resets without operator keys: `monitor reset` still reads the
+    latch nonce from the status and sends it, so the unsigned reset releases only that latch;
+    a copy of it sent after the next latch is refused naming its stale nonce."""
+    from monitor.bus import SafetyBus
+    from monitor.policy import Command, Latch, ResetOutcome
+    from monitor.resets import LatchNonces, request_reset, reset_payload
+
+    port = free_port()
+    cfg = BusConfig(cell="demo", instance="mon-demo", listen=(f"tcp/127.0.0.1:{port}",),
+                    allow_unsigned_resets=True)
+    operator = f"demo-{os.getpid()}"  # no key file: sent unsigned
+    with SafetyBus(cfg, startup_check_s=0.2) as bus:
+        nonces = LatchNonces(bus.boot)
+        bus.publish_command(Command("STOP", 0.0, (), latched=True, latched_by=Latch(
+            "protective_zone", "person 0 in P1", 1.0, nonce=nonces(1))))
+        proc = subprocess.Popen([sys.executable, "-m", "monitor", "reset", "--cell", "demo",
+                                 "--connect", f"tcp/127.0.0.1:{port}", "--operator", operator,
+                                 "--timeout", "10"],
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        deadline = time.monotonic() + 20
+        got: list = []
+        while not got and time.monotonic() < deadline:
+            got = bus.poll_resets()
+            time.sleep(0.01)
+        (req,) = got
+        assert (req.operator, req.latch) == (operator, nonces(1))
+        bus.publish_command(Command("RUN", 1.0, (), reset=ResetOutcome(
+            operator, True, "reset accepted", req.request_id)))
+        stdout, stderr = proc.communicate(timeout=30)
+        assert proc.returncode == 0 and "accepted" in stdout, stderr
+        assert "sending unsigned" in stderr
+        # the next latch; the earlier unsigned request (as captured) sent again
+        bus.publish_command(Command("STOP", 0.0, (), latched=True, latched_by=Latch(
+            "protective_zone", "person 0 in P1", 5.0, nonce=nonces(2))))
+        with open_session(BusConfig(cell="demo", instance="x",
+                                    connect=(f"tcp/127.0.0.1:{port}",))) as peer:
+            copy = reset_payload(operator, "copy-1", cell="demo", boot=bus.boot,
+                                 latch=nonces(1))
+            answer = None
+            while answer is None and time.monotonic() < deadline:
+                answer = request_reset(peer, BusKeys.of("workcell/demo/").reset, copy, None, 2.0)
+        assert answer is not None and answer["accepted"] is False
+        assert f"stale latch nonce {nonces(1)!r}" in answer["reason"]
+        assert bus.poll_resets() == []
 
 
 def test_watch_shows_the_latched_state_with_or_without_the_policys_details():

@@ -31,7 +31,7 @@ from monitor.consumer import DEFAULT_CLOCK_SYNC_MS
 from monitor.errors import ConfigError
 from monitor.inbox import DEFAULT_BOUND, Inbox
 from monitor.pose import OtusBridge, PoseLimits, Rejection, parse_host_port
-from monitor.resets import request_reset, reset_payload
+from monitor.resets import latch_of_status, request_reset, reset_payload
 from monitor.signals import (
     Interrupted,
     StopSignals,
@@ -416,13 +416,6 @@ def cmd_reset(args: argparse.Namespace) -> int:
             print(f"monitor reset: no key for {args.operator} (--key, or "
                   f"{KEY_DIR}/{args.operator}.key): sending unsigned; a monitor with "
                   "operators configured refuses it", file=sys.stderr, flush=True)
-        payload = reset_payload(args.operator, args.request_id, args.note,
-                                cell=bus.cell if bus.prefix is None else "",
-                                confirm_clear=args.confirm_clear)
-        signature = signer.sign(keys.reset, payload) if signer else None
-        if args.confirm_clear:
-            print(f"monitor reset: {args.operator} confirms having looked: the cell is clear "
-                  "(logged and alerted by the monitor)", file=sys.stderr, flush=True)
         try:
             session = call_interruptible(lambda: open_session(bus), stop)
         except Interrupted:
@@ -430,6 +423,25 @@ def cmd_reset(args: argparse.Namespace) -> int:
         with _bounded(session, "monitor reset") as session:
             started = time.monotonic()
             answer = None
+            # the reset names the monitor's boot and the latch it releases (signed into it)
+            status = _first_status(session, keys, args.timeout, stop)
+            if status is None:
+                if stop.is_set():
+                    return 130
+                raise ConfigError(f"monitor reset: no monitor answered on {keys.status} within "
+                                  f"{args.timeout:g} s; {_nothing_found_hint(bus)}")
+            boot, latch = latch_of_status(status)
+            if latch is None:
+                print(f"monitor reset: nothing to reset: the monitor is not latched (state "
+                      f"{status.get('state')}, no latch nonce in its status)")
+                return 1
+            payload = reset_payload(args.operator, args.request_id, args.note,
+                                    cell=bus.cell if bus.prefix is None else "",
+                                    confirm_clear=args.confirm_clear, boot=boot, latch=latch)
+            signature = signer.sign(keys.reset, payload) if signer else None
+            if args.confirm_clear:
+                print(f"monitor reset: {args.operator} confirms having looked: the cell is "
+                      "clear (logged and alerted by the monitor)", file=sys.stderr, flush=True)
             while answer is None and not stop.is_set():
                 left = args.timeout - (time.monotonic() - started)
                 if left <= 0:
@@ -452,6 +464,27 @@ def cmd_reset(args: argparse.Namespace) -> int:
     print(f"reset by {args.operator} {verdict}: {answer.get('reason', '')}"
           + (f" (monitor now {answer['state']})" if answer.get("state") else ""))
     return 0 if answer["accepted"] else 1
+
+
+def _first_status(session, keys: BusKeys, timeout: float, stop) -> dict | None:
+    """The first status answer (a JSON object) within ``timeout``; None when none came."""
+    started = time.monotonic()
+    while not stop.is_set():
+        left = timeout - (time.monotonic() - started)
+        if left <= 0:
+            return None
+        try:
+            replies = call_interruptible(lambda left=left: [
+                r.ok.payload.to_bytes() for r in session.get(keys.status, timeout=left)
+                if r.ok is not None], stop)
+        except Interrupted:
+            return None
+        for payload in replies:
+            body = _safe_json(payload)
+            if isinstance(body.get("boot"), str):
+                return body
+        stop.wait(min(0.2, max(0.0, left)))  # nothing routed yet: ask again
+    return None
 
 
 def cmd_status(args: argparse.Namespace) -> int:

@@ -13,7 +13,9 @@ Rules (the monitor is a supplementary device; it fails towards STOP):
 * ``restart_interlock="manual"``: every STOP except the start-up STOP latches; a fault with
   ``latch=True`` latches with either interlock. A latch is left only when a reset request
   arrives while no STOP cause is present, and the causes then stay absent for ``clear_time``.
-  A reset while a cause is present is refused with that cause as the reason.
+  A reset while a cause is present is refused with that cause as the reason. Each latch has a
+  nonce (``PolicyInputs.latch_nonce``, made by the caller from the boot and the latch serial);
+  a reset naming another nonce is refused as stale (``ResetRequest.latch``).
 * Zone causes: a person in a protective zone (or a warning zone with speed scale 0) and a
   tracked person lost inside one (``person_lost``) STOP; a person in a warning zone SLOWs at the
   zone's scale; ``separation_speed_scale`` <= 0 or NaN STOPs (``separation``), < 1 SLOWs at that
@@ -32,7 +34,14 @@ Rules (the monitor is a supplementary device; it fails towards STOP):
 """
 
 from monitor.policy.causes import fail_safe_causes, frame_causes
-from monitor.policy.machine import arbitrate_reset, latch, next_phase, speed_window, step
+from monitor.policy.machine import (
+    arbitrate_reset,
+    latch,
+    next_phase,
+    speed_window,
+    stale_latch,
+    step,
+)
 from monitor.policy.model import (
     LEVEL_OF,
     PHASES,
@@ -61,5 +70,5 @@ __all__ = [
     "STOP_ACTIVE", "STOP_CLEARING", "STOP_LATCHED", "Command", "Latch", "PolicyConfig",
     "PolicyInputs", "PolicyState", "Reason", "ResetOutcome", "ResetRequest", "arbitrate_reset",
     "fail_safe_causes", "frame_causes", "initial_state", "latch", "next_phase", "speed_window",
-    "step",
+    "stale_latch", "step",
 ]

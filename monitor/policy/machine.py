@@ -37,35 +37,55 @@ CONFIRM_CLEAR_HINT = ("wait until the person is seen leaving, or `monitor reset 
 
 
 def latch(current: Latch | None, stop_causes: tuple[Reason, ...], faults: tuple[Fault, ...],
-          now: float, config: PolicyConfig) -> Latch | None:
+          now: float, config: PolicyConfig, nonce: str = "") -> Latch | None:
     """The latch after this step's causes. Manual interlock: any STOP cause but the start-up
     one latches (that one and a camera waiting for its first frame too with
-    ``startup_requires_reset``). A fault with ``latch=True``
-    latches always. An existing latch keeps its first cause."""
+    ``startup_requires_reset``). A fault with ``latch=True`` latches always. An existing latch
+    keeps its first cause (and nonce); a new one gets ``nonce``."""
     if current is not None:
         return current
     latching = [f for f in faults if f.latch]
     if latching:
         f = latching[0]
-        return Latch("fault", f"{f.name}: {f.reason}", now)
+        return Latch("fault", f"{f.name}: {f.reason}", now, nonce=nonce)
     if config.restart_interlock != "manual":
         return None
     for r in stop_causes:
         if not is_startup(r) or config.startup_requires_reset:
-            return Latch(r.code, r.message, now, r.zone_id, r.person)
+            return Latch(r.code, r.message, now, r.zone_id, r.person, nonce)
+    return None
+
+
+def stale_latch(req: ResetRequest, current: Latch | None) -> str | None:
+    """Why ``req`` is not bound to the latch ``current`` (None: bound, or made in-process).
+    A reset names the nonce of the latch it releases: one made for an earlier latch, or in an
+    earlier run of the monitor, never releases this one, whatever its age."""
+    if req.latch is None or current is None:
+        return None  # in-process request; or nothing latched (answered as such)
+    if not req.latch:
+        return ("refused: the request names no latch nonce (read it from the status while "
+                "latched; `monitor reset` does)")
+    if req.latch != current.nonce:
+        return (f"refused: stale latch nonce {req.latch!r}: the STOP latched now has nonce "
+                f"{current.nonce!r} (a reset made for an earlier latch or an earlier run of "
+                "the monitor)")
     return None
 
 
 def arbitrate_reset(req: ResetRequest | None, stop_causes: tuple[Reason, ...],
                     current: Latch | None, now: float, config: PolicyConfig
                     ) -> tuple[ResetOutcome | None, Latch | None]:
-    """Accept a reset only when it is fresh, the STOP is latched and no STOP cause holds."""
+    """Accept a reset only when it is fresh, names this latch, the STOP is latched and no STOP
+    cause holds."""
     if req is None:
         return None, current
     age = now - req.time
     if not (abs(age) <= config.reset_max_age):
         return ResetOutcome(req.operator, False, f"refused: request is {age:.1f} s old",
                             req.request_id), current
+    stale = stale_latch(req, current)
+    if stale is not None:
+        return ResetOutcome(req.operator, False, stale, req.request_id), current
     if stop_causes:
         text = "; ".join(r.message for r in stop_causes)
         if any(r.code == "person_lost" for r in stop_causes):
@@ -127,7 +147,10 @@ def step(state: PolicyState, inputs: PolicyInputs, now: float,
     stop_causes = seen.stops + stop_causes
     slow_causes = seen.slows
 
-    latched_by = latch(state.latched_by, stop_causes, inputs.faults, now, config)
+    serial = state.latches + 1  # the serial of a latch that begins in this step
+    latched_by = latch(state.latched_by, stop_causes, inputs.faults, now, config,
+                       inputs.latch_nonce or f"latch-{serial}")
+    latches = serial if latched_by is not None and state.latched_by is None else state.latches
     reset, latched_by = arbitrate_reset(inputs.reset_request, stop_causes, latched_by, now,
                                         config)
     stop_seen = now if stop_causes else state.stop_seen
@@ -168,6 +191,7 @@ def step(state: PolicyState, inputs: PolicyInputs, now: float,
         frame_stops=seen.stops,
         frame_slows=seen.slows, frame_scale=seen.scale, hold_reasons=hold,
         last_reset=reset or state.last_reset, reset_possible_since=possible_since,
+        latches=latches,
     )
     command = Command(
         state=level, speed_scale=speed, reasons=reasons, since=since,

@@ -72,17 +72,20 @@ class Reason:
 
 @dataclass(frozen=True)
 class Latch:
-    """The cause that latched the STOP, and when (s)."""
+    """The cause that latched the STOP, and when (s). ``nonce`` names this latch: a reset must
+    name it (``ResetRequest.latch``), so a reset made for another latch or another run of the
+    monitor never releases this one (``monitor.resets.LatchNonces`` makes them live)."""
 
     code: str
     message: str
     at: float
     zone_id: str | None = None
     person: int | None = None
+    nonce: str = ""
 
     def to_dict(self) -> dict:
         return {"code": self.code, "message": self.message, "zone_id": self.zone_id,
-                "person": self.person, "at": self.at}
+                "person": self.person, "at": self.at, "nonce": self.nonce}
 
 
 @dataclass(frozen=True)
@@ -99,6 +102,9 @@ class ResetRequest:
     # the operator has looked and confirms the cell is clear: releases holds of persons lost
     # inside a zone (never a person who is seen); logged and alerted by the pipeline
     confirm_clear: bool = False
+    # the nonce of the latch this request releases (every request from the bus names one);
+    # None only for requests made inside the process (replay's reset times, tests)
+    latch: str | None = None
 
 
 @dataclass(frozen=True)
@@ -131,6 +137,9 @@ class PolicyInputs:
     zone_error: str | None = None
     reset_request: ResetRequest | None = None
     frame_source: str | None = None
+    # the nonce a latch that begins in this step gets (the caller derives it from the boot and
+    # the latch's serial, ``PolicyState.latches + 1``); empty: ``latch-<serial>`` (replay)
+    latch_nonce: str = ""
 
 
 @dataclass(frozen=True)
@@ -222,6 +231,7 @@ class PolicyState:
     hold_reasons: tuple[Reason, ...] = ()  # causes of the current level, shown while clearing
     last_reset: ResetOutcome | None = None
     reset_possible_since: float | None = None
+    latches: int = 0  # latches begun so far (the serial of the newest one)
 
     @property
     def state(self) -> str:
