@@ -449,7 +449,7 @@ def standable(occluders: Sequence, meshes: Mapping[str, tuple[np.ndarray, np.nda
 
 def shadow_mask(cell, camera_id: str, floor_xy_m: np.ndarray) -> np.ndarray:
     """(N,) bool: floor points in the shadow of ``camera_id`` (see the module docstring)."""
-    occluders = [z for z in cell.zones if z.is_volume and z.enabled and z.kind == "occluder"]
+    occluders = cell.spec.occluder_zones()  # the robot base included
     model = cell.camera_models[camera_id]
     return shadowed_by(occluders, cell.meshes, floor_xy_m, model,
                        cell.spec.person.height_range_m[0])

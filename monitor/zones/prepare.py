@@ -156,7 +156,7 @@ def prepare_cell(cell: Cell) -> PreparedCell:
             image[cam_id] = _prepare_image_zones(zs, cam)
     volumes = tuple(_prepare_volume(z, cell) for z in cell.zones
                     if z.is_volume and z.enabled and z.kind not in ("watch", "occluder"))
-    occ_zones = [z for z in cell.zones if z.is_volume and z.enabled and z.kind == "occluder"]
+    occ_zones = cell.spec.occluder_zones()  # the declared ones and the robot base, always
     occluders = tuple(_prepare_volume(z, cell) for z in occ_zones)
     outlines: dict[str, tuple[np.ndarray, ...]] = {}
     for cam_id, model in cell.camera_models.items():
