@@ -17,7 +17,6 @@ from monitor import zones as zn
 from monitor.config import demo_cell_path
 from monitor.errors import ConfigError
 from monitor.scene import DEMO_CAMERA
-from monitor.zones import coverage as cov
 from tests.helpers import assert_one_line_error, free_port, run_monitor
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -64,6 +63,8 @@ def test_protective_zone_partly_outside_every_image_is_refused_naming_zone_and_a
 
 
 def test_unseen_area_is_where_the_head_leaves_the_image():
+    from monitor.zones import coverage as cov
+
     cell = zn.parse_cell(wide_protective(opt_in=True))
     z = cell.zone("robot-protective")
     got = cov.zone_coverage(z, cell.spec, cell.camera_models, cell.meshes)
