@@ -154,6 +154,10 @@ def test_zones_validate_refuses_with_one_line_and_accepts_the_opt_in(tmp_path):
     proc = run_monitor("zones", "validate", ok)
     assert proc.returncode == 0, proc.stderr
     assert "unobserved_ok" in proc.stderr and ": ok: " in proc.stdout
+    # each protective and warning volume: what the cameras see of it
+    line = next(ln for ln in proc.stdout.splitlines() if "zone 'robot-protective': seen" in ln)
+    assert " 84 % of its floor" in line or " 85 % of its floor" in line, line
+    assert "zone 'robot-warning': seen by a camera: 100 % of its floor" in proc.stdout
 
 
 def test_monitor_run_refuses_a_partly_unseen_protective_zone(tmp_path, synthetic_model):
