@@ -170,8 +170,6 @@ def zone_coverage(zone, spec: CellSpec, models: Mapping[str, geo.CameraModel],
                   ) -> ZoneCoverage:
     """Sample a volume zone's floor and its volume up to head height; see the module
     docstring for what counts as observed."""
-    from monitor.occlusion import _zone_floor_bounds, _zone_mid_height
-
     occluders = spec.occluder_zones()
     contain = _contain(occluders, meshes)
     h_min, h_max = spec.person.height_range_m
@@ -211,6 +209,30 @@ def zone_coverage(zone, spec: CellSpec, models: Mapping[str, geo.CameraModel],
         vol_unseen = float(hidden.sum()) * vcell * dz
     return ZoneCoverage(zone.id, zone.kind, len(pts) * cell_area,
                         float(unseen.sum()) * cell_area, vol_total, vol_unseen, pts[unseen], cell)
+
+
+def _zone_floor_bounds(z, meshes) -> tuple[np.ndarray, np.ndarray]:
+    if z.shape == "box":
+        lo, hi = np.array(z.min_m[:2]), np.array(z.max_m[:2])
+        c, r = (lo + hi) / 2, float(np.hypot(*(hi - lo))) / 2
+        return (c - r, c + r) if z.yaw_deg else (lo, hi)
+    if z.shape == "extrude":
+        p = np.array(z.points_m, float)
+        return p.min(axis=0), p.max(axis=0)
+    if z.shape == "cylinder":
+        c = np.array(z.center_m)
+        return c - z.radius_m, c + z.radius_m
+    v = meshes[z.id][0]
+    return v[:, :2].min(axis=0), v[:, :2].max(axis=0)
+
+
+def _zone_mid_height(z, meshes) -> float:
+    if z.shape == "box":
+        return (z.min_m[2] + z.max_m[2]) / 2
+    if z.shape in ("extrude", "cylinder"):
+        return (z.z_min_m + z.z_max_m) / 2
+    v = meshes[z.id][0]
+    return float(v[:, 2].min() + v[:, 2].max()) / 2
 
 
 def _zone_z_range(z, meshes) -> tuple[float, float]:
