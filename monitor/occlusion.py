@@ -25,8 +25,8 @@ a bench is found in the protective zone even though the box bottom lies on the b
 (``height_range_m[0]``) standing there would be wholly hidden from that camera: the sight line
 from the camera to the top of their head passes through an occluder, or that head is outside the
 image or behind the camera. Persons whose head shows are placed from the head (above); persons in
-a shadow of every camera cannot be seen at all, and ``zones validate`` warns about zone floor
-that lies there.
+a shadow of every camera cannot be seen at all: ``zones validate`` refuses protective zone floor
+there, or flags it (monitor/zones/coverage.py).
 """
 
 from __future__ import annotations
@@ -497,53 +497,7 @@ def standable(occluders: Sequence, meshes: Mapping[str, tuple[np.ndarray, np.nda
 
 def shadow_mask(cell, camera_id: str, floor_xy_m: np.ndarray) -> np.ndarray:
     """(N,) bool: floor points in the shadow of ``camera_id`` (see the module docstring)."""
-    occluders = [z for z in cell.zones if z.is_volume and z.enabled and z.kind == "occluder"]
+    occluders = cell.spec.occluder_zones()  # the robot base included
     model = cell.camera_models[camera_id]
     return shadowed_by(occluders, cell.meshes, floor_xy_m, model,
                        cell.spec.person.height_range_m[0])
-
-
-def unobserved_floor(zone, occluders: Sequence, models: Mapping[str, geo.CameraModel],
-                     meshes: Mapping[str, tuple[np.ndarray, np.ndarray]], min_height_m: float,
-                     step_m: float = 0.1) -> tuple[float, np.ndarray]:
-    """Floor of a volume zone (sampled every ``step_m``) that no camera observes: a person of
-    the minimum height standing there is hidden from every calibrated camera. Returns (area in
-    m², (K, 2) sample points); points inside an occluder's footprint do not count."""
-    z_mid = _zone_mid_height(zone, meshes)
-    lo, hi = _zone_floor_bounds(zone, meshes)
-    xs = np.arange(lo[0] + step_m / 2, hi[0], step_m)
-    ys = np.arange(lo[1] + step_m / 2, hi[1], step_m)
-    if not len(xs) or not len(ys):
-        return 0.0, np.zeros((0, 2))
-    gx, gy = np.meshgrid(xs, ys)
-    pts = np.c_[gx.ravel(), gy.ravel()]
-    pts = pts[points_in_volume(zone, np.c_[pts, np.full(len(pts), z_mid)], meshes)]
-    pts = pts[standable(occluders, meshes, pts)]
-    unseen = np.ones(len(pts), dtype=bool)
-    for model in models.values():
-        unseen &= shadowed_by(occluders, meshes, pts, model, min_height_m)
-    return float(unseen.sum()) * step_m * step_m, pts[unseen]
-
-
-def _zone_floor_bounds(z, meshes) -> tuple[np.ndarray, np.ndarray]:
-    if z.shape == "box":
-        lo, hi = np.array(z.min_m[:2]), np.array(z.max_m[:2])
-        c, r = (lo + hi) / 2, float(np.hypot(*(hi - lo))) / 2
-        return (c - r, c + r) if z.yaw_deg else (lo, hi)
-    if z.shape == "extrude":
-        p = np.array(z.points_m, float)
-        return p.min(axis=0), p.max(axis=0)
-    if z.shape == "cylinder":
-        c = np.array(z.center_m)
-        return c - z.radius_m, c + z.radius_m
-    v = meshes[z.id][0]
-    return v[:, :2].min(axis=0), v[:, :2].max(axis=0)
-
-
-def _zone_mid_height(z, meshes) -> float:
-    if z.shape == "box":
-        return (z.min_m[2] + z.max_m[2]) / 2
-    if z.shape in ("extrude", "cylinder"):
-        return (z.z_min_m + z.z_max_m) / 2
-    v = meshes[z.id][0]
-    return float(v[:, 2].min() + v[:, 2].max()) / 2

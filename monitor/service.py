@@ -227,6 +227,8 @@ def _run(config_path, log_json: bool, duration: float | None, signals: StopSigna
         event(warning, logging.WARNING)
     if test_model:
         event(test_model, logging.WARNING)
+    for doubt in cell.warnings if cell else ():  # e.g. zone floor accepted as unobserved
+        event(f"zone file {cell.label}: {doubt}", logging.WARNING)
     if config.bus.allow_unsigned_resets:
         event("resets are accepted without an operator key (embedded demo on 127.0.0.1, or "
               "allow_unsigned_resets = true): not for a production cell", logging.WARNING)

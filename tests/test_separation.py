@@ -339,6 +339,9 @@ def test_a_box_above_the_horizon_of_a_tilted_camera_touches_every_volume(pitch):
     cal["rotation"] = r.tolist()
     cal["translation_m"] = (-r @ eye).tolist()
     data["zones"] = [z for z in data["zones"] if z["shape"] != "polygon"]
+    for z in data["zones"]:  # tilted up, the camera sees little of their floor: said so
+        if z["kind"] in ("protective", "warning"):
+            z["unobserved_ok"] = True
     cell = zn.parse_cell(data, demo_cell_path())
     horizon = cell.camera_models["cam0"].horizon_row_px()
     assert 360 < horizon < 720

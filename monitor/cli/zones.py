@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import math
 import re
 import sys
 from pathlib import Path
@@ -437,10 +438,27 @@ def cmd_validate(args: argparse.Namespace) -> int:
         print(f"{args.file}: warning: {w}", file=sys.stderr)
     for cam_id, model in cell.camera_models.items():
         print(f"{args.file}: camera '{cam_id}': {_horizon_text(model)}")
+    _print_coverage(cell, args.file)
     active = sum(1 for z in cell.zones if z.enabled)
     print(f"{args.file}: ok: {_count(len(cell.zones), 'zone')} ({active} enabled), "
           f"{_count(len(cell.cameras), 'camera')}, config hash {cell.config_hash}")
     return 0
+
+
+def _print_coverage(cell: zn.Cell, label: object) -> None:
+    """What the cameras see of each protective and warning volume (monitor/zones/coverage.py)."""
+    from monitor.zones.coverage import zone_coverage
+
+    if not cell.camera_models:
+        return
+    top = cell.spec.person.height_range_m[1]
+    for z in cell.zones:
+        if z.is_volume and z.enabled and z.kind in ("protective", "warning"):
+            c = zone_coverage(z, cell.spec, cell.camera_models, cell.meshes)
+            print(f"{label}: zone '{z.id}': seen by a camera: "
+                  f"{math.floor(100 * (1 - c.unseen_floor_fraction)):d} % of its floor "
+                  f"({c.floor_m2:.2f} m² outside occluders), "
+                  f"{100 * (1 - c.unseen_volume_fraction):.0f} % of its volume up to {top:g} m")
 
 
 def _horizon_text(model: geo.CameraModel) -> str:

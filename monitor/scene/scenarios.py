@@ -43,6 +43,9 @@ class Scenario:
     check_false_stops: bool = True
     declare_occluders: bool = True  # False: the zone file leaves the fixtures out
     declare_floors: bool = True  # False: the zone file leaves the platforms out
+    # the zone file accepts zone floor no camera sees (a bench taller than a crouching person
+    # hides one right behind it): ``unobserved_ok`` on the protective and warning zones
+    unobserved_ok: bool = False
 
     def zone_data(self) -> dict:
         data = zone_data(self.scene, PROTECTIVE)
@@ -50,6 +53,10 @@ class Scenario:
             data["zones"] = [z for z in data["zones"] if z["kind"] != "occluder"]
         if not self.declare_floors:
             data.pop("floors", None)
+        if self.unobserved_ok:
+            for z in data["zones"]:
+                if z["kind"] in ("protective", "warning"):
+                    z["unobserved_ok"] = True
         data["zones"] += [dict(z) for z in self.extra_zones]
         return data
 
@@ -109,7 +116,8 @@ def scenarios(fps: float = 10.0) -> list[Scenario]:
             f"walks behind a {h:.2f} m bench into the protective zone (legs hidden), stays, "
             "leaves",
             CellScene((_walk((0.0, -2.4, -0.3), (2.0, -0.3, -0.6), (4.0, -0.3, -0.6),
-                             (6.0, -2.4, -0.3)),), (_bench(h),), fps=fps, duration_s=6.0)))
+                             (6.0, -2.4, -0.3)),), (_bench(h),), fps=fps, duration_s=6.0),
+            unobserved_ok=h > 1.0))  # taller than the shortest person: hides a crouching one
     out.append(Scenario(
         "crate-crouch", "crouches behind a 0.7 m crate and moves into the protective zone",
         CellScene((_walk((0.0, -2.4, -0.7), (2.5, -0.1, -0.6), (4.5, -0.1, -0.6),

@@ -222,7 +222,7 @@ def shadow_image(cell: Cell, camera_id: str, width: int, height: int, step_px: i
     Evaluated every ``step_px`` pixels of the camera and scaled to ``width`` x ``height``."""
     from monitor.occlusion import shadow_mask, standable  # occlusion imports prepare: late
 
-    occluders = [z for z in cell.zones if z.is_volume and z.enabled and z.kind == "occluder"]
+    occluders = cell.spec.occluder_zones()  # the robot base included
     model = cell.camera_models.get(camera_id)
     cam = cell.cameras[camera_id]
     if not occluders or model is None:

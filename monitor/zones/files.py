@@ -418,6 +418,8 @@ def config_hash(spec: CellSpec, meshes_sha: Mapping[str, str] | None = None) -> 
         if not z.enabled:
             continue
         d = z.model_dump(mode="json", exclude={"name", "enabled"})
+        if d.get("unobserved_ok") is None:  # only when given: older files keep their hash
+            d.pop("unobserved_ok", None)
         if z.shape == "mesh":
             d["file_sha256"] = meshes_sha.get(z.id, "")
         zones.append(d)
@@ -440,6 +442,8 @@ def config_hash(spec: CellSpec, meshes_sha: Mapping[str, str] | None = None) -> 
     if spec.floors:  # only when set: older files keep their hash
         payload["floors"] = sorted((f.model_dump(mode="json", exclude={"name"})
                                     for f in spec.floors), key=lambda f: f["id"])
+    if spec.robot_base is not None:  # only when set (the default base is fixed in code)
+        payload["robot_base"] = spec.robot_base.model_dump(mode="json")
     blob = json.dumps(payload, sort_keys=True, separators=(",", ":"), allow_nan=False)
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
 

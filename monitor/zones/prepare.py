@@ -158,7 +158,7 @@ def prepare_cell(cell: Cell) -> PreparedCell:
             image[cam_id] = _prepare_image_zones(zs, cam)
     volumes = tuple(_prepare_volume(z, cell) for z in cell.zones
                     if z.is_volume and z.enabled and z.kind not in ("watch", "occluder"))
-    occ_zones = [z for z in cell.zones if z.is_volume and z.enabled and z.kind == "occluder"]
+    occ_zones = cell.spec.occluder_zones()  # the declared ones and the robot base, always
     occluders = tuple(_prepare_volume(z, cell) for z in occ_zones)
     floors = tuple(FloorRegion.of(f.id, f.points_m, f.height_m) for f in cell.spec.floors)
     outlines: dict[str, tuple[np.ndarray, ...]] = {}

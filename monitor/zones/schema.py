@@ -68,6 +68,9 @@ class _ZoneBase(_Strict):
     kind: Literal["protective", "warning", "mask", "watch", "occluder"]
     enabled: bool = True
     speed_scale: float | None = Field(default=None, ge=0.0, lt=1.0)
+    # the explicit opt-in for a protective zone partly seen by no camera (zones validate and
+    # monitor run refuse it otherwise; monitor/zones/coverage.py); None: not given (= false)
+    unobserved_ok: bool | None = None
 
     @property
     def is_volume(self) -> bool:
@@ -244,6 +247,27 @@ class FloorSpec(_Strict):
     height_m: float = Field(ge=-10.0, le=20.0)
 
 
+class RobotBaseSpec(_Strict):
+    """The robot's base (pedestal, riser, controller cabinet beside it): a vertical cylinder on
+    the floor that contains it. It is always an occluder: a person behind it may have their legs
+    hidden, so a box cut at its top edge is placed from the head (monitor/occlusion.py). Without
+    ``robot_base`` in the file the default (radius 0.5 m, 1.0 m high, at the cell origin, which
+    is the robot base by the cell frame's definition) applies: declare yours when it is larger.
+    """
+
+    center_m: Vec2 = (0.0, 0.0)
+    radius_m: float = Field(default=0.5, gt=0.0, le=5.0)
+    height_m: float = Field(default=1.0, gt=0.0, le=5.0)
+
+    def as_zone(self) -> CylinderZone:
+        return CylinderZone(id=ROBOT_BASE_ID, name="robot base", kind="occluder",
+                            shape="cylinder", center_m=self.center_m, radius_m=self.radius_m,
+                            z_min_m=0.0, z_max_m=self.height_m)
+
+
+ROBOT_BASE_ID = "robot_base"  # the id of the robot base's occluder (not a zone of the file)
+
+
 class CellSpec(_Strict):
     """The whole zone file."""
 
@@ -257,5 +281,13 @@ class CellSpec(_Strict):
     cameras: tuple[CameraSpec, ...] = Field(min_length=1)
     zones: tuple[ZoneSpec, ...] = ()
     floors: tuple[FloorSpec, ...] = ()  # raised or sunken floor regions (platforms, pits)
+    robot_base: RobotBaseSpec | None = None  # None: RobotBaseSpec() (the default base)
+
+    def occluder_zones(self) -> tuple:
+        """Every fixture that can hide a person: the enabled ``occluder`` volumes of the file
+        and the robot base (always, declared or not)."""
+        declared = tuple(z for z in self.zones
+                         if z.is_volume and z.enabled and z.kind == "occluder")
+        return (*declared, (self.robot_base or RobotBaseSpec()).as_zone())
 
 

@@ -12,7 +12,7 @@ from pydantic import ValidationError
 
 from monitor import geometry as geo
 from monitor.geometry.distortion import distortion_fault
-from monitor.occlusion import unobserved_floor
+from monitor.zones.coverage import coverage_faults
 from monitor.zones.floors import check_floors
 from monitor.zones.schema import (
     BoxZone,
@@ -173,8 +173,10 @@ def _check_spec(spec: CellSpec, base: Path
                             "to it (uncalibrated cameras see image zones only)")
     errors += _check_horizon(spec, models)
     errors += check_floors(spec)
-    if not errors:
-        warnings += _check_unobserved(spec, models, meshes)
+    if not errors:  # every protective and warning zone watched, or flagged (coverage.py)
+        unseen_errors, unseen_warnings = coverage_faults(spec, models, meshes)
+        errors += unseen_errors
+        warnings += unseen_warnings
     return errors, warnings, models, meshes
 
 
@@ -198,25 +200,6 @@ def _check_horizon(spec: CellSpec, models: Mapping[str, geo.CameraModel]) -> lis
             out.append(f"zone '{z.id}': corner ({u:g}, {v:g}) lies beyond camera "
                        f"'{z.camera}''s horizon{where}: the calibration says it never sees "
                        "the floor there; check the calibration or the polygon")
-    return out
-
-
-def _check_unobserved(spec: CellSpec, models: Mapping[str, geo.CameraModel],
-                      meshes: Mapping[str, tuple[np.ndarray, np.ndarray]]) -> list[str]:
-    """Protective or warning floor that a person of the minimum height could stand on wholly
-    hidden from every camera, behind the declared occluders (monitor/occlusion.py)."""
-    occluders = [z for z in spec.zones if z.is_volume and z.enabled and z.kind == "occluder"]
-    if not occluders or not models:
-        return []
-    out = []
-    for z in spec.zones:
-        if not (z.is_volume and z.enabled and z.kind in ("protective", "warning")):
-            continue
-        area, _ = unobserved_floor(z, occluders, models, meshes, spec.person.height_range_m[0])
-        if area > 0:
-            out.append(f"zone '{z.id}': about {area:.2f} m² of its floor is unobserved by every "
-                       "camera (a person of the minimum height there is hidden behind "
-                       "occluders): add a camera or move the occluder")
     return out
 
 
