@@ -26,7 +26,8 @@ HEADER = "workcell-monitor zone file (format: zones/README.md). Edit with 'monit
 def register(sub: argparse._SubParsersAction) -> None:
     parser = sub.add_parser("camera", help="add, remove, change or list the cameras of a zone "
                             "file")
-    actions = parser.add_subparsers(dest="camera_action", metavar="ACTION", required=True)
+    actions = parser.add_subparsers(dest="camera_action", metavar="ACTION", required=True,
+                                    help="add, remove, set or list")
 
     p = actions.add_parser("add", help="add a camera")
     p.add_argument("file", type=Path)
