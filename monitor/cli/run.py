@@ -92,7 +92,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "run", help="run the monitor service (default: the demo scene, Zenoh peer listening on "
         "tcp/127.0.0.1:7447)", description=RUN_DESCRIPTION)
     run.add_argument("--config", type=Path,
-                     help="monitor.toml (see deploy/monitor.toml); default: the embedded demo")
+                     help="monitor.toml ('monitor init DIR' writes one, every key explained); "
+                     "default: the embedded demo")
     run.add_argument("--log-json", action="store_true",
                      help="one JSON object per log line (default: text, or [service] log_json)")
     run.add_argument("--duration", type=float,

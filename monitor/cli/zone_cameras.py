@@ -9,15 +9,18 @@ command says what to do with them.
 from __future__ import annotations
 
 import argparse
+import os
 import re
 from pathlib import Path
 from typing import Any
 
+import cv2
 import yaml
 
 from monitor import zones as zn
 from monitor.cli.zones import _count, _document_defaults, _read, _write
 from monitor.errors import ConfigError
+from monitor.frames import source_kind
 from monitor.zones.cameras import choose_camera, zone_file_hint
 
 HEADER = "workcell-monitor zone file (format: zones/README.md). Edit with 'monitor zones'."
@@ -32,9 +35,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = actions.add_parser("add", help="add a camera")
     p.add_argument("file", type=Path)
     p.add_argument("camera", help="camera id, as in monitor.toml's [[camera]] id")
-    p.add_argument("--size", required=True, help="camera resolution WxH, e.g. 1280x720")
+    p.add_argument("--size", help="camera resolution WxH, e.g. 1280x720 (required unless "
+                   "--source is a video or image file: its size is read)")
     p.add_argument("--calibration", type=Path,
                    help="YAML file holding a calibration mapping (zones/README.md)")
+    p.add_argument("--source", help="the camera's source (index, rtsp:// URL, video file)")
+    p.add_argument("--config", type=Path,
+                   help="monitor.toml to add the camera to as a [[camera]] table with --source "
+                   "(a camera in the zone file that no [[camera]] feeds is refused by 'monitor "
+                   "run' once it has zones)")
     p.set_defaults(func=cmd_camera_add)
 
     p = actions.add_parser("remove", help="remove a camera")
@@ -124,17 +133,83 @@ def _read_calibration(path: Path) -> dict:
     return cal
 
 
+def media_size(path: Path, what: str) -> tuple[int, int]:
+    """Width and height of a video or image file (its first frame)."""
+    if not path.is_file():
+        raise ConfigError(f"{what}: {path}: no such file")
+    image = cv2.imread(str(path)) if source_kind(str(path)) == "image" else None
+    if image is not None:
+        return image.shape[1], image.shape[0]
+    cap = cv2.VideoCapture(str(path))
+    try:
+        ok, frame = cap.read()
+    finally:
+        cap.release()
+    if not ok or frame is None:
+        raise ConfigError(f"{what}: {path}: cannot read a frame (not a video?)")
+    return frame.shape[1], frame.shape[0]
+
+
+def _config_with_camera(args: argparse.Namespace, width: int, height: int) -> str:
+    """monitor.toml's text with the new camera's [[camera]] table, validated."""
+    import tomllib
+
+    from monitor.config import parse_config
+    from monitor.deploykit import KitCamera, add_camera_table
+
+    path: Path = args.config
+    if args.source is None:
+        raise ConfigError("zones camera add --config: give the camera's --source too")
+    try:
+        text = path.read_text(encoding="utf-8")
+        config = parse_config(tomllib.loads(text), str(path), path.parent)
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read: {exc.strerror}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: not valid TOML: {exc}") from None
+    if args.camera in {c.id for c in config.cameras}:
+        raise ConfigError(f"{path}: has a [[camera]] '{args.camera}' already")
+    source = args.source
+    if source_kind(source) in ("file", "image"):
+        source = str(Path(source).expanduser().resolve())
+    live = source_kind(source) in ("camera", "url")
+    new = add_camera_table(text, KitCamera(args.camera, source, width, height, live), str(path))
+    parse_config(tomllib.loads(new), str(path), path.parent)  # still valid: else nothing written
+    return new
+
+
+def _write_text_atomic(path: Path, text: str) -> None:
+    tmp = path.with_name(f".{path.name}.tmp")
+    try:
+        tmp.write_text(text, encoding="utf-8")
+        os.chmod(tmp, path.stat().st_mode & 0o7777)
+        os.replace(tmp, path)
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        raise ConfigError(f"{path}: cannot write: {exc.strerror}") from None
+
+
 def cmd_camera_add(args: argparse.Namespace) -> int:
     data = _read(args.file)
     if args.camera in _camera_ids(data):
         raise ConfigError(f"{args.file}: camera '{args.camera}' exists already (change it with "
                           f"'monitor zones camera set {args.file} {args.camera}')")
-    width, height = parse_size(args.size)
+    if args.size:
+        width, height = parse_size(args.size)
+    elif args.source and source_kind(args.source) in ("file", "image"):
+        width, height = media_size(Path(args.source).expanduser(), f"--source {args.source}")
+    else:
+        raise ConfigError(f"zones camera add: say the resolution of camera '{args.camera}' with "
+                          "--size WxH")
     cam: dict[str, Any] = {"id": args.camera, "width": width, "height": height}
     if args.calibration is not None:
         cam["calibration"] = _read_calibration(args.calibration)
+    config_text = _config_with_camera(args, width, height) if args.config else None
     data.setdefault("cameras", []).append(cam)
     cell = _write(data, args.file)
+    if config_text is not None:
+        _write_text_atomic(args.config, config_text)
+        print(f"added [[camera]] {args.camera} ({args.source}) to {args.config}")
     print(f"added camera {args.camera} ({width}x{height}); {_count(len(cell.cameras), 'camera')}"
           f", config hash {cell.config_hash}")
     return 0
