@@ -25,11 +25,9 @@ def kit_dir(part: str) -> Path:
     checkout = Path(monitor.__file__).resolve().parents[1]
     if (checkout / "pyproject.toml").is_file() and (checkout / part).is_dir():
         return checkout / part
-    try:
-        path = Path(str(resources.files(PARTS[part])))
-    except (ModuleNotFoundError, TypeError):
-        path = None
-    if path is None or not path.is_dir():
+    # installed: data folders inside the package (no __init__.py: read as files, not imported)
+    path = Path(str(resources.files("monitor"))) / PARTS[part].removeprefix("monitor.")
+    if not path.is_dir():
         raise ConfigError(f"the {part}/ files are missing from this installation; reinstall "
                           "workcell-monitor")
     return path
