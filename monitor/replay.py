@@ -36,6 +36,7 @@ from monitor.pipeline import Pipeline, StepResult
 from monitor.policy import RUN, SLOW, STOP, PolicyConfig, ResetRequest
 from monitor.types import Alert
 from monitor.zones import Cell, draw_zones, watch_regions
+from monitor.zones.cameras import choose_camera
 
 STATE_BGR = {RUN: (60, 170, 60), SLOW: (0, 170, 255), STOP: (40, 40, 220)}
 
@@ -43,7 +44,7 @@ STATE_BGR = {RUN: (60, 170, 60), SLOW: (0, 170, 255), STOP: (40, 40, 220)}
 @dataclass(frozen=True)
 class ReplaySettings:
     out_dir: Path
-    camera_id: str | None = None  # default: the zone file's only camera, else "video"
+    camera_id: str | None = None  # default: the zone file's only camera (several: required)
     reset_at: tuple[float, ...] = ()  # video seconds at which an operator reset is sent
     realtime: bool = False
     annotate: bool = True
@@ -473,14 +474,12 @@ def replay(video: str | Path, detector: Detector, cell: Cell | None, settings: R
     (frames and ticks). When ``stop`` is set the run ends early; every output is still
     finished and ``summary.interrupted`` says where it stopped."""
     video = Path(video)
-    camera_id = settings.camera_id or (next(iter(cell.cameras)) if cell and len(cell.cameras) == 1
-                                       else "video")
+    camera_id = settings.camera_id or "video"  # without a zone file the name is only a label
     expected = None
     if cell is not None:
+        # the zone file's only camera, or the one --camera names (several: required)
+        camera_id = choose_camera(cell.cameras, settings.camera_id, cell.label)
         require_protective_zone(cell, settings.allow_no_protective, cell.label)
-        if camera_id not in cell.cameras:
-            raise InputError(f"camera {camera_id!r} is not in the zone file "
-                             f"(has {', '.join(cell.cameras)})")
         spec = cell.cameras[camera_id]
         expected = (spec.width, spec.height)
     reader = VideoFileReader(video, camera_id, expected_size=expected, strict=False)

@@ -124,6 +124,21 @@ STATE_LEVEL = {"RUN": 0, "SLOW": 1, "STOP": 2}
 
 
 
+def _require_fed_cameras(cell, config: MonitorConfig, zones_file: str | None) -> None:
+    """A protective or warning image zone of a camera that no [[camera]] feeds would never
+    see anyone: refused (a zone file edited for a new camera, the config not yet)."""
+    if cell is None:
+        return
+    fed = {c.id for c in config.cameras}
+    unfed = [z for z in cell.zones if z.enabled and z.shape == "polygon"
+             and z.kind in ("protective", "warning") and z.camera not in fed]
+    if unfed:
+        z = unfed[0]
+        raise ConfigError(f"zone '{z.id}' of {zones_file} is on camera '{z.camera}', which no "
+                          f"[[camera]] of the config feeds: it would never see a person (add "
+                          f"the camera: 'monitor zones camera add ... --config')")
+
+
 def build_pipeline(config: MonitorConfig):
     """Model, zones, health checker and pipeline from a validated config (I/O: files only);
     also the warning to carry when the synthetic test model is allowed on a live camera."""
@@ -148,6 +163,7 @@ def build_pipeline(config: MonitorConfig):
         health[cam.id] = CameraHealth(config.health, cam.id, reference, watch)
         expected[cam.id] = (cell.cameras[cam.id].width, cell.cameras[cam.id].height) \
             if cell else None
+    _require_fed_cameras(cell, config, zones_file)
     if config.policy.separation_monitoring:
         if cell is None:
             raise ConfigError("policy.separation_monitoring needs a zone file with a tool and a "

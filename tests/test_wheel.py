@@ -17,6 +17,8 @@ import sysconfig
 import tomllib
 from pathlib import Path
 
+import cv2
+import numpy as np
 import pytest
 
 from tests.helpers import free_port
@@ -95,3 +97,40 @@ def test_wheel_installs_and_runs_outside_the_checkout(tmp_path):
 
     helped = _run([str(venv / "bin" / "monitor"), "demo", "--help"], elsewhere)
     assert helped.returncode == 0 and "--out" in helped.stdout
+
+    # an integrator's first day: the deploy kit and the docs come with the wheel
+    video = elsewhere / "cam0.mp4"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"mp4v"), 10.0, (640, 480))
+    for _ in range(5):
+        writer.write(np.full((480, 640, 3), 90, np.uint8))
+    writer.release()
+    monitor = str(venv / "bin" / "monitor")
+    init = _run([monitor, "init", "kit", "--camera", f"cam0={video}", "--operator", "anna"],
+                elsewhere)
+    assert init.returncode == 0, init.stderr[-3000:]
+    kit = elsewhere / "kit"
+    assert (kit / "monitor.toml").read_text().splitlines().count("[[camera]]") == 1
+    assert (kit / "workcell-monitor.service").read_bytes() == \
+        (ROOT / "deploy" / "workcell-monitor.service").read_bytes()
+    for name in ("peer", "client", "router-secure", "client-secure"):
+        assert (kit / "zenoh" / f"{name}.json5").read_bytes() == \
+            (ROOT / "deploy" / "zenoh" / f"{name}.json5").read_bytes()
+    assert (kit / "keys" / "monitor.key").is_file() and (kit / "operators").is_file()
+    added = _run([monitor, "zones", "add", "kit/cell.yaml", "stop", "40,40 600,40 600,440",
+                  "--kind", "protective"], elsewhere)
+    assert added.returncode == 0, added.stderr
+    checked = _run([str(python), "-c", "from monitor.config import load_config; "
+                    f"print(load_config({str(kit / 'monitor.toml')!r}).zones.file)"], elsewhere)
+    assert checked.stdout.strip() == str(kit / "cell.yaml"), checked.stderr
+
+    listed = _run([monitor, "docs"], elsewhere)
+    assert listed.returncode == 0, listed.stderr
+    shipped = {p.stem for p in (ROOT / "docs").glob("*.md")} | {"zones", "model-card"}
+    assert {line.split()[0] for line in listed.stdout.splitlines()[:-2] if line} == shipped
+    assert str(venv) in listed.stdout.splitlines()[-1]  # read from the install, not here
+    for name in ("security", "zones"):
+        shown = _run([monitor, "docs", name], elsewhere)
+        source = ROOT / ("zones/README.md" if name == "zones" else f"docs/{name}.md")
+        assert shown.returncode == 0 and shown.stdout == source.read_text(), shown.stderr
+    run_help = _run([monitor, "run", "-h"], elsewhere)
+    assert "monitor init" in run_help.stdout and "deploy/" not in run_help.stdout

@@ -28,6 +28,7 @@ COMMAND_MODULES = (
     "monitor.cli.reference",
     "monitor.cli.run",
     "monitor.cli.eval",
+    "monitor.cli.init",
 )
 DEBUG_HELP = "show the full traceback on errors (anywhere on the command line)"
 

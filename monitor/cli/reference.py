@@ -31,12 +31,20 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "capture", help="store a new reference image of a camera",
         description="Store the per-pixel median of the first frames of SOURCE as the camera's "
         "reference image (written atomically: readers see the old or the new file, never half).")
-    capture.add_argument("--source", required=True,
-                         help="video file, image, camera index, rtsp:// URL or synthetic:demo")
-    capture.add_argument("--out", required=True, type=Path,
+    capture.add_argument("--config", type=Path,
+                         help="monitor.toml: take the camera's source and its [camera] "
+                         "reference path from it (default: none; then --source and --out)")
+    capture.add_argument("--camera",
+                         help="camera id: with --config the config's only camera by default "
+                         "(required when it has several); without, it names the image in an "
+                         "--out directory")
+    capture.add_argument("--source",
+                         help="video file, image, camera index, rtsp:// URL or synthetic:demo "
+                         "(default: the camera's source in --config)")
+    capture.add_argument("--out", type=Path,
                          help="image file to write (PNG recommended); a directory (or a name "
-                         "without suffix) gets <camera>.png")
-    capture.add_argument("--camera", default="cam0", help="camera id (default cam0)")
+                         "without suffix) gets <camera>.png (default: the camera's reference "
+                         "in --config)")
     capture.add_argument("--frames", type=int, default=15,
                          help="median of this many frames (default 15; 1 = a single frame)")
     capture.set_defaults(func=_capture)
@@ -90,16 +98,39 @@ def write_image_atomic(path: Path, image: np.ndarray) -> None:
         raise
 
 
-def _capture(args: argparse.Namespace) -> int:
-    out: Path = args.out
+def _camera_source_out(args: argparse.Namespace) -> tuple[str, str, Path]:
+    """Camera id, source and output image, by the one --camera rule (monitor.zones.cameras)."""
+    source, out, camera = args.source, args.out, args.camera
+    if args.config is not None:
+        from monitor.config import load_config
+        from monitor.zones.cameras import choose_camera
+
+        config = load_config(args.config)
+        cams = {c.id: c for c in config.cameras}
+        camera = choose_camera(cams, camera, str(args.config))
+        source = source or cams[camera].source
+        if out is None and cams[camera].reference is None:
+            raise InputError(f"{args.config}: camera '{camera}' has no reference path: set "
+                             "its reference or give --out")
+        out = out or Path(cams[camera].reference)
+    if source is None or out is None:
+        raise InputError("reference capture: give --config, or --source and --out")
     if out.is_dir() or not out.suffix:
-        out = out / f"{args.camera}.png"
-    image, used = capture_reference(args.source, args.camera, args.frames)
+        if camera is None:
+            raise InputError(f"--out {out} is a directory: say which camera with --camera "
+                             "(the image is named <camera>.png)")
+        out = out / f"{camera}.png"
+    return camera or out.stem, source, out
+
+
+def _capture(args: argparse.Namespace) -> int:
+    camera, source, out = _camera_source_out(args)
+    image, used = capture_reference(source, camera, args.frames)
     try:
         write_image_atomic(out, image)
     except OSError as exc:
         raise InputError(f"{out}: cannot write: {exc.strerror or exc}") from exc
     height, width = image.shape[:2]
-    print(f"{out}: reference of camera {args.camera} ({width}x{height}, median of {used} "
-          f"frame{'s' if used != 1 else ''} from {args.source})")
+    print(f"{out}: reference of camera {camera} ({width}x{height}, median of {used} "
+          f"frame{'s' if used != 1 else ''} from {source})")
     return 0

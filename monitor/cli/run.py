@@ -51,7 +51,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     rp.add_argument("--config", type=Path,
                     help="monitor.toml for policy/health/detector/bus settings "
                     "(default: built-in defaults)")
-    rp.add_argument("--camera", help="camera id in the zone file (default: its only camera)")
+    rp.add_argument("--camera", help="camera id in the zone file (default: its only camera; "
+                    "required when it has several)")
     rp.add_argument("--out", type=Path, default=Path("replay-out"),
                     help="output directory (default: replay-out)")
     rp.add_argument("--realtime", action="store_true",
@@ -91,7 +92,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "run", help="run the monitor service (default: the demo scene, Zenoh peer listening on "
         "tcp/127.0.0.1:7447)", description=RUN_DESCRIPTION)
     run.add_argument("--config", type=Path,
-                     help="monitor.toml (see deploy/monitor.toml); default: the embedded demo")
+                     help="monitor.toml ('monitor init DIR' writes one, every key explained); "
+                     "default: the embedded demo")
     run.add_argument("--log-json", action="store_true",
                      help="one JSON object per log line (default: text, or [service] log_json)")
     run.add_argument("--duration", type=float,
@@ -118,12 +120,15 @@ def do_replay(video: Path, zones: Path | None, model: Path | None, config_path: 
     from monitor.models import synthetic
     from monitor.replay import ReplaySettings, replay
     from monitor.zones import load_cell
+    from monitor.zones.cameras import choose_camera
 
     if not video.exists():
         raise InputError(f"{video}: no such file")
     config = load_config(config_path)
     allow = allow_no_protective or config.zones.allow_no_protective
     cell = load_cell(zones) if zones else None
+    if cell is not None:  # before the model loads: a missing --camera is said at once
+        choose_camera(cell.cameras, camera, cell.label)
     if publish and cell is None:  # commands to a robot: the same rule as `monitor run`
         require_protective_zone(None, allow, "")
     detector = Detector(model if model else synthetic.ensure_model(config.model.path),

@@ -22,6 +22,7 @@ from monitor import geometry as geo
 from monitor import zones as zn
 from monitor.cli.tool_calibration import positive_number
 from monitor.errors import ConfigError, InputError
+from monitor.zones.cameras import choose_camera, zone_file_hint
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -31,7 +32,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "and atomic; the previous file is kept as FILE.bak.")
     sub = parser.add_subparsers(dest="zones_command", metavar="ACTION", required=True)
 
-    p = sub.add_parser("new", help="create a zone file with one camera")
+    p = sub.add_parser("new", help="create a zone file with one camera (more: zones camera "
+                       "add)")
     p.add_argument("file", type=Path)
     p.add_argument("--camera", required=True, help="camera id, e.g. cam0")
     p.add_argument("--size", required=True, help="camera resolution WxH, e.g. 1280x720")
@@ -89,7 +91,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                        "extrinsics of a camera whose intrinsics are known. Pairs are "
                        "'u,v,x,y' (floor, z = 0) or 'u,v,x,y,z' (--pnp): pixels then metres.")
     p.add_argument("file", type=Path)
-    p.add_argument("--camera", required=True, help="camera id")
+    p.add_argument("--camera", help="camera id (default: the file's only camera; required "
+                   "when it has several)")
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--pairs", help="'u,v,x,y u,v,x,y ...'")
     src.add_argument("--csv", type=Path, help="CSV file with columns u,v,x,y[,z] (header "
@@ -103,7 +106,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("file", type=Path)
     p.add_argument("--frame", required=True, type=Path, help="camera image (PNG, JPEG, ...)")
     p.add_argument("--out", required=True, type=Path, help="output PNG")
-    p.add_argument("--camera", help="camera id (default: the first camera)")
+    p.add_argument("--camera", help="camera id (default: the file's only camera; required "
+                   "when it has several)")
     p.add_argument("--hit", action="append", default=[], metavar="ID",
                    help="draw this zone as hit (repeatable)")
     p.set_defaults(func=cmd_preview)
@@ -145,6 +149,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         none_text = {"edit": "unchanged", "calibrate-tool": "what the tracker noise explains"}
         _document_defaults(action, none_text.get(name, "not set"))
 
+    from monitor.cli import zone_cameras  # needs this module's helpers: import late
+
+    zone_cameras.register(sub)
+
 
 _POSITIONAL_HELP = {"file": "zone file (YAML)", "id": "zone id", "ids": "zone ids"}
 
@@ -170,7 +178,8 @@ def _document_defaults(parser: argparse.ArgumentParser, none_text: str) -> None:
 
 def _zone_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--name", help="display name")
-    p.add_argument("--camera", help="camera id of an image polygon")
+    p.add_argument("--camera", help="camera id of an image polygon (default: the file's only "
+                   "camera; required when it has several)")
     p.add_argument("--anchor", choices=zn.ANCHORS,
                    help="person anchor of an image polygon (default bottom-centre)")
     p.add_argument("--min-share", type=float, help="share of the box area for --anchor share")
@@ -278,7 +287,7 @@ def _apply_options(zone: dict, args: argparse.Namespace) -> None:
         zone["speed_scale"] = args.speed_scale
     if zone.get("shape") == "polygon":
         if args.camera is not None:
-            zone["camera"] = args.camera
+            zone["camera"] = args.camera  # checked against the file by _camera_for
         if args.anchor is not None:
             zone["anchor"] = args.anchor
             if args.anchor != "share":
@@ -299,16 +308,12 @@ def _apply_options(zone: dict, args: argparse.Namespace) -> None:
 
 
 def cmd_new(args: argparse.Namespace) -> int:
-    if args.file.exists() and not args.force:
-        raise ConfigError(f"{args.file}: file exists (use --force to overwrite)")
-    m = re.fullmatch(r"\s*(\d+)\s*[xX]\s*(\d+)\s*", args.size)
-    if not m:
-        raise ConfigError(f"--size: expected WxH such as 1280x720, got {args.size!r}")
-    data = {"version": zn.SCHEMA_VERSION, "name": args.name,
-            "cameras": [{"id": args.camera, "width": int(m[1]), "height": int(m[2])}],
-            "zones": []}
-    _write(data, args.file)
-    print(f"created {args.file} with camera {args.camera} ({m[1]}x{m[2]})")
+    from monitor.cli.zone_cameras import parse_size, write_new_zone_file
+
+    width, height = parse_size(args.size)
+    write_new_zone_file(args.file, args.name, [(args.camera, width, height)], force=args.force)
+    print(f"created {args.file} with camera {args.camera} ({width}x{height}); more cameras: "
+          f"'monitor zones camera add {args.file} ID --size WxH'")
     return 0
 
 
@@ -332,12 +337,11 @@ def cmd_add(args: argparse.Namespace) -> int:
 
 
 def _camera_for(data: dict, args: argparse.Namespace) -> str:
-    """The camera of a new image polygon: --camera, or the file's only camera."""
-    cams = [c.get("id") for c in data.get("cameras", [])]
-    camera = args.camera or (cams[0] if len(cams) == 1 else None)
-    if camera is None:
-        raise ConfigError(f"{args.file}: several cameras: say which with --camera")
-    return camera
+    """The camera of an image polygon: --camera, or the file's only camera (one rule for
+    every command: monitor.zones.cameras)."""
+    cams = [c.get("id") for c in data.get("cameras") or [] if isinstance(c, dict)]
+    return choose_camera(cams, args.camera, str(args.file),
+                         zone_file_hint(args.file, args.camera or "ID"))
 
 
 def cmd_edit(args: argparse.Namespace) -> int:
@@ -353,6 +357,8 @@ def cmd_edit(args: argparse.Namespace) -> int:
             zone.update(keep)
             if "camera" not in zone:
                 zone["camera"] = _camera_for(data, args)
+    if zone.get("shape") == "polygon" and args.camera is not None:
+        _camera_for(data, args)  # a camera the file does not have: the choices and a hint
     if args.kind is not None:
         zone["kind"] = args.kind
         if args.kind != "warning" and args.speed_scale is None:
@@ -508,9 +514,8 @@ def _read_pairs(args: argparse.Namespace) -> np.ndarray:
 def cmd_calibrate(args: argparse.Namespace) -> int:
     data = _read(args.file)
     cams = data.get("cameras") or []
-    cam = next((c for c in cams if c.get("id") == args.camera), None)
-    if cam is None:
-        raise ConfigError(f"{args.file}: unknown camera '{args.camera}'")
+    args.camera = _camera_for(data, args)
+    cam = next(c for c in cams if c.get("id") == args.camera)
     pairs = _read_pairs(args)
     old = cam.get("calibration") or {}
     k = old.get("camera_matrix")
@@ -577,7 +582,8 @@ def _solve_pnp(pairs: np.ndarray, k: Any, dist: list, args: argparse.Namespace
 
 def cmd_preview(args: argparse.Namespace) -> int:
     cell = zn.load_cell(args.file)
-    camera = args.camera or next(iter(cell.cameras))
+    camera = choose_camera(cell.cameras, args.camera, str(args.file),
+                           zone_file_hint(args.file, args.camera or "ID"))
     frame = cv2.imread(str(args.frame), cv2.IMREAD_COLOR)
     if frame is None:
         raise InputError(f"{args.frame}: cannot read image")

@@ -24,6 +24,7 @@ from pydantic import ValidationError
 
 from monitor import geometry as geo
 from monitor.errors import ConfigError
+from monitor.zones.layout import Indent, guess_indent
 from monitor.zones.schema import CameraSpec, CellSpec
 from monitor.zones.validate import _check_spec, _pydantic_message, useful_errors
 
@@ -227,13 +228,16 @@ def _flow_leaves(node: Any) -> Any:
     return node
 
 
-def dump_cell_document(document: Any) -> str:
+def dump_cell_document(document: Any, indent: Indent | None = None) -> str:
+    """The document as YAML text, indented as ``indent`` (default "key:\n  - item", as the
+    zones/ files are; an edit passes the file's own, see monitor.zones.layout)."""
     from ruamel.yaml import YAML
 
+    indent = indent or Indent()
     out = io.StringIO()
     yaml_rt = YAML(typ="rt")
     yaml_rt.width = 100
-    yaml_rt.indent(mapping=2, sequence=4, offset=2)  # "key:\n  - item", as zones/ files are
+    yaml_rt.indent(mapping=indent.mapping, sequence=indent.sequence, offset=indent.offset)
     yaml_rt.dump(_flow_leaves(document), out)
     return out.getvalue()
 
@@ -322,7 +326,8 @@ def dump_cell_yaml(cell_or_spec: Cell | CellSpec) -> str:
 def save_cell(cell: Cell, path: str | os.PathLike, document: Any = None) -> None:
     """Write the cell atomically: a temp file in the same directory is renamed over ``path``;
     an existing file is first copied to ``path.bak``. With ``document`` (from
-    :func:`read_cell_document`, already validated as ``cell``) the file keeps its comments.
+    :func:`read_cell_document`, already validated as ``cell``) the file keeps its comments and
+    its indentation.
 
     The file keeps its mode and owner; a read-only file is refused (not replaced), and so is a
     file whose owner this user cannot keep. Temp files are removed on every failure (a full
@@ -330,7 +335,8 @@ def save_cell(cell: Cell, path: str | os.PathLike, document: Any = None) -> None
     removed at the next save. Any fault is a one-line ConfigError; the old file is untouched.
     """
     target = Path(path)
-    text = dump_cell_document(document) if document is not None else dump_cell_yaml(cell)
+    text = dump_cell_document(document, _own_indent(target)) if document is not None \
+        else dump_cell_yaml(cell)
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
         old = target.stat() if target.exists() else None
@@ -375,6 +381,14 @@ def save_cell(cell: Cell, path: str | os.PathLike, document: Any = None) -> None
             if leftover is not None:
                 with contextlib.suppress(OSError):
                     leftover.unlink(missing_ok=True)
+
+
+def _own_indent(target: Path) -> Indent | None:
+    """The indentation of the file an edit replaces (None: a new file, the default)."""
+    try:
+        return guess_indent(target.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError):
+        return None
 
 
 STALE_TEMP_S = 60.0
