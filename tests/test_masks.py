@@ -55,6 +55,21 @@ def test_a_person_inside_a_loose_mask_is_kept():
     assert _keep(tight, obj, [252, 200, 295, 480]) == [False, True]
 
 
+def test_a_group_reaching_out_of_the_mask_reports_its_whole_box():
+    """A person touching the object: their boxes inside the mask go with the object's, and the
+    whole group's box is reported so the person is also checked as reaching into the mask."""
+    rule = MaskRule([np.array([[100, 100], [300, 100], [300, 500], [100, 500]])], W, H, 0.0)
+    obj, person = [100, 100, 300, 500], [250, 150, 380, 480]
+    check = rule.check(np.array([obj, person], float))
+    assert check.keep.tolist() == [False, True]
+    assert check.touching.tolist() == [[100, 100, 380, 500]]
+    assert rule.check(np.array([obj], float)).touching.shape == (0, 4)  # the object alone
+    apart = rule.check(np.array([obj, [400, 150, 480, 480]], float))  # not touching it
+    assert apart.keep.tolist() == [False, True] and apart.touching.shape == (0, 4)
+    inner = rule.check(np.array([[150, 200, 250, 400]], float))  # wholly inside: kept whole
+    assert inner.keep.tolist() == [True] and inner.touching.shape == (0, 4)
+
+
 def test_a_larger_person_in_front_of_the_object_is_kept():
     rule = MaskRule([np.array([[100, 100], [300, 100], [300, 500], [100, 500]])], W, H, 25.0)
     # wholly inside the grown mask but 24 px taller than the object above and below: kept
@@ -129,9 +144,13 @@ def test_a_real_person_merged_with_a_masked_cut_out_is_still_in_the_zone(detecto
     results = _run(detector, _frame(person=True), _cell())
     last = results[-1]
     assert last.masked_boxes > 0
-    assert len(last.persons) == 1
-    x1 = float(last.persons.boxes_px[0][0])
-    assert x1 > _pixels(CUTOUT)[0] + 40  # the cut-out's cells did not join the person
+    # the person's part outside the mask (the cut-out's cells did not join it), and the whole
+    # group's box: the person may reach into the mask; the zone check takes the worse answer
+    assert len(last.persons) == 2
+    part, whole = sorted(last.persons.boxes_px.tolist(), key=lambda b: -b[0])
+    cx1 = _pixels(CUTOUT)[0]
+    assert part[0] > cx1 + 40
+    assert whole[0] <= cx1 + 5 and whole[2] == part[2]
     assert {(h.zone_id, h.lost) for h in last.zone_report.hits} == {("stop", False)}
     assert last.command.state == "STOP"
 

@@ -25,7 +25,7 @@ validate``: a person standing there may be hidden by the mask.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import cv2
@@ -146,16 +146,17 @@ class MaskRule:
         boxes = np.asarray(boxes_px, np.float64).reshape(-1, 4)
         keep = np.ones(len(boxes), bool)
         if not self.active or not len(boxes):
-            return MaskCheck(keep, ())
+            return MaskCheck(keep)
         inside = self._inside(boxes)
         candidates = np.flatnonzero(inside.any(axis=0))
         if not len(candidates):
-            return MaskCheck(keep, ())
+            return MaskCheck(keep)
         finite = np.isfinite(boxes).all(axis=1)
         safe = np.where(finite[:, None], boxes, 0.0)
         labels = connected_groups(gap_matrix(safe, safe) <= self.touch_px)
         limits = np.array([self.width, self.height, self.width, self.height], np.float64)
         unmatched: list[str] = []
+        touching: list[np.ndarray] = []
         for g in np.unique(labels[candidates]):
             members = labels == g
             union = np.clip([safe[members, 0].min(), safe[members, 1].min(),
@@ -163,15 +164,18 @@ class MaskRule:
             whole = inside[:, members].all(axis=1)  # masks holding the whole group
             if not whole.any():
                 # a person touching the object: the boxes inside the mask go (else the merged
-                # box would be placed at the object's feet), the rest of the group stays
+                # box would be placed at the object's feet), the rest of the group stays; the
+                # whole group's box is reported too, as the person may reach into the mask
                 keep[members & inside.any(axis=0)] = False
+                touching.append(union)
                 continue
             match = whole & (np.abs(self.extents - union).max(axis=1) <= self.margin_px)
             if match.any():
                 keep[members] = False
             else:
                 unmatched.extend(self.ids[m] for m in np.flatnonzero(whole))
-        return MaskCheck(keep, tuple(dict.fromkeys(unmatched)))
+        return MaskCheck(keep, tuple(dict.fromkeys(unmatched)),
+                         np.array(touching, np.float64).reshape(-1, 4))
 
     def keep(self, boxes_px: np.ndarray) -> np.ndarray:
         return self.check(boxes_px).keep
@@ -180,10 +184,14 @@ class MaskRule:
 @dataclass(frozen=True)
 class MaskCheck:
     """One frame's mask answer: ``keep`` per raw box; ``unmatched``: masks that wholly held a
-    group of boxes unlike their object (kept: a person, or a mask looser than its object)."""
+    group of boxes unlike their object (kept: a person, or a mask looser than its object);
+    ``touching``: (K, 4) the whole box of each group that reached out of a mask and lost its
+    boxes inside it (a person touching the object, who may reach into the mask: the pipeline
+    checks this box as a person too, beside the part outside the mask)."""
 
     keep: np.ndarray
     unmatched: tuple[str, ...] = ()
+    touching: np.ndarray = field(default_factory=lambda: np.zeros((0, 4), np.float64))
 
 
 def mask_warnings(cell: Cell, person_width_px: float | None = None) -> list[str]:
