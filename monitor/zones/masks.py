@@ -19,8 +19,8 @@ person vanished. The rule here:
 
 See docs/masks.md for what this protects against and what it cannot.
 
-``mask_warnings`` lists masks drawn close to a protective or warning zone, for ``zones
-validate``: a person standing there may be hidden by the mask.
+``monitor.zones.mask_risk`` grades each mask for ``zones validate`` by what a person standing
+there would look like.
 """
 
 from __future__ import annotations
@@ -192,30 +192,3 @@ class MaskCheck:
     keep: np.ndarray
     unmatched: tuple[str, ...] = ()
     touching: np.ndarray = field(default_factory=lambda: np.zeros((0, 4), np.float64))
-
-
-def mask_warnings(cell: Cell, person_width_px: float | None = None) -> list[str]:
-    """One line per mask zone that touches or comes within one person width of a protective
-    or warning zone in some camera's image (``person_width_px``; default: a tenth of the
-    image width, a person's box seen from a few metres). A person standing there can be hidden
-    by the mask. Volume zones are compared through their image outlines in every calibrated
-    camera."""
-    out: list[str] = []
-    seen: set[tuple[str, str]] = set()
-    for camera_id, cam in cell.cameras.items():
-        masks = zone_regions_px(cell, camera_id, ("mask",))
-        if not masks:
-            continue
-        alerts = zone_regions_px(cell, camera_id, ALERT_KINDS)
-        width = person_width_px if person_width_px is not None else cam.width / 10
-        for mz, mpoly in masks:
-            grown = _grow(_raster([mpoly], cam.width, cam.height), width)
-            for az, apoly in alerts:
-                if (mz.id, az.id) in seen:
-                    continue
-                if (grown & _raster([apoly], cam.width, cam.height)).any():
-                    seen.add((mz.id, az.id))
-                    out.append(f"mask zone '{mz.id}' is within a person's width "
-                               f"of {az.kind} zone '{az.id}' in camera '{camera_id}': a person "
-                               "there may be hidden; draw the mask tight around the object")
-    return out
