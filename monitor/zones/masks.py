@@ -12,10 +12,13 @@ person vanished. The rule here:
   object's extent**: every edge within ``margin_px`` of the region's bounding box. A person
   in a mask drawn looser than its object, beside the object or in front of it looking larger,
   is kept; a mask looser than its object by more than the box error suppresses nothing;
-* a group reaching out of the grown region (a person touching the object) loses only its
-  boxes wholly inside it (else the merged box would be placed at the object's feet);
+* a group reaching out of the grown region (a person touching the object) loses its boxes
+  wholly inside it (else the merged box would be placed at the object's feet), and its whole
+  box is reported in ``MaskCheck.touching``: the pipeline checks it as a person too, since the
+  person may reach into the mask (the worse answer counts);
 * it runs on the raw boxes **before** NMS and merging (``Detector.detect_timed(...,
-  pre_merge=rule.keep)``), so a suppressed look-alike never joins a real person's box.
+  pre_merge=...)``, see ``Pipeline._pre_merge``), so a suppressed look-alike never joins a
+  real person's box.
 
 See docs/masks.md for what this protects against and what it cannot.
 
@@ -88,8 +91,9 @@ class MaskRule:
       every edge within ``margin_px``: the detector saw something exactly as large as, and
       exactly where, the masked object is.
 
-    Anything else keeps the whole group: a person touching the object (the group reaches out
-    of the mask), a person in a mask drawn looser than its object (the group is smaller than
+    A group reaching out of the mask (a person touching the object) loses its boxes inside the
+    mask and its whole box goes to ``MaskCheck.touching``. Anything else keeps the whole
+    group: a person in a mask drawn looser than its object (the group is smaller than
     the mask's extent or placed elsewhere in it), a person in front of the object who looks
     larger than it. A mask drawn looser than its object by more than ``margin_px`` on any side
     therefore suppresses nothing: its object is reported as a person (a nuisance, never a
