@@ -82,6 +82,43 @@ class StepResult:
 
 
 @dataclass
+class _MaskTally:
+    """What one frame's mask rule did: raw boxes dropped, and the whole boxes of groups that
+    touched a mask (``MaskCheck.touching``)."""
+
+    masked: int = 0
+    touching: list[np.ndarray] = field(default_factory=list)
+
+
+def _with_touching(persons: Persons, touching: list[np.ndarray]) -> Persons:
+    """``persons`` plus the whole box of every person who touched a masked object.
+
+    The mask rule drops such a person's boxes inside the mask, so their merged box is only the
+    part outside it: narrower than the person and placed up to a grid cell wrong. The whole
+    group's box (person and object) is checked too, and the zone answer is the worse of the
+    two: a box including the object is at worst a false STOP, never a missed one. Each extra
+    box gets the best score of the person boxes it overlaps (the person's own)."""
+    if not touching:
+        return persons
+    boxes = persons.boxes_px.astype(np.float64)
+    extra_boxes, extra_scores = [], []
+    for t in touching:
+        if len(boxes) and (np.abs(boxes - t).max(axis=1) <= 1.0).any():
+            continue  # merging already gave this box
+        overlap = ((np.minimum(boxes[:, 2], t[2]) > np.maximum(boxes[:, 0], t[0]))
+                   & (np.minimum(boxes[:, 3], t[3]) > np.maximum(boxes[:, 1], t[1])))
+        score = float(persons.scores[overlap].max()) if overlap.any() else \
+            float(persons.scores.max()) if len(persons) else 1.0
+        extra_boxes.append(t)
+        extra_scores.append(score)
+    if not extra_boxes:
+        return persons
+    return Persons(np.concatenate([persons.boxes_px, np.array(extra_boxes, np.float32)]),
+                   np.concatenate([persons.scores, np.array(extra_scores, np.float32)]),
+                   persons.frame)
+
+
+@dataclass
 class _Camera:
     """What the pipeline remembers of one camera between steps."""
 
@@ -177,17 +214,19 @@ class Pipeline:
                              f"(known: {', '.join(self.camera_ids)})")
         return cam
 
-    def _pre_merge(self, frame: FrameInfo, counter: list[int]):
+    def _pre_merge(self, frame: FrameInfo, tally: _MaskTally):
         """The camera's mask rule as the detector's pre-merge filter (None: no masks); counts
-        the raw boxes it drops in ``counter[0]``."""
+        the raw boxes it drops and keeps the whole boxes of groups touching a mask in
+        ``tally``."""
         rule = self.mask_rule(frame)
         if rule is None:
             return None
 
         def pre_merge(boxes: np.ndarray) -> np.ndarray:
-            keep = rule.keep(boxes)
-            counter[0] += int(len(keep) - keep.sum())
-            return keep
+            check = rule.check(boxes)
+            tally.masked += int(len(check.keep) - check.keep.sum())
+            tally.touching.extend(check.touching)
+            return check.keep
 
         return pre_merge
 
@@ -197,15 +236,15 @@ class Pipeline:
                 extra_faults: tuple[Fault, ...] = ()) -> StepResult:
         """Run every stage on one frame captured at ``frame.capture_time``; decide at ``now``."""
         self._camera(frame)
-        masked = [0]
+        tally = _MaskTally()
         t0 = time.perf_counter()
         detection, detector_error = None, None
         try:  # the mask rule inside: a mask that cannot be applied is a detector error too
             detection = self.detector.detect_timed(image, frame,
-                                                   pre_merge=self._pre_merge(frame, masked))
+                                                   pre_merge=self._pre_merge(frame, tally))
         except Exception as exc:  # any failure of the detector is a STOP, never a crash or RUN
             detector_error = _one_line(exc)
-        return self._finish(image, frame, now, detection, detector_error, masked[0], t0,
+        return self._finish(image, frame, now, detection, detector_error, tally, t0,
                             tool_pose, tool_speed_mps, pose_time, reset, extra_faults)
 
     def process_batch(self, frames: Sequence[tuple[np.ndarray, FrameInfo]], now: float,
@@ -222,12 +261,12 @@ class Pipeline:
                                  extra_faults)]
         for _, frame in frames:
             self._camera(frame)
-        masked = [[0] for _ in frames]
+        tallies = [_MaskTally() for _ in frames]
         t0 = time.perf_counter()
         try:
             detections: list = self.detector.detect_batch_timed(
                 [im for im, _ in frames], [fr for _, fr in frames],
-                [self._pre_merge(fr, m) for (_, fr), m in zip(frames, masked, strict=True)])
+                [self._pre_merge(fr, m) for (_, fr), m in zip(frames, tallies, strict=True)])
             errors: list[str | None] = [None] * len(frames)
         except Exception as exc:  # the whole batch failed: every frame is a detector error
             detections, errors = [None] * len(frames), [_one_line(exc)] * len(frames)
@@ -235,14 +274,14 @@ class Pipeline:
         for i, ((image, frame), detection, error) in enumerate(
                 zip(frames, detections, errors, strict=True)):
             last = i == len(frames) - 1
-            results.append(self._finish(image, frame, now, detection, error, masked[i][0], t0,
+            results.append(self._finish(image, frame, now, detection, error, tallies[i], t0,
                                         tool_pose, tool_speed_mps, pose_time,
                                         reset if last else None, extra_faults))
             t0 = time.perf_counter()  # the next frame's stages start here (inference shared)
         return results
 
     def _finish(self, image: np.ndarray, frame: FrameInfo, now: float, detection,
-                detector_error: str | None, masked: int, t0: float, tool_pose,
+                detector_error: str | None, tally: _MaskTally, t0: float, tool_pose,
                 tool_speed_mps: float | None, pose_time: float | None,
                 reset: ResetRequest | None, extra_faults: tuple[Fault, ...]) -> StepResult:
         """Everything after detection for one frame: zones, tracks, health, decision."""
@@ -251,7 +290,7 @@ class Pipeline:
         faults: list[Fault] = []
         persons = Persons.empty(frame)
         if detection is not None:
-            persons = detection.persons
+            persons = _with_touching(detection.persons, tally.touching)
             stage.update(preprocess=detection.preprocess_ms, inference=detection.inference_ms,
                          decode=detection.decode_ms)
             if detection.overflow:
@@ -301,7 +340,7 @@ class Pipeline:
         stage.update(detect=(t1 - t0) * 1e3, zones=(t2 - t1) * 1e3, health=(t3 - t2) * 1e3,
                      policy=(t4 - t3) * 1e3)
         return StepResult(now, command, self._changed(command), frame, persons, cam.report,
-                          health, inputs.faults, alerts, stage, track_ids, masked)
+                          health, inputs.faults, alerts, stage, track_ids, tally.masked)
 
     def tick(self, now: float, pose_time: float | None = None,
              reset: ResetRequest | None = None, extra_faults: tuple[Fault, ...] = ()) -> StepResult:

@@ -11,7 +11,8 @@ from monitor.pipeline import Pipeline
 from monitor.policy import PolicyConfig
 from monitor.scene import Figure, draw_figure
 from monitor.types import FrameInfo
-from monitor.zones.masks import MaskRule, mask_warnings
+from monitor.zones.mask_risk import mask_risk_lines, mask_risks
+from monitor.zones.masks import MaskRule
 
 W, H = 1280, 720
 GREY = 120
@@ -53,6 +54,21 @@ def test_a_person_inside_a_loose_mask_is_kept():
     assert _keep(tight, obj) == [False]
     # the same person beside a tight mask reaches out of it: kept, the object still goes
     assert _keep(tight, obj, [252, 200, 295, 480]) == [False, True]
+
+
+def test_a_group_reaching_out_of_the_mask_reports_its_whole_box():
+    """A person touching the object: their boxes inside the mask go with the object's, and the
+    whole group's box is reported so the person is also checked as reaching into the mask."""
+    rule = MaskRule([np.array([[100, 100], [300, 100], [300, 500], [100, 500]])], W, H, 0.0)
+    obj, person = [100, 100, 300, 500], [250, 150, 380, 480]
+    check = rule.check(np.array([obj, person], float))
+    assert check.keep.tolist() == [False, True]
+    assert check.touching.tolist() == [[100, 100, 380, 500]]
+    assert rule.check(np.array([obj], float)).touching.shape == (0, 4)  # the object alone
+    apart = rule.check(np.array([obj, [400, 150, 480, 480]], float))  # not touching it
+    assert apart.keep.tolist() == [False, True] and apart.touching.shape == (0, 4)
+    inner = rule.check(np.array([[150, 200, 250, 400]], float))  # wholly inside: kept whole
+    assert inner.keep.tolist() == [True] and inner.touching.shape == (0, 4)
 
 
 def test_a_larger_person_in_front_of_the_object_is_kept():
@@ -129,9 +145,13 @@ def test_a_real_person_merged_with_a_masked_cut_out_is_still_in_the_zone(detecto
     results = _run(detector, _frame(person=True), _cell())
     last = results[-1]
     assert last.masked_boxes > 0
-    assert len(last.persons) == 1
-    x1 = float(last.persons.boxes_px[0][0])
-    assert x1 > _pixels(CUTOUT)[0] + 40  # the cut-out's cells did not join the person
+    # the person's part outside the mask (the cut-out's cells did not join it), and the whole
+    # group's box: the person may reach into the mask; the zone check takes the worse answer
+    assert len(last.persons) == 2
+    part, whole = sorted(last.persons.boxes_px.tolist(), key=lambda b: -b[0])
+    cx1 = _pixels(CUTOUT)[0]
+    assert part[0] > cx1 + 40
+    assert whole[0] <= cx1 + 5 and whole[2] == part[2]
     assert {(h.zone_id, h.lost) for h in last.zone_report.hits} == {("stop", False)}
     assert last.command.state == "STOP"
 
@@ -143,9 +163,12 @@ def test_the_mask_suppresses_its_cut_out_alone(detector):
     assert results[-1].command.state == "RUN"
 
 
-def test_mask_near_a_protective_zone_is_warned_about():
-    near = mask_warnings(_cell())
-    assert len(near) == 1 and "'cutout'" in near[0] and "'stop'" in near[0]
+def test_an_uncalibrated_mask_near_a_protective_zone_is_warned_about():
+    """No 3D calibration: the person size at the mask is unknown, so it is graded as risky."""
+    near = mask_risk_lines(_cell())
+    assert [g for g, _ in near] == ["warning"]
+    assert "'cutout'" in near[0][1] and "protective zone 'stop'" in near[0][1]
+    assert "unknown" in near[0][1] and "missed STOP" in near[0][1]
     far = zn.parse_cell({
         "version": 1, "name": "far", "cameras": [{"id": "cam0", "width": W, "height": H}],
         "zones": [
@@ -153,7 +176,49 @@ def test_mask_near_a_protective_zone_is_warned_about():
              "points_px": [[10, 10], [100, 10], [100, 200], [10, 200]]},
             {"id": "stop", "kind": "protective", "shape": "polygon", "camera": "cam0",
              "points_px": [[600, 300], [900, 300], [900, 700], [600, 700]]}]})
-    assert mask_warnings(far) == []
+    assert [g for g, _ in mask_risk_lines(far)] == ["note"]  # far from every alert zone
+
+
+def _scenario_cell(name: str) -> zn.Cell:
+    from monitor.scene import scenarios as sc
+
+    return zn.parse_cell(sc.select([name])[0].zone_data())
+
+
+def test_a_tight_and_a_loose_mask_are_graded_by_the_person_that_could_stand_there():
+    """The cut-out's tight mask: a person standing in line with it looks like it (a warning,
+    near the protective zone); the 50 px looser one: a whole person fits inside but can never
+    fill its outline, so the rule keeps them (ok). Sizes from the scene camera's model."""
+    (tight,) = mask_risks(_scenario_cell("mask-tight-behind"))
+    (loose,) = mask_risks(_scenario_cell("mask-loose-behind"))
+    assert tight.level == "hides" and tight.near_protective
+    assert loose.level == "fits" and loose.near_protective
+    # what a person at the foot looks like, for the same 1-2 m person range
+    assert tight.person_h_px is not None and loose.person_h_px is not None
+    assert 60 < tight.person_h_px[0] < tight.person_h_px[1] < 200
+    assert loose.grown_px[0] > loose.person_w_px[1] and loose.grown_px[1] > loose.person_h_px[1]
+    (grade_t, line_t), = mask_risk_lines(_scenario_cell("mask-tight-behind"))
+    (grade_l, line_l), = mask_risk_lines(_scenario_cell("mask-loose-behind"))
+    assert grade_t == "warning" and "can hide a whole person" in line_t
+    assert "protective zone 'robot-protective'" in line_t and "missed STOP" in line_t
+    assert grade_l == "ok" and "cannot fill its outline" in line_l
+
+
+def test_mask_grades_follow_the_person_size_at_that_depth():
+    """The same outline is a person's size near the camera and larger than anyone far away;
+    a small one is smaller than anyone."""
+    from monitor.scene import scenarios as sc
+
+    data = sc.select(["mask-tight-behind"])[0].zone_data()
+    (mask,) = [z for z in data["zones"] if z["kind"] == "mask"]
+    (x1, y1), (x2, y2) = mask["points_px"][0], mask["points_px"][2]
+    mask["points_px"] = [[x1, y2 - 6], [x1 + 6, y2 - 6], [x1 + 6, y2], [x1, y2]]
+    (small,) = mask_risks(zn.parse_cell(data))
+    assert small.level == "smaller"
+    mask["points_px"] = [[x1 - 60, y1 - 150], [x2 + 60, y1 - 150], [x2 + 60, y2],
+                         [x1 - 60, y2]]
+    (large,) = mask_risks(zn.parse_cell(data))
+    assert large.level == "larger" and "larger than any person there" in large.describe()
 
 
 def test_volume_masks_count_through_their_image_outline():
@@ -183,23 +248,25 @@ def test_volume_masks_count_through_their_image_outline():
     assert half.keep(np.array([whole]) / 2).tolist() == [False]
 
 
-def test_zones_validate_warns_about_a_mask_near_a_protective_zone(tmp_path, capsys):
-    import yaml
+def test_zones_validate_grades_masks(tmp_path, capsys):
+    import json
 
     from monitor.cli import main
+    from monitor.scene import scenarios as sc
 
-    path = tmp_path / "cell.yaml"
-    path.write_text(yaml.safe_dump({
-        "version": 1, "name": "near", "cameras": [{"id": "cam0", "width": W, "height": H}],
-        "zones": [
-            {"id": "cutout", "kind": "mask", "shape": "polygon", "camera": "cam0",
-             "points_px": [[400, 300], [560, 300], [560, 650], [400, 650]]},
-            {"id": "stop", "kind": "protective", "shape": "polygon", "camera": "cam0",
-             "points_px": [[600, 200], [1000, 200], [1000, 700], [600, 700]]}]}))
-    assert main(["zones", "validate", str(path)]) == 0
-    err = capsys.readouterr().err
-    assert "warning: mask zone 'cutout' is within a person's width of protective zone 'stop'" \
-        in err
+    words = {}
+    for name in ("mask-tight-front", "mask-loose-front"):
+        path = tmp_path / f"{name}.yaml"
+        path.write_text(json.dumps(sc.select([name])[0].zone_data()))
+        assert main(["zones", "validate", str(path)]) == 0
+        words[name] = capsys.readouterr()
+    tight, loose = words["mask-tight-front"], words["mask-loose-front"]
+    assert "warning: mask zone 'cutout-mask' in camera 'cam0' can hide a whole person" \
+        in tight.err
+    assert "ok: mask zone 'cutout-mask'" not in tight.out
+    assert "ok: mask zone 'cutout-mask' in camera 'cam0': a whole person fits inside it" \
+        in loose.out
+    assert "cutout-mask" not in loose.err
 
 
 def test_the_detector_hook_sees_raw_boxes_in_frame_pixels(detector):

@@ -438,10 +438,10 @@ def cmd_validate(args: argparse.Namespace) -> int:
     if errors:
         return 2
     cell = zn.parse_cell(data, args.file)
-    from monitor.zones.masks import mask_warnings
+    from monitor.zones.mask_risk import mask_risk_lines
 
-    for w in mask_warnings(cell):
-        print(f"{args.file}: warning: {w}", file=sys.stderr)
+    for grade, line in mask_risk_lines(cell):  # warnings and notes on stderr, ok on stdout
+        print(f"{args.file}: {grade}: {line}", file=sys.stdout if grade == "ok" else sys.stderr)
     for cam_id, model in cell.camera_models.items():
         print(f"{args.file}: camera '{cam_id}': {_horizon_text(model)}")
     _print_coverage(cell, args.file)

@@ -12,20 +12,23 @@ person vanished. The rule here:
   object's extent**: every edge within ``margin_px`` of the region's bounding box. A person
   in a mask drawn looser than its object, beside the object or in front of it looking larger,
   is kept; a mask looser than its object by more than the box error suppresses nothing;
-* a group reaching out of the grown region (a person touching the object) loses only its
-  boxes wholly inside it (else the merged box would be placed at the object's feet);
+* a group reaching out of the grown region (a person touching the object) loses its boxes
+  wholly inside it (else the merged box would be placed at the object's feet), and its whole
+  box is reported in ``MaskCheck.touching``: the pipeline checks it as a person too, since the
+  person may reach into the mask (the worse answer counts);
 * it runs on the raw boxes **before** NMS and merging (``Detector.detect_timed(...,
-  pre_merge=rule.keep)``), so a suppressed look-alike never joins a real person's box.
+  pre_merge=...)``, see ``Pipeline._pre_merge``), so a suppressed look-alike never joins a
+  real person's box.
 
 See docs/masks.md for what this protects against and what it cannot.
 
-``mask_warnings`` lists masks drawn close to a protective or warning zone, for ``zones
-validate``: a person standing there may be hidden by the mask.
+``monitor.zones.mask_risk`` grades each mask for ``zones validate`` by what a person standing
+there would look like.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import cv2
@@ -88,8 +91,9 @@ class MaskRule:
       every edge within ``margin_px``: the detector saw something exactly as large as, and
       exactly where, the masked object is.
 
-    Anything else keeps the whole group: a person touching the object (the group reaches out
-    of the mask), a person in a mask drawn looser than its object (the group is smaller than
+    A group reaching out of the mask (a person touching the object) loses its boxes inside the
+    mask and its whole box goes to ``MaskCheck.touching``. Anything else keeps the whole
+    group: a person in a mask drawn looser than its object (the group is smaller than
     the mask's extent or placed elsewhere in it), a person in front of the object who looks
     larger than it. A mask drawn looser than its object by more than ``margin_px`` on any side
     therefore suppresses nothing: its object is reported as a person (a nuisance, never a
@@ -146,16 +150,17 @@ class MaskRule:
         boxes = np.asarray(boxes_px, np.float64).reshape(-1, 4)
         keep = np.ones(len(boxes), bool)
         if not self.active or not len(boxes):
-            return MaskCheck(keep, ())
+            return MaskCheck(keep)
         inside = self._inside(boxes)
         candidates = np.flatnonzero(inside.any(axis=0))
         if not len(candidates):
-            return MaskCheck(keep, ())
+            return MaskCheck(keep)
         finite = np.isfinite(boxes).all(axis=1)
         safe = np.where(finite[:, None], boxes, 0.0)
         labels = connected_groups(gap_matrix(safe, safe) <= self.touch_px)
         limits = np.array([self.width, self.height, self.width, self.height], np.float64)
         unmatched: list[str] = []
+        touching: list[np.ndarray] = []
         for g in np.unique(labels[candidates]):
             members = labels == g
             union = np.clip([safe[members, 0].min(), safe[members, 1].min(),
@@ -163,15 +168,18 @@ class MaskRule:
             whole = inside[:, members].all(axis=1)  # masks holding the whole group
             if not whole.any():
                 # a person touching the object: the boxes inside the mask go (else the merged
-                # box would be placed at the object's feet), the rest of the group stays
+                # box would be placed at the object's feet), the rest of the group stays; the
+                # whole group's box is reported too, as the person may reach into the mask
                 keep[members & inside.any(axis=0)] = False
+                touching.append(union)
                 continue
             match = whole & (np.abs(self.extents - union).max(axis=1) <= self.margin_px)
             if match.any():
                 keep[members] = False
             else:
                 unmatched.extend(self.ids[m] for m in np.flatnonzero(whole))
-        return MaskCheck(keep, tuple(dict.fromkeys(unmatched)))
+        return MaskCheck(keep, tuple(dict.fromkeys(unmatched)),
+                         np.array(touching, np.float64).reshape(-1, 4))
 
     def keep(self, boxes_px: np.ndarray) -> np.ndarray:
         return self.check(boxes_px).keep
@@ -180,34 +188,11 @@ class MaskRule:
 @dataclass(frozen=True)
 class MaskCheck:
     """One frame's mask answer: ``keep`` per raw box; ``unmatched``: masks that wholly held a
-    group of boxes unlike their object (kept: a person, or a mask looser than its object)."""
+    group of boxes unlike their object (kept: a person, or a mask looser than its object);
+    ``touching``: (K, 4) the whole box of each group that reached out of a mask and lost its
+    boxes inside it (a person touching the object, who may reach into the mask: the pipeline
+    checks this box as a person too, beside the part outside the mask)."""
 
     keep: np.ndarray
     unmatched: tuple[str, ...] = ()
-
-
-def mask_warnings(cell: Cell, person_width_px: float | None = None) -> list[str]:
-    """One line per mask zone that touches or comes within one person width of a protective
-    or warning zone in some camera's image (``person_width_px``; default: a tenth of the
-    image width, a person's box seen from a few metres). A person standing there can be hidden
-    by the mask. Volume zones are compared through their image outlines in every calibrated
-    camera."""
-    out: list[str] = []
-    seen: set[tuple[str, str]] = set()
-    for camera_id, cam in cell.cameras.items():
-        masks = zone_regions_px(cell, camera_id, ("mask",))
-        if not masks:
-            continue
-        alerts = zone_regions_px(cell, camera_id, ALERT_KINDS)
-        width = person_width_px if person_width_px is not None else cam.width / 10
-        for mz, mpoly in masks:
-            grown = _grow(_raster([mpoly], cam.width, cam.height), width)
-            for az, apoly in alerts:
-                if (mz.id, az.id) in seen:
-                    continue
-                if (grown & _raster([apoly], cam.width, cam.height)).any():
-                    seen.add((mz.id, az.id))
-                    out.append(f"mask zone '{mz.id}' is within a person's width "
-                               f"of {az.kind} zone '{az.id}' in camera '{camera_id}': a person "
-                               "there may be hidden; draw the mask tight around the object")
-    return out
+    touching: np.ndarray = field(default_factory=lambda: np.zeros((0, 4), np.float64))
