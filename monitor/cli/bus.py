@@ -600,6 +600,9 @@ def register(subparsers) -> None:
     p.add_argument("--alert-interval", type=float, default=5.0,
                    help="s between two pose_rejected alerts (repeats are counted; default 5)")
     p.set_defaults(func=cmd_bridge_otus)
+    from monitor.cli.adapters import register_bridges  # robot-side outputs (docs/adapters.md)
+
+    register_bridges(bsub, _add_zenoh_args)
 
     p = subparsers.add_parser("router", help="run a Zenoh router until SIGINT/SIGTERM")
     _add_zenoh_args(p, default_mode="router")
