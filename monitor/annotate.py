@@ -41,6 +41,7 @@ HOLD_S = 2.0  # a reset or an alert stays on screen this long (seconds of video)
 HEADER_PX = 28  # the header band at the top
 BAR_PX = 44  # the command bar at the bottom
 EVENT_ROW_PX = 22
+MAX_EVENT_ROWS = 4  # the newest events shown at once (a burst of alerts must not hide the cell)
 FONT = cv2.FONT_HERSHEY_SIMPLEX
 
 
@@ -135,8 +136,9 @@ class Annotator:
         self.recent = [(t, x) for t, x in self.recent if result.now - t < self.hold_s]
         if image is None:
             return None
-        return annotate(image, result, self.cell, self.camera_id, self.watch,
-                        tuple(x for _, x in self.recent), self.foot_band_px)
+        shown = tuple(x for _, x in self.recent[-MAX_EVENT_ROWS:])
+        return annotate(image, result, self.cell, self.camera_id, self.watch, shown,
+                        self.foot_band_px)
 
 
 def annotate(image: np.ndarray, result: StepResult, cell: Cell | None, camera_id: str,

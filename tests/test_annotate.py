@@ -281,3 +281,17 @@ def test_a_reset_or_alert_of_a_timer_tick_shows_on_the_next_frames_for_hold_s_th
     with_alert = [t for t, ev in shown if "alert camera_frozen: cam0: no change for 2.0 s" in ev]
     assert with_reset == [round(0.1 * k, 1) for k in range(11, 30) if k != 12]
     assert with_alert == [round(0.1 * k, 1) for k in range(13, 32)]
+
+
+def test_a_burst_of_alerts_shows_the_newest_rows_only():
+    from monitor.annotate import MAX_EVENT_ROWS
+    from monitor.policy import PolicyConfig, PolicyInputs, initial_state, step
+    from monitor.types import Alert
+
+    _, command = step(initial_state(), PolicyInputs(), 0.0, PolicyConfig())
+    alerts = tuple(Alert(f"kind_{k}", "warning", f"message {k}", "cam0", 0.0) for k in range(7))
+    frame = np.full((360, 640, 3), 90, np.uint8)
+    _, drawn = Annotator(None, "cam0", []).step(StepResult(0.0, command, True, alerts=alerts),
+                                                frame)
+    assert drawn.events == tuple(f"alert kind_{k}: message {k}"
+                                 for k in range(7 - MAX_EVENT_ROWS, 7))
