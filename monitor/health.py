@@ -190,13 +190,19 @@ def _encode_jpeg(image: np.ndarray, max_width: int, quality: int) -> bytes:
     return buf.tobytes()
 
 
+# the watch zones' outline: COLOURS_BGR["watch"] of monitor/zones/draw.py (the zone preview's
+# colour; not imported: health stays free of the zone package)
+WATCH_BGR = (230, 160, 30)
+
+
 def draw_health(image: np.ndarray, report: HealthReport,
-                polygons_px: Sequence[tuple[str, np.ndarray]] = ()) -> None:
-    """Draw a report onto a full-resolution BGR frame in place: watch zones (yellow), their
-    changes (orange while pending, red when alerted) and the active faults as text."""
+                polygons_px: Sequence[tuple[str, np.ndarray]] = (), text_top: int = 30) -> None:
+    """Draw a report onto a full-resolution BGR frame in place: watch zones (``WATCH_BGR``, the
+    zone preview's watch colour), their changes (orange while pending, red when alerted) and
+    the active faults as text from row ``text_top`` down."""
     states = {z.zone_id: z for z in report.zones}
     for zone_id, polygon in polygons_px:
-        cv2.polylines(image, [np.round(polygon).astype(np.int32)], True, (0, 220, 255), 2)
+        cv2.polylines(image, [np.round(polygon).astype(np.int32)], True, WATCH_BGR, 2)
         status = states.get(zone_id)
         if status is not None and status.box_px is not None and status.state != "normal":
             colour = (0, 0, 255) if status.state in ("active", "clearing") else (0, 140, 255)
@@ -206,7 +212,7 @@ def draw_health(image: np.ndarray, report: HealthReport,
                         cv2.FONT_HERSHEY_SIMPLEX, 0.6, colour, 2)
     for k, fault in enumerate(report.faults):
         colour = (0, 0, 255) if fault.stop else (0, 140, 255)
-        cv2.putText(image, f"{fault.name}: {fault.reason}"[:90], (10, 30 + 24 * k),
+        cv2.putText(image, f"{fault.name}: {fault.reason}"[:90], (10, text_top + 24 * k),
                     cv2.FONT_HERSHEY_SIMPLEX, 0.6, colour, 2)
 
 

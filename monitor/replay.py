@@ -27,18 +27,17 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from monitor.annotate import Annotator, describe
 from monitor.detector import Detector
 from monitor.driver import Driver, Step, StepInputs, require_protective_zone
 from monitor.errors import InputError
 from monitor.frames import Frame, VideoFileReader
-from monitor.health import CameraHealth, HealthConfig, draw_health
+from monitor.health import CameraHealth, HealthConfig
 from monitor.pipeline import Pipeline, StepResult
 from monitor.policy import RUN, SLOW, STOP, PolicyConfig, ResetRequest
 from monitor.types import Alert
-from monitor.zones import Cell, draw_zones, watch_regions
+from monitor.zones import Cell, watch_regions
 from monitor.zones.cameras import choose_camera
-
-STATE_BGR = {RUN: (60, 170, 60), SLOW: (0, 170, 255), STOP: (40, 40, 220)}
 
 
 @dataclass(frozen=True)
@@ -134,18 +133,6 @@ def _rounded(value):
     return value
 
 
-def describe(command) -> str:
-    """One honest line for a command: ``Command.describe()`` where the policy has it."""
-    text = getattr(command, "describe", None)
-    if text is not None:
-        return text()
-    line = f"{command.state} x{command.speed_scale:.2f}"
-    if command.latched:
-        line += " LATCHED - reset needed"
-    causes = [r.message for r in command.reasons if r.code != "latched"]
-    return line + (f": {causes[0]}" if causes else "")
-
-
 def command_event(result: StepResult, index: int, tick: bool = False) -> dict:
     """A command change as it goes into events.jsonl (no wall-clock values: deterministic)."""
     cmd = result.command.to_dict()
@@ -171,46 +158,6 @@ def alert_event(alert: Alert, index: int, snapshot: str | None) -> dict:
     if snapshot:
         event["snapshot"] = snapshot
     return event
-
-
-def annotate(image: np.ndarray, result: StepResult, cell: Cell | None, camera_id: str,
-             watch: list) -> np.ndarray:
-    """The frame with zones, persons, the state banner, distances and health drawn on."""
-    hits = {h.zone_id for h in result.zone_report.hits} if result.zone_report else set()
-    out = draw_zones(image, cell, camera_id, hits) if cell is not None else image.copy()
-    if result.health is not None:
-        draw_health(out, result.health, watch)
-    persons = result.persons
-    in_zone: dict[int, str] = {}
-    for hit in result.zone_report.hits if result.zone_report else ():
-        if in_zone.get(hit.person) != "protective":  # the worst zone colours the box
-            in_zone[hit.person] = hit.kind
-    if persons is not None:
-        for k, (x1, y1, x2, y2) in enumerate(persons.boxes_px):
-            kind = in_zone.get(k)
-            colour = (40, 40, 220) if kind == "protective" else \
-                (0, 170, 255) if kind == "warning" else (60, 200, 60)
-            cv2.rectangle(out, (int(x1), int(y1)), (int(x2) - 1, int(y2) - 1), colour, 3)
-            cv2.putText(out, f"person {k} {persons.scores[k]:.2f}", (int(x1), max(14, int(y1) - 6)),
-                        cv2.FONT_HERSHEY_SIMPLEX, 0.6, colour, 2)
-    cmd = result.command
-    h, w = out.shape[:2]
-    cv2.rectangle(out, (0, h - 44), (w, h), STATE_BGR[cmd.state], -1)
-    text = f"{cmd.state}  x{cmd.speed_scale:.2f}"
-    if cmd.latched:
-        text += "  LATCHED - reset possible" if getattr(cmd, "reset_possible", False) \
-            else "  LATCHED - reset needed"
-    reason = describe(cmd) if hasattr(cmd, "describe") else (
-        cmd.reasons[0].message if cmd.reasons else "")
-    rep = result.zone_report
-    if rep is not None and rep.tool_separation_m is not None:
-        text += f"  tool {rep.tool_separation_m:.2f} m"
-        if rep.required_separation_m is not None:
-            text += f" (needs {rep.required_separation_m:.2f} m)"
-    cv2.putText(out, text, (12, h - 16), cv2.FONT_HERSHEY_SIMPLEX, 0.8, (255, 255, 255), 2)
-    cv2.putText(out, reason[:80], (int(w * 0.45), h - 16), cv2.FONT_HERSHEY_SIMPLEX, 0.55,
-                (255, 255, 255), 1, cv2.LINE_AA)
-    return out
 
 
 # --- the feed: the video's frames and the timer ticks between them ------------------------------
@@ -369,19 +316,24 @@ class SummarySink:
 
 
 class VideoSink:
-    """annotated.mp4: one annotated image per frame (ticks add none). H.264 through PyAV when
-    it is installed (browsers play it), else MPEG-4 Part 2 through OpenCV."""
+    """annotated.mp4: one annotated image per frame (``monitor.annotate``; ticks add none, but
+    their resets and alerts show on the next frames). H.264 through PyAV when it is installed
+    (browsers play it), else MPEG-4 Part 2 through OpenCV. ``foot_band_px`` is the detector's
+    foot band the zone check used (the floor ranges drawn are the ones checked)."""
 
-    def __init__(self, path: Path, fps: float, cell: Cell | None, camera_id: str, watch: list):
+    def __init__(self, path: Path, fps: float, cell: Cell | None, camera_id: str, watch: list,
+                 foot_band_px: tuple[float, float] = (0.0, 0.0)):
         self.path, self.fps = path, fps
-        self.cell, self.camera_id, self.watch = cell, camera_id, watch
+        self.annotator = Annotator(cell, camera_id, watch, foot_band_px)
         self.writer = None
         self.codec: str | None = None
 
     def on_step(self, step: Step) -> None:
-        if step.frame is None:
+        drawn = self.annotator.step(step.result,
+                                    step.frame.image if step.frame is not None else None)
+        if drawn is None:
             return
-        image = annotate(step.frame.image, step.result, self.cell, self.camera_id, self.watch)
+        image = drawn[0]
         if self.writer is None:
             self.writer, self.codec = open_video_writer(self.path, self.fps, image.shape)
         self.writer.write(image)
@@ -500,7 +452,8 @@ def replay(video: str | Path, detector: Detector, cell: Cell | None, settings: R
     sinks: list = [counts, events]
     video_sink = None
     if settings.annotate:
-        video_sink = VideoSink(out / "annotated.mp4", fps, cell, camera_id, watch)
+        band = (0.0, detector.foot_uncertainty_px(*expected)) if expected else (0.0, 0.0)
+        video_sink = VideoSink(out / "annotated.mp4", fps, cell, camera_id, watch, band)
         sinks.append(video_sink)
     if publish is not None:
         sinks.append(CallbackSink(publish))

@@ -590,7 +590,7 @@ def cmd_preview(args: argparse.Namespace) -> int:
     unknown = [h for h in args.hit if h not in {z.id for z in cell.zones}]
     if unknown:
         raise ConfigError(f"{args.file}: no zone '{unknown[0]}'")
-    out = zn.draw_zones(frame, cell, camera, hit_zone_ids=args.hit)
+    out = zn.draw_zones(frame, cell, camera, hit_zone_ids=args.hit, legend=True)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     if not cv2.imwrite(str(args.out), out):
         raise InputError(f"{args.out}: cannot write image")

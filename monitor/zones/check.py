@@ -110,16 +110,8 @@ def _check(prep: PreparedCell, camera_id: str, boxes_px: np.ndarray,
         raise InputError(f"camera '{camera_id}': non-finite person box coordinates")
     n = len(boxes)
     hits: list[ZoneHit] = []
-    cam = cell.cameras[camera_id]
-    model = cell.camera_models.get(camera_id)
     lo, hi = float(band_px[0]), float(max(band_px))
-    place = None
-    if model is not None and n:
-        place = occ.place_persons(boxes, model, cam.width, cam.height, band_px=(lo, hi),
-                                  height_range_m=prep.height_range_m,
-                                  occluder_columns=prep.occluder_columns.get(camera_id),
-                                  camera_centre=prep.camera_centres.get(camera_id),
-                                  floors=prep.floors)
+    place = placement(prep, camera_id, boxes, (lo, hi)) if n else None
     img = prep.image_zones.get(camera_id)
     if img is not None and n:
         if place is not None:
@@ -152,6 +144,23 @@ def _check(prep: PreparedCell, camera_id: str, boxes_px: np.ndarray,
         separation_speed_scale=sep.speed_scale,
         config_hash=cell.config_hash,
     )
+
+
+def placement(prep: PreparedCell, camera_id: str, boxes_px: np.ndarray,
+              band_px: tuple[float, float] = (0.0, 0.0)) -> occ.Placement | None:
+    """The floor ranges the zone check tests for these boxes of ``camera_id`` (None without a
+    calibration): the one placement, so that what a replay draws is what was checked."""
+    model = prep.cell.camera_models.get(camera_id)
+    if model is None:
+        return None
+    cam = prep.cell.cameras[camera_id]
+    boxes = np.asarray(boxes_px, dtype=np.float64).reshape(-1, 4)
+    return occ.place_persons(boxes, model, cam.width, cam.height,
+                             band_px=(float(band_px[0]), float(max(band_px))),
+                             height_range_m=prep.height_range_m,
+                             occluder_columns=prep.occluder_columns.get(camera_id),
+                             camera_centre=prep.camera_centres.get(camera_id),
+                             floors=prep.floors)
 
 
 def _volume_hits(prep: PreparedCell, place: occ.Placement) -> list[ZoneHit]:

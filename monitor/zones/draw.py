@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 import itertools
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import cv2
@@ -12,6 +13,7 @@ import numpy as np
 from monitor import geometry as geo
 from monitor.errors import ConfigError
 from monitor.zones.files import Cell
+from monitor.zones.labels import Rect, place_labels
 from monitor.zones.schema import (
     BoxZone,
     CameraSpec,
@@ -141,13 +143,38 @@ FLOOR_BGR = (80, 160, 60)  # raised or sunken floor regions (zone file floors:)
 
 
 def draw_zones(frame_bgr: np.ndarray, cell: Cell, camera_id: str,
-               hit_zone_ids: Iterable[str] = ()) -> np.ndarray:
-    """A copy of the frame with the camera's zones drawn and labelled.
+               hit_zone_ids: Iterable[str] = (), legend: bool = False) -> np.ndarray:
+    """A copy of the frame with the camera's zones drawn and labelled (see
+    ``draw_zones_labelled``); ``legend``: with the colour legend in the top-right corner."""
+    reserved: list[Rect] = []
+    if legend:
+        reserved.append(legend_rect(frame_bgr.shape[1], LEGEND_TOP_PX))
+    img, _ = draw_zones_labelled(frame_bgr, cell, camera_id, hit_zone_ids, reserved)
+    if legend:
+        draw_legend(img, LEGEND_TOP_PX)
+    return img
+
+
+@dataclass(frozen=True)
+class ZoneLabel:
+    """A label as drawn: its text, where (x1, y1, x2, y2 pixels) and in which colour."""
+
+    text: str
+    rect: Rect
+    colour: tuple[int, int, int]
+
+
+def draw_zones_labelled(frame_bgr: np.ndarray, cell: Cell, camera_id: str,
+                        hit_zone_ids: Iterable[str] = (), reserved: Sequence[Rect] = ()
+                        ) -> tuple[np.ndarray, list[ZoneLabel]]:
+    """A copy of the frame with the camera's zones drawn and labelled, and the labels drawn.
 
     Image zones are filled (translucent) and outlined; volume zones are projected through the
     calibration as wireframes with a filled floor footprint; floor regions (platforms, pits)
     as their standing surface, labelled with its height. Zones in ``hit_zone_ids`` are drawn
-    thicker and labelled HIT. A frame of another size than the camera is drawn scaled.
+    thicker and labelled HIT. Labels never overlap each other nor ``reserved`` rectangles
+    (``monitor.zones.labels``): the most important zones' labels are placed first. A frame of
+    another size than the camera is drawn scaled.
     """
     cam = cell.cameras.get(camera_id)
     if cam is None:
@@ -189,11 +216,22 @@ def draw_zones(frame_bgr: np.ndarray, cell: Cell, camera_id: str,
         if shadow is not None:
             fills[shadow] = SHADOW_BGR
     cv2.addWeighted(fills, 0.35, img, 0.65, 0, dst=img)
-    for polys, colour, thick, zid in outlines:
+    for polys, colour, thick, _ in outlines:
         closed = len(polys) == 1
         cv2.polylines(img, [_i32(p) for p in polys], closed, colour, thick, cv2.LINE_AA, 4)
-        _label(img, polys, f"{zid}{' HIT' if zid in hit else ''}", colour)
-    return img
+    # labels last, over every outline; placed from the most important (drawn last) down
+    texts = [(f"{zid}{' HIT' if zid in hit else ''}", polys, colour)
+             for polys, colour, _, zid in reversed(outlines)]
+    sizes = [_label_size(t) for t, _, _ in texts]
+    anchors = [_label_anchor(polys, size) for (_, polys, _), size in zip(texts, sizes,
+                                                                         strict=True)]
+    rects = place_labels(anchors, sizes, img.shape[1], img.shape[0], reserved)
+    labels = []
+    for (text, _, colour), rect in zip(texts, rects, strict=True):
+        if rect is not None:
+            _draw_label(img, text, rect, colour)
+            labels.append(ZoneLabel(text, rect, colour))
+    return img, labels
 
 
 def _draw_floors(fills: np.ndarray, cell: Cell, model: geo.CameraModel, scale: np.ndarray
@@ -255,15 +293,59 @@ def _i32(p: np.ndarray) -> np.ndarray:
     return np.round(np.asarray(p) * 16).astype(np.int32)
 
 
-def _label(img: np.ndarray, polys: list[np.ndarray], text: str, colour: tuple[int, int, int]
-           ) -> None:
+LABEL_FONT = cv2.FONT_HERSHEY_SIMPLEX
+LABEL_SCALE = 0.5
+
+
+def _label_size(text: str) -> tuple[int, int]:
+    """(w, h) of a label's rectangle: the text and a 2 px margin around it."""
+    (w, th), base = cv2.getTextSize(text, LABEL_FONT, LABEL_SCALE, 1)
+    return w + 4, th + base + 4
+
+
+def _label_anchor(polys: list[np.ndarray], size: tuple[int, int]) -> tuple[float, float]:
+    """Where a zone's label wants its top-left corner: just above the top-left-most point of
+    the zone's outline."""
     pts = np.concatenate(polys)
     near_top = pts[pts[:, 1] <= pts[:, 1].min() + 1.0]
-    top = near_top[int(np.argmin(near_top[:, 0]))]  # above the top-left-most outline point
-    x = int(np.clip(top[0], 2, max(2, img.shape[1] - 8 * len(text))))
-    y = int(np.clip(top[1] - 6, 14, img.shape[0] - 4))
-    font = cv2.FONT_HERSHEY_SIMPLEX
-    (w, th), _ = cv2.getTextSize(text, font, 0.5, 1)
-    cv2.rectangle(img, (x - 2, y - th - 4), (x + w + 2, y + 4), (0, 0, 0), -1)
-    cv2.putText(img, text, (x, y), font, 0.5, colour, 1, cv2.LINE_AA)
+    top = near_top[int(np.argmin(near_top[:, 0]))]
+    return float(top[0]), float(top[1]) - size[1] - 2
 
+
+def _draw_label(img: np.ndarray, text: str, rect: Rect, colour: tuple[int, int, int]) -> None:
+    x1, y1, x2, y2 = rect
+    cv2.rectangle(img, (x1, y1), (x2 - 1, y2 - 1), (0, 0, 0), -1)
+    (_, th), _ = cv2.getTextSize(text, LABEL_FONT, LABEL_SCALE, 1)
+    cv2.putText(img, text, (x1 + 2, y1 + 2 + th), LABEL_FONT, LABEL_SCALE, colour, 1, cv2.LINE_AA)
+
+
+# --------------------------------------------------------------------------------------------
+# The legend: one colour per zone kind, the same in `zones preview` and the replay video
+
+LEGEND_KINDS = ("protective", "warning", "mask", "watch")
+LEGEND_TOP_PX = 4  # the legend's top edge (replay moves it below its header band)
+_LEGEND_ROW_PX = 18
+_LEGEND_WIDTH_PX = 132
+
+
+def legend_rect(width: int, top: int, kinds: Sequence[str] = LEGEND_KINDS) -> Rect:
+    """Where the legend goes: the top-right corner, ``top`` pixels down."""
+    return (width - _LEGEND_WIDTH_PX - 4, top, width - 4, top + 8 + _LEGEND_ROW_PX * len(kinds))
+
+
+def draw_legend(img: np.ndarray, top: int, kinds: Sequence[str] = LEGEND_KINDS
+                ) -> list[tuple[str, tuple[int, int, int]]]:
+    """Draw the legend in place (a swatch and the kind's name per row, in the colours of
+    ``COLOURS_BGR``); returns the (kind, colour) rows drawn."""
+    x1, y1, x2, y2 = legend_rect(img.shape[1], top, kinds)
+    cv2.rectangle(img, (x1, y1), (x2 - 1, y2 - 1), (0, 0, 0), -1)
+    cv2.rectangle(img, (x1, y1), (x2 - 1, y2 - 1), (200, 200, 200), 1)
+    rows = []
+    for k, kind in enumerate(kinds):
+        colour = COLOURS_BGR[kind]
+        y = y1 + 4 + k * _LEGEND_ROW_PX
+        cv2.rectangle(img, (x1 + 6, y + 3), (x1 + 26, y + _LEGEND_ROW_PX - 3), colour, -1)
+        cv2.putText(img, f"{kind} zone", (x1 + 32, y + _LEGEND_ROW_PX - 5), LABEL_FONT, 0.45,
+                    colour, 1, cv2.LINE_AA)
+        rows.append((kind, colour))
+    return rows
