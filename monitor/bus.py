@@ -45,6 +45,7 @@ from __future__ import annotations
 
 import collections
 import contextlib
+import dataclasses
 import json
 import logging
 import threading
@@ -413,8 +414,9 @@ class SafetyBus:
                                  "%.2f s (bus.stall_timeout %g s)", now - when,
                                  self.config.stall_timeout)
             return cmd
-        return Command(latest.state, latest.speed_scale, latest.reasons, latest.since,
-                       latest.latched)
+        # the whole command (latch cause, reset possible, clear time), without the reset
+        # outcome, which is answered once
+        return dataclasses.replace(latest, reset=None)
 
     def _heartbeat_loop(self) -> None:
         period = 1.0 / self.config.heartbeat_hz

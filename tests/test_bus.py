@@ -22,7 +22,7 @@ from monitor.bus import (
     zenoh_config,
 )
 from monitor.errors import ConfigError
-from monitor.policy import Command, Reason, ResetOutcome
+from monitor.policy import Command, Latch, Reason, ResetOutcome
 from monitor.resets import request_reset
 from monitor.signing import load_private_key, new_key_pair
 from monitor.types import Alert, FrameInfo, Persons, ZoneHit, ZoneReport
@@ -185,6 +185,25 @@ def test_heartbeat_repeats_the_latest_command_and_stops_for_a_stalled_pipeline(b
     logging.getLogger("monitor.bus").removeHandler(handler)
     said = [r.getMessage() for r in records if "STOP stalled" in r.getMessage()]
     assert len(said) == 1 and "bus.stall_timeout 0.6 s" in said[0]
+
+
+def test_heartbeats_of_a_latched_command_keep_its_latch_and_reset_possibility(bus_and_listener):
+    """A PLC or console reading between two changes must see what the last command said: the
+    heartbeat repeats the whole command (not only state and reasons), never the reset answer."""
+    bus, ctl = bus_and_listener
+    latched = Command("STOP", 0.0, (Reason("latched", "waiting for a reset"),), since=1.0,
+                      latched=True, latched_by=Latch("protective_zone", "person 1 in P", 0.5,
+                                                     "P", 1, "n-1"),
+                      reset_possible=True, reset_possible_since=0.9, clear_for_s=1.2,
+                      reset=ResetOutcome("anna", False, "refused: too early", "r-9"))
+    bus.publish_command(latched)
+    beats = wait_for(lambda: len(b := [c for c in list(ctl.commands) if c["heartbeat"]
+                                       and c["state"] == "STOP" and c["latched"]]) >= 3 and b)
+    assert beats and len(beats) >= 3
+    for beat in beats:
+        assert beat["latched"] and beat["reset_possible"] is True
+        assert beat["latched_by"]["nonce"] == "n-1" and beat["latched_by"]["zone_id"] == "P"
+        assert "reset" not in beat  # the outcome went out once, with the change
 
 
 def test_close_sends_stop_shutdown_and_drops_the_liveliness_token():
