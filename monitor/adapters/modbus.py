@@ -113,10 +113,8 @@ class ModbusOutput:
         loop, server = self._loop, self._server
         if loop is not None and server is not None and loop.is_running():
             fut = asyncio.run_coroutine_threadsafe(self._shutdown(), loop)
-            try:
+            with contextlib.suppress(Exception):  # best effort; the thread is a daemon
                 fut.result(timeout=1.0)
-            except Exception:  # closing is best effort; the thread is a daemon
-                pass
             loop.call_soon_threadsafe(loop.stop)
         self._thread.join(timeout=1.0)
         with contextlib.suppress(queue.Full):
