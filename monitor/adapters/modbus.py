@@ -255,9 +255,10 @@ class ModbusOutput:
             kind, item = job
             try:
                 if kind == "alert":
-                    log.warning("plc alert %s: %s", item.kind, item.message)
                     if self.on_alert:
-                        self.on_alert(item)
+                        self.on_alert(item)  # logs and publishes
+                    else:
+                        log.warning("plc alert %s: %s", item.kind, item.message)
                 elif kind == "reset":
                     result = self.on_reset(item) if self.on_reset else "refused"
                     self.st.reset_result = mm.RESET_RESULT.get(result, 3)
