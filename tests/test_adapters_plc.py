@@ -206,6 +206,7 @@ def test_a_killed_or_frozen_monitor_is_stop_on_the_plc_within_ttl(keys, how):
         mon.send_signal(signal.SIGKILL if how == "kill" else signal.SIGSTOP)
         seen = _never_run_after(plc, t0, (TTL_MS + 100) / 1000.0, 1.5)
         stop_at = next(t for t, s in seen if s == STOP)
+        print(f"{how}: STOP read {stop_at * 1000:.0f} ms after the signal")
         assert stop_at <= (TTL_MS + 100) / 1000.0 + 0.05, seen[:20]
     finally:
         if plc:
