@@ -32,6 +32,8 @@ from monitor.signals import (
 
 # kind -> (module of monitor.adapters, help)
 KINDS: dict[str, tuple[str, str]] = {}
+KINDS["plc"] = ("modbus", "Modbus TCP server: the verdict in a documented register map for a "
+                 "PLC (docs/plc.md)")
 
 
 def add_consumer_args(p: argparse.ArgumentParser) -> None:
