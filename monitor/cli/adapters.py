@@ -32,6 +32,8 @@ from monitor.signals import (
 
 # kind -> (module of monitor.adapters, help)
 KINDS: dict[str, tuple[str, str]] = {}
+KINDS["ros2"] = ("ros2", "ROS 2 topics over Zenoh in rmw_zenoh's format: speed override, "
+                  "diagnostics, command JSON (no ROS installation needed; docs/ros2.md)")
 
 
 def add_consumer_args(p: argparse.ArgumentParser) -> None:
