@@ -319,3 +319,40 @@ def test_default_namespace_makes_any_cell_id_a_ros_name():
                               ros_node="n", ros_heartbeat_ms=100.0)
     cfg = Ros2Settings.of(args)
     assert cfg.namespace == "/workcell/_7_north" and wire.is_ros_name(cfg.namespace, True)
+
+
+def test_the_bridge_command_publishes_for_a_ros_node_and_leaves_with_zero(tmp_path):
+    import os
+    import signal
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    private, public, _ = new_key_pair(tmp_path / "monitor.key")
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    cfg = BusConfig(cell=CELL, instance="mon-ad", listen=(endpoint,), heartbeat_hz=20.0,
+                    ttl_ms=1000, signing_key=str(private))
+    root = Path(__file__).resolve().parent.parent
+    with SafetyBus(cfg) as bus, open_session(BusConfig(
+            cell=CELL, instance="rosnode", connect=(endpoint,))) as ros:
+        node = RosNode(ros)
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "monitor", "bridge", "ros2", "--cell", CELL, "--connect",
+             endpoint, "--monitor-key", str(public), "--duration", "60"],
+            env=dict(os.environ, PYTHONPATH=str(root)), stderr=subprocess.PIPE, text=True)
+        try:
+            def slow_seen() -> bool:  # the pipeline hands in its command every poll, as live
+                bus.publish_command(Command("SLOW", 0.5))
+                return 0.5 in node.speeds()
+
+            assert wait_for(slow_seen, 20.0), (proc.poll(), node.speeds()[-5:])
+            proc.send_signal(signal.SIGTERM)
+            _, err = proc.communicate(timeout=20)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+        assert proc.returncode == 0, err
+        assert "ros2" in err and "Traceback" not in err
+        assert wait_for(lambda: node.speeds()[-1] == 0.0, 3.0)  # its last word is STOP
+        for s in node.subs:
+            s.undeclare()
