@@ -19,10 +19,17 @@ from monitor.adapters.ros2 import Ros2Output, Ros2Settings, speed_override
 from monitor.adapters.snapshot import SafetySnapshot
 from monitor.bus import BusConfig, BusKeys, SafetyBus, open_session
 from monitor.consumer import COMMAND_SCHEMA, CommandWatchdog
+from monitor.errors import ConfigError
 from monitor.inbox import Inbox
 from monitor.policy import Command, Reason
 from monitor.signing import load_private_key, load_public_key, new_key_pair
-from tests.helpers import free_port, run_monitor, wait_for
+from tests.helpers import (
+    assert_one_line,
+    assert_one_line_error,
+    free_port,
+    run_monitor,
+    wait_for,
+)
 
 rosbags_typesys = pytest.importorskip("rosbags.typesys")
 TS = rosbags_typesys.get_typestore(rosbags_typesys.Stores.ROS2_JAZZY)
@@ -298,26 +305,38 @@ def test_the_override_is_zero_for_anything_but_a_valid_run_or_slow(state, scale)
                                               speed_scale=scale)) == 0.0
 
 
-@pytest.mark.parametrize("flag,value,needle", [
-    ("--ros-namespace", "workcell/x", "--ros-namespace"),
-    ("--ros-namespace", "/9x", "--ros-namespace"),
-    ("--ros-node", "a/b", "--ros-node"),
-    ("--ros-domain-id", "300", "--ros-domain-id"),
-    ("--ros-heartbeat-ms", "5", "--ros-heartbeat-ms"),
+def _settings(**over):
+    import argparse
+    args = dict(cell="ad", ros_namespace=None, ros_domain_id=0, ros_node="n",
+                ros_heartbeat_ms=100.0)
+    return Ros2Settings.of(argparse.Namespace(**{**args, **over}))
+
+
+@pytest.mark.parametrize("over,needle", [
+    ({"ros_namespace": "workcell/x"}, "--ros-namespace"),
+    ({"ros_namespace": "/9x"}, "--ros-namespace"),
+    ({"ros_namespace": "/a//b"}, "--ros-namespace"),
+    ({"ros_node": "a/b"}, "--ros-node"),
+    ({"ros_domain_id": 300}, "--ros-domain-id"),
+    ({"ros_domain_id": -1}, "--ros-domain-id"),
+    ({"ros_heartbeat_ms": 5.0}, "--ros-heartbeat-ms"),
+    ({"ros_heartbeat_ms": float("nan")}, "--ros-heartbeat-ms"),
 ])
-def test_bad_ros_options_are_one_line_errors(flag, value, needle):
-    from tests.helpers import assert_one_line_error
+def test_bad_ros_options_are_one_line_errors(over, needle):
+    with pytest.raises(ConfigError) as exc:
+        _settings(**over)
+    assert_one_line(exc.value, needle)
+
+
+def test_a_bad_ros_option_stops_the_command_with_one_line():
     proc = run_monitor("bridge", "ros2", "--unauthenticated", "--connect",
-                       f"tcp/127.0.0.1:{free_port()}", flag, value, "--duration", "1",
-                       timeout=60)
-    assert_one_line_error(proc, needle)
+                       f"tcp/127.0.0.1:{free_port()}", "--ros-namespace", "no slash",
+                       "--duration", "1", timeout=60)
+    assert_one_line_error(proc, "--ros-namespace")
 
 
 def test_default_namespace_makes_any_cell_id_a_ros_name():
-    import argparse
-    args = argparse.Namespace(cell="7-north", ros_namespace=None, ros_domain_id=0,
-                              ros_node="n", ros_heartbeat_ms=100.0)
-    cfg = Ros2Settings.of(args)
+    cfg = _settings(cell="7-north")
     assert cfg.namespace == "/workcell/_7_north" and wire.is_ros_name(cfg.namespace, True)
 
 
