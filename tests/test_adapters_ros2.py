@@ -75,6 +75,11 @@ def test_keys_and_tokens_match_the_design_docs_examples():
     assert wire.data_key(7, "/a/b", DIAG).startswith(
         "7/a/b/diagnostic_msgs::msg::dds_::DiagnosticArray_/RIHS01_")
     assert wire.mangle("/workcell/ad") == "%workcell%ad"
+    # Humble: no type hashes, the placeholder in their place
+    assert wire.data_key(0, "/chatter", STRING, "humble") == \
+        "0/chatter/std_msgs::msg::dds_::String_/TypeHashNotSupported"
+    assert "/std_msgs::msg::dds_::String_/TypeHashNotSupported/::,7:" in wire.publisher_token(
+        0, "z", 0, 1, "", "talker", "/chatter", STRING, 7, "humble")
 
 
 def test_attachment_layout_is_seq_timestamp_gid_length_gid():
@@ -321,6 +326,7 @@ def _settings(**over):
     ({"ros_domain_id": -1}, "--ros-domain-id"),
     ({"ros_heartbeat_ms": 5.0}, "--ros-heartbeat-ms"),
     ({"ros_heartbeat_ms": float("nan")}, "--ros-heartbeat-ms"),
+    ({"ros_distro": "iron"}, "--ros-distro"),
 ])
 def test_bad_ros_options_are_one_line_errors(over, needle):
     with pytest.raises(ConfigError) as exc:
@@ -338,6 +344,7 @@ def test_a_bad_ros_option_stops_the_command_with_one_line():
 def test_default_namespace_makes_any_cell_id_a_ros_name():
     cfg = _settings(cell="7-north")
     assert cfg.namespace == "/workcell/_7_north" and wire.is_ros_name(cfg.namespace, True)
+    assert cfg.distro == "jazzy" and _settings(ros_distro="humble").distro == "humble"
 
 
 def test_the_bridge_command_publishes_for_a_ros_node_and_leaves_with_zero(tmp_path):

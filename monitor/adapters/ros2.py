@@ -50,6 +50,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="namespace of the topics (default /workcell/<cell>)")
     g.add_argument("--ros-node", default=DEFAULT_NODE, metavar="NAME",
                    help=f"node name shown by `ros2 node list` (default {DEFAULT_NODE})")
+    g.add_argument("--ros-distro", choices=wire.DISTROS, default="jazzy",
+                   help="key format: jazzy (RIHS01 type hashes; also Kilted, Rolling) or humble "
+                   "(no type hashes) (default jazzy)")
     g.add_argument("--ros-heartbeat-ms", type=float, default=DEFAULT_HEARTBEAT_MS,
                    metavar="MS", help="publish at least this often when nothing changes, "
                    f"10-1000 (default {DEFAULT_HEARTBEAT_MS:g})")
@@ -61,6 +64,7 @@ class Ros2Settings:
     namespace: str
     node: str
     heartbeat_s: float
+    distro: str = "jazzy"
 
     @classmethod
     def of(cls, args: argparse.Namespace) -> Ros2Settings:
@@ -75,7 +79,10 @@ class Ros2Settings:
             raise ConfigError(f"--ros-node {args.ros_node!r}: not a ROS 2 node name")
         if not 10.0 <= args.ros_heartbeat_ms <= 1000.0:
             raise ConfigError(f"--ros-heartbeat-ms {args.ros_heartbeat_ms:g}: must be 10-1000")
-        return cls(domain, ns, args.ros_node, args.ros_heartbeat_ms / 1000.0)
+        distro = getattr(args, "ros_distro", "jazzy")
+        if distro not in wire.DISTROS:
+            raise ConfigError(f"--ros-distro {distro!r}: one of {', '.join(wire.DISTROS)}")
+        return cls(domain, ns, args.ros_node, args.ros_heartbeat_ms / 1000.0, distro)
 
 
 def make_outputs(args: argparse.Namespace, session: zenoh.Session, keys) -> list:
@@ -138,9 +145,10 @@ class _Topic:
                  name: str, ros_type: str, realtime: bool) -> None:
         self.topic = f"{cfg.namespace}/{name}"
         self.ros_type = ros_type
-        self.key = wire.data_key(cfg.domain, self.topic, ros_type)
+        self.key = wire.data_key(cfg.domain, self.topic, ros_type, cfg.distro)
         self.token_key = wire.publisher_token(cfg.domain, zid, 0, entity_id, cfg.namespace,
-                                              cfg.node, self.topic, ros_type, DEPTH)
+                                              cfg.node, self.topic, ros_type, DEPTH,
+                                              cfg.distro)
         self.gid = wire.gid_of(self.token_key)
         self.seq = 0
         # DROP: a congested link never blocks the adapter's tick; the heartbeat resends

@@ -38,6 +38,10 @@ TYPE_HASHES = {
         "RIHS01_5a8a36efb05fb25070fa0fb3810290c0e6cd4862b54a8fb975a1ee8dc55a333e",
 }
 
+# Humble has no type hashes (REP-2016 came with Iron): its rmw_zenoh writes this in their place
+NO_TYPE_HASH = "TypeHashNotSupported"
+DISTROS = ("jazzy", "humble")  # jazzy: also Kilted and Rolling (RIHS01 hashes)
+
 # diagnostic_msgs/msg/DiagnosticStatus levels
 DIAG_OK, DIAG_WARN, DIAG_ERROR, DIAG_STALE = 0, 1, 2, 3
 
@@ -71,9 +75,13 @@ def mangle(name: str) -> str:
     return name.replace("/", "%") if name else "%"
 
 
-def data_key(domain: int, topic: str, ros_type: str) -> str:
+def type_hash(ros_type: str, distro: str = "jazzy") -> str:
+    return NO_TYPE_HASH if distro == "humble" else TYPE_HASHES[ros_type]
+
+
+def data_key(domain: int, topic: str, ros_type: str, distro: str = "jazzy") -> str:
     """The key expression a ROS 2 subscriber of ``topic`` listens on."""
-    return f"{domain}/{topic.lstrip('/')}/{dds_type(ros_type)}/{TYPE_HASHES[ros_type]}"
+    return f"{domain}/{topic.lstrip('/')}/{dds_type(ros_type)}/{type_hash(ros_type, distro)}"
 
 
 def qos_string(depth: int) -> str:
@@ -88,9 +96,10 @@ def node_token(domain: int, zid: str, node_id: int, namespace: str, node: str) -
 
 
 def publisher_token(domain: int, zid: str, node_id: int, entity_id: int, namespace: str,
-                    node: str, topic: str, ros_type: str, depth: int) -> str:
+                    node: str, topic: str, ros_type: str, depth: int,
+                    distro: str = "jazzy") -> str:
     return (f"{ADMIN_SPACE}/{domain}/{zid}/{node_id}/{entity_id}/MP/%/{mangle(namespace)}/"
-            f"{node}/{mangle(topic)}/{dds_type(ros_type)}/{TYPE_HASHES[ros_type]}/"
+            f"{node}/{mangle(topic)}/{dds_type(ros_type)}/{type_hash(ros_type, distro)}/"
             f"{qos_string(depth)}")
 
 
