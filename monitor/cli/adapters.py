@@ -34,6 +34,8 @@ from monitor.signals import (
 KINDS: dict[str, tuple[str, str]] = {}
 KINDS["plc"] = ("modbus", "Modbus TCP server: the verdict in a documented register map for a "
                  "PLC (docs/plc.md)")
+KINDS["ros2"] = ("ros2", "ROS 2 topics over Zenoh in rmw_zenoh's format: speed override, "
+                  "diagnostics, command JSON (no ROS installation needed; docs/ros2.md)")
 
 
 def add_consumer_args(p: argparse.ArgumentParser) -> None:
