@@ -155,7 +155,7 @@ def build_app(console: Console) -> Starlette:
                                      file=str(console.editor.path))
         return _json({"saved": zone_id, "config_hash": cell.config_hash, "audit": entry,
                       "warnings": list(cell.warnings),
-                      "note": "saved; the running monitor keeps its zone set until it "
+                      "note": "the running monitor keeps its zone set until it "
                               "restarts (its commands name the hash in force)"})
 
     routes = [
