@@ -1,0 +1,174 @@
+"""The console's web application (Starlette) and its process (uvicorn).
+
+Why Starlette + uvicorn: a small ASGI toolkit (routing, static files, file responses with HTTP
+ranges for video seeking) without a template engine, ORM or build step; uvicorn is its
+reference server, with TLS built in. The pages are plain HTML and one small script
+(``static/console.js``) that polls JSON: nothing to compile, nothing fetched from the internet.
+
+Routes: ``/`` live view, ``/incidents`` list and playback, ``/zones`` zone editor (pages);
+``/api/state``, ``/api/live/{camera}.jpg``, ``/api/incidents``, ``/api/incidents/{id}/clip``,
+``/api/zones``, ``/api/zones/{camera}/image.jpg`` (read-only, no login);
+``PUT /api/zones/{id}`` (an operator's credential; audited, accepted or refused).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+from starlette.applications import Starlette
+from starlette.concurrency import run_in_threadpool
+from starlette.requests import Request
+from starlette.responses import FileResponse, JSONResponse, Response
+from starlette.routing import Mount, Route
+from starlette.staticfiles import StaticFiles
+
+from monitor.console.auth import AuditLog, Operators
+from monitor.console.incidents import IncidentFilters, IncidentSource
+from monitor.console.live import LiveRenderer, LiveState, reference_image
+from monitor.console.zones_api import ZoneEditor
+from monitor.errors import ConfigError
+
+STATIC = Path(__file__).parent / "static"
+MAX_BODY = 256_000
+_SECURITY_HEADERS = {
+    "cache-control": "no-store",
+    "x-content-type-options": "nosniff",
+    "x-frame-options": "DENY",
+    "content-security-policy": "default-src 'self'; img-src 'self' blob:; media-src 'self'; "
+                               "object-src 'none'; frame-ancestors 'none'",
+    "referrer-policy": "no-referrer",
+}
+
+
+@dataclass
+class Console:
+    """Everything the routes need (no globals)."""
+
+    cell_name: str
+    live: LiveState
+    renderer: LiveRenderer
+    editor: ZoneEditor
+    incidents: IncidentSource
+    operators: Operators
+    audit: AuditLog
+    references: dict[str, Path]
+
+
+def _json(body: object, status: int = 200) -> JSONResponse:
+    return JSONResponse(body, status_code=status, headers=_SECURITY_HEADERS)
+
+
+def build_app(console: Console) -> Starlette:
+    def page(name: str):
+        async def handler(request: Request) -> Response:
+            return FileResponse(STATIC / name, headers=_SECURITY_HEADERS)
+        return handler
+
+    async def state(request: Request) -> Response:
+        body = console.live.state()
+        body["cell"] = console.cell_name
+        try:
+            file_hash = console.editor.cell().config_hash
+        except ConfigError as exc:
+            file_hash, body["zone_file_error"] = "", str(exc)
+        body["zone_file_hash"] = file_hash
+        in_force = body.get("zone_hash") or ""
+        # the file on disk and the zone set the monitor decides with: never silently apart
+        body["zone_file_pending"] = bool(in_force and file_hash and in_force != file_hash)
+        body["camera_ids"] = list(console.editor.cell().cameras)
+        return _json(body)
+
+    async def live_jpeg(request: Request) -> Response:
+        camera = request.path_params["camera"]
+        if camera not in console.editor.cell().cameras:
+            return _json({"error": f"no camera {camera!r}"}, 404)
+        data = await run_in_threadpool(console.renderer.jpeg, camera)
+        return Response(data, media_type="image/jpeg", headers=_SECURITY_HEADERS)
+
+    async def incidents(request: Request) -> Response:
+        q = request.query_params
+        try:
+            filters = IncidentFilters(
+                cause=q.get("cause") or None, state=q.get("state") or None,
+                camera=q.get("camera") or None,
+                since=float(q["since"]) if q.get("since") else None,
+                until=float(q["until"]) if q.get("until") else None)
+        except ValueError:
+            return _json({"error": "since/until: Unix seconds"}, 400)
+        return _json({"incidents": console.incidents.list(filters)})
+
+    async def clip(request: Request) -> Response:
+        path = console.incidents.clip_path(request.path_params["id"])
+        if path is None:
+            return _json({"error": "no clip for this incident"}, 404)
+        media = "video/mp4" if path.suffix.lower() in (".mp4", ".m4v") else None
+        return FileResponse(path, media_type=media, headers={"cache-control": "no-store"})
+
+    async def zones(request: Request) -> Response:
+        try:
+            return _json(console.editor.editor_data())
+        except ConfigError as exc:
+            return _json({"error": str(exc)}, 500)
+
+    async def zone_image(request: Request) -> Response:
+        camera = request.path_params["camera"]
+        cell = console.editor.cell()
+        if camera not in cell.cameras:
+            return _json({"error": f"no camera {camera!r}"}, 404)
+        img = reference_image(cell, camera, console.references.get(camera))
+        _, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 85])
+        return Response(buf.tobytes(), media_type="image/jpeg", headers=_SECURITY_HEADERS)
+
+    async def save_zone(request: Request) -> Response:
+        zone_id = request.path_params["id"]
+        operator = console.operators.check(request.headers.get("authorization"))
+        client = request.client.host if request.client else ""
+        if operator is None:
+            why = ("editing is off: the console was started without --passwords"
+                   if not console.operators.enabled else
+                   "operator name or password not accepted")
+            console.audit.record(zone=zone_id, operator=None, client=client, result="refused",
+                                 error=why)
+            return _json({"error": why}, 403 if not console.operators.enabled else 401)
+        raw = await request.body()
+        if len(raw) > MAX_BODY or "json" not in request.headers.get("content-type", ""):
+            return _json({"error": "a JSON body of at most 256 kB"}, 400)
+        try:
+            body = json.loads(raw)
+            if not isinstance(body, dict):
+                raise ValueError
+        except ValueError:
+            return _json({"error": "the body is not a JSON object"}, 400)
+        try:
+            cell, new, before = await run_in_threadpool(console.editor.save_polygon,
+                                                         zone_id, body)
+        except ConfigError as exc:
+            console.audit.record(zone=zone_id, operator=operator, client=client,
+                                 result="invalid", error=str(exc))
+            return _json({"error": str(exc)}, 422)
+        entry = console.audit.record(zone=zone_id, operator=operator, client=client,
+                                     result="saved", action="added" if new else "changed",
+                                     config_hash_before=before, config_hash=cell.config_hash,
+                                     file=str(console.editor.path))
+        return _json({"saved": zone_id, "config_hash": cell.config_hash, "audit": entry,
+                      "warnings": list(cell.warnings),
+                      "note": "the running monitor keeps its zone set until it "
+                              "restarts (its commands name the hash in force)"})
+
+    routes = [
+        Route("/", page("live.html")),
+        Route("/incidents", page("incidents.html")),
+        Route("/zones", page("zones.html")),
+        Route("/api/state", state),
+        Route("/api/live/{camera}.jpg", live_jpeg),
+        Route("/api/incidents", incidents),
+        Route("/api/incidents/{id}/clip", clip),
+        Route("/api/zones", zones),
+        Route("/api/zones/{camera}/image.jpg", zone_image),
+        Route("/api/zones/{id}", save_zone, methods=["PUT"]),
+        Mount("/static", StaticFiles(directory=STATIC), name="static"),
+    ]
+    return Starlette(routes=routes)

@@ -1,0 +1,181 @@
+"""Who may edit through the console, where it may listen, and the audit trail of edits.
+
+Credentials: an operator name and a password, checked against a passwords file written by
+``monitor console passwd FILE OPERATOR`` (one ``name:scrypt$n$r$p$salt$hash`` line per operator,
+mode 0600). The browser sends them with each edit (an ``Authorization: Basic`` header set by
+the page's script, never remembered by the browser), so a page of another site cannot make the
+browser edit a zone. Why passwords rather than the operators' Ed25519 reset keys: a browser
+cannot use a key file without an extension or WebCrypto key import, and a key held by the
+console server would sign for whoever reaches it. Read-only pages need no login.
+
+Listening: loopback by default; any other address needs TLS (certificate and key) and a
+passwords file, or the console refuses to start.
+"""
+
+from __future__ import annotations
+
+import base64
+import binascii
+import hashlib
+import hmac
+import ipaddress
+import json
+import os
+import re
+import secrets
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from monitor.errors import ConfigError
+
+_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$")
+_SCRYPT = {"n": 2**14, "r": 8, "p": 1}
+MIN_PASSWORD = 8
+
+
+def hash_password(password: str, salt: bytes | None = None, n: int = _SCRYPT["n"],
+                  r: int = _SCRYPT["r"], p: int = _SCRYPT["p"]) -> str:
+    salt = salt or secrets.token_bytes(16)
+    digest = hashlib.scrypt(password.encode(), salt=salt, n=n, r=r, p=p, dklen=32)
+    return f"scrypt${n}${r}${p}${salt.hex()}${digest.hex()}"
+
+
+def _verify(password: str, stored: str) -> bool:
+    try:
+        kind, n, r, p, salt, digest = stored.split("$")
+        if kind != "scrypt":
+            return False
+        got = hashlib.scrypt(password.encode(), salt=bytes.fromhex(salt), n=int(n), r=int(r),
+                             p=int(p), dklen=len(digest) // 2)
+    except (ValueError, MemoryError):
+        return False
+    return hmac.compare_digest(got.hex(), digest)
+
+
+def read_passwords(path: str | Path) -> dict[str, str]:
+    """operator -> stored hash; ConfigError (one line) on a bad file."""
+    p = Path(path)
+    try:
+        lines = p.read_text(encoding="utf-8").splitlines()
+    except FileNotFoundError:
+        raise ConfigError(f"{p}: passwords file not found (make one: monitor console passwd "
+                          f"{p} OPERATOR)") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{p}: cannot read the passwords file: {exc}") from None
+    out = {}
+    for k, line in enumerate(lines, 1):
+        if not line.strip() or line.lstrip().startswith("#"):
+            continue
+        name, sep, stored = line.strip().partition(":")
+        if not sep or not _NAME.match(name) or not stored.startswith("scrypt$"):
+            raise ConfigError(f"{p}:{k}: not an 'operator:scrypt$...' line")
+        out[name] = stored
+    return out
+
+
+def set_password(path: str | Path, operator: str, password: str) -> None:
+    """Add or replace one operator's line (file mode 0600, written atomically)."""
+    if not _NAME.match(operator):
+        raise ConfigError(f"operator {operator!r}: letters, digits, _ . - only")
+    if len(password) < MIN_PASSWORD:
+        raise ConfigError(f"password too short: at least {MIN_PASSWORD} characters")
+    p = Path(path)
+    entries = read_passwords(p) if p.exists() else {}
+    entries[operator] = hash_password(password)
+    text = "".join(f"{name}:{stored}\n" for name, stored in entries.items())
+    tmp = p.with_name(f".{p.name}.{secrets.token_hex(4)}.tmp")
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            fh.write(text)
+        os.replace(tmp, p)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+class Operators:
+    """Checks the Basic credentials of a request against the passwords file (re-read when it
+    changes, so a revoked operator is refused without a restart)."""
+
+    def __init__(self, path: str | Path | None) -> None:
+        self.path = Path(path) if path is not None else None
+        self._cache: tuple[float, dict[str, str]] = (-1.0, {})
+        self._lock = threading.Lock()
+        if self.path is not None:
+            read_passwords(self.path)  # a bad file stops the start, with its line
+
+    @property
+    def enabled(self) -> bool:
+        return self.path is not None
+
+    def _entries(self) -> dict[str, str]:
+        assert self.path is not None
+        try:
+            mtime = self.path.stat().st_mtime
+        except OSError:
+            return {}  # removed: nobody may edit
+        with self._lock:
+            if mtime != self._cache[0]:
+                try:
+                    self._cache = (mtime, read_passwords(self.path))
+                except ConfigError:
+                    self._cache = (mtime, {})  # broken: nobody may edit
+            return self._cache[1]
+
+    def check(self, authorization: str | None) -> str | None:
+        """The operator named by a valid ``Basic`` header, else None."""
+        if self.path is None or not authorization:
+            return None
+        scheme, _, blob = authorization.partition(" ")
+        if scheme.lower() != "basic":
+            return None
+        try:
+            name, sep, password = base64.b64decode(blob.strip(), validate=True).decode(
+                "utf-8").partition(":")
+        except (binascii.Error, UnicodeDecodeError):
+            return None
+        stored = self._entries().get(name) if sep else None
+        # an unknown name costs the same scrypt as a known one (no probing of names)
+        ok = _verify(password, stored or hash_password("", salt=b"\0" * 16))
+        return name if ok and stored else None
+
+
+def is_loopback(host: str) -> bool:
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host.strip("[]")).is_loopback
+    except ValueError:
+        return False
+
+
+def require_safe_listen(host: str, tls: bool, operators: bool) -> None:
+    """Off loopback the console needs TLS and operator passwords; refused otherwise."""
+    if is_loopback(host):
+        return
+    missing = [what for what, ok in (("TLS (--tls-cert and --tls-key)", tls),
+                                      ("operator passwords (--passwords)", operators)) if not ok]
+    if missing:
+        raise ConfigError(f"monitor console: listening on {host} (not loopback) needs "
+                          f"{' and '.join(missing)}; or listen on 127.0.0.1")
+
+
+@dataclass
+class AuditLog:
+    """Every edit attempt through the console, accepted or refused, one JSON line each
+    (append-only; fsynced, so an audited edit survives a crash right after it)."""
+
+    path: Path
+
+    def record(self, **fields) -> dict:
+        entry = {"time": round(time.time(), 3), "event": "zone_edit", **fields}
+        line = json.dumps(entry, sort_keys=True) + "\n"
+        fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o640)
+        try:
+            os.write(fd, line.encode())
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+        return entry

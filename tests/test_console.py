@@ -1,0 +1,202 @@
+"""The console without a browser: credentials, where it may listen, the incident source and
+the zone editor's rules (Starlette's test client against the real app and zone files)."""
+
+from __future__ import annotations
+
+import base64
+import sqlite3
+
+import pytest
+from starlette.testclient import TestClient
+
+from monitor.console.app import Console, build_app
+from monitor.console.auth import (
+    AuditLog,
+    Operators,
+    read_passwords,
+    require_safe_listen,
+)
+from monitor.console.incidents import DirectoryIncidents, IncidentFilters
+from monitor.console.live import LiveRenderer, LiveState
+from monitor.console.zones_api import ZoneEditor
+from monitor.errors import ConfigError
+from monitor.zones import load_cell
+from tests.console_kit import (
+    OPERATOR,
+    PASSWORD,
+    incident_dir,
+    passwords,
+    zone_file,
+)
+from tests.helpers import assert_one_line, assert_one_line_error, run_monitor
+
+SQUARE = [[900, 150], [1200, 150], [1200, 400], [900, 400]]
+BOWTIE = [[900, 150], [1200, 400], [1200, 150], [900, 400]]
+
+
+def _client(tmp_path, with_passwords: bool = True):
+    cell = zone_file(tmp_path)
+    editor = ZoneEditor(cell)
+    live = LiveState()
+    console = Console("c", live, LiveRenderer(live, editor.cell, {}), editor,
+                      DirectoryIncidents(incident_dir(tmp_path)),
+                      Operators(passwords(tmp_path) if with_passwords else None),
+                      AuditLog(tmp_path / "audit.jsonl"), {})
+    return TestClient(build_app(console)), cell
+
+
+def _auth(name: str, password: str) -> dict:
+    return {"authorization": "Basic " + base64.b64encode(f"{name}:{password}".encode()).decode()}
+
+
+def _audit(tmp_path) -> list[str]:
+    import json
+
+    return [json.loads(line)["result"] for line in
+            (tmp_path / "audit.jsonl").read_text().splitlines()]
+
+
+def test_an_edit_without_a_valid_credential_is_refused_audited_and_writes_nothing(tmp_path):
+    client, cell = _client(tmp_path)
+    before = cell.read_bytes()
+    body = {"camera": "cam0", "kind": "protective", "points_px": SQUARE}
+    assert client.put("/api/zones/aisle", json=body).status_code == 401
+    assert client.put("/api/zones/aisle", json=body,
+                      headers=_auth(OPERATOR, "wrong password")).status_code == 401
+    assert client.put("/api/zones/aisle", json=body,
+                      headers=_auth("mallory", PASSWORD)).status_code == 401
+    assert cell.read_bytes() == before and not cell.with_name("cell.yaml.bak").exists()
+    assert _audit(tmp_path) == ["refused"] * 3
+    # reading needs no login
+    assert client.get("/api/zones").status_code == 200
+    assert client.get("/api/state").json()["state"] == "STOP"  # nothing heard: STOP
+    ok = client.put("/api/zones/aisle", json=body, headers=_auth(OPERATOR, PASSWORD))
+    assert ok.status_code == 200, ok.text
+    assert load_cell(cell).zone("aisle").kind == "protective"
+    assert _audit(tmp_path)[-1] == "saved"
+
+
+def test_without_a_passwords_file_the_console_is_read_only(tmp_path):
+    client, cell = _client(tmp_path, with_passwords=False)
+    before = cell.read_bytes()
+    r = client.put("/api/zones/aisle", json={"camera": "cam0", "kind": "protective",
+                                             "points_px": SQUARE},
+                   headers=_auth(OPERATOR, PASSWORD))
+    assert r.status_code == 403 and "without --passwords" in r.json()["error"]
+    assert cell.read_bytes() == before
+
+
+def test_invalid_polygons_are_refused_with_monitor_zones_messages(tmp_path):
+    client, cell = _client(tmp_path)
+    before = cell.read_bytes()
+    cases = [
+        ({"camera": "cam0", "kind": "protective", "points_px": BOWTIE},
+         "self-intersecting polygon"),
+        ({"camera": "cam0", "kind": "protective", "points_px": [[0, 0], [2000, 0], [0, 50]]},
+         "outside the 1280x720 image"),
+        ({"camera": "cam9", "kind": "protective", "points_px": SQUARE}, "unknown camera"),
+        ({"camera": "cam0", "kind": "protective", "points_px": [[1, "x"]]}, "[x, y]"),
+        ({"camera": "cam0", "kind": "teleport", "points_px": SQUARE}, "kind 'teleport'"),
+    ]
+    for body, needle in cases:
+        r = client.put("/api/zones/aisle", json=body, headers=_auth(OPERATOR, PASSWORD))
+        assert r.status_code == 422 and needle in r.json()["error"], (needle, r.text)
+        assert "\n" not in r.json()["error"]
+    # moving an existing polygon into a bow tie is refused the same way
+    r = client.put("/api/zones/cam0-protective", json={"points_px": BOWTIE},
+                   headers=_auth(OPERATOR, PASSWORD))
+    assert r.status_code == 422 and "self-intersecting" in r.json()["error"]
+    # a volume is not edited as a polygon
+    r = client.put("/api/zones/robot-protective", json={"points_px": SQUARE},
+                   headers=_auth(OPERATOR, PASSWORD))
+    assert r.status_code == 422 and "monitor zones edit" in r.json()["error"]
+    assert cell.read_bytes() == before
+    assert set(_audit(tmp_path)) == {"invalid"}
+
+
+def test_a_move_keeps_comments_and_refuses_a_stale_page(tmp_path):
+    client, cell = _client(tmp_path)
+    sha = client.get("/api/zones").json()["sha"]
+    moved = [[480.0, 530.0], [790.0, 530.0], [757.1, 403.5], [522.9, 403.5]]
+    r = client.put("/api/zones/cam0-protective", json={"points_px": moved, "base": sha},
+                   headers=_auth(OPERATOR, PASSWORD))
+    assert r.status_code == 200, r.text
+    text = cell.read_text()
+    assert "# The floor squares of the two volumes above" in text  # comments kept
+    assert load_cell(cell).zone("cam0-protective").points_px[0] == (480.0, 530.0)
+    # the same page saves again on the old version: refused, not silently undone
+    r = client.put("/api/zones/cam0-protective", json={"points_px": moved, "base": sha},
+                   headers=_auth(OPERATOR, PASSWORD))
+    assert r.status_code == 422 and "changed since this page loaded" in r.json()["error"]
+
+
+def test_off_loopback_needs_tls_and_passwords():
+    for host in ("127.0.0.1", "::1", "localhost"):
+        require_safe_listen(host, tls=False, operators=False)
+    for host, tls, ops, needle in (("0.0.0.0", False, True, "TLS"),
+                                   ("10.0.0.5", True, False, "operator passwords"),
+                                   ("192.168.1.2", False, False, "TLS")):
+        with pytest.raises(ConfigError) as exc:
+            require_safe_listen(host, tls=tls, operators=ops)
+        assert_one_line(exc.value, needle)
+    require_safe_listen("10.0.0.5", tls=True, operators=True)
+
+
+def test_the_console_refuses_to_start_on_a_network_address_without_tls(tmp_path):
+    cell = zone_file(tmp_path)
+    proc = run_monitor("console", "--zones", cell, "--unauthenticated",
+                       "--listen", "0.0.0.0:18099", timeout=60)
+    assert proc.returncode == 2
+    assert_one_line_error(proc, "not loopback", "TLS", "operator passwords")
+    proc = run_monitor("console", "--zones", cell, "--unauthenticated", "--passwords",
+                       passwords(tmp_path), "--listen", "10.1.2.3:18099", timeout=60)
+    assert proc.returncode == 2
+    assert_one_line_error(proc, "TLS")
+
+
+def test_console_passwd_writes_a_private_scrypt_line(tmp_path):
+    import subprocess
+    import sys
+
+    path = tmp_path / "pw"
+    proc = subprocess.run([sys.executable, "-m", "monitor", "console", "passwd", str(path),
+                           "bob"], input="a long secret\n", capture_output=True, text=True,
+                          timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    assert path.stat().st_mode & 0o777 == 0o600
+    stored = read_passwords(path)["bob"]
+    assert stored.startswith("scrypt$") and "a long secret" not in path.read_text()
+    assert Operators(path).check(_auth("bob", "a long secret")["authorization"]) == "bob"
+    assert Operators(path).check(_auth("bob", "a long secreT")["authorization"]) is None
+    short = subprocess.run([sys.executable, "-m", "monitor", "console", "passwd", str(path),
+                            "eve"], input="short\n", capture_output=True, text=True,
+                           timeout=60)
+    assert short.returncode == 2 and "too short" in short.stderr
+
+
+def test_incident_source_filters_and_never_serves_outside_its_directory(tmp_path):
+    d = incident_dir(tmp_path)
+    (tmp_path / "secret.txt").write_text("not a clip")
+    with sqlite3.connect(d / "index.sqlite") as db:
+        db.execute("INSERT INTO incidents VALUES ('evil', 0, 'x', 'STOP', 'cam0', "
+                   "'../secret.txt')")
+    src = DirectoryIncidents(d)
+    assert [i["id"] for i in src.list(IncidentFilters(camera="cam0", cause="protective_zone"))
+            ] == ["inc-1"]
+    assert [i["id"] for i in src.list(IncidentFilters(since=1.0))] == ["inc-2", "inc-1"]
+    assert src.clip_path("inc-1").name == "inc-1.mp4"
+    assert src.clip_path("inc-2") is None and src.clip_path("evil") is None
+    assert DirectoryIncidents(tmp_path / "nowhere").list(IncidentFilters()) == []
+    (tmp_path / "app").mkdir()
+    client, _ = _client(tmp_path / "app")
+    assert client.get("/api/incidents/evil/clip").status_code == 404
+    r = client.get("/api/incidents/inc-1/clip", headers={"range": "bytes=0-99"})
+    assert r.status_code == 206 and len(r.content) == 100  # seeking in the player
+
+
+def test_live_image_and_state_need_no_login(tmp_path):
+    client, _ = _client(tmp_path)
+    r = client.get("/api/live/cam0.jpg")
+    assert r.status_code == 200 and r.content[:2] == b"\xff\xd8"
+    assert client.get("/api/live/nope.jpg").status_code == 404
+    assert client.get("/").status_code == 200 and "console.js" in client.get("/").text
