@@ -34,6 +34,7 @@ from monitor.health import CameraHealth, HealthConfig, draw_health
 from monitor.pipeline import Pipeline, StepResult
 from monitor.policy import RUN, SLOW, STOP, PolicyConfig, ResetRequest
 from monitor.progress import bar
+from monitor.timetext import video_time
 from monitor.types import Alert
 from monitor.zones import Cell, draw_zones, watch_regions
 from monitor.zones.cameras import choose_camera
@@ -135,10 +136,11 @@ def _rounded(value):
 
 
 def describe(command) -> str:
-    """One honest line for a command: ``Command.describe()`` where the policy has it."""
+    """One honest line for a command: ``Command.describe()`` where the policy has it, its
+    times in seconds of the video."""
     text = getattr(command, "describe", None)
     if text is not None:
-        return text()
+        return text(video_time)
     line = f"{command.state} x{command.speed_scale:.2f}"
     if command.latched:
         line += " LATCHED - reset needed"

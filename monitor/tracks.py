@@ -32,6 +32,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from monitor.boxes import ios_matrix
+from monitor.timetext import TimeText
 from monitor.types import Persons, ZoneHit, ZoneReport
 
 with warnings.catch_warnings():  # ByteTrack announces its move to the `trackers` package
@@ -93,9 +94,12 @@ class Hold:
     lost_since: float
     box_px: tuple[float, float, float, float]
 
-    def describe(self) -> str:
+    def describe(self, when: TimeText | None = None) -> str:
+        """``person 3 lost inside stop``, with ``at <when(lost_since)>`` when a clock is given
+        (a log line carries its own time)."""
         names = ", ".join(z.zone_id for z in self.zones)
-        return f"person {self.track_id} lost inside {names} at {self.lost_since:.1f} s"
+        at = "" if when is None else f" at {when(self.lost_since)}"
+        return f"person {self.track_id} lost inside {names}{at}"
 
 
 @dataclass(frozen=True)
