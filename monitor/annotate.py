@@ -23,6 +23,7 @@ import numpy as np
 from monitor.health import draw_health
 from monitor.pipeline import StepResult
 from monitor.policy import RUN, SLOW, STOP
+from monitor.timetext import video_time
 from monitor.zones import Cell
 from monitor.zones.check import placement
 from monitor.zones.draw import (
@@ -79,10 +80,11 @@ class Drawn:
 
 
 def describe(command) -> str:
-    """One honest line for a command: ``Command.describe()`` where the policy has it."""
+    """One honest line for a command: ``Command.describe()`` where the policy has it, its
+    times in seconds of the video."""
     text = getattr(command, "describe", None)
     if text is not None:
-        return text()
+        return text(video_time)
     line = f"{command.state} x{command.speed_scale:.2f}"
     if command.latched:
         line += " LATCHED - reset needed"

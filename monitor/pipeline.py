@@ -317,6 +317,10 @@ class Pipeline:
                 report, track_ids = update.report, update.track_ids
                 for hold in update.started:
                     log.info("%s: %s", frame.camera_id, hold.describe())
+                for new, old in update.reidentified:  # a guess: said, the hold stays
+                    log.info("%s: person %d (was person %d?) seen near where person %d was "
+                             "lost; that hold stays until person %d is seen leaving or a "
+                             "confirm-clear reset", frame.camera_id, new, old, old, old)
             except Exception as exc:  # tracks unknown: a lost person may be missing, STOP
                 faults.append(Fault("tracking_error", _one_line(exc), True, frame.camera_id))
         t2 = time.perf_counter()

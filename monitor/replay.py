@@ -17,7 +17,6 @@ from __future__ import annotations
 import json
 import math
 import statistics
-import sys
 import threading
 import time
 from collections import Counter
@@ -35,6 +34,7 @@ from monitor.frames import Frame, VideoFileReader
 from monitor.health import CameraHealth, HealthConfig
 from monitor.pipeline import Pipeline, StepResult
 from monitor.policy import RUN, SLOW, STOP, PolicyConfig, ResetRequest
+from monitor.progress import bar
 from monitor.types import Alert
 from monitor.zones import Cell, watch_regions
 from monitor.zones.cameras import choose_camera
@@ -358,7 +358,7 @@ class CallbackSink:
 
 class ProgressSink:
     def __init__(self, total: int, enabled: bool) -> None:
-        self.bar = _progress(total, enabled)
+        self.bar = bar(total, "replay", "frame", enabled=enabled)
 
     def on_step(self, step: Step) -> None:
         if step.frame is not None:
@@ -508,20 +508,3 @@ def _clear_previous(out: Path) -> None:
     if snapshots.is_dir():
         for jpeg in snapshots.glob("*.jpg"):
             jpeg.unlink()
-
-
-class _NoProgress:
-    def update(self, n: int) -> None:
-        pass
-
-    def close(self) -> None:
-        pass
-
-
-def _progress(total: int, enabled: bool, desc: str = "replay"):
-    """A tqdm bar on a terminal; nothing otherwise (logs stay clean)."""
-    if not (enabled and sys.stderr.isatty()):
-        return _NoProgress()
-    from tqdm import tqdm
-
-    return tqdm(total=total or None, unit="frame", desc=desc, leave=False)

@@ -44,6 +44,7 @@ from monitor.pipeline import Pipeline, StepResult
 from monitor.policy import STOP, Command, Reason
 from monitor.resets import LatchNonces
 from monitor.signals import StopSignals
+from monitor.timetext import TimeText, wall_clock
 from monitor.types import Alert, Fault
 from monitor.zones.separation import (
     require_separation_ready,
@@ -69,6 +70,17 @@ def setup_logging(as_json: bool) -> None:
     log.handlers[:] = [handler]
     log.setLevel(logging.INFO)
     log.propagate = False
+
+
+def command_fields(cmd: Command, when: TimeText, notice: Reason | None = None) -> dict:
+    """The fields of a command change's log line: one ``describe`` (latch cause, what holds
+    now, whether a reset is possible; times in ``when``'s clock), never a second list of
+    reasons beside it that could say otherwise (the bus payload has them, as numbers)."""
+    text = cmd.describe(when)
+    if notice is not None:
+        text += f" [{notice.message}]"
+    return {"speed_scale": cmd.speed_scale, "latched": cmd.latched,
+            "reset_possible": cmd.reset_possible, "describe": text}
 
 
 def event(message: str, level: int = logging.INFO, /, **fields) -> None:
@@ -451,6 +463,7 @@ class ServiceSink:
         self.frame_times: deque[float] = deque(maxlen=30)
         self.inference: deque[float] = deque(maxlen=30)
         self.last_status = -math.inf
+        self.when = wall_clock()  # the policy's monotonic times as the operator's local time
 
     def on_step(self, step: Step) -> None:
         result = step.result
@@ -468,11 +481,8 @@ class ServiceSink:
         if step.stalled_s is not None:
             event("monitor stalled: STOP latched", logging.ERROR, gap_s=round(step.stalled_s, 3))
         if result.changed:
-            describe = getattr(cmd, "describe", None)
             event(f"command {cmd.state}", logging.WARNING if cmd.state != "RUN" else logging.INFO,
-                  speed_scale=cmd.speed_scale, latched=cmd.latched,
-                  reasons="; ".join(r.message for r in cmd.reasons) or "-",
-                  **({"describe": describe()} if describe else {}))
+                  **command_fields(result.command, self.when, self.notice))
         if step.reset_possible:
             event("reset possible: no STOP cause holds", logging.INFO)
         for alert in result.alerts:

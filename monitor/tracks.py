@@ -25,6 +25,7 @@ Everything here is deterministic: no wall clock, the frame's capture time is pas
 
 from __future__ import annotations
 
+import math
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
@@ -32,6 +33,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from monitor.boxes import ios_matrix
+from monitor.timetext import TimeText
 from monitor.types import Persons, ZoneHit, ZoneReport
 
 with warnings.catch_warnings():  # ByteTrack announces its move to the `trackers` package
@@ -50,9 +52,18 @@ ZonesOf = Callable[[np.ndarray], ZoneReport]
 class TrackerConfig:
     """Settings of the person tracker (defaults suit 10-30 fps cameras)."""
 
-    lost_track_buffer: int = 30  # frames ByteTrack keeps a lost track for re-association
+    # seconds (not frames) ByteTrack keeps a lost track for re-association: turned into
+    # frames at the measured frame rate, so 2 fps keeps a track as long as 30 fps does
+    lost_track_s: float = 1.0
     matching_threshold: float = 0.8  # ByteTrack's association cost limit (1 - IoU, fused)
     near_factor: float = 1.0  # a new person within this many box widths re-finds a lost one
+    # a person walks this fast at most (m/s): a track unseen for dt seconds is re-found within
+    # walk_speed_mps * dt of its last box (measured in box heights of a height_m person), so
+    # ids survive low frame rates; a track that holds a zone is never re-found this way (the
+    # new person is said as "person 6 (was person 1?)" and the hold stays)
+    walk_speed_mps: float = 1.5
+    height_m: float = 1.75
+    reach_max_s: float = 2.0  # no further than this many seconds of walking
     merge_ios: float = 0.3  # a lost box this much inside a seen box: merged into it
     edge_margin_px: float = 8.0  # a box this close to the image border is "at the edge"
     exit_speed_pxps: float = 5.0  # outward speed at the edge that counts as leaving the view
@@ -82,20 +93,27 @@ class Track:
     zones: tuple[HeldZone, ...] = ()  # protective/warning zones hit at the last sighting
     lost: bool = False
     held: tuple[HeldZone, ...] = ()  # zones this lost track keeps occupied
+    was: int | None = None  # perhaps this lost person, re-identified by a guess
 
 
 @dataclass(frozen=True)
 class Hold:
-    """A lost person keeping zones occupied."""
+    """A lost person keeping zones occupied. ``seen_as``: a person seen since near where this
+    one was lost, perhaps the same (a guess: the hold stays until that is seen or confirmed)."""
 
     track_id: int
     zones: tuple[HeldZone, ...]
     lost_since: float
     box_px: tuple[float, float, float, float]
+    seen_as: int | None = None
 
-    def describe(self) -> str:
+    def describe(self, when: TimeText | None = None) -> str:
+        """``person 3 lost inside stop``, with ``at <when(lost_since)>`` when a clock is given
+        (a log line carries its own time)."""
         names = ", ".join(z.zone_id for z in self.zones)
-        return f"person {self.track_id} lost inside {names} at {self.lost_since:.1f} s"
+        at = "" if when is None else f" at {when(self.lost_since)}"
+        maybe = "" if self.seen_as is None else f" (seen again as person {self.seen_as}?)"
+        return f"person {self.track_id} lost inside {names}{at}{maybe}"
 
 
 @dataclass(frozen=True)
@@ -106,6 +124,8 @@ class TrackUpdate:
     report: ZoneReport | None  # the zone report with track ids and the holds' lost hits
     started: tuple[Hold, ...] = ()  # holds that began in this frame
     ended: tuple[Hold, ...] = ()  # holds ended because the person was seen again
+    # (new id, lost id): a new person near a lost one that holds a zone, perhaps the same
+    reidentified: tuple[tuple[int, int], ...] = ()
 
 
 @dataclass
@@ -121,6 +141,8 @@ class _Record:
     lost: bool = False
     held: tuple[HeldZone, ...] = ()
     streak: int = 1  # frames seen in a row
+    was: int | None = None  # the lost track this one perhaps is (a guess; see reidentified)
+    seen_as: int | None = None  # a new track that perhaps is this lost one
 
     def snapshot(self) -> Track:
         floor = None if self.floor is None else (float(self.floor[0]), float(self.floor[1]))
@@ -128,10 +150,16 @@ class _Record:
                                                         float(self.floor_velocity[1]))
         return Track(self.track_id, _box_tuple(self.box), self.last_seen,
                      (float(self.velocity[0]), float(self.velocity[1])), floor, fvel,
-                     self.zones, self.lost, self.held)
+                     self.zones, self.lost, self.held, self.was)
 
     def hold(self) -> Hold:
-        return Hold(self.track_id, self.held, self.last_seen, _box_tuple(self.box))
+        return Hold(self.track_id, self.held, self.last_seen, _box_tuple(self.box),
+                    self.seen_as)
+
+    def label(self) -> str:
+        """``person 6``, or ``person 6 (was person 1?)`` when re-identified by a guess."""
+        return f"person {self.track_id}" + ("" if self.was is None else
+                                             f" (was person {self.was}?)")
 
 
 def _box_tuple(box: np.ndarray) -> tuple[float, float, float, float]:
@@ -173,12 +201,33 @@ class PersonTracker:
             warnings.simplefilter("ignore", FutureWarning)
             # activation threshold 0: every detection the detector reports gets a track
             self._byte = sv.ByteTrack(track_activation_threshold=0.0,
-                                      lost_track_buffer=self.config.lost_track_buffer,
+                                      lost_track_buffer=30,
                                       minimum_matching_threshold=self.config.matching_threshold,
                                       frame_rate=30, minimum_consecutive_frames=1)
+        self._byte.max_time_lost = self._buffer_frames(30.0)
         self._records: dict[int, _Record] = {}
         self._by_byte_id: dict[int, int] = {}  # ByteTrack's id -> our track id
         self._next_id = 1
+        self._last_time: float | None = None
+        self._intervals: list[float] = []  # the last frame intervals (s), for the frame rate
+        self._reidentified: list[tuple[int, int]] = []
+
+    def _buffer_frames(self, fps: float) -> int:
+        return max(1, math.ceil(self.config.lost_track_s * fps))
+
+    def _measure_rate(self, now: float) -> None:
+        """ByteTrack counts frames: keep its lost-track buffer at ``lost_track_s`` of the
+        measured frame rate (median of the last intervals)."""
+        if self._last_time is not None and now > self._last_time:
+            self._intervals = [*self._intervals[-9:], now - self._last_time]
+            fps = 1.0 / float(np.median(self._intervals))
+            self._byte.max_time_lost = self._buffer_frames(fps)
+        self._last_time = now
+
+    def label(self, track_id: int) -> str:
+        """``person 6`` or ``person 6 (was person 1?)``."""
+        rec = self._records.get(track_id)
+        return rec.label() if rec is not None else f"person {track_id}"
 
     # ---------------------------------------------------------------------------------------
     @property
@@ -220,7 +269,9 @@ class PersonTracker:
         """
         boxes = np.asarray(persons.boxes_px, np.float64).reshape(-1, 4)
         n = len(boxes)
-        rows_to_id = self._associate(boxes, np.asarray(persons.scores, np.float64))
+        self._measure_rate(now)
+        self._reidentified = []
+        rows_to_id = self._associate(boxes, np.asarray(persons.scores, np.float64), now)
         row_zones = self._row_zones(report, n)
         floors: list[np.ndarray | None] = [None] * n
         if self.to_floor is not None and n:
@@ -235,6 +286,10 @@ class PersonTracker:
                 rec = self._records[tid] = _Record(tid, boxes[row].copy(), now)
                 rec.zones = row_zones[row] if row_zones is not None else ()
                 self._place(rec, boxes[row], floors[row], now, first=True)
+                for new, old in self._reidentified:
+                    if new == tid and old in self._records:
+                        rec.was = old
+                        self._records[old].seen_as = tid
                 continue
             if rec.lost and rec.held:
                 ended.append(rec.hold())
@@ -243,7 +298,7 @@ class PersonTracker:
             rec.prev_zones = rec.zones
             if row_zones is not None:
                 rec.zones = row_zones[row]
-            rec.lost, rec.held = False, ()
+            rec.lost, rec.held, rec.seen_as = False, (), None
 
         started = []
         for rec in self._records.values():
@@ -263,13 +318,17 @@ class PersonTracker:
             seen_hits = tuple(replace(h, track_id=rows_to_id[h.person])
                               if 0 <= h.person < n else h for h in report.hits)
             out = replace(report, hits=seen_hits + self.held_hits())
-        return TrackUpdate(tuple(rows_to_id), out, tuple(started), tuple(ended))
+        return TrackUpdate(tuple(rows_to_id), out, tuple(started), tuple(ended),
+                           tuple(self._reidentified))
 
     # ---------------------------------------------------------------------------------------
-    def _associate(self, boxes: np.ndarray, scores: np.ndarray) -> list[int]:
+    def _associate(self, boxes: np.ndarray, scores: np.ndarray, now: float) -> list[int]:
         """Our track id for every row: ByteTrack's association first; rows it leaves without
         an id (a new person's first frames) or gives a new id re-find a track that is not
-        seen in this frame near where it was last seen, or start a new one."""
+        seen in this frame near where it was last seen, or start a new one. "Near": within
+        ``near_factor`` box widths, or (a track holding no zone) as far as a person walks in
+        the time since it was seen; a new person that far from a track holding a zone gets a
+        new id, noted as perhaps that person (``reidentified``), and the hold stays."""
         n = len(boxes)
         byte_ids = np.full(n, -1, np.int64)
         if n:
@@ -296,14 +355,28 @@ class PersonTracker:
             width = np.maximum((boxes[rows, 2] - boxes[rows, 0])[:, None],
                                np.array([r.box[2] - r.box[0] for r in free])[None, :])
             near = dist <= self.config.near_factor * np.maximum(width, 1.0)
+            reach = dist <= self._walk_reach(boxes[rows], free, now)
+            holding = np.array([r.lost and bool(r.held) for r in free])[None, :]
+            guess = reach & ~near & holding  # never ends a hold: said, not merged
+            near |= reach & ~holding
             for flat in np.argsort(dist, axis=None, kind="stable"):
                 i, j = divmod(int(flat), len(free))
                 if near[i, j] and ids[rows[i]] is None and free[j].track_id not in ids:
                     ids[rows[i]] = free[j].track_id
+            guesses = [(i, j) for i, j in zip(*np.nonzero(guess), strict=True)]
+        else:
+            guesses = []
+        claimed: set[int] = set()
         for row in range(n):
             if ids[row] is None:
                 ids[row] = self._next_id
                 self._next_id += 1
+                # the nearest lost holder within walking reach: perhaps this person
+                for i, j in sorted(guesses, key=lambda g: float(dist[g])):
+                    if rows[i] == row and free[j].track_id not in claimed:
+                        claimed.add(free[j].track_id)
+                        self._reidentified.append((ids[row], free[j].track_id))
+                        break
             if byte_ids[row] >= 0:
                 self._by_byte_id[int(byte_ids[row])] = ids[row]
         return [int(t) for t in ids]
@@ -383,3 +456,13 @@ class PersonTracker:
         vx, vy = rec.velocity
         return bool((x1 <= m and vx <= -v) or (x2 >= w - m and vx >= v)
                     or (y2 >= h - m and vy >= v))
+
+    def _walk_reach(self, rows: np.ndarray, free: list[_Record], now: float) -> np.ndarray:
+        """(rows, free) pixels a person can walk since each free track was last seen, at
+        ``walk_speed_mps``, scaled by the box height (a ``height_m`` person; the larger of the
+        two boxes), for at most ``reach_max_s``."""
+        cfg = self.config
+        dt = np.clip(np.array([now - r.last_seen for r in free]), 0.0, cfg.reach_max_s)
+        heights = np.maximum((rows[:, 3] - rows[:, 1])[:, None],
+                             np.array([r.box[3] - r.box[1] for r in free])[None, :])
+        return cfg.walk_speed_mps / cfg.height_m * heights * dt[None, :]

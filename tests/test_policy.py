@@ -444,13 +444,19 @@ def test_person_lost_in_protective_zone_stops_and_refuses_reset_with_confirm_cle
         (8.4, tick(), STOP, 0.0, ["person_lost"]),  # carried over without a frame
     ], state=warmed(until=8.1)[0])
     cause = next(r for r in cmds[0].reasons if r.code == "person_lost")
-    assert cause.message == "person 3 lost inside robot-protective at 8.1 s"
+    # the time stays a number: the edges write it in the operator's clock
+    assert cause.message == "person 3 lost inside robot-protective"
+    assert cause.since == 8.1 and cause.to_dict()["since"] == 8.1
     assert (cause.zone_id, cause.person) == ("robot-protective", 3)
     refused = cmds[1].reset
     assert not refused.accepted
     assert "person 3 lost inside robot-protective" in refused.message
     assert "monitor reset --confirm-clear" in refused.message
-    assert cmds[1].describe() == "LATCHED: person 3 lost inside robot-protective at 8.1 s"
+    assert cmds[1].describe() == (
+        "STOP latched by person 3 lost inside robot-protective at 8.2 s; holding now: "
+        "person 3 lost inside robot-protective since 8.1 s; no reset until they clear")
+    assert "1059" not in cmds[1].describe(lambda t: "14:03:12")
+    assert cmds[1].describe(lambda t: "14:03:12").count("14:03:12") == 2
     assert not cmds[1].reset_possible and cmds[1].clear_for_s is None
 
 
@@ -501,7 +507,9 @@ def test_latched_state_says_by_whom_how_long_clear_and_when_reset_became_possibl
                                           "message": "person 0 in robot-protective",
                                           "zone_id": "robot-protective", "person": 0,
                                           "nonce": "latch-1"}
-    assert first.describe() == "LATCHED: person 0 in robot-protective"
+    assert first.describe() == ("STOP latched by person 0 in robot-protective at 5.5 s; "
+                                "holding now: person 0 in robot-protective; no reset until "
+                                "they clear")
     assert not first.reset_possible and first.clear_for_s is None
     assert still.same_as(first)
     assert possible.reset_possible and possible.reset_possible_since == 5.7
@@ -511,8 +519,10 @@ def test_latched_state_says_by_whom_how_long_clear_and_when_reset_became_possibl
     assert not much_later.same_as(later)  # clear_time over: the "clearing" reason went
     assert much_later.reset_possible_since == 5.7
     assert much_later.clear_for_s == pytest.approx(2.4)
-    assert much_later.describe() == ("LATCHED by person 0 in robot-protective at 5.5 s; "
-                                     "cell clear for 2.4 s: reset possible")
+    assert much_later.describe() == ("STOP latched by person 0 in robot-protective at 5.5 s; "
+                                     "no STOP cause now (clear for 2.4 s): reset possible")
+    assert possible.describe() == ("STOP latched by person 0 in robot-protective at 5.5 s; "
+                                   "no STOP cause now (clear for 0.1 s): reset possible")
     d = much_later.to_dict()
     assert d["latched_by"]["person"] == 0 and d["reset_possible"] is True
     assert d["clear_for_s"] == pytest.approx(2.4) and d["reset_possible_since"] == 5.7
@@ -688,7 +698,8 @@ def test_reason_texts_and_distances():
     state, _ = step(warmed(AUTO)[0], frame(1.1, prot()), 1.1, AUTO)
     _s, cmd = step(state, frame(1.2), 1.2, AUTO)
     assert cmd.reasons[-1].message == "causes absent for 0.100 s of 1.0 s"
-    assert cmd.describe() == "STOP: person 0 in Z1 (clearing)"
+    assert cmd.describe() == ("STOP: clearing, causes absent for 0.100 s of 1.0 s "
+                              "(was: person 0 in Z1)")
 
 
 def test_warning_zone_scale_above_one_is_capped_at_full_speed():
@@ -711,10 +722,10 @@ def test_describe_of_commands_made_elsewhere():
     assert two.describe() == "STOP: a: x; b: y"
     latched = Command(STOP, 0.0, (Reason("fault", "a: x"), Reason("fault", "b: y"),
                                   Reason("latched", "waiting")), latched=True)
-    assert latched.describe() == "LATCHED: a: x; b: y"
+    assert latched.describe() == "STOP latched; holding now: a: x; b: y; no reset until they clear"
     possible = Command(STOP, 0.0, latched=True, reset_possible=True,
                        latched_by=Latch("fault", "a: x", 2.0))
-    assert possible.describe() == "LATCHED by a: x at 2.0 s; cell clear for 0.0 s: reset possible"
+    assert possible.describe() == "STOP latched by a: x at 2.0 s; no STOP cause now: reset possible"
 
 
 def test_command_to_dict_has_every_field():
@@ -793,7 +804,7 @@ def test_reset_and_latch_texts_exactly():
     _s, lost_cmd = step(state, frame(1.2, lost(track=4, since=1.15),
                                      reset_request=reset(1.2)), 1.2, MANUAL)
     assert lost_cmd.reset.message == (
-        "refused: person 4 lost inside robot-protective at 1.1 s (wait until the person is "
+        "refused: person 4 lost inside robot-protective (wait until the person is "
         "seen leaving, or `monitor reset --confirm-clear` after looking)")
     for t in (1.2, 1.6, 2.0, 2.2):
         state, _ = step(state, frame(t), t, MANUAL)

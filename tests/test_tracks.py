@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from monitor import zones as zn
+from monitor.timetext import seconds
 from monitor.tracks import PersonTracker, lost_person_index
 from monitor.types import FrameInfo, Persons, ZoneReport
 
@@ -188,7 +189,8 @@ def test_confirm_clear_drops_lost_holds_only():
     assert held(upd) == {("stop", inside)} and seen(upd) == {("slow", warning)}
     dropped = run.tracker.drop_holds()
     assert [h.track_id for h in dropped] == [inside]
-    assert dropped[0].describe() == f"person {inside} lost inside stop at 0.2 s"
+    assert dropped[0].describe() == f"person {inside} lost inside stop"  # a log line's own time
+    assert dropped[0].describe(seconds) == f"person {inside} lost inside stop at 0.2 s"
     after = run.frame(person(250))
     assert held(after) == set() and seen(after) == {("slow", warning)}
 
@@ -294,3 +296,63 @@ def test_a_head_cut_off_at_the_top_edge_is_no_exit():
                        zn.check_persons(CELL, "cam0", boxes), i / 10, (W, H))
     gone = tracker.update(Persons.empty(), ZoneReport(), 0.6, (W, H))
     assert {(h.zone_id, h.lost) for h in gone.report.hits} == {("stop", True)}
+
+
+# --- low frame rates: buffers in seconds, ids within walking reach, guesses never end holds --
+
+
+def test_lost_track_buffer_is_in_seconds_not_frames():
+    for fps, frames in ((30.0, 30), (2.0, 2), (1.0, 1)):
+        run = Run(fps=fps)
+        for _ in range(4):
+            run.frame(person(200))
+        # one second at any frame rate (30 frames were 15 s at 2 fps)
+        assert run.tracker._byte.max_time_lost == frames
+
+
+def test_a_person_walking_at_one_frame_per_second_keeps_the_id():
+    """1.5 m/s at 1 fps: the box moves 1.5 box widths between frames (a 1.75 m person is
+    240 px tall here), further than ByteTrack's overlap and the one-width re-find reach."""
+    run = Run(fps=1.0)
+    step_px = 1.5 / 1.75 * 240 * 0.9
+    ids = [run.frame(person(150 + step_px * i, bottom=250)).track_ids for i in range(5)]
+    assert {i for (i,) in ids} == {ids[0][0]}
+
+
+def test_a_new_person_within_walking_reach_of_a_hold_is_said_never_merged():
+    run = Run(fps=2.0)
+    for _ in range(3):
+        upd = run.frame(person(650))
+    tid = upd.track_ids[0]
+    upd = run.frame()
+    assert held(upd) == {("stop", tid)}
+    # 1 s later someone 2.5 box widths away: walking reach, but not the same spot
+    upd = run.frame(person(850))
+    new = upd.track_ids[0]
+    assert new != tid  # a guess never takes the held person's id ...
+    assert held(upd) == {("stop", tid)} and not upd.ended  # ... nor ends the hold
+    assert upd.reidentified == ((new, tid),)
+    assert run.tracker.label(new) == f"person {new} (was person {tid}?)"
+    (hold,) = run.tracker.holds
+    assert hold.describe() == f"person {tid} lost inside stop (seen again as person {new}?)"
+    for _ in range(3):  # the new person walks out: the hold stays (only seeing it ends it)
+        upd = run.frame(person(1100))
+    assert held(upd) == {("stop", tid)}
+
+
+def test_ids_survive_a_pillar_at_two_frames_per_second(detector):
+    """The generator's scene at 2 fps: a person walking at 1.5 m/s is hidden behind a pillar
+    for one frame and comes out 1.5 m further on: still person 1 (no hold: no zones)."""
+    from monitor.scene.cell import Block, CellScene, Walker
+
+    scene = CellScene((Walker(((0.0, -3.0, 1.0), (4.0, 3.0, 1.0))),), fps=2.0, duration_s=4.01,
+                      blocks=(Block("pillar", (-0.4, -0.5, 0.0), (0.4, -0.3, 2.2)),),
+                      robot=False)
+    tracker = PersonTracker()
+    ids, hidden = [], 0
+    for image, truth in scene.frames():
+        persons = detector.detect(image)
+        ids.extend(tracker.update(persons, None, truth.time_s, (640, 360)).track_ids)
+        hidden += not len(persons.boxes_px)
+    assert hidden >= 1  # the pillar hid the person in at least one frame
+    assert len(ids) >= 6 and set(ids) == {1}

@@ -120,10 +120,10 @@ def _wrap(progress):
 
 def _detector(model: Path | None, layout: str | None = None, int8: bool = False):
     from monitor import quantize
+    from monitor.cli.run import ensure_model
     from monitor.detector import Detector, DetectorConfig
-    from monitor.models import synthetic
 
-    path = model if model else synthetic.ensure_model()
+    path = model if model else ensure_model()
     if int8 and model is None:
         int8_path = quantize.default_output(path)
         if not int8_path.is_file():
@@ -176,7 +176,7 @@ def cmd_quantize(args: argparse.Namespace) -> int:
     from monitor import quantize
     from monitor.detector import Detector
     from monitor.errors import InputError
-    from monitor.progress import progress
+    from monitor.progress import Steps, progress
 
     model = args.model
     out = args.out or quantize.default_output(model)
@@ -185,7 +185,10 @@ def cmd_quantize(args: argparse.Namespace) -> int:
     if args.max_frames < quantize.MIN_FRAMES:
         raise InputError(f"--max-frames must be at least {quantize.MIN_FRAMES}")
     fp32 = Detector(model)  # ModelError (one line) when MODEL is not a usable model
+    steps = Steps(["reading frames", "quantizing", "comparing"], "model quantize")
+    steps.start("reading frames")
     frames = quantize.read_frames(args.frames, args.max_frames)
+    steps.done()
     calib, held = quantize.split_frames(frames)
     print(f"{len(frames)} frames: {len(calib)} for calibration, {len(held)} held out",
           file=sys.stderr)
@@ -194,14 +197,19 @@ def cmd_quantize(args: argparse.Namespace) -> int:
     staged = out.with_name(out.stem + ".unchecked.onnx")
     wrap = _wrap(progress)
     try:
+        steps.start("calibrating and quantizing")
         quantize.quantize_model(model, staged, calib, options, wrap=wrap)
+        steps.done()
+        steps.start("comparing int8 with fp32")
         agreement = quantize.compare(fp32, Detector(staged), held, wrap=wrap)
+        steps.done()
         print(agreement.table())
         why = quantize.check_agreement(agreement, args.min_agreement)
         if why and not args.force:
             raise quantize.QuantizeRefused(f"int8 model not written: {why} (--force writes it)")
         staged.replace(out)
     finally:
+        steps.close()
         staged.unlink(missing_ok=True)
     if why:
         print(f"warning: written anyway (--force): {why}", file=sys.stderr)

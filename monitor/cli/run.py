@@ -117,7 +117,6 @@ def do_replay(video: Path, zones: Path | None, model: Path | None, config_path: 
     from monitor.config import load_config
     from monitor.detector import Detector
     from monitor.driver import require_protective_zone
-    from monitor.models import synthetic
     from monitor.replay import ReplaySettings, replay
     from monitor.zones import load_cell
     from monitor.zones.cameras import choose_camera
@@ -131,7 +130,7 @@ def do_replay(video: Path, zones: Path | None, model: Path | None, config_path: 
         choose_camera(cell.cameras, camera, cell.label)
     if publish and cell is None:  # commands to a robot: the same rule as `monitor run`
         require_protective_zone(None, allow, "")
-    detector = Detector(model if model else synthetic.ensure_model(config.model.path),
+    detector = Detector(model if model else ensure_model(config.model.path),
                         config.detector)
     settings = ReplaySettings(out_dir=out, camera_id=camera, reset_at=tuple(reset_at),
                               realtime=realtime, annotate=annotate, policy=config.policy,
@@ -192,17 +191,26 @@ DEMO_RESET_AT = (18.0,)
 
 
 def render_progress(frames, total: int, label: str = "rendering scene"):
-    """Yield ``frames``, showing progress: a tqdm bar on a terminal, else a line per 25 %."""
-    if sys.stderr.isatty():
-        from tqdm import tqdm
+    """Yield ``frames``, with a tqdm bar on a terminal (stderr); silent otherwise."""
+    from monitor.progress import progress
 
-        yield from tqdm(frames, total=total, unit="frame", desc=label, leave=False)
-        return
-    step = max(1, total // 4)
-    for k, item in enumerate(frames, 1):
-        yield item
-        if k % step == 0 or k == total:
-            print(f"{label}: {k}/{total} frames", file=sys.stderr, flush=True)
+    yield from progress(frames, total, label, unit="frame")
+
+
+def ensure_model(path: Path | None = None) -> Path:
+    """The synthetic model, built when absent; the build shows progress on a terminal."""
+    from monitor.models import synthetic
+    from monitor.progress import Steps
+
+    target = Path(path) if path else synthetic.default_model_path()
+    if target.is_file():
+        return target
+    steps = Steps(["fp32 model"], "model build")
+    steps.start("building the synthetic model")
+    try:
+        return synthetic.ensure_model(target)
+    finally:
+        steps.done()
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
@@ -218,14 +226,13 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 def _demo(args: argparse.Namespace, signals) -> int:
     from monitor.config import demo_cell_path
-    from monitor.models import synthetic
     from monitor.scene import DemoScene, write_video
 
     out: Path = args.out
     zones = args.zones or demo_cell_path()
     if not zones.exists():
         raise InputError(f"{zones}: no such zone file")
-    model = synthetic.ensure_model()
+    model = ensure_model()
     print(f"model:  {model}")
     scene = DemoScene()
     video = out / "demo-scene.mp4"

@@ -34,10 +34,11 @@ def _person(hit: ZoneHit) -> int:
 def _hit_reason(hit: ZoneHit, stop: bool) -> Reason:
     who = _person(hit)
     if hit.lost:
-        when = "" if hit.lost_since is None else f" at {hit.lost_since:.1f} s"
+        # the time stays a number (``since``): the edges write it in the operator's clock
         return Reason("person_lost" if stop else "warning_zone",
-                      f"person {who} lost inside {hit.zone_id}{when}",
-                      zone_id=hit.zone_id, person=who, distance_m=hit.distance_m)
+                      f"person {who} lost inside {hit.zone_id}",
+                      zone_id=hit.zone_id, person=who, distance_m=hit.distance_m,
+                      since=hit.lost_since)
     return Reason("protective_zone" if stop else "warning_zone", f"person {who} in {hit.zone_id}",
                   zone_id=hit.zone_id, person=who, distance_m=hit.distance_m)
 

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 from monitor.schema import Bool, Seconds, section
+from monitor.timetext import TimeText, seconds
 from monitor.types import Fault, ZoneReport
 
 RUN, SLOW, STOP = "RUN", "SLOW", "STOP"
@@ -61,6 +62,11 @@ class Reason:
     required_m: float | None = None
     fault: str | None = None
     source: str | None = None
+    since: float | None = None  # when the cause began (a person lost: when last seen)
+
+    def text(self, when: TimeText = seconds) -> str:
+        """The message, with its start time in the operator's clock (``when``)."""
+        return self.message if self.since is None else f"{self.message} since {when(self.since)}"
 
     def key(self) -> tuple:
         """Identity of the cause, without the values that change every frame."""
@@ -177,23 +183,36 @@ class Command:
             and [r.key() for r in self.reasons] == [r.key() for r in other.reasons]
         )
 
-    def describe(self) -> str:
-        """One line for an operator, e.g. ``LATCHED by person 0 in robot-protective at 5.5 s;
-        cell clear for 2.3 s: reset possible``."""
-        causes = [r for r in self.reasons if r.code not in ("clearing", "latched")]
+    def describe(self, when: TimeText = seconds) -> str:
+        """The one line for an operator: the latch's cause, what holds now, and whether a
+        reset is possible, never contradicting each other. ``when`` turns a time on the
+        policy's clock into text (wall clock live, video seconds in replay). E.g.
+        ``STOP latched by person 0 in robot-protective at 14:03:12; no STOP cause now (clear
+        for 2.3 s): reset possible``."""
+        # in the *_CLEARING and STOP_LATCHED phases the reasons are the causes that held
+        # before (shown as "was"); in the others they hold now. No phase: made elsewhere.
+        holding = self.phase in ("", STOP_ACTIVE, SLOW_ACTIVE)
+        causes = "; ".join(r.text(when) for r in self.reasons
+                           if r.code not in ("clearing", "latched"))
+        clearing = next((r.message for r in self.reasons if r.code == "clearing"), None)
         if self.latched:
-            if self.reset_possible and self.latched_by is not None:
-                clear = self.clear_for_s or 0.0
-                return (f"LATCHED by {self.latched_by.message} at {self.latched_by.at:.1f} s; "
-                        f"cell clear for {clear:.1f} s: reset possible")
-            return "LATCHED: " + "; ".join(r.message for r in causes)
+            head = "STOP latched"
+            if self.latched_by is not None:
+                head += f" by {self.latched_by.message} at {when(self.latched_by.at)}"
+            if holding and causes:
+                return f"{head}; holding now: {causes}; no reset until they clear"
+            if self.reset_possible:
+                clear = f" (clear for {self.clear_for_s:.1f} s)" \
+                    if self.clear_for_s is not None else ""
+                return f"{head}; no STOP cause now{clear}: reset possible"
+            return f"{head}; waiting for an operator reset"
         if self.state == RUN:
             return "RUN"
         head = STOP if self.state == STOP else f"SLOW x{self.speed_scale:.2f}"
-        text = "; ".join(r.message for r in causes) or "no cause given"
-        if any(r.code == "clearing" for r in self.reasons):
-            text += " (clearing)"
-        return f"{head}: {text}"
+        if holding:
+            return f"{head}: {causes or 'no cause given'}"
+        was = f" (was: {causes})" if causes else ""
+        return f"{head}: clearing, {clearing or 'causes absent'}{was}"
 
     def to_dict(self) -> dict:
         out = {

@@ -415,8 +415,8 @@ def write_video(path: str | Path, frames: Iterator[tuple[np.ndarray, FrameTruth]
                 fps: float, total: int | None = None, progress: bool = False) -> list[FrameTruth]:
     """Write frames to an MP4 (mp4v) and return the ground truth of every frame.
 
-    ``progress``: show how far rendering got on stderr (a tqdm bar on a terminal, a line every
-    10 % otherwise, so that logs of CI runs stay short); ``total`` is the frame count if known.
+    ``progress``: a tqdm bar on stderr when it is a terminal (nothing in logs); ``total`` is
+    the frame count if known.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -440,20 +440,7 @@ def write_video(path: str | Path, frames: Iterator[tuple[np.ndarray, FrameTruth]
 
 
 def _with_progress(items: Iterator, total: int | None, label: str) -> Iterator:
-    """``items`` with progress on stderr: tqdm on a terminal, steady lines otherwise."""
-    import sys
+    """``items`` with a tqdm bar on stderr when it is a terminal; silent otherwise."""
+    from monitor.progress import progress
 
-    if sys.stderr.isatty():
-        from tqdm import tqdm
-
-        yield from tqdm(items, total=total, desc=label, unit="frame", file=sys.stderr)
-        return
-    step = max(1, (total or 100) // 10)
-    n = 0
-    for n, item in enumerate(items, 1):
-        yield item
-        if n % step == 0:
-            done = f"{n}/{total} frames ({100 * n // total} %)" if total else f"{n} frames"
-            print(f"{label}: {done}", file=sys.stderr, flush=True)
-    if total is None or n % step:
-        print(f"{label}: {n} frames done", file=sys.stderr, flush=True)
+    yield from progress(items, total, label, unit="frame")
