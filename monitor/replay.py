@@ -514,7 +514,9 @@ def replay(video: str | Path, detector: Detector, cell: Cell | None, settings: R
     if publish is not None:
         sinks.append(CallbackSink(publish))
     sinks.append(ProgressSink(reader.frame_count, settings.progress))
-    recorder = _recorder(settings, camera_id, cell)
+    # the recorder's own alert (recording stopped) goes into events.jsonl like any alert
+    recorder = _recorder(settings, camera_id, cell,
+                         lambda a: events._write(alert_event(a, counts.last_index, None)))
     if recorder is not None:
         sinks.append(recorder)
     driver = Driver(pipeline, sinks, self_test_period_s=settings.self_test_period_s)
@@ -546,7 +548,7 @@ def replay(video: str | Path, detector: Detector, cell: Cell | None, settings: R
     return summary
 
 
-def _recorder(settings: ReplaySettings, camera_id: str, cell: Cell | None):
+def _recorder(settings: ReplaySettings, camera_id: str, cell: Cell | None, on_alert):
     """The incident recorder of ``--incidents DIR`` (lossless: a replay waits for it)."""
     if settings.incidents_dir is None:
         return None
@@ -555,7 +557,7 @@ def _recorder(settings: ReplaySettings, camera_id: str, cell: Cell | None):
 
     return IncidentRecorder(settings.recorder or RecorderConfig(enabled=True),
                             settings.incidents_dir, [camera_id], cell, cell_id="replay",
-                            config_hash=settings.config_hash,
+                            config_hash=settings.config_hash, on_alert=on_alert,
                             lossless=True)
 
 

@@ -29,6 +29,7 @@ COMMAND_MODULES = (
     "monitor.cli.run",
     "monitor.cli.eval",
     "monitor.cli.init",
+    "monitor.cli.incidents",
 )
 DEBUG_HELP = "show the full traceback on errors (anywhere on the command line)"
 
