@@ -119,10 +119,7 @@ class IncidentRecorder:
 
     def on_step(self, step: Step) -> None:
         try:
-            while self._alerts:
-                alert = self._alerts.popleft()
-                if self.on_alert is not None:
-                    self.on_alert(alert)
+            self._deliver_alerts()
             if self.stopped is not None:
                 return
             if len(self._queue) >= MAX_QUEUED_STEPS:
@@ -157,6 +154,13 @@ class IncidentRecorder:
         self._closing.set()
         self._wake.set()
         self._thread.join(None if self.lossless else timeout)
+        self._deliver_alerts()  # one raised after the last step is still said
+
+    def _deliver_alerts(self) -> None:
+        while self._alerts:
+            alert = self._alerts.popleft()
+            if self.on_alert is not None:
+                self.on_alert(alert)
 
     def status(self) -> dict:
         return {"recording": self.stopped is None, "stopped": self.stopped,
