@@ -8,6 +8,7 @@ from __future__ import annotations
 import csv
 import io
 import json
+import signal
 import sqlite3
 import threading
 import time
@@ -322,3 +323,41 @@ def test_recorder_section_of_the_config_is_validated():
         parse_config({"recorder": {"pre_s": -1.0}}, "m.toml")
     with pytest.raises(ConfigError, match=r"\[recorder\] unknown key 'pre'"):
         parse_config({"recorder": {"pre": 1.0}}, "m.toml")
+
+
+# --- in the service: the queryable, the counters, the clip ------------------------------------
+
+@pytest.mark.slow
+def test_the_service_records_the_demo_stop_and_answers_the_incidents_query(
+        tmp_path, synthetic_model):
+    import urllib.request
+
+    from tests.processes import Service, codes, wait_for
+
+    extra = '[recorder]\nenabled = true\ndata_dir = "incidents"\npre_s = 3.0\npost_s = 1.0\n'
+    with Service(tmp_path, synthetic_model, "synthetic:demo", extra) as svc:
+        svc.next_command(0, lambda c: "protective_zone" in codes(c), 60, "the demo's STOP")
+
+        def incidents() -> list[dict]:
+            replies = list(svc.session.get("workcell/t5/safety/incidents?cause=stop",
+                                           timeout=3.0))
+            body = json.loads(replies[0].ok.payload.to_bytes())
+            assert body["schema"] == "workcell.safety.incidents/1" and body["cell"] == "t5"
+            return [r for r in body["incidents"] if r["complete"]]
+
+        rows = wait_for(incidents, 20, "a complete STOP incident", svc)
+        url = f"http://127.0.0.1:{svc.metrics_port}/metrics"
+        def metrics() -> str | None:
+            text = urllib.request.urlopen(url, timeout=3).read().decode()
+            return text if 'monitor_incidents_total{cause="stop"}' in text else None
+
+        text = wait_for(metrics, 10, "the incident counter", svc)
+        assert "monitor_recorder_recording 1.0" in text
+        assert svc.stop(signal.SIGTERM) == 0
+    assert "stop" in rows[0]["causes"].split(",") and rows[0]["state"] == "STOP"
+    clip = IncidentIndex(tmp_path / "incidents").clip_path(rows[0]["id"])
+    with av.open(str(clip)) as container:
+        frames = list(container.decode(container.streams.video[0]))
+    record = IncidentIndex(tmp_path / "incidents").get(rows[0]["id"]).record
+    assert len(frames) == record["clips"]["cam0"]["frames"] > \
+        record["clips"]["cam0"]["frames_before"] > 0

@@ -25,7 +25,7 @@ def incidents_key(status_key: str) -> str:
 
 def answer(index: IncidentIndex, parameters: dict[str, str], cell: str, status: dict) -> dict:
     def number(name: str, kind=float):
-        with contextlib.suppress(TypeError, ValueError):
+        with contextlib.suppress(KeyError, TypeError, ValueError):
             return kind(parameters[name])
         return None
 
