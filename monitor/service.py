@@ -533,10 +533,11 @@ class ServiceSink:
         if result.persons is not None:
             m.persons.set(len(result.persons))
         if self.recorder is not None:
-            rec = self.recorder.status()
-            m.recording.set(int(rec["recording"]))
-            m.recorder_dropped.set(rec["dropped_frames"])
-            self.bus.update_status(recorder=rec)
+            with contextlib.suppress(Exception):  # an extra's numbers never stop this sink
+                rec = self.recorder.status()
+                m.recording.set(int(rec["recording"]))
+                m.recorder_dropped.set(rec.get("dropped_frames", 0))
+                self.bus.update_status(recorder=rec)
 
     def close(self) -> None:
         pass

@@ -163,12 +163,19 @@ class IncidentRecorder:
                 self.on_alert(alert)
 
     def status(self) -> dict:
+        """Counters for the status queryable and Prometheus; safe from any thread."""
+        for _ in range(3):  # the worker may grow a dict while it is copied: copy again
+            with contextlib.suppress(RuntimeError):
+                return self._status()
+        return {"recording": self.stopped is None, "stopped": self.stopped}
+
+    def _status(self) -> dict:
         return {"recording": self.stopped is None, "stopped": self.stopped,
                 "data_dir": str(self.data_dir), "incidents": self.incidents,
                 "by_cause": dict(self.by_cause), "dropped_frames": self.dropped_frames,
                 "dropped_steps": self.dropped_steps, "queued": len(self._queue),
-                "ring_bytes": sum(r.bytes for r in self.rings.values()),
-                "ring_frames": sum(len(r) for r in self.rings.values())}
+                "ring_bytes": sum(r.bytes for r in list(self.rings.values())),
+                "ring_frames": sum(len(r) for r in list(self.rings.values()))}
 
     # --- the worker ----------------------------------------------------------------------------
 
