@@ -54,6 +54,9 @@ class ReplaySettings:
     tick_s: float = 0.05  # timers run every tick_s of video time between frames (service.tick_s)
     allow_no_protective: bool = False  # a zone file without an enabled protective zone
     self_test_period_s: float | None = None  # the detector self-test, in seconds of video
+    incidents_dir: Path | None = None  # record incidents there (monitor/incidents/)
+    recorder: object = None  # RecorderConfig of the incidents (None: its defaults)
+    config_hash: str = ""  # of the config file, recorded with each incident
 
 
 @dataclass
@@ -81,6 +84,7 @@ class ReplaySummary:
     video_codec: str | None = None  # codec of annotated.mp4
     final: str | None = None  # the last command, described honestly (latched, reset possible)
     outputs: dict[str, str] = field(default_factory=dict)
+    incidents: dict | None = None  # the recorder's status with --incidents
 
     def table(self) -> str:
         rows = [
@@ -106,6 +110,10 @@ class ReplaySummary:
             rows.append(("truncated", self.truncated))
         if self.interrupted:
             rows.append(("interrupted", self.interrupted))
+        if self.incidents is not None:
+            rec = self.incidents
+            rows.append(("incidents", f"{rec['incidents']} in {rec['data_dir']}" + (
+                f" (recording stopped: {rec['stopped']})" if rec["stopped"] else "")))
         width = max(len(k) for k, _ in rows)
         return "\n".join(f"{k:<{width}}  {v}" for k, v in rows)
 
@@ -458,6 +466,11 @@ def replay(video: str | Path, detector: Detector, cell: Cell | None, settings: R
     if publish is not None:
         sinks.append(CallbackSink(publish))
     sinks.append(ProgressSink(reader.frame_count, settings.progress))
+    # the recorder's own alert (recording stopped) goes into events.jsonl like any alert
+    recorder = _recorder(settings, camera_id, cell,
+                         lambda a: events._write(alert_event(a, counts.last_index, None)))
+    if recorder is not None:
+        sinks.append(recorder)
     driver = Driver(pipeline, sinks, self_test_period_s=settings.self_test_period_s)
     stop = stop or threading.Event()
     feed = VideoFeed(reader, settings.tick_s, settings.reset_at, settings.realtime, stop)
@@ -473,6 +486,8 @@ def replay(video: str | Path, detector: Detector, cell: Cell | None, settings: R
     counts.finish(fps)
     elapsed = time.perf_counter() - start
     summary.fps_achieved = round(summary.frames / elapsed, 2) if elapsed > 0 else 0.0
+    if recorder is not None:
+        summary.incidents = recorder.status()
     if reader.truncation is not None:
         summary.truncated = str(reader.truncation)
     if summary.frames == 0 and not stop.is_set():
@@ -483,6 +498,19 @@ def replay(video: str | Path, detector: Detector, cell: Cell | None, settings: R
         summary.video_codec = video_sink.codec
     (out / "summary.json").write_text(json.dumps(summary.__dict__, indent=2) + "\n")
     return summary
+
+
+def _recorder(settings: ReplaySettings, camera_id: str, cell: Cell | None, on_alert):
+    """The incident recorder of ``--incidents DIR`` (lossless: a replay waits for it)."""
+    if settings.incidents_dir is None:
+        return None
+    from monitor.incidents.recorder import IncidentRecorder
+    from monitor.incidents.settings import RecorderConfig
+
+    return IncidentRecorder(settings.recorder or RecorderConfig(enabled=True),
+                            settings.incidents_dir, [camera_id], cell, cell_id="replay",
+                            config_hash=settings.config_hash, on_alert=on_alert,
+                            lossless=True)
 
 
 def _check_reset_times(video: Path, reset_at: tuple[float, ...], frames: int,

@@ -14,6 +14,7 @@ itself longer than ``frame_timeout`` (process frozen) is a latched ``monitor_sta
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import logging
@@ -119,6 +120,12 @@ class Metrics:
         self.foreign_commands = Gauge(
             "monitor_commands_foreign", "commands on the command key not from this monitor "
             "(unsigned, wrongly signed, ...), ignored", ["kind"], registry=r)
+        self.incidents = Counter("monitor_incidents", "incidents recorded, per cause",
+                                 ["cause"], registry=r)
+        self.recording = Gauge("monitor_recorder_recording", "1 while incidents are recorded "
+                               "(0: stopped or off)", registry=r)
+        self.recorder_dropped = Gauge("monitor_recorder_dropped_frames", "frames the recorder "
+                                      "dropped to keep the safety loop at speed", registry=r)
         self.server = None
         if port:
             try:
@@ -265,6 +272,7 @@ def _run(config_path, log_json: bool, duration: float | None, signals: StopSigna
                                   cell.spec.separation.programmed_speed_mps,
                                   reaction_budget(config)))
     metrics = Metrics(config.service.metrics_port, config.service.metrics_host)
+    closers: list = []  # the recorder's, run after the bus's final STOP (bounded)
     try:
         with SafetyBus(bus_config_for(config, cell), alert_limits=config.alerts) as bus:
             forget = signals.on_force(lambda: bus.publish_command(shutdown_forced()))
@@ -279,11 +287,15 @@ def _run(config_path, log_json: bool, duration: float | None, signals: StopSigna
                 # the embedded demo's capacity only warns: a demonstration, not a cell
                 _serve(config, pipeline, bus, expected, metrics, stop, duration,
                        LatestFrameGrabber, SourceOptions, open_source, test_model,
-                       "warn" if config_path is None else config.service.capacity_check)
+                       "warn" if config_path is None else config.service.capacity_check,
+                       closers)
             finally:
                 forget()
             event("shutting down: final STOP published")
     finally:
+        for close in closers:
+            with contextlib.suppress(Exception):
+                close()
         metrics.close()
     event("stopped")
     return 0
@@ -296,12 +308,14 @@ def shutdown_forced() -> Command:
 
 def _serve(config: MonitorConfig, pipeline: Pipeline, bus: SafetyBus, expected: dict, metrics,
            stop: threading.Event, duration: float | None, grabber_cls, options_cls,
-           open_source, test_model: str | None = None, capacity_mode: str = "refuse") -> None:
+           open_source, test_model: str | None = None, capacity_mode: str = "refuse",
+           closers: list | None = None) -> None:
     pose = (bus.pose_subscriber(tracker_clock=config.tracker_clock)
             if config.policy.separation_monitoring else None)
     if pose is not None:
         pose.__enter__()
     grabbers: list = []
+    closers = closers if closers is not None else []
     try:
         for cam in config.cameras:
             if stop.is_set():
@@ -320,10 +334,19 @@ def _serve(config: MonitorConfig, pipeline: Pipeline, bus: SafetyBus, expected: 
                 event(f"capacity: {line}", logging.WARNING)
             bus.update_status(capacity=capacity.to_dict())
         sink = ServiceSink(bus, metrics, grabbers, notice=test_model)
+        recorder = None
+        if config.recorder.enabled:  # an optional extra: never a reason not to command
+            from monitor.incidents.live import start_recorder
+
+            recorder = start_recorder(config, pipeline.cell, bus, metrics, sink.alert, event)
+        if recorder is not None:
+            sink.recorder = recorder[0]
+            closers.append(recorder[1])
         feed = LiveFeed(grabbers, bus, pose, config.service.tick_s, stop, duration,
                         sink.alert, pipeline.prepared,
                         max_fps={c.id: c.max_fps for c in config.cameras})
-        driver = Driver(pipeline, [sink], stall_after_s=config.policy.frame_timeout,
+        sinks = [sink] if recorder is None else [sink, recorder[0]]  # the safety sink first
+        driver = Driver(pipeline, sinks, stall_after_s=config.policy.frame_timeout,
                         self_test_period_s=getattr(config.detector, "self_test_period_s", None))
         # cameras whose frames are ready together share one inference (dynamic-batch models)
         batch = config.detector.batch_cameras and len(grabbers) > 1 \
@@ -464,6 +487,7 @@ class ServiceSink:
         self.inference: deque[float] = deque(maxlen=30)
         self.last_status = -math.inf
         self.when = wall_clock()  # the policy's monotonic times as the operator's local time
+        self.recorder = None  # the incident recorder, for its status and gauges
 
     def on_step(self, step: Step) -> None:
         result = step.result
@@ -518,6 +542,12 @@ class ServiceSink:
             m.foreign_commands.labels(kind).set(n)
         if result.persons is not None:
             m.persons.set(len(result.persons))
+        if self.recorder is not None:
+            with contextlib.suppress(Exception):  # an extra's numbers never stop this sink
+                rec = self.recorder.status()
+                m.recording.set(int(rec["recording"]))
+                m.recorder_dropped.set(rec.get("dropped_frames", 0))
+                self.bus.update_status(recorder=rec)
 
     def close(self) -> None:
         pass

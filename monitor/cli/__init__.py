@@ -30,6 +30,7 @@ COMMAND_MODULES = (
     "monitor.cli.eval",
     "monitor.cli.init",
     "monitor.console.cli",
+    "monitor.cli.incidents",
 )
 DEBUG_HELP = "show the full traceback on errors (anywhere on the command line)"
 

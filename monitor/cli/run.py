@@ -73,6 +73,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     rp.add_argument("--allow-no-protective", action="store_true",
                     help="accept a zone file without an enabled protective zone (default: "
                     "refuse it; also [zones] allow_no_protective in --config)")
+    rp.add_argument("--incidents", type=Path, metavar="DIR",
+                    help="record incidents (clips, index) into DIR with the [recorder] settings "
+                    "of --config (default: no recording)")
     rp.set_defaults(func=cmd_replay)
 
     demo = subparsers.add_parser(
@@ -113,10 +116,11 @@ def do_replay(video: Path, zones: Path | None, model: Path | None, config_path: 
               out: Path, camera: str | None = None, realtime: bool = False,
               publish: bool = False, reset_at: tuple[float, ...] = (),
               reference: Path | None = None, annotate: bool = True, stop=None,
-              allow_no_protective: bool = False):
+              allow_no_protective: bool = False, incidents: Path | None = None):
     from monitor.config import load_config
     from monitor.detector import Detector
     from monitor.driver import require_protective_zone
+    from monitor.incidents.settings import config_hash
     from monitor.replay import ReplaySettings, replay
     from monitor.zones import load_cell
     from monitor.zones.cameras import choose_camera
@@ -137,7 +141,9 @@ def do_replay(video: Path, zones: Path | None, model: Path | None, config_path: 
                               health=config.health, reference=_load_reference(reference),
                               tick_s=config.service.tick_s, allow_no_protective=allow,
                               self_test_period_s=getattr(config.detector, "self_test_period_s",
-                                                         None))
+                                                         None),
+                              incidents_dir=incidents, recorder=config.recorder,
+                              config_hash=config_hash(config_path))
     if not publish:
         return replay(video, detector, cell, settings, stop=stop)
     from monitor.bus import SafetyBus
@@ -172,7 +178,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
         summary = do_replay(args.video, args.zones, args.model, args.config, args.out,
                             args.camera, args.realtime, args.publish, reset_at, args.reference,
                             not args.no_video, stop=signals.stop,
-                            allow_no_protective=args.allow_no_protective)
+                            allow_no_protective=args.allow_no_protective,
+                            incidents=args.incidents)
         _report(summary, args.out, not args.no_video)
         if summary.interrupted:
             print(f"monitor: interrupted {summary.interrupted}: partial outputs finished in "
