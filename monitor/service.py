@@ -396,8 +396,13 @@ class LiveFeed:
             return None
         grabber = self.grabbers[self.turn % len(self.grabbers)]
         self.turn += 1
+        if not self._due(grabber.camera_id):  # [camera] max_fps: this camera waits its turn
+            self.stop.wait(self.wait)
+            return None, time.monotonic()
         frame = grabber.get(timeout=self.wait)
-        if frame is None and not grabber.alive:  # the source ended: get() no longer waits
+        if frame is not None:
+            self.last_taken[grabber.camera_id] = time.monotonic()
+        elif not grabber.alive:  # the source ended: get() no longer waits
             self.stop.wait(self.wait)
         return frame, time.monotonic()
 

@@ -124,3 +124,32 @@ def test_monitor_run_refuses_a_config_the_host_cannot_serve_and_starts_with_lowe
     started = run_monitor("run", "--config", config, "--duration", "3")
     assert started.returncode == 0, started.stderr[-2000:]
     assert "capacity: " in started.stderr and "cam3 1.0 fps" in started.stderr
+
+
+@pytest.mark.parametrize("batch", [False, True], ids=["in-turn", "batched"])
+def test_max_fps_caps_how_often_the_service_takes_a_camera(batch):
+    """The capacity check counts on [camera] max_fps: the live feed must honour it, one camera
+    (in turn) or several (batched), with a real grabber on the demo scene (15 fps)."""
+    import threading
+    import time
+
+    from monitor.frames import LatestFrameGrabber, open_source
+    from monitor.service import LiveFeed
+
+    stop = threading.Event()
+    grabber = LatestFrameGrabber(open_source("synthetic:demo", "cam0", realtime=True),
+                                 stop=stop).start()
+    try:
+        feed = LiveFeed([grabber], None, None, 0.05, stop, 3.0, alert=None,
+                        max_fps={"cam0": 2.0})
+        times = []
+        while (item := (feed.next_batch() if batch else feed.next())) is not None:
+            got, now = item
+            frames = got if batch else ([got] if got is not None else [])
+            times += [now] * len(frames)
+    finally:
+        stop.set()
+        grabber.stop(timeout=1.0)
+    assert 3 <= len(times) <= 7, times  # ~2 a second for 3 s, not the scene's 15
+    gaps = [b - a for a, b in zip(times, times[1:], strict=False)]
+    assert min(gaps) >= 0.5 - 0.02
