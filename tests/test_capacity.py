@@ -130,8 +130,8 @@ def test_monitor_run_refuses_a_config_the_host_cannot_serve_and_starts_with_lowe
 def test_max_fps_caps_how_often_the_service_takes_a_camera(batch):
     """The capacity check counts on [camera] max_fps: the live feed must honour it, one camera
     (in turn) or several (batched), with a real grabber on the demo scene (15 fps)."""
+    import itertools
     import threading
-    import time
 
     from monitor.frames import LatestFrameGrabber, open_source
     from monitor.service import LiveFeed
@@ -151,5 +151,5 @@ def test_max_fps_caps_how_often_the_service_takes_a_camera(batch):
         stop.set()
         grabber.stop(timeout=1.0)
     assert 3 <= len(times) <= 7, times  # ~2 a second for 3 s, not the scene's 15
-    gaps = [b - a for a, b in zip(times, times[1:], strict=False)]
+    gaps = [b - a for a, b in itertools.pairwise(times)]
     assert min(gaps) >= 0.5 - 0.02
