@@ -153,7 +153,6 @@ def _slow_video(path: Path, fps: float = 1.0, frames: int = 4) -> Path:
     return path
 
 
-@pytest.mark.slow
 def test_run_alerts_at_start_when_measured_budget_exceeds_tr(tmp_path, synthetic_model):
     """T_r from a tight config (0.3 + 0.3 + 0.05 + ttl 0.3 + consumer 0 + pose 0.05 = 1.0 s),
     a camera that delivers one frame a second: the measured budget is at least 1 s of frame
@@ -206,3 +205,43 @@ def test_run_alerts_at_start_when_measured_budget_exceeds_tr(tmp_path, synthetic
     finally:
         mon.close()
         session.close()
+
+
+# ------------------------------------------------------------------ int8 hint at start
+
+
+def test_int8_hint_recommends_only_a_checked_file(tmp_path, synthetic_model, detector):
+    """A file beside the model named like its int8 build (here a copy of the fp32 model: the
+    timing is real onnxruntime either way): recommended only with a record of a passed check
+    for exactly this file."""
+    import shutil
+
+    from monitor.detector import Detector
+    from monitor.int8hint import check_passed, int8_hint, record_path, write_record
+    from monitor.quantize import Agreement
+
+    model = tmp_path / "m.onnx"
+    int8 = tmp_path / "m.int8.onnx"
+    shutil.copy(synthetic_model, model)
+
+    def hint():
+        return int8_hint(model, detector.detect, lambda p: Detector(p).detect, (640, 360))
+
+    assert hint() is None  # no int8 beside it: nothing to say
+    shutil.copy(synthetic_model, int8)
+    h = hint()
+    assert not h.passed and "no record" in h.message() and "consider" not in h.message()
+    agreement = Agreement(22, 46, 46, 46, 1.0, 1.0, 90.0, 50.0)
+    write_record(int8, agreement, 0.98, passed=False)  # written with --force
+    assert not hint().passed
+    write_record(int8, agreement, 0.98, passed=True)
+    h = hint()
+    assert h.passed and h.fp32_ms > 0 and h.int8_ms > 0
+    assert f'consider [model] path = "{int8}"' in h.message()
+    assert h.to_dict()["recommended"] is True
+    with int8.open("ab") as fh:  # replaced since its check
+        fh.write(b"\0")
+    passed, why = check_passed(int8)
+    assert not passed and "changed" in why
+    assert record_path(int8).is_file()
+    assert int8_hint(int8, detector.detect, lambda p: Detector(p).detect, (64, 64)) is None
