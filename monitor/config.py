@@ -3,7 +3,8 @@
 One schema (monitor/schema.py): ``MonitorConfig`` is the root, and each section is the frozen
 pydantic dataclass of its stage (``[policy]`` -> PolicyConfig, ``[health]`` -> HealthConfig,
 ``[bus]`` -> BusConfig, ``[detector]`` -> DetectorConfig, ``[alerts]`` -> AlertLimits,
-``[tracker_clock]`` -> TrackerClockConfig, ``[recorder]`` -> RecorderConfig, and the camera,
+``[tracker_clock]`` -> TrackerClockConfig, ``[recorder]`` -> RecorderConfig, ``[reaction]`` ->
+ReactionConfig, and the camera,
 model, zones and service sections here). Unknown sections and keys are refused, types
 and bounds are in the fields' annotations, cross-field rules are validators, and path fields
 resolve against the config file's folder. Validation has no side effects: nothing is opened,
@@ -36,6 +37,7 @@ from monitor.health import HealthConfig
 from monitor.incidents.settings import RecorderConfig
 from monitor.policy import PolicyConfig
 from monitor.pose_time import TrackerClockConfig
+from monitor.reaction import ReactionConfig
 from monitor.schema import Bool, ConfigPath, Float, Int, Text, describe, section
 
 DEMO_SOURCE = "synthetic:demo"
@@ -124,6 +126,7 @@ class MonitorConfig:
     alerts: AlertLimits = field(default_factory=AlertLimits)
     service: ServiceConfig = field(default_factory=ServiceConfig)
     recorder: RecorderConfig = field(default_factory=RecorderConfig)
+    reaction: ReactionConfig = field(default_factory=ReactionConfig)
     source_file: Text | None = None
 
     @model_validator(mode="after")
@@ -141,12 +144,12 @@ class MonitorConfig:
 
 
 SECTIONS = ("camera", "model", "zones", "detector", "policy", "tracker_clock", "health", "bus",
-            "alerts", "service", "recorder")
+            "alerts", "service", "recorder", "reaction")
 _CLASSES = {"camera": CameraConfig, "model": ModelConfig, "zones": ZonesConfig,
             "detector": DetectorConfig, "policy": PolicyConfig,
             "tracker_clock": TrackerClockConfig, "health": HealthConfig,
             "bus": BusConfig, "alerts": AlertLimits, "service": ServiceConfig,
-            "recorder": RecorderConfig}
+            "recorder": RecorderConfig, "reaction": ReactionConfig}
 
 
 def section_keys(name: str) -> list[str]:

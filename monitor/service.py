@@ -43,6 +43,13 @@ from monitor.geometry import ReactionBudget, describe_separation
 from monitor.health import LOST
 from monitor.pipeline import Pipeline, StepResult
 from monitor.policy import STOP, Command, Reason
+from monitor.reaction import (
+    Allowances,
+    MeasuredBudget,
+    ReactionSink,
+    ReactionWatch,
+    at_start,
+)
 from monitor.resets import LatchNonces
 from monitor.signals import StopSignals
 from monitor.timetext import TimeText, wall_clock
@@ -220,8 +227,57 @@ def reaction_budget(config: MonitorConfig) -> ReactionBudget:
                           max_frame_age_s=policy.max_frame_age,
                           processing_s=config.service.tick_s,
                           command_ttl_s=config.bus.ttl_ms / 1000.0,
-                          consumer_reaction_s=0.05,
+                          consumer_reaction_s=config.reaction.consumer_reaction_ms / 1000.0,
                           pose_age_s=policy.pose_timeout)
+
+
+def int8_at_start(config: MonitorConfig, detector, expected: dict, stopped):
+    """The int8 model beside the configured one, timed against it here (monitor/int8hint.py);
+    None without one. Never switches the model."""
+    from monitor.detector import Detector
+    from monitor.errors import MonitorError
+    from monitor.int8hint import int8_hint
+
+    size = max((expected.get(c.id) or (1920, 1080) for c in config.cameras),
+               key=lambda s: s[0] * s[1])
+    try:
+        return int8_hint(detector.model_path, detector.detect,
+                         lambda path: Detector(path, config.detector).detect, size, stopped)
+    except MonitorError as exc:  # an unusable int8 file is no reason not to start
+        event(f"int8 model beside the model not usable: {exc}", logging.WARNING)
+        return None
+
+
+def reaction_sink(config: MonitorConfig, pipeline: Pipeline, capacity, bus: SafetyBus,
+                  metrics: Metrics, alert) -> ReactionSink:
+    """The measured reaction budget (monitor/reaction.py) against the T_r that S_p was
+    computed with (without separation monitoring: this configuration's T_r, and a warning
+    only): judged at start from the capacity check's figures (log, alert, status), then live
+    from the steps."""
+    separation = (pipeline.prepared.separation if config.policy.separation_monitoring
+                  and pipeline.prepared is not None else None)
+    configured = (separation.reaction_time_s if separation is not None
+                  else reaction_budget(config).total_s())
+    speed = (pipeline.prepared.cell.spec.separation.programmed_speed_mps
+             if separation is not None else None)
+    allowances = Allowances(
+        bus_hop_s=config.reaction.bus_hop_ms / 1000.0, command_ttl_s=config.bus.ttl_ms / 1000.0,
+        consumer_reaction_s=config.reaction.consumer_reaction_ms / 1000.0,
+        pose_age_s=config.policy.pose_timeout if separation is not None else 0.0)
+    watch = ReactionWatch(configured, config.reaction.alert_repeat_s, separation, speed,
+                          "critical" if separation is not None else "warning")
+    verdicts: dict = {}
+    if capacity is not None:
+        start = at_start(capacity.frame_s, capacity.processed_fps, capacity.frame_age_s,
+                         allowances)
+        verdicts, alerts = watch.update(start, time.monotonic())
+        for v in verdicts.values():
+            event(f"reaction budget{' EXCEEDED' if v.exceeded else ''}: {v.message}",
+                  logging.ERROR if v.exceeded else logging.INFO)
+        for a in alerts:
+            alert(a)
+    return ReactionSink(MeasuredBudget(allowances), watch, alert, bus.update_status,
+                        metrics.registry, config.reaction.check_period_s, verdicts)
 
 
 def run_service(config_path: str | Path | None, log_json: bool = False,
@@ -333,6 +389,10 @@ def _serve(config: MonitorConfig, pipeline: Pipeline, bus: SafetyBus, expected: 
             for line in capacity.warnings:
                 event(f"capacity: {line}", logging.WARNING)
             bus.update_status(capacity=capacity.to_dict())
+            int8 = int8_at_start(config, pipeline.detector, expected, stop.is_set)
+            if int8 is not None:
+                event(int8.message())
+                bus.update_status(int8=int8.to_dict())
         sink = ServiceSink(bus, metrics, grabbers, notice=test_model)
         recorder = None
         if config.recorder.enabled:  # an optional extra: never a reason not to command
@@ -345,7 +405,10 @@ def _serve(config: MonitorConfig, pipeline: Pipeline, bus: SafetyBus, expected: 
         feed = LiveFeed(grabbers, bus, pose, config.service.tick_s, stop, duration,
                         sink.alert, pipeline.prepared,
                         max_fps={c.id: c.max_fps for c in config.cameras})
-        sinks = [sink] if recorder is None else [sink, recorder[0]]  # the safety sink first
+        # after the service's sink: the command of a step is published when it times it
+        reaction = reaction_sink(config, pipeline, capacity, bus, metrics, sink.alert)
+        # the safety sink first; the recorder (an optional extra) last
+        sinks = [sink, reaction] if recorder is None else [sink, reaction, recorder[0]]
         driver = Driver(pipeline, sinks, stall_after_s=config.policy.frame_timeout,
                         self_test_period_s=getattr(config.detector, "self_test_period_s", None))
         # cameras whose frames are ready together share one inference (dynamic-batch models)

@@ -94,6 +94,14 @@ def test_cli_refuses_below_the_agreement_threshold_then_writes(tmp_path, model25
     assert proc.returncode == 0, proc.stderr
     assert out.is_file() and f"wrote {out}" in proc.stdout
     assert re.search(r"^fp32 only \(int8 misses\) +0$", proc.stdout, re.M), proc.stdout
+    # the passed check is recorded beside it: monitor run recommends only such a file
+    from monitor.int8hint import check_passed
+
+    assert check_passed(out)[0], check_passed(out)[1]
+    proc = run("model", "quantize", model256, "--frames", frames_dir, "--out", out,
+               "--min-agreement", "1.01", "--force")
+    assert proc.returncode == 0, proc.stderr
+    assert not check_passed(out)[0] and "--force" in check_passed(out)[1]
 
 
 def test_head_nodes_are_the_last_convolutions_and_after(model256):

@@ -109,6 +109,9 @@ def build_int8(fp32: Path, steps=None):
         staged.unlink(missing_ok=True)
         raise quantize.QuantizeRefused(f"int8 synthetic model not written: {why}")
     staged.replace(out)
+    from monitor.int8hint import write_record
+
+    write_record(out, agreement, 0.98, True)  # monitor run recommends only a checked int8
     if steps:
         steps.done()
     return out, agreement
@@ -208,6 +211,10 @@ def cmd_quantize(args: argparse.Namespace) -> int:
         if why and not args.force:
             raise quantize.QuantizeRefused(f"int8 model not written: {why} (--force writes it)")
         staged.replace(out)
+        from monitor.int8hint import write_record
+
+        # monitor run recommends only an int8 whose check passed (a forced one: never)
+        write_record(out, agreement, args.min_agreement, why is None)
     finally:
         steps.close()
         staged.unlink(missing_ok=True)
