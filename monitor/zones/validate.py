@@ -98,6 +98,8 @@ def _locate(loc: list, data: dict) -> tuple[str, list]:
         rest = loc[2:]
         if loc[0] == "zones" and rest and rest[0] == item.get("shape"):
             rest = rest[1:]
+        if loc[0] == "zones" and rest[:2] == ["follow", "max_volume"] and len(rest) > 2:
+            rest = [*rest[:2], *rest[3:]]  # the shape's union tag pydantic inserts
         if loc[0] == "cameras" and len(rest) >= 2 and rest[0] == "calibration":
             cal = item.get("calibration")
             if isinstance(cal, dict) and rest[1] == cal.get("type"):
