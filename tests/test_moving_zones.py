@@ -352,3 +352,31 @@ def test_tool_state_at_measures_the_age_on_the_callers_clock():
     assert s.fresh and s.age_s == pytest.approx(0.05)
     assert not dataclasses.replace(s, age_s=0.2).fresh
     assert not ToolState.at(10.0, pose(0, 0), None, 0.1, 0.2).fresh
+
+
+# ---------------------------------------------------------------------------- mesh zones
+
+@pytest.mark.parametrize("tool_at, inside", [
+    ((-1.0, -2.0), True),  # the person wholly inside the moved mesh: no surface contact
+    ((-1.0, -2.0 + 2.5), False),  # moved 2.5 m along y: it misses them
+])
+def test_a_following_mesh_zone_moves_and_contains(tmp_path, tool_at, inside):
+    """A closed 3 x 3 x 4 m mesh in the tool frame, centred 1 m below the tool: at a pose over
+    the person it contains their whole cylinder (FCL sees no surface contact: the containment
+    test must catch it); moved 2.5 m away it misses them."""
+    import shutil
+
+    import trimesh
+
+    mesh = trimesh.creation.box(extents=(3.0, 3.0, 4.0))
+    mesh.apply_translation((0.0, 0.0, -1.0))
+    data = zn.read_cell_data(demo_cell_path())
+    folder = tmp_path / "cell"
+    folder.mkdir()
+    mesh.export(folder / "reach.stl")
+    shutil.copy(demo_cell_path(), folder / "cell.yaml")
+    data["zones"] = [following({"shape": "mesh", "file": "reach.stl"})]
+    cell = zn.parse_cell(data, folder / "cell.yaml")
+    rep = zn.check_persons(cell, "cam0", floor_box(cell, *PERSON),
+                           tool_state=fresh(pose(*tool_at, 1.5)))
+    assert ("tool-zone" in hit_ids(rep)) is inside
