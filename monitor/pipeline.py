@@ -39,6 +39,7 @@ from monitor.tracks import Hold, PersonTracker, TrackerConfig
 from monitor.types import Alert, Fault, FrameInfo, Persons, ZoneReport
 from monitor.zones import Cell, check_persons, merge_towards_danger
 from monitor.zones.masks import MaskRule
+from monitor.zones.moving import ToolState
 
 log = logging.getLogger(__name__)
 
@@ -174,7 +175,8 @@ class Pipeline:
         model = self.cell.camera_models.get(camera_id) if self.cell is not None else None
         return model.pixel_to_floor if model is not None else None
 
-    def _zones_of(self, frame: FrameInfo, tool_pose, tool_speed_mps):
+    def _zones_of(self, frame: FrameInfo, tool_pose, tool_speed_mps,
+                  tool_state: ToolState | None = None):
         """The zone check for other boxes of this frame's camera (a lost person's path)."""
         if self.prepared is None:
             return None
@@ -182,8 +184,17 @@ class Pipeline:
 
         def zones_of(boxes_px: np.ndarray) -> ZoneReport:
             return check_persons(self.prepared, frame.camera_id, boxes_px, tool_pose,
-                                 tool_speed_mps, foot)
+                                 tool_speed_mps, foot, tool_state=tool_state)
         return zones_of
+
+    def _tool(self, now: float, tool_pose, tool_speed_mps: float | None,
+              pose_time: float | None) -> tuple[object, ToolState]:
+        """The pose the separation uses (only with separation monitoring on: a pose fed for
+        zones that follow the tool must not switch it on) and the tool state the following
+        zones use (the pose with its age against ``policy.pose_timeout``)."""
+        state = ToolState.at(now, tool_pose, pose_time, self.policy.pose_timeout,
+                             tool_speed_mps)
+        return (tool_pose if self.policy.separation_monitoring else None), state
 
     def mask_rule(self, frame: FrameInfo) -> MaskRule | None:
         """The mask rule of the frame's camera at its size (None: no mask zones)."""
@@ -299,11 +310,13 @@ class Pipeline:
                                     "detector"))
         t1 = time.perf_counter()
         report = None
+        tool_pose, tool_state = self._tool(now, tool_pose, tool_speed_mps, pose_time)
         if self.prepared is not None and detector_error is None:
             try:
                 report = check_persons(
                     self.prepared, frame.camera_id, persons.boxes_px, tool_pose, tool_speed_mps,
-                    self.detector.foot_uncertainty_px(frame.width, frame.height))
+                    self.detector.foot_uncertainty_px(frame.width, frame.height),
+                    tool_state=tool_state)
             except Exception as exc:  # the zone answer is unknown: fail towards STOP
                 faults.append(Fault("zone_check_error", _one_line(exc), True, "zones"))
         elif detector_error is None:
@@ -313,7 +326,8 @@ class Pipeline:
             try:
                 update = cam.tracker.update(persons, report, frame.capture_time,
                                             (frame.width, frame.height),
-                                            self._zones_of(frame, tool_pose, tool_speed_mps))
+                                            self._zones_of(frame, tool_pose, tool_speed_mps,
+                                                           tool_state))
                 report, track_ids = update.report, update.track_ids
                 for hold in update.started:
                     log.info("%s: %s", frame.camera_id, hold.describe())

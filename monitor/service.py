@@ -200,8 +200,10 @@ def build_pipeline(config: MonitorConfig):
     test_model = require_real_model(detector.test_model, config.cameras,
                                     config.model.allow_test_model)
     pipeline = Pipeline(detector, [c.id for c in config.cameras], config.policy, cell, health)
-    if config.policy.separation_monitoring:
-        # T_r is never smaller than the delays this configuration lets pass (ISO/TS 15066)
+    if config.policy.separation_monitoring or (
+            pipeline.prepared is not None and pipeline.prepared.moving):
+        # T_r is never smaller than the delays this configuration lets pass (ISO/TS 15066);
+        # zones that grow with the tool speed use S_p too
         pipeline.prepared = with_reaction_time(pipeline.prepared, reaction_budget(config))
     return pipeline, cell, expected, test_model
 
@@ -366,8 +368,10 @@ def _serve(config: MonitorConfig, pipeline: Pipeline, bus: SafetyBus, expected: 
            stop: threading.Event, duration: float | None, grabber_cls, options_cls,
            open_source, test_model: str | None = None, capacity_mode: str = "refuse",
            closers: list | None = None) -> None:
+    # zones that follow the tool need the pose too (without it they stay at their maximum)
+    following = pipeline.prepared is not None and bool(pipeline.prepared.moving)
     pose = (bus.pose_subscriber(tracker_clock=config.tracker_clock)
-            if config.policy.separation_monitoring else None)
+            if config.policy.separation_monitoring or following else None)
     if pose is not None:
         pose.__enter__()
     grabbers: list = []

@@ -110,6 +110,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    "when it has several)")
     p.add_argument("--hit", action="append", default=[], metavar="ID",
                    help="draw this zone as hit (repeatable)")
+    p.add_argument("--tool-pose", type=tool_pose_arg, metavar="X,Y,Z,ROLL,PITCH,YAW",
+                   help="draw the zones that follow the tool at this tracker pose (metres in "
+                   "the tracker's frame, degrees about fixed x, y, z), not grown (default: "
+                   "none, they are drawn at their max_volume, as a stale pose makes them)")
     p.set_defaults(func=cmd_preview)
 
     p = sub.add_parser("hash", help="print the config hash of the active zone set")
@@ -454,12 +458,15 @@ def cmd_validate(args: argparse.Namespace) -> int:
 def _print_coverage(cell: zn.Cell, label: object) -> None:
     """What the cameras see of each protective and warning volume (monitor/zones/coverage.py)."""
     from monitor.zones.coverage import zone_coverage
+    from monitor.zones.moving import follows_tool, max_zone
 
     if not cell.camera_models:
         return
     top = cell.spec.person.height_range_m[1]
     for z in cell.zones:
         if z.is_volume and z.enabled and z.kind in ("protective", "warning"):
+            if follows_tool(z):  # it may be anywhere in its maximum volume
+                z = max_zone(z)
             c = zone_coverage(z, cell.spec, cell.camera_models, cell.meshes)
             print(f"{label}: zone '{z.id}': seen by a camera: "
                   f"{math.floor(100 * (1 - c.unseen_floor_fraction)):d} % of its floor "
@@ -580,6 +587,19 @@ def _solve_pnp(pairs: np.ndarray, k: Any, dist: list, args: argparse.Namespace
     return cal, errors
 
 
+def tool_pose_arg(text: str) -> geo.ToolPose:
+    """argparse type: 'x,y,z,roll,pitch,yaw' (metres, degrees) as a tracker pose."""
+    try:
+        v = [float(p) for p in text.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not six numbers: {text!r}") from None
+    if len(v) != 6 or not all(math.isfinite(x) for x in v):
+        raise argparse.ArgumentTypeError(f"needs six finite numbers x,y,z,roll,pitch,yaw "
+                                         f"(metres, degrees), got {text!r}")
+    q = geo.matrix_to_quaternion_xyzw(geo.rpy_to_matrix(*v[3:]))
+    return geo.ToolPose((v[0], v[1], v[2]), q, 0.0)
+
+
 def cmd_preview(args: argparse.Namespace) -> int:
     cell = zn.load_cell(args.file)
     camera = choose_camera(cell.cameras, args.camera, str(args.file),
@@ -590,7 +610,8 @@ def cmd_preview(args: argparse.Namespace) -> int:
     unknown = [h for h in args.hit if h not in {z.id for z in cell.zones}]
     if unknown:
         raise ConfigError(f"{args.file}: no zone '{unknown[0]}'")
-    out = zn.draw_zones(frame, cell, camera, hit_zone_ids=args.hit, legend=True)
+    out = zn.draw_zones(frame, cell, camera, hit_zone_ids=args.hit, legend=True,
+                        tool_pose=args.tool_pose)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     if not cv2.imwrite(str(args.out), out):
         raise InputError(f"{args.out}: cannot write image")

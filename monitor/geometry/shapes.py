@@ -32,12 +32,18 @@ def fcl_prism_parts(points_m: np.ndarray, z_min_m: float, z_max_m: float
                     ) -> list[fcl.CollisionObject]:
     """A floor polygon extruded from z_min to z_max as convex fcl solids (one when the polygon
     is convex, else one triangular prism per ear), so that containment counts as overlap."""
+    return [fcl.CollisionObject(g, fcl.Transform())
+            for g in prism_geometries(points_m, z_min_m, z_max_m)]
+
+
+def prism_geometries(points_m: np.ndarray, z_min_m: float, z_max_m: float) -> list[fcl.Convex]:
+    """The convex solids of ``fcl_prism_parts`` as geometries (in the polygon's own frame), for
+    volumes that are placed anew at every step (zones that follow the tool)."""
     p = np.asarray(points_m, dtype=float)
     if polygon_signed_area(p) < 0:
         p = p[::-1]
     pieces = [p] if is_convex(p) else [p[t] for t in triangulate_polygon(p)]
-    return [fcl.CollisionObject(_convex_prism(q, z_min_m, z_max_m), fcl.Transform())
-            for q in pieces]
+    return [_convex_prism(q, z_min_m, z_max_m) for q in pieces]
 
 
 def _convex_prism(poly: np.ndarray, z0: float, z1: float) -> fcl.Convex:

@@ -12,6 +12,7 @@ from monitor import occlusion as occ
 from monitor.errors import ConfigError, InputError
 from monitor.types import ZoneHit, ZoneReport
 from monitor.zones.files import Cell
+from monitor.zones.moving import ToolState
 from monitor.zones.prepare import PreparedCell, _Volume, tool_object
 from monitor.zones.separation import evaluate_separation, pose_in_cell
 
@@ -23,7 +24,8 @@ def check_persons(cell: Cell | PreparedCell, camera_id: str, boxes_px: np.ndarra
                   tool_pose: geo.ToolPose | None = None,
                   tool_speed_mps: float | None = None,
                   foot_uncertainty_px: float = 0.0,
-                  foot_band_px: tuple[float, float] | None = None) -> ZoneReport:
+                  foot_band_px: tuple[float, float] | None = None,
+                  tool_state: ToolState | None = None) -> ZoneReport:
     """Which persons of one frame are in which zones, and how far the nearest is from the tool.
 
     ``boxes_px`` is (N, 4) x1, y1, x2, y2 in pixels of ``camera_id`` at full resolution.
@@ -42,6 +44,10 @@ def check_persons(cell: Cell | PreparedCell, camera_id: str, boxes_px: np.ndarra
     (feet range reaching the horizon) hits every protective and warning volume zone with
     ``distance_m`` None and counts as touching the tool (fail safe).
 
+    Zones that follow the tool (``follow:``) are placed by ``tool_state`` (the pose, its age,
+    the pose timeout and the speed): at a fresh pose, grown by S_p at that speed; without a
+    fresh pose (``tool_state`` None included) at their ``max_volume`` (monitor/zones/moving.py).
+
     Mask zones are not applied here: masking happens before boxes are merged (the pipeline's
     rule), so ``masked`` stays empty.
 
@@ -55,7 +61,7 @@ def check_persons(cell: Cell | PreparedCell, camera_id: str, boxes_px: np.ndarra
     """
     prep = cell if isinstance(cell, PreparedCell) else cell.prepared
     band = foot_band_px if foot_band_px is not None else (0.0, max(foot_uncertainty_px, 0.0))
-    return _check(prep, camera_id, boxes_px, tool_pose, tool_speed_mps, band)
+    return _check(prep, camera_id, boxes_px, tool_pose, tool_speed_mps, band, tool_state)
 
 
 def merge_towards_danger(a: ZoneReport, b: ZoneReport) -> ZoneReport:
@@ -99,7 +105,8 @@ _DREQ = fcl.DistanceRequest()
 
 def _check(prep: PreparedCell, camera_id: str, boxes_px: np.ndarray,
            tool_pose: geo.ToolPose | None, tool_speed_mps: float | None,
-           band_px: tuple[float, float] = (0.0, 0.0)) -> ZoneReport:
+           band_px: tuple[float, float] = (0.0, 0.0),
+           tool_state: ToolState | None = None) -> ZoneReport:
     cell = prep.cell
     tool_pose = pose_in_cell(prep, tool_pose)  # tracker frame -> cell (zone file tracker_frame)
     if camera_id not in cell.cameras:
@@ -127,6 +134,10 @@ def _check(prep: PreparedCell, camera_id: str, boxes_px: np.ndarray,
 
     if place is not None and prep.volumes:
         hits.extend(_volume_hits(prep, place))
+    if place is not None and prep.moving:  # zones that follow the tool (monitor/zones/moving.py)
+        from monitor.zones.moving_check import moving_hits  # it uses this module: late
+
+        hits.extend(moving_hits(prep, place, tool_state))
 
     def measure() -> float | None:
         if place is None or not len(place.located):

@@ -31,6 +31,7 @@ import numpy as np
 
 from monitor import geometry as geo
 from monitor.occlusion import camera_centre_m, points_in_volume, standable
+from monitor.zones.moving import follows_tool, max_zone
 from monitor.zones.schema import CellSpec
 
 FLOOR_STEP_M = 0.1  # floor sample spacing (one sample stands for STEP² of floor)
@@ -264,6 +265,8 @@ def coverage_faults(spec: CellSpec, models: Mapping[str, geo.CameraModel],
     for z in spec.zones:
         if not (z.is_volume and z.enabled and z.kind in ("protective", "warning")):
             continue
+        if follows_tool(z):  # it may be anywhere in its maximum volume
+            z = max_zone(z)
         try:
             cov = zone_coverage(z, spec, models, meshes)
         except ValueError as exc:

@@ -14,6 +14,7 @@ from monitor import geometry as geo
 from monitor.errors import ConfigError
 from monitor.zones.files import Cell
 from monitor.zones.labels import Rect, place_labels
+from monitor.zones.moving import cell_from_zone, follows_tool, max_zone, transform_points
 from monitor.zones.schema import (
     BoxZone,
     CameraSpec,
@@ -143,13 +144,15 @@ FLOOR_BGR = (80, 160, 60)  # raised or sunken floor regions (zone file floors:)
 
 
 def draw_zones(frame_bgr: np.ndarray, cell: Cell, camera_id: str,
-               hit_zone_ids: Iterable[str] = (), legend: bool = False) -> np.ndarray:
+               hit_zone_ids: Iterable[str] = (), legend: bool = False,
+               tool_pose: geo.ToolPose | None = None) -> np.ndarray:
     """A copy of the frame with the camera's zones drawn and labelled (see
     ``draw_zones_labelled``); ``legend``: with the colour legend in the top-right corner."""
     reserved: list[Rect] = []
     if legend:
         reserved.append(legend_rect(frame_bgr.shape[1], LEGEND_TOP_PX))
-    img, _ = draw_zones_labelled(frame_bgr, cell, camera_id, hit_zone_ids, reserved)
+    img, _ = draw_zones_labelled(frame_bgr, cell, camera_id, hit_zone_ids, reserved,
+                                 tool_pose)
     if legend:
         draw_legend(img, LEGEND_TOP_PX)
     return img
@@ -165,7 +168,8 @@ class ZoneLabel:
 
 
 def draw_zones_labelled(frame_bgr: np.ndarray, cell: Cell, camera_id: str,
-                        hit_zone_ids: Iterable[str] = (), reserved: Sequence[Rect] = ()
+                        hit_zone_ids: Iterable[str] = (), reserved: Sequence[Rect] = (),
+                        tool_pose: geo.ToolPose | None = None
                         ) -> tuple[np.ndarray, list[ZoneLabel]]:
     """A copy of the frame with the camera's zones drawn and labelled, and the labels drawn.
 
@@ -174,7 +178,8 @@ def draw_zones_labelled(frame_bgr: np.ndarray, cell: Cell, camera_id: str,
     as their standing surface, labelled with its height. Zones in ``hit_zone_ids`` are drawn
     thicker and labelled HIT. Labels never overlap each other nor ``reserved`` rectangles
     (``monitor.zones.labels``): the most important zones' labels are placed first. A frame of
-    another size than the camera is drawn scaled.
+    another size than the camera is drawn scaled. Zones that follow the tool are drawn at
+    ``tool_pose`` (a tracker pose, not grown), or at their maximum volume without one.
     """
     cam = cell.cameras.get(camera_id)
     if cam is None:
@@ -202,10 +207,19 @@ def draw_zones_labelled(frame_bgr: np.ndarray, cell: Cell, camera_id: str,
             cv2.fillPoly(fills, [_i32(poly)], colour, lineType=cv2.LINE_AA, shift=4)
             outlines.append(([poly], colour, thick, z.id))
         elif model is not None:
-            lines = [ln * scale for ln in _project_lines(model, volume_outline_m(z, cell))]
+            shape, at = z, None
+            if follows_tool(z):  # at the pose; without one (stale) at its maximum size
+                at = cell_from_zone(cell.spec, tool_pose) if tool_pose is not None else None
+                shape = z if at is not None else max_zone(z)
+            outline = volume_outline_m(shape, cell)
+            if at is not None:
+                outline = [transform_points(at, ln) for ln in outline]
+            projected = _project_lines(model, outline)
+            lines = [ln * scale for ln in projected]
             if not lines:
                 continue
-            region = _volume_floor_px(z, cell, model)
+            region = _volume_floor_px(shape, cell, model) if at is None else \
+                cv2.convexHull(np.concatenate(projected).astype(np.float32)).reshape(-1, 2)
             if region is not None:
                 cv2.fillPoly(fills, [_i32(region * scale)], colour, lineType=cv2.LINE_AA,
                              shift=4)

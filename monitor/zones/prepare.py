@@ -140,16 +140,19 @@ class PreparedCell:
     occluder_columns: Mapping[str, OccluderColumns | None] = field(default_factory=dict)
     camera_centres: Mapping[str, np.ndarray | None] = field(default_factory=dict)
     floors: tuple[FloorRegion, ...] = ()  # raised or sunken floor regions (platforms, pits)
+    moving: tuple[Any, ...] = ()  # zones that follow the tool (moving_check.MovingZone)
 
     def check(self, camera_id: str, boxes_px: np.ndarray, tool_pose: geo.ToolPose | None = None,
-              tool_speed_mps: float | None = None) -> ZoneReport:
+              tool_speed_mps: float | None = None, tool_state: Any = None) -> ZoneReport:
         from monitor.zones.check import _check  # check needs PreparedCell: import late
 
-        return _check(self, camera_id, boxes_px, tool_pose, tool_speed_mps)
+        return _check(self, camera_id, boxes_px, tool_pose, tool_speed_mps,
+                      tool_state=tool_state)
 
 
 def prepare_cell(cell: Cell) -> PreparedCell:
     """Build the per-frame geometry of a cell (use ``cell.prepared`` to build it once)."""
+    from monitor.zones.moving_check import prepare_moving  # it needs this module: late
     image: dict[str, _ImageZones] = {}
     for cam_id, cam in cell.cameras.items():
         zs = [z for z in cell.zones if isinstance(z, PolygonZone) and z.enabled
@@ -157,7 +160,8 @@ def prepare_cell(cell: Cell) -> PreparedCell:
         if zs:
             image[cam_id] = _prepare_image_zones(zs, cam)
     volumes = tuple(_prepare_volume(z, cell) for z in cell.zones
-                    if z.is_volume and z.enabled and z.kind not in ("watch", "occluder"))
+                    if z.is_volume and z.enabled and z.kind not in ("watch", "occluder")
+                    and getattr(z, "follow", None) is None)  # following zones: moving_check
     occ_zones = cell.spec.occluder_zones()  # the declared ones and the robot base, always
     occluders = tuple(_prepare_volume(z, cell) for z in occ_zones)
     floors = tuple(FloorRegion.of(f.id, f.points_m, f.height_m) for f in cell.spec.floors)
@@ -193,6 +197,7 @@ def prepare_cell(cell: Cell) -> PreparedCell:
         occluder_columns=columns,
         camera_centres=centres,
         floors=floors,
+        moving=prepare_moving(cell),
     )
 
 

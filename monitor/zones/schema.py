@@ -87,7 +87,55 @@ class PolygonZone(_ZoneBase):
     min_share: float | None = Field(default=None, gt=0.0, le=1.0)
 
 
+class FollowBox(_Strict):
+    """A box in the cell frame (see ``BoxZone``)."""
+
+    shape: Literal["box"]
+    min_m: Vec3
+    max_m: Vec3
+    yaw_deg: float = 0.0
+
+
+class FollowCylinder(_Strict):
+    """A vertical cylinder in the cell frame (see ``CylinderZone``)."""
+
+    shape: Literal["cylinder"]
+    center_m: Vec2
+    radius_m: float = Field(gt=0.0)
+    z_min_m: float
+    z_max_m: float
+
+
+class FollowExtrude(_Strict):
+    """An extruded floor polygon in the cell frame (see ``ExtrudeZone``)."""
+
+    shape: Literal["extrude"]
+    points_m: tuple[Vec2, ...]
+    z_min_m: float
+    z_max_m: float
+
+
+MaxVolume = Annotated[FollowBox | FollowCylinder | FollowExtrude, Field(discriminator="shape")]
+
+
+class FollowSpec(_Strict):
+    """A volume zone that follows the tool (monitor/zones/moving.py, docs/moving-zones.md):
+    its shape is given in the ``tool`` frame (or ``flange``: the frame the tool calibration's
+    ``given_as: tracker_in_tool`` offset places) and moved with each fresh pose;
+    ``grow_with_speed`` inflates it by S_p at the measured tool speed, at most
+    ``max_growth_m``; ``max_volume`` (cell frame) is the zone whenever the pose is missing or
+    older than ``policy.pose_timeout``: it must contain every place the zone can reach."""
+
+    frame: Literal["tool", "flange"]
+    grow_with_speed: bool = False
+    max_growth_m: float | None = Field(default=None, gt=0.0, le=10.0)
+    max_volume: MaxVolume
+
+
 class _VolumeBase(_ZoneBase):
+    # None: a cell-frame volume; else the zone follows the tool (monitor/zones/moving.py)
+    follow: FollowSpec | None = None
+
     @property
     def is_volume(self) -> bool:
         return True

@@ -14,6 +14,7 @@ from monitor import geometry as geo
 from monitor.geometry.distortion import distortion_fault
 from monitor.zones.coverage import coverage_faults
 from monitor.zones.floors import check_floors
+from monitor.zones.moving import follow_faults, follows_tool, max_zone
 from monitor.zones.schema import (
     BoxZone,
     CameraSpec,
@@ -97,6 +98,8 @@ def _locate(loc: list, data: dict) -> tuple[str, list]:
         rest = loc[2:]
         if loc[0] == "zones" and rest and rest[0] == item.get("shape"):
             rest = rest[1:]
+        if loc[0] == "zones" and rest[:2] == ["follow", "max_volume"] and len(rest) > 2:
+            rest = [*rest[:2], *rest[3:]]  # the shape's union tag pydantic inserts
         if loc[0] == "cameras" and len(rest) >= 2 and rest[0] == "calibration":
             cal = item.get("calibration")
             if isinstance(cal, dict) and rest[1] == cal.get("type"):
@@ -147,6 +150,9 @@ def _check_spec(spec: CellSpec, base: Path
             faults += _check_image_zone(z, cams)
         else:
             faults += _check_volume_zone(z, base, meshes)
+            if follows_tool(z):  # its max_volume is a cell volume of its own
+                faults += [f"follow.max_volume: {f}"
+                           for f in _check_volume_zone(max_zone(z), base, meshes)]
             if not calibrated:
                 faults.append("volume zone but no camera has a calibration: persons cannot be "
                               "placed in the cell (run 'monitor zones calibrate' first)")
@@ -171,6 +177,7 @@ def _check_spec(spec: CellSpec, base: Path
         if not has_image and not (has_volume and cam.calibration is not None):
             warnings.append(f"camera '{cam.id}': no enabled protective or warning zone applies "
                             "to it (uncalibrated cameras see image zones only)")
+    errors += follow_faults(spec)
     errors += _check_horizon(spec, models)
     errors += check_floors(spec)
     if not errors:  # every protective and warning zone watched, or flagged (coverage.py)
