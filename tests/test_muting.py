@@ -179,3 +179,21 @@ def test_a_person_in_a_muted_protective_zone_slows_and_stops_in_the_first_frame_
     assert started.details["zone"] == "robot-protective"
     assert [o.accepted for o in results[0.5].mute_outcomes] == [True]
     assert results[3.4].mutes and not results[3.5].mutes
+
+
+def test_mute_rules_are_part_of_the_config_hash_and_older_files_keep_theirs():
+    plain = parse_cell(cell_data(mute=None)).config_hash
+    assert parse_cell(cell_data(mute=None, unmutable=None)).config_hash == plain
+    assert parse_cell(cell_data()).config_hash != plain
+    longer = parse_cell(cell_data(mute={**MUTE, "max_s": 600.0})).config_hash
+    assert longer not in (plain, parse_cell(cell_data()).config_hash)
+    assert parse_cell(cell_data(mute=None, unmutable=True)).config_hash != plain
+
+
+def test_a_zone_file_with_mute_writes_back_as_it_reads():
+    from monitor.zones.files import cell_to_data
+
+    cell = parse_cell(cell_data(mute={**MUTE, "as": "none"}))
+    data = cell_to_data(cell)
+    assert data["zones"][0]["mute"]["as"] == "none"
+    assert parse_cell(data).config_hash == cell.config_hash
