@@ -98,3 +98,25 @@ def test_monitor_mute_against_a_running_monitor(tmp_path, synthetic_model):
         assert started["robot-protective"]["details"]["duration_s"] == 3.0
         assert any(a["kind"] == "mute_refused" for a in alerts)
         wait_for(lambda: svc.status().get("muted") == [], 5, "the status to clear", svc)
+
+
+@pytest.mark.parametrize(("args", "needle"), [
+    (["--for", "soon"], "--for 'soon'"),
+    (["--for", "0s"], "positive duration"),
+    (["--for", "10s", "--end"], "either --for"),
+    ([], "either --for"),
+    (["--for", "10s", "--key", "/nonexistent/anna.key"], "no such key file"),
+])
+def test_monitor_mute_bad_input_is_one_line(args, needle):
+    from tests.helpers import assert_one_line_error, run_monitor
+
+    out = run_monitor("mute", "robot-protective", "--operator", "anna", *args,
+                      "--connect", "tcp/127.0.0.1:9", "--timeout", "0.2", timeout=60)
+    assert_one_line_error(out, needle)
+
+
+def test_parse_duration():
+    from monitor.cli.mute import parse_duration
+
+    assert parse_duration("60s") == parse_duration("60") == parse_duration("1m") == 60.0
+    assert parse_duration("1.5h") == 5400.0
