@@ -18,6 +18,9 @@ from monitor.schema import NonNegative, section
 from monitor.types import Alert
 
 SEVERITIES = ("info", "warning", "critical")
+# the audit of muting is never held back: each start needs a signed, accepted request and a
+# zone has one mute at a time, so they cannot flood the bus (docs/muting.md)
+UNLIMITED_KINDS = frozenset({"zone_muted", "zone_unmuted"})
 
 
 @section("alerts")
@@ -41,6 +44,8 @@ class AlertLimiter:
         kind, 0 if none), or None when this alert is held back. ``now`` in seconds, monotonic."""
         interval = (self.limits.critical_min_interval if alert.severity == "critical"
                     else self.limits.min_interval)
+        if alert.kind in UNLIMITED_KINDS:
+            return 0
         last = self._last_sent.get(alert.kind)
         if last is not None and now - last < interval:
             self._held[alert.kind] = self._held.get(alert.kind, 0) + 1
@@ -91,6 +96,35 @@ def reset_alert(outcome, source: str, now: float) -> Alert:
     return Alert(kind, "info" if outcome.accepted else "warning",
                  f"reset by {outcome.operator}: {outcome.message}", source, now,
                  details={"operator": outcome.operator, "request_id": outcome.request_id})
+
+
+def mute_alert(outcome, now: float, when=None) -> Alert:
+    """Alert for a judged mute request (``monitor.muting.MuteOutcome``): ``zone_muted``
+    (warning) when a mute starts, ``zone_unmuted`` when one is ended early, ``mute_refused``
+    when refused. ``when``: turns the policy's times into the operator's clock."""
+    req, mute = outcome.request, outcome.mute
+    details = {"zone": req.zone, "operator": req.operator, "request_id": req.request_id,
+               "duration_s": req.duration_s, "accepted": outcome.accepted}
+    if not outcome.accepted:
+        return Alert("mute_refused", "warning", f"mute of zone {req.zone} by {req.operator} "
+                     f"refused: {outcome.reason}", "muting", now, details=details)
+    if req.end:
+        return unmute_alert(mute, now, when, f"ended early by {req.operator}")
+    until = when(mute.end) if when is not None else f"{mute.end:.1f} s"
+    return Alert("zone_muted", "warning", f"{outcome.reason}, until {until}", "muting", now,
+                 details={**details, "start": mute.start, "end": mute.end, "as": mute.as_,
+                          "speed_scale": mute.scale if mute.as_ == "warning" else None,
+                          "max_s": mute.max_s})
+
+
+def unmute_alert(mute, now: float, when=None, why: str = "expired") -> Alert:
+    """``zone_unmuted``: the mute of a zone ended (expired, or ended early); the zone is
+    checked as its kind again from this decision on."""
+    return Alert("zone_unmuted", "warning", f"zone {mute.zone} (muted by {mute.operator}) "
+                 f"unmuted: {why}; checked as its own kind again", "muting", now,
+                 details={"zone": mute.zone, "operator": mute.operator, "why": why,
+                          "request_id": mute.request_id, "start": mute.start,
+                          "end": mute.end})
 
 
 def pose_alert(rejection, source: str, now: float) -> Alert:

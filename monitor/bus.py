@@ -11,6 +11,8 @@ Keys (``prefix`` defaults to ``workcell/<cell>/``):
 ``<prefix>safety/status``           queryable: state, config hash, fps, uptime, last reset
 ``<prefix>safety/reset``            queryable (and subscribed): signed operator resets
                                     (``monitor.resets``); the reply is the answer
+``<prefix>safety/mute``             queryable: signed mute requests
+                                    (``monitor.mute_requests``; docs/muting.md)
 ``<prefix>safety/alive/<instance>`` liveliness token of the running monitor
 ``<prefix>tracker/pose``            tool pose samples (``monitor.pose``)
 =================================  =========================================================
@@ -67,6 +69,8 @@ from monitor.busconfig import (
 from monitor.consumer import COMMAND_SCHEMA, CommandWatchdog, Verdict
 from monitor.errors import ConfigError
 from monitor.foreign import ForeignCommands
+from monitor.mute_requests import MuteDesk, MuteGate
+from monitor.muting import MuteOutcome, MuteRequest
 from monitor.policy import STOP, Command, Reason, ResetRequest
 from monitor.resets import (
     RESET_SCHEMA,
@@ -133,6 +137,8 @@ class SafetyBus:
         operators = load_operators(config.operators_file) if config.operators_file else None
         self._gate = ResetGate(ResetPolicy(operators, config.cell, self.keys.reset,
                                            config.allow_unsigned_resets, config.reset_window_s))
+        self._mutes = MuteDesk(MuteGate(operators, config.cell, self.keys.mute,
+                                        config.reset_window_s), config.reset_answer_s)
         self._limiter = AlertLimiter(alert_limits or AlertLimits())
         self._lock = threading.Lock()  # seq counters, latest command, counters
         self._cmd_lock = threading.Lock()  # serialises command puts: seq order == wire order
@@ -189,6 +195,7 @@ class SafetyBus:
                 s.declare_queryable(self.keys.status, self._on_status_query),
                 s.declare_queryable(self.keys.reset, self._on_reset_query),
                 s.declare_subscriber(self.keys.reset, self._on_reset),
+                s.declare_queryable(self.keys.mute, self._on_mute_query),
                 s.declare_subscriber(self.keys.command, self._on_command_seen,
                                      allowed_origin=zenoh.Locality.REMOTE),
                 s.liveliness().declare_subscriber(self.keys.alive + "/*", self._on_alive),
@@ -238,6 +245,7 @@ class SafetyBus:
                 self._counters["errors"]["shutdown"] += 1
         finally:
             self._answer_all_pending("the monitor is shutting down")
+            self._mutes.answer_all("the monitor is shutting down")
             self.closed_cleanly = close_bounded(session, timeout, [*self._entities, self._token])
 
     @property
@@ -431,6 +439,7 @@ class SafetyBus:
             try:
                 self._put_command(self._heartbeat_command(), heartbeat=True)
                 self._expire_pending()
+                self._mutes.expire(self._clock())
                 self._flush_refused_alerts()
             except Exception:  # keep beating; the failure is counted by _put
                 with self._lock:
@@ -549,9 +558,25 @@ class SafetyBus:
         with self._lock:
             alerts = list(self._refused_alerts)
             self._refused_alerts.clear()
+        alerts += self._mutes.drain_alerts()
         foreign = self._foreign.alert("bus", self._clock())
         for alert in [*alerts, *([foreign] if foreign else [])]:
             self.publish_alert(alert)
+
+    # --- mutes -------------------------------------------------------------------------------
+
+    def poll_mutes(self) -> tuple[MuteRequest, ...]:
+        """Verified mute requests since the last call, for the pipeline to judge."""
+        return self._mutes.poll()
+
+    def answer_mute(self, outcome: MuteOutcome) -> None:
+        """The pipeline's judgement of a mute request, as the answer to its query."""
+        self._mutes.answer(outcome)
+
+    def _on_mute_query(self, query: zenoh.Query) -> None:
+        payload = query.payload.to_bytes() if query.payload is not None else b""
+        signature = query.attachment.to_bytes() if query.attachment is not None else None
+        self._mutes.take(payload, signature, query, self._clock(), self._boot)
 
     # --- status ------------------------------------------------------------------------------
 
@@ -577,6 +602,7 @@ class SafetyBus:
                 "puts_unmatched": dict(self._counters["unmatched"]),
                 "put_errors": dict(self._counters["errors"]),
                 "resets_invalid": self._resets_invalid, "resets_refused": self._resets_refused,
+                "mutes_accepted": self._mutes.accepted, "mutes_refused": self._mutes.refused,
                 "commands_foreign": self.foreign_commands(),
                 "alerts_held": self._limiter.held(),
                 "fps": None,  # set by the service with update_status(fps=...)

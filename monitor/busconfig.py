@@ -104,13 +104,15 @@ class BusKeys:
     reset: str
     alive: str  # prefix of the liveliness tokens: alive + "/" + instance
     pose: str
+    mute: str = ""  # signed mute requests (monitor.mute_requests; docs/muting.md)
 
     @classmethod
     def of(cls, prefix: str) -> BusKeys:
         p = prefix if prefix.endswith("/") else prefix + "/"
         return cls(command=p + "safety/command", alert=p + "safety/alert",
                    detections=p + "safety/detections", status=p + "safety/status",
-                   reset=p + "safety/reset", alive=p + "safety/alive", pose=p + "tracker/pose")
+                   reset=p + "safety/reset", alive=p + "safety/alive", pose=p + "tracker/pose",
+                   mute=p + "safety/mute")
 
 
 def zenoh_config(bus: BusConfig) -> zenoh.Config:

@@ -30,6 +30,7 @@ from dataclasses import dataclass
 from typing import Protocol
 
 from monitor.frames import Frame
+from monitor.muting import MuteRequest
 from monitor.pipeline import Pipeline, StepResult
 from monitor.policy import ResetRequest
 from monitor.types import Fault
@@ -46,6 +47,7 @@ class StepInputs:
     tool_pose: object = None
     tool_speed_mps: float | None = None
     pose_time: float | None = None
+    mutes: tuple[MuteRequest, ...] = ()  # verified mute requests (judged by the pipeline)
 
 
 @dataclass(frozen=True)
@@ -162,6 +164,7 @@ class Driver:
                    inputs: StepInputs = StepInputs()) -> list[Step]:
         """Frames of several cameras ready together: one detector batch, one Step per frame
         (each a decision with every camera's newest answer), stall detection as ``step``."""
+        inputs = self._judge_mutes(inputs, now)
         start = self.clock() if self.stall_after_s is not None else 0.0
         if self._stall_gap(start, self._last_end) is not None:
             return [self._stalled(start - self._last_end, inputs)]
@@ -192,6 +195,7 @@ class Driver:
     def step(self, frame: Frame | None, now: float, inputs: StepInputs = StepInputs()
              ) -> Step:
         """One pipeline step (a frame, or a tick when ``frame`` is None), fed to the sinks."""
+        inputs = self._judge_mutes(inputs, now)
         start = self.clock() if self.stall_after_s is not None else 0.0
         if self._stall_gap(start, self._last_end) is not None:
             return self._stalled(start - self._last_end, inputs)
@@ -215,6 +219,14 @@ class Driver:
         if frame is not None:
             self._armed = True
         return self._emit(result, frame)
+
+    def _judge_mutes(self, inputs: StepInputs, now: float) -> StepInputs:
+        """Mute requests are judged before the step's decision, even a stalled one (their
+        outcomes ride on its result; the bus answers them)."""
+        if not inputs.mutes:
+            return inputs
+        self.pipeline.request_mutes(inputs.mutes, now)
+        return dataclasses.replace(inputs, mutes=())
 
     def _stall_gap(self, now: float, before: float | None) -> float | None:
         if self.stall_after_s is None or not self._armed or before is None:
@@ -241,7 +253,8 @@ class Driver:
             result = dataclasses.replace(
                 result, frame=processed.frame, persons=processed.persons,
                 zone_report=processed.zone_report, health=processed.health,
-                alerts=(*processed.alerts, *result.alerts), stage_ms=processed.stage_ms)
+                alerts=(*processed.alerts, *result.alerts), stage_ms=processed.stage_ms,
+                mute_outcomes=(*processed.mute_outcomes, *result.mute_outcomes))
         return self._emit(result, frame if processed is not None else None, stalled_s=gap)
 
     def _run_self_test(self, now: float) -> tuple[Fault, ...]:

@@ -24,6 +24,7 @@ import numpy as np
 
 from monitor.detector import Detector
 from monitor.health import CameraHealth, HealthReport
+from monitor.muting import Mute, MuteOutcome, MuteRequest, Mutes
 from monitor.policy import (
     STOP,
     Command,
@@ -35,9 +36,12 @@ from monitor.policy import (
     stale_latch,
     step,
 )
+from monitor.policy.model import Reason
+from monitor.timetext import TimeText, seconds
 from monitor.tracks import Hold, PersonTracker, TrackerConfig
 from monitor.types import Alert, Fault, FrameInfo, Persons, ZoneReport
 from monitor.zones import Cell, check_persons, merge_towards_danger
+from monitor.zones.check import apply_mutes
 from monitor.zones.masks import MaskRule
 from monitor.zones.moving import ToolState
 
@@ -64,6 +68,15 @@ def _one_line(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {text.splitlines()[0]}" if text else type(exc).__name__
 
 
+def mute_text(mute: Mute, when: TimeText = seconds) -> str:
+    """E.g. ``zone robot-protective muted by anna until 14:03:12 (60 s, 120 s max): checked
+    as a warning zone (SLOW x0.30)``."""
+    what = (f"checked as a warning zone (SLOW x{mute.scale:.2f})" if mute.as_ == "warning"
+            else "not checked")
+    return (f"zone {mute.zone} muted by {mute.operator} until {when(mute.end)} "
+            f"({mute.end - mute.start:g} s, {mute.max_s:g} s max): {what}")
+
+
 @dataclass(frozen=True)
 class StepResult:
     """What one processed frame (or one timer tick) produced."""
@@ -80,6 +93,10 @@ class StepResult:
     stage_ms: dict[str, float] = field(default_factory=dict)  # stage -> wall ms (not replayed)
     track_ids: tuple[int, ...] = ()  # persistent person id per row of ``persons``
     masked_boxes: int = 0  # raw detector boxes suppressed by mask zones in this frame
+    # mute requests judged since the previous step (the bus answers them), and the mutes
+    # that hold at this decision (docs/muting.md)
+    mute_outcomes: tuple[MuteOutcome, ...] = ()
+    mutes: tuple[Mute, ...] = ()
 
 
 @dataclass
@@ -170,6 +187,48 @@ class Pipeline:
         # serial -> nonce of a new latch (live: ``monitor.resets.LatchNonces`` of the bus's
         # boot); None: ``latch-<serial>``, deterministic for replay
         self.latch_nonces: Callable[[int], str] | None = None
+        # zones muted by operators (``request_mutes``); applied at each decision
+        self.mutes = Mutes.of(cell)
+        self.when: TimeText = seconds  # times in mute reasons (live: the wall clock)
+        self._mute_outcomes: list[MuteOutcome] = []
+        self._mute_alerts: list[Alert] = []
+
+    def request_mutes(self, requests: Sequence[MuteRequest], now: float
+                      ) -> tuple[MuteOutcome, ...]:
+        """Judge mute requests at ``now`` (before this step's decision): accepted ones hold
+        from ``now`` for their duration. The outcomes and their alerts ride on the next
+        ``StepResult``."""
+        from monitor.alerts import mute_alert
+
+        out = []
+        for req in requests:
+            self.mutes, outcome = self.mutes.request(req, now)
+            out.append(outcome)
+            log.warning("mute of zone %s by %s %s: %s", req.zone, req.operator,
+                        "accepted" if outcome.accepted else "refused", outcome.reason)
+            self._mute_alerts.append(mute_alert(outcome, now, self.when))
+        self._mute_outcomes.extend(out)
+        return tuple(out)
+
+    def _muted(self, now: float) -> tuple[dict[str, float | None], tuple[Reason, ...]]:
+        """The zones muted at ``now`` (for ``apply_mutes``) and the policy's notes; a mute
+        that ended is alerted here, at the first decision at or after its end."""
+        from monitor.alerts import unmute_alert
+
+        self.mutes, ended = self.mutes.expire(now)
+        for mute in ended:
+            log.warning("mute of zone %s by %s ended", mute.zone, mute.operator)
+            self._mute_alerts.append(unmute_alert(mute, now, self.when, "expired"))
+        holding = self.mutes.holding(now)
+        notes = tuple(Reason("muted", mute_text(m, self.when), zone_id=m.zone,
+                             source=m.operator, since=None) for m in holding)
+        return self.mutes.muted_zones(now), notes
+
+    def _take_mute_events(self) -> tuple[tuple[MuteOutcome, ...], tuple[Alert, ...]]:
+        outcomes, alerts = tuple(self._mute_outcomes), tuple(self._mute_alerts)
+        self._mute_outcomes.clear()
+        self._mute_alerts.clear()
+        return outcomes, alerts
 
     def _to_floor(self, camera_id: str):
         model = self.cell.camera_models.get(camera_id) if self.cell is not None else None
@@ -352,13 +411,15 @@ class Pipeline:
         cleared = self._confirm_clear(reset, now)
         inputs = self._inputs(now, extra_faults, pose_time, reset, with_frame=True)
         command = self._decide(inputs, now)
-        alerts = (*cleared, *(health.alerts if health else ()),
+        outcomes, mute_alerts = self._take_mute_events()
+        alerts = (*cleared, *mute_alerts, *(health.alerts if health else ()),
                   *self._fault_alerts(inputs.faults, detector_error, now, image))
         t4 = time.perf_counter()
         stage.update(detect=(t1 - t0) * 1e3, zones=(t2 - t1) * 1e3, health=(t3 - t2) * 1e3,
                      policy=(t4 - t3) * 1e3)
         return StepResult(now, command, self._changed(command), frame, persons, cam.report,
-                          health, inputs.faults, alerts, stage, track_ids, tally.masked)
+                          health, inputs.faults, alerts, stage, track_ids, tally.masked,
+                          outcomes, self.mutes.holding(now))
 
     def tick(self, now: float, pose_time: float | None = None,
              reset: ResetRequest | None = None, extra_faults: tuple[Fault, ...] = ()) -> StepResult:
@@ -368,9 +429,11 @@ class Pipeline:
         command = self._decide(inputs, now)
         detector_error = next((c.detector_error for c in self.cameras.values()
                                if c.detector_error), None)
+        outcomes, mute_alerts = self._take_mute_events()
         return StepResult(now, command, self._changed(command), faults=inputs.faults,
-                          alerts=(*cleared, *self._fault_alerts(inputs.faults, detector_error,
-                                                                now, None)))
+                          alerts=(*cleared, *mute_alerts,
+                                  *self._fault_alerts(inputs.faults, detector_error, now, None)),
+                          mute_outcomes=outcomes, mutes=self.mutes.holding(now))
 
     def _confirm_clear(self, reset: ResetRequest | None, now: float) -> tuple[Alert, ...]:
         """An operator looked and confirms the cell clear: drop every hold of a *lost* person
@@ -439,6 +502,10 @@ class Pipeline:
             if cam.report is not None:
                 reports.append(cam.report)
         report = functools.reduce(merge_towards_danger, reports) if reports else None
+        # muted zones as the zone file says (docs/muting.md): on the merged answer at this
+        # decision only, so a mute's end applies exactly at the first decision after it
+        muted, notes = self._muted(now)
+        report = apply_mutes(report, muted)
         # the oldest camera's frame: a camera that falls behind or stops makes the cell STOP
         oldest = min(times) if with_frame and times else (None, None)
         frame_time, frame_source = oldest
@@ -446,7 +513,7 @@ class Pipeline:
                             zone_report=report if with_frame else None,
                             faults=tuple(faults), detector_error=detector_error,
                             pose_time=pose_time, zone_error=self.zone_error,
-                            reset_request=reset,
+                            reset_request=reset, mutes=notes,
                             latch_nonce=self.latch_nonces(self.state.latches + 1)
                             if self.latch_nonces is not None else "")
 

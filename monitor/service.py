@@ -335,6 +335,7 @@ def _run(config_path, log_json: bool, duration: float | None, signals: StopSigna
         with SafetyBus(bus_config_for(config, cell), alert_limits=config.alerts) as bus:
             forget = signals.on_force(lambda: bus.publish_command(shutdown_forced()))
             pipeline.latch_nonces = LatchNonces(bus.boot)  # resets name this run's latches
+            pipeline.when = wall_clock()  # mute reasons say "until 14:03:12"
             event("bus open", key_prefix=bus.config.key_prefix, zid=bus.boot,
                   listen=",".join(bus.config.listen), connect=",".join(bus.config.connect))
             if warning:
@@ -521,7 +522,8 @@ class LiveFeed:
                 self.alert(pose_alert(rejection, "pose", now))
         return StepInputs(reset=resets[-1] if resets else None,
                           extra_faults=tuple(faults), tool_pose=tool_pose,
-                          tool_speed_mps=tool_speed, pose_time=pose_time)
+                          tool_speed_mps=tool_speed, pose_time=pose_time,
+                          mutes=self.bus.poll_mutes())
 
     def camera_faults(self) -> tuple[Fault, ...]:
         """A loss a grabber has seen (read/open error, wrong size, end of stream) is a STOP
@@ -560,6 +562,7 @@ class ServiceSink:
         self.last_status = -math.inf
         self.when = wall_clock()  # the policy's monotonic times as the operator's local time
         self.recorder = None  # the incident recorder, for its status and gauges
+        self.last_mutes: tuple | None = None  # the muted zones last put in the status
 
     def on_step(self, step: Step) -> None:
         result = step.result
@@ -569,6 +572,9 @@ class ServiceSink:
         # the safety message first, dashboards after; a command that waited past the bus's
         # stall_timeout since its decision (the process froze) goes out as a STOP instead
         self.bus.publish_command(cmd, decided_at=step.decided_at)
+        for outcome in result.mute_outcomes:  # the pipeline's judgement answers the request
+            self.bus.answer_mute(outcome)
+        self.mute_status(result)
         if step.frame is not None:
             # the body's "frame" holds camera, seq, capture time and size (no override here)
             self.bus.publish_detections(result.persons, result.zone_report)
@@ -586,6 +592,19 @@ class ServiceSink:
         if result.now - self.last_status >= 1.0:
             self.last_status = result.now
             self.status(result)
+
+    def mute_status(self, result: StepResult) -> None:
+        """The muted zones in the status (with operator and end time) whenever they change."""
+        mutes = tuple((m.zone, m.request_id) for m in result.mutes)
+        if mutes == self.last_mutes:
+            return
+        self.last_mutes = mutes
+        wall = time.time()
+        self.bus.update_status(muted=[
+            {"zone": m.zone, "operator": m.operator, "as": m.as_,
+             "speed_scale": m.scale if m.as_ == "warning" else None, "max_s": m.max_s,
+             "duration_s": m.end - m.start, "until_wall": wall + (m.end - result.now),
+             "until": self.when(m.end), "request_id": m.request_id} for m in result.mutes])
 
     def alert(self, alert: Alert) -> None:
         self.metrics.alerts.labels(alert.kind).inc()

@@ -173,6 +173,7 @@ def step(state: PolicyState, inputs: PolicyInputs, now: float,
         reasons += (_clearing(slow_seen, now, config),)
     if latched_by is not None:
         reasons += (Reason("latched", "STOP latched: waiting for an operator reset"),)
+    reasons += inputs.mutes  # muted zones: said in every command while muted
 
     # (1.0 without a SLOW cause; a STOP's own entry would expire before STOP can be left)
     window, lowest = speed_window(state.scale_window, seen.scale, now, config)

@@ -49,9 +49,11 @@ class Reason:
     zone), ``separation`` (closer than S_p, or a separation speed scale of 0 or unknown),
     ``fault``, ``detector_error``, ``frame_timeout``, ``frame_stale``, ``pose_stale``,
     ``zone_invalid``, ``startup``. SLOW codes: ``warning_zone``, ``separation_speed``
-    (v_max(separation) below the programmed speed). Bookkeeping: ``clearing`` (cause gone,
-    waiting ``clear_time``), ``latched`` (waiting for a reset), ``shutdown`` and ``stalled``
-    (added by the bus). ``person`` is the track id when the person is tracked, else the row.
+    (v_max(separation) below the programmed speed). Notes: ``muted`` (a zone muted by an
+    operator, in every command while it holds; docs/muting.md). Bookkeeping: ``clearing``
+    (cause gone, waiting ``clear_time``), ``latched`` (waiting for a reset), ``shutdown`` and
+    ``stalled`` (added by the bus). ``person`` is the track id when the person is tracked,
+    else the row.
     """
 
     code: str
@@ -146,6 +148,9 @@ class PolicyInputs:
     # the nonce a latch that begins in this step gets (the caller derives it from the boot and
     # the latch's serial, ``PolicyState.latches + 1``); empty: ``latch-<serial>`` (replay)
     latch_nonce: str = ""
+    # the zones muted at this step, one ``Reason("muted", ...)`` each (the caller has already
+    # applied the mutes to ``zone_report``): shown in every command while they hold
+    mutes: tuple[Reason, ...] = ()
 
 
 @dataclass(frozen=True)

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
+from dataclasses import replace
 
 import fcl
 import numpy as np
@@ -88,6 +90,27 @@ def merge_towards_danger(a: ZoneReport, b: ZoneReport) -> ZoneReport:
                       required_separation_m=max(reqs) if reqs else None,
                       separation_speed_scale=scale,
                       config_hash=a.config_hash)
+
+
+def apply_mutes(report: ZoneReport | None, muted: Mapping[str, float | None]
+                ) -> ZoneReport | None:
+    """The report as the policy sees it while zones are muted (docs/muting.md): a hit in a
+    muted zone becomes a warning zone hit at the mute's speed scale (``muted[zone]`` a
+    number), or is dropped (None: the zone is not checked while muted). Separation, masks and
+    every other zone stay as they are. Applied to the merged report at each decision, never
+    to a camera's stored answer or a lost person's hold, so nothing keeps the muted kind past
+    the mute's end."""
+    if report is None or not muted:
+        return report
+    hits = []
+    for hit in report.hits:
+        if hit.zone_id not in muted:
+            hits.append(hit)
+            continue
+        scale = muted[hit.zone_id]
+        if scale is not None:
+            hits.append(replace(hit, kind="warning", speed_scale=float(scale)))
+    return replace(report, hits=tuple(hits))
 
 
 def _worse(new: ZoneHit, old: ZoneHit) -> bool:

@@ -432,10 +432,9 @@ def config_hash(spec: CellSpec, meshes_sha: Mapping[str, str] | None = None) -> 
         if not z.enabled:
             continue
         d = z.model_dump(mode="json", exclude={"name", "enabled"})
-        if d.get("unobserved_ok") is None:  # only when given: older files keep their hash
-            d.pop("unobserved_ok", None)
-        if d.get("follow", 0) is None:  # likewise: only a tool-following zone says follow
-            d.pop("follow")
+        for key in ("unobserved_ok", "mute", "unmutable", "follow"):
+            if d.get(key) is None:  # only when given: older files keep their hash
+                d.pop(key, None)
         if z.shape == "mesh":
             d["file_sha256"] = meshes_sha.get(z.id, "")
         zones.append(d)

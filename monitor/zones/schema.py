@@ -62,6 +62,24 @@ class CameraSpec(_Strict):
     calibration: Calibration | None = None
 
 
+class MuteSpec(_Strict):
+    """Who may mute a zone, for how long, and what it is while muted (docs/muting.md).
+
+    ``max_s``: the longest mute one request may ask for. ``operators``: the operators (names
+    of the monitor's operators file) allowed to mute this zone. ``as``: what a muted zone is
+    checked as: ``warning`` (a person inside SLOWs at ``speed_scale``; the default) or
+    ``none`` (not checked at all). ``speed_scale``: the SLOW scale of a muted zone checked as a
+    warning zone; None: the slowest warning zone scale of the file (0.1 without one)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False, strict=True,
+                              serialize_by_alias=True)
+
+    max_s: float = Field(gt=0.0, le=3600.0)
+    operators: tuple[str, ...] = Field(min_length=1, max_length=100)
+    as_: Literal["warning", "none"] = Field(default="warning", alias="as")
+    speed_scale: float | None = Field(default=None, ge=0.0, lt=1.0)
+
+
 class _ZoneBase(_Strict):
     id: str = Field(pattern=_ID)
     name: str = ""
@@ -71,6 +89,10 @@ class _ZoneBase(_Strict):
     # the explicit opt-in for a protective zone partly seen by no camera (zones validate and
     # monitor run refuse it otherwise; monitor/zones/coverage.py); None: not given (= false)
     unobserved_ok: bool | None = None
+    # muting (docs/muting.md): a zone may be muted only when it says ``mute:``; ``unmutable:
+    # true`` says it never may (a protective zone without ``mute:`` is unmutable anyway)
+    mute: MuteSpec | None = None
+    unmutable: bool | None = None
 
     @property
     def is_volume(self) -> bool:

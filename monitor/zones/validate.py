@@ -12,6 +12,7 @@ from pydantic import ValidationError
 
 from monitor import geometry as geo
 from monitor.geometry.distortion import distortion_fault
+from monitor.muting import mute_faults
 from monitor.zones.coverage import coverage_faults
 from monitor.zones.floors import check_floors
 from monitor.zones.moving import follow_faults, follows_tool, max_zone
@@ -145,7 +146,7 @@ def _check_spec(spec: CellSpec, base: Path
                                     f"{rms:.2f} px RMS (> 2 px: check the point pairs)")
     calibrated = any(c.calibration is not None for c in spec.cameras)
     for z in spec.zones:
-        faults = list(_check_kind_fields(z))
+        faults = list(_check_kind_fields(z)) + list(mute_faults(z))
         if isinstance(z, PolygonZone):
             faults += _check_image_zone(z, cams)
         else:

@@ -1,0 +1,257 @@
+"""Operator mute requests on ``safety/mute``: the signed wire format, the bus-side gate and
+the desk that holds requests until the pipeline has judged them (docs/muting.md).
+
+Modelled on resets (``monitor.resets``): a request is a Zenoh query whose payload is UTF-8
+JSON and whose attachment is the Ed25519 signature (``monitor.signing.signed_message(<mute
+key>, payload)``) of an operator listed in the operators file. The bus refuses, before the
+pipeline sees it and with a reason in the answer: an unknown operator, a missing or wrong
+signature, another cell, another boot of the monitor (a request from before a restart), a
+wall time more than ``window_s`` off the monitor's clock, a request id seen before. Muting is
+never unsigned: a monitor without an operators file refuses every mute. The pipeline then
+judges the zone's own rules (``monitor.muting``: listed operators, maximum, unmutable) and its
+outcome is the answer.
+
+Payload::
+
+    {"schema": "workcell.safety.mute/1", "cell": "cell1", "zone": "robot-protective",
+     "duration_s": 60, "end": false, "operator": "anna",
+     "request_id": "anna-1732400000.123-5f3a", "wall": 1732400000.123, "boot": "4dee..."}
+"""
+
+from __future__ import annotations
+
+import collections
+import contextlib
+import json
+import math
+import os
+import threading
+import time
+
+from monitor.muting import MuteOutcome, MuteRequest
+from monitor.signing import verify
+from monitor.types import Alert
+
+MUTE_SCHEMA = "workcell.safety.mute/1"
+MUTE_ANSWER_SCHEMA = "workcell.safety.mute-answer/1"
+MAX_PAYLOAD = 4 * 1024
+MAX_FIELD = 256
+
+
+class MuteRefused(ValueError):
+    """A mute request the bus refuses; the message is the reason told to the sender."""
+
+
+def mute_payload(operator: str, zone: str, duration_s: float, *, cell: str, boot: str,
+                 end: bool = False, request_id: str = "", wall: float | None = None) -> bytes:
+    """A mute request body (``end``: end the zone's mute now); ``request_id`` defaults to a
+    fresh unique id, ``boot`` is the monitor's boot from its status."""
+    wall = time.time() if wall is None else wall
+    rid = request_id or f"{operator}-{wall:.3f}-{os.urandom(3).hex()}"
+    return json.dumps({"schema": MUTE_SCHEMA, "cell": cell, "zone": zone,
+                       "duration_s": duration_s, "end": end, "operator": operator,
+                       "request_id": rid, "wall": wall, "boot": boot}).encode()
+
+
+class MuteGate:
+    """Checks the signature, cell, boot, clock window and request id of mute requests;
+    remembers request ids (not thread-safe: ``MuteDesk`` holds the lock)."""
+
+    def __init__(self, operators: dict | None, cell: str, key_expr: str,
+                 window_s: float = 30.0) -> None:
+        self.operators = operators
+        self.cell = cell
+        self.key_expr = key_expr
+        self.window_s = window_s
+        self._seen: collections.OrderedDict[str, float] = collections.OrderedDict()
+
+    def check(self, payload: bytes, signature: bytes | None, received: float,
+              wall_now: float | None = None, *, boot: str | None = None) -> MuteRequest:
+        """A MuteRequest (``time`` = ``received``) or MuteRefused with the reason."""
+        wall_now = time.time() if wall_now is None else wall_now
+        body = _parse(payload)
+        operator = body["operator"]
+        if self.operators is None:
+            raise MuteRefused("no operators configured on this monitor (bus.operators_file); "
+                              "mutes are refused")
+        if operator not in self.operators:
+            raise MuteRefused(f"unknown operator {operator!r}")
+        if signature is None:
+            raise MuteRefused(f"unsigned mute in the name of {operator!r}")
+        if not verify(self.operators[operator], self.key_expr, payload, signature):
+            raise MuteRefused(f"signature does not match operator {operator!r}")
+        if body["cell"] != self.cell:
+            raise MuteRefused(f"request is for cell {body['cell']!r}, this is {self.cell!r}")
+        if boot is not None and body["boot"] != boot:
+            raise MuteRefused(f"request names monitor boot {body['boot']!r}, this monitor runs "
+                              f"boot {boot!r} (a request from before a restart?)")
+        wall = body["wall"]
+        if not abs(wall - wall_now) <= self.window_s:
+            raise MuteRefused(f"request time is {wall - wall_now:+.1f} s off the monitor's "
+                              f"clock (allowed ±{self.window_s:g} s): replayed or clock wrong")
+        rid = body["request_id"]
+        horizon = 2 * self.window_s
+        while self._seen and (wall_now - next(iter(self._seen.values())) > horizon
+                              or len(self._seen) > 10_000):
+            self._seen.popitem(last=False)
+        if rid in self._seen:
+            raise MuteRefused(f"request id {rid!r} was already used (replayed)")
+        self._seen[rid] = wall_now
+        return MuteRequest(body["zone"], operator, body["duration_s"], rid, received,
+                           end=body["end"], wall=wall)
+
+
+def _parse(payload: bytes) -> dict:
+    if len(payload) > MAX_PAYLOAD:
+        raise MuteRefused("mute request too large")
+    try:
+        body = json.loads(payload)
+    except (ValueError, UnicodeDecodeError, RecursionError):
+        raise MuteRefused("mute request is not JSON") from None
+    if not isinstance(body, dict) or body.get("schema") != MUTE_SCHEMA:
+        raise MuteRefused(f"mute request is not a {MUTE_SCHEMA} object")
+    out = {}
+    for key in ("operator", "request_id", "zone", "cell", "boot"):
+        value = body.get(key)
+        if not isinstance(value, str) or not value.strip() or len(value) > MAX_FIELD:
+            raise MuteRefused(f"mute request without a valid {key}")
+        out[key] = value.strip() if key == "operator" else value
+    for key in ("duration_s", "wall"):
+        value = body.get(key)
+        if isinstance(value, bool) or not isinstance(value, int | float) or not _finite(value):
+            raise MuteRefused(f"mute request without a valid {key}")
+        out[key] = float(value)
+    end = body.get("end", False)
+    if not isinstance(end, bool):
+        raise MuteRefused("mute request with a malformed end")
+    out["end"] = end
+    return out
+
+
+def _finite(value: int | float) -> bool:
+    try:
+        return math.isfinite(value)
+    except OverflowError:
+        return False
+
+
+def _operator_of(payload: bytes) -> str | None:
+    with contextlib.suppress(Exception):
+        op = json.loads(payload).get("operator")
+        if isinstance(op, str) and op.strip():
+            return op.strip()[:64]
+    return None
+
+
+class MuteDesk:
+    """The bus's side of muting: verified requests wait here for the pipeline
+    (``poll``), their queries until it has judged them (``answer``) or ``answer_s`` passed;
+    requests refused here are answered at once and alerted (``drain_alerts``). Thread-safe."""
+
+    def __init__(self, gate: MuteGate, answer_s: float = 2.0) -> None:
+        self.gate = gate
+        self.answer_s = answer_s
+        self._lock = threading.Lock()
+        self._queue: collections.deque[MuteRequest] = collections.deque(maxlen=16)
+        self._pending: dict[str, tuple[object, float]] = {}
+        self._alerts: collections.deque[Alert] = collections.deque(maxlen=16)
+        self.refused = 0
+        self.accepted = 0
+
+    def take(self, payload: bytes, signature: bytes | None, query, now: float,
+             boot: str | None) -> None:
+        """One request from the bus (``query``: the Zenoh query to answer, or None)."""
+        try:
+            with self._lock:
+                req = self.gate.check(payload, signature, now, boot=boot)
+        except Exception as exc:  # nothing a sender does may kill the callback
+            reason = str(exc) if isinstance(exc, MuteRefused) else "malformed mute request"
+            operator = _operator_of(payload)
+            with self._lock:
+                self.refused += 1
+                self._alerts.append(Alert(
+                    "mute_refused", "warning", f"mute in the name of {operator or '?'} "
+                    f"refused by the bus: {reason}", "bus", now,
+                    details={"operator": operator, "stage": "bus"}))
+            reply(query, self.gate.key_expr, {"accepted": False, "stage": "bus",
+                                               "reason": reason, "operator": operator})
+            return
+        with self._lock:
+            self._queue.append(req)
+            if query is not None:
+                self._pending[req.request_id] = (query, now + self.answer_s)
+
+    def poll(self) -> tuple[MuteRequest, ...]:
+        """Verified requests since the last call (oldest first), for the pipeline."""
+        with self._lock:
+            out = tuple(self._queue)
+            self._queue.clear()
+        return out
+
+    def answer(self, outcome: MuteOutcome) -> None:
+        """The pipeline's outcome is the answer to that request's query."""
+        mute = outcome.mute
+        with self._lock:
+            if outcome.accepted:
+                self.accepted += 1
+            else:
+                self.refused += 1
+            query, _ = self._pending.pop(outcome.request.request_id, (None, 0.0))
+        body = {"accepted": outcome.accepted, "stage": "pipeline", "reason": outcome.reason,
+                "request_id": outcome.request.request_id, "zone": outcome.request.zone}
+        if mute is not None:
+            body["duration_s"] = mute.end - mute.start
+            body["ends_in_s"] = max(mute.end - outcome.request.time, 0.0)
+        reply(query, self.gate.key_expr, body)
+
+    def expire(self, now: float) -> None:
+        """Answer queries the pipeline has not judged within ``answer_s``."""
+        with self._lock:
+            late = [rid for rid, (_, deadline) in self._pending.items() if now > deadline]
+            queries = [self._pending.pop(rid)[0] for rid in late]
+        for rid, query in zip(late, queries, strict=True):
+            reply(query, self.gate.key_expr, {
+                "accepted": False, "stage": "bus", "request_id": rid,
+                "reason": "the monitor did not judge this request in time (pipeline stalled?)"})
+
+    def answer_all(self, why: str) -> None:
+        with self._lock:
+            pending = list(self._pending.items())
+            self._pending.clear()
+        for rid, (query, _) in pending:
+            reply(query, self.gate.key_expr, {"accepted": False, "stage": "bus",
+                                               "request_id": rid, "reason": why})
+
+    def drain_alerts(self) -> list[Alert]:
+        with self._lock:
+            out = list(self._alerts)
+            self._alerts.clear()
+        return out
+
+
+def reply(query, key: str, body: dict) -> None:
+    """Answer a mute query and finalise it (the querier's get then returns at once)."""
+    if query is None:
+        return
+    with contextlib.suppress(Exception):
+        query.reply(key, json.dumps({"schema": MUTE_ANSWER_SCHEMA, **body}).encode(),
+                    encoding="application/json")
+    with contextlib.suppress(Exception):
+        query.drop()
+
+
+def request_mute(session, key_expr: str, payload: bytes, signature: bytes | None,
+                 timeout: float) -> dict | None:
+    """Send a mute request as a query and wait for the monitor's answer, ``{"accepted":
+    bool, "reason": str, "stage": "bus"|"pipeline", ...}``; None on timeout."""
+    for answer in session.get(key_expr, payload=payload, attachment=signature,
+                              timeout=timeout):
+        if answer.ok is None:
+            continue
+        try:
+            body = json.loads(answer.ok.payload.to_bytes())
+        except (ValueError, UnicodeDecodeError):
+            continue
+        if isinstance(body, dict) and isinstance(body.get("accepted"), bool):
+            return body
+    return None
