@@ -46,6 +46,8 @@ class StepInputs:
     tool_pose: object = None
     tool_speed_mps: float | None = None
     pose_time: float | None = None
+    # zone set selections and refused selection requests (monitor/cases/), oldest first
+    case_events: tuple = ()
 
 
 @dataclass(frozen=True)
@@ -163,6 +165,9 @@ class Driver:
         """Frames of several cameras ready together: one detector batch, one Step per frame
         (each a decision with every camera's newest answer), stall detection as ``step``."""
         start = self.clock() if self.stall_after_s is not None else 0.0
+        if inputs.case_events:
+            self.pipeline.take_case_events(inputs.case_events, now)
+            inputs = dataclasses.replace(inputs, case_events=())  # taken once, even on a stall
         if self._stall_gap(start, self._last_end) is not None:
             return [self._stalled(start - self._last_end, inputs)]
         if self._discard_before is not None:
@@ -193,6 +198,9 @@ class Driver:
              ) -> Step:
         """One pipeline step (a frame, or a tick when ``frame`` is None), fed to the sinks."""
         start = self.clock() if self.stall_after_s is not None else 0.0
+        if inputs.case_events:
+            self.pipeline.take_case_events(inputs.case_events, now)
+            inputs = dataclasses.replace(inputs, case_events=())  # taken once
         if self._stall_gap(start, self._last_end) is not None:
             return self._stalled(start - self._last_end, inputs)
         if frame is not None and self._discard_before is not None \

@@ -22,6 +22,7 @@ from dataclasses import dataclass, field, replace
 import cv2
 import numpy as np
 
+from monitor.cases import sets as cases
 from monitor.detector import Detector
 from monitor.health import CameraHealth, HealthReport
 from monitor.policy import (
@@ -169,6 +170,21 @@ class Pipeline:
         # serial -> nonce of a new latch (live: ``monitor.resets.LatchNonces`` of the bus's
         # boot); None: ``latch-<serial>``, deterministic for replay
         self.latch_nonces: Callable[[int], str] | None = None
+        # zone sets (monitor/cases/): None without ``sets`` in the zone file; the state starts
+        # with the default set at the first step (the selector's ttl counts from there)
+        self.case_plan = cases.plan_of(cell.spec) if cell is not None else None
+        self.case_state: cases.CaseState | None = None
+        self.zones_in_force: cases.ZonesInForce | None = None
+
+    def take_case_events(self, events: Sequence[cases.Selection | cases.Refusal],
+                         now: float) -> None:
+        """Zone set selections (verified) and refused requests received since the last step;
+        the next decision uses them. Without sets in the zone file they are ignored
+        (none are received then: without sets every zone applies, the most protection)."""
+        if self.case_plan is None:
+            return
+        state = self.case_state or cases.initial_case(self.case_plan, now)
+        self.case_state = cases.apply_events(self.case_plan, state, events, now)
 
     def _to_floor(self, camera_id: str):
         model = self.cell.camera_models.get(camera_id) if self.cell is not None else None
@@ -425,6 +441,7 @@ class Pipeline:
             if cam.report is not None:
                 reports.append(cam.report)
         report = functools.reduce(merge_towards_danger, reports) if reports else None
+        report = self._in_force(report, now, faults)
         # the oldest camera's frame: a camera that falls behind or stops makes the cell STOP
         oldest = min(times) if with_frame and times else (None, None)
         frame_time, frame_source = oldest
@@ -436,8 +453,22 @@ class Pipeline:
                             latch_nonce=self.latch_nonces(self.state.latches + 1)
                             if self.latch_nonces is not None else "")
 
+    def _in_force(self, report: ZoneReport | None, now: float,
+                  faults: list[Fault]) -> ZoneReport | None:
+        """The merged answer with only the zones of the sets applying at ``now``; the
+        selection's faults added to ``faults``."""
+        if self.case_plan is None:
+            return report
+        state = self.case_state or cases.initial_case(self.case_plan, now)
+        self.case_state = cases.advance(self.case_plan, state, now)
+        self.zones_in_force = cases.in_force(self.case_plan, self.case_state, now)
+        faults.extend(self.zones_in_force.faults)
+        return cases.filter_report(report, self.zones_in_force)
+
     def _decide(self, inputs: PolicyInputs, now: float) -> Command:
         self.state, command = step(self.state, inputs, now, self.policy)
+        if self.zones_in_force is not None:
+            command = replace(command, zone_sets=self.zones_in_force.sets)
         return command
 
     def _changed(self, command: Command) -> bool:
