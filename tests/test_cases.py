@@ -253,3 +253,14 @@ def test_an_unknown_set_or_a_refused_request_stops_the_cell_with_the_reason(dete
     assert unknown.state == "STOP" and "unknown zone set 'Z'" in unknown.describe()
     replayed = results[-1].command
     assert replayed.state == "STOP" and "replayed" in replayed.describe()
+
+
+def test_the_sets_in_force_are_in_the_annotated_header_and_the_replay_events(detector):
+    from monitor.annotate import header_text
+    from monitor.replay import command_event
+
+    pipe = Pipeline(detector, "cam0", POLICY, parse_cell(_station_cell("A")))
+    _run(pipe, 0.0, 0.3)
+    result = _run(pipe, 0.3, 0.4, seq0=3, events_at={0.3: [cs.Selection("B", "robot", 1)]})[0]
+    assert header_text(result, "cam0").endswith("sets A+B  (switching)")
+    assert command_event(result, 3)["zone_sets"] == ["A", "B"]

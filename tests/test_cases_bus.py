@@ -6,11 +6,13 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 import yaml
 
 from monitor.bus import BusConfig, BusKeys, SafetyBus, open_session
 from monitor.cases.receiver import CaseReceiver, case_key, request_case
 from monitor.cases.requests import case_payload
+from monitor.cases.sets import plan_of
 from monitor.config import demo_cell_path
 from monitor.driver import Driver, StepInputs
 from monitor.frames import Frame
@@ -19,8 +21,8 @@ from monitor.policy import PolicyConfig
 from monitor.scene import DemoScene, Figure, draw_figure
 from monitor.signing import load_private_key, new_key_pair
 from monitor.types import FrameInfo
-from monitor.zones import parse_cell
-from tests.helpers import free_port, wait_for
+from monitor.zones import load_cell, parse_cell
+from tests.helpers import assert_one_line_error, free_port, run_monitor, wait_for
 
 POLICY = PolicyConfig(clear_time=0.5, restart_interlock="auto")
 
@@ -111,3 +113,43 @@ def test_a_signed_selection_over_zenoh_switches_sets_and_an_unsigned_one_stops(
         assert "unsigned selection" in refused.describe() or "replayed" in refused.describe()
         assert {r.fault for r in refused.reasons} >= {"case_refused"}
         assert receiver.refused == 2 and receiver.accepted == 1
+
+
+@pytest.mark.slow  # six monitor processes
+def test_cli_zone_sets_and_a_signed_case_select(tmp_path):
+    data = yaml.safe_load(demo_cell_path().read_text())
+    data["zones"] = [
+        {"id": "station-a", "kind": "protective", "shape": "box",
+         "min_m": [-2.6, -1.6, 0.0], "max_m": [-1.0, 0.4, 2.2]},
+        {"id": "station-b", "kind": "protective", "shape": "box",
+         "min_m": [1.0, -1.6, 0.0], "max_m": [2.6, 0.4, 2.2]}]
+    cell_file = tmp_path / "cell.yaml"
+    cell_file.write_text(yaml.safe_dump(data))
+    assert run_monitor("zones", "set", "add", cell_file, "A", "--zones", "station-a"
+                       ).returncode == 0
+    assert run_monitor("zones", "set", "add", cell_file, "B", "--zones", "station-b",
+                       "--speed-scale", "0.2").returncode == 0
+    bad = run_monitor("zones", "set", "add", cell_file, "C", "--zones", "nowhere")
+    assert_one_line_error(bad, "no zone 'nowhere'")
+    listed = run_monitor("zones", "set", "list", cell_file).stdout
+    assert "* A: station-a" in listed and "B: station-b  speed<=0.2" in listed
+    assert "id: B" in run_monitor("zones", "set", "show", cell_file, "B").stdout
+    cell = load_cell(cell_file)
+    assert cell.spec.default_set == "A"
+
+    private, _, public = new_key_pair(tmp_path / "robot.key")
+    new_key_pair(tmp_path / "other.key")
+    (tmp_path / "selectors").write_text(f"robot {public}\n")
+    port = free_port()
+    cfg = BusConfig(cell="t", instance="mon-cli", listen=(f"tcp/127.0.0.1:{port}",),
+                    selectors_file=str(tmp_path / "selectors"))
+    plan = plan_of(cell.spec)
+    with SafetyBus(cfg) as bus, CaseReceiver.for_bus(bus.session, bus.config, plan) as rx:
+        common = ("--cell", "t", "--connect", f"tcp/127.0.0.1:{port}", "--selector", "robot")
+        ok = run_monitor("case", "select", "B", *common, "--key", private)
+        assert ok.returncode == 0, ok.stderr
+        assert "verified" in ok.stdout
+        forged = run_monitor("case", "select", "A", *common, "--key", tmp_path / "other.key")
+        assert forged.returncode == 1 and "signature does not match" in forged.stdout
+        events = rx.poll()
+    assert [type(e).__name__ for e in events] == ["Selection", "Refusal"]

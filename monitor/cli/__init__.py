@@ -31,6 +31,7 @@ COMMAND_MODULES = (
     "monitor.cli.init",
     "monitor.console.cli",
     "monitor.cli.incidents",
+    "monitor.cli.cases",
 )
 DEBUG_HELP = "show the full traceback on errors (anywhere on the command line)"
 
