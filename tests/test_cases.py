@@ -264,3 +264,13 @@ def test_the_sets_in_force_are_in_the_annotated_header_and_the_replay_events(det
     result = _run(pipe, 0.3, 0.4, seq0=3, events_at={0.3: [cs.Selection("B", "robot", 1)]})[0]
     assert header_text(result, "cam0").endswith("sets A+B  (switching)")
     assert command_event(result, 3)["zone_sets"] == ["A", "B"]
+
+
+def test_a_file_without_sets_is_written_without_set_keys_and_one_with_them_round_trips():
+    from monitor.zones import cell_to_data
+
+    plain = cell_to_data(parse_cell(yaml.safe_load(demo_cell_path().read_text())))
+    assert not {"sets", "switch_over_s", "default_set", "transitions"} & set(plain)
+    cell = parse_cell(_station_cell())
+    again = parse_cell(cell_to_data(cell))
+    assert again.config_hash == cell.config_hash and again.spec.default_set == "A"

@@ -42,7 +42,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def register_zone_sets(sub: argparse._SubParsersAction) -> None:
     """``monitor zones set ...`` (called by ``monitor.cli.zones``)."""
     parser = sub.add_parser("set", help="add, list or show the zone sets of a zone file")
-    actions = parser.add_subparsers(dest="set_action", metavar="ACTION", required=True)
+    actions = parser.add_subparsers(dest="set_action", metavar="ACTION", required=True,
+                                    help="add, list or show")
     p = actions.add_parser("add", help="add a zone set")
     p.add_argument("file", type=Path, help="zone file (YAML)")
     p.add_argument("id", help="set id")

@@ -300,7 +300,11 @@ def _as_tuples(data: Any) -> Any:
 def cell_to_data(cell_or_spec: Cell | CellSpec) -> dict:
     """Plain data (lists, dicts, numbers) of a cell, as it is written to YAML."""
     spec = cell_or_spec.spec if isinstance(cell_or_spec, Cell) else cell_or_spec
-    return spec.model_dump(mode="json", exclude_none=True)
+    data = spec.model_dump(mode="json", exclude_none=True)
+    if not spec.sets:  # zone set keys only in files that use sets (docs/cases.md)
+        data.pop("sets", None)
+        data.pop("switch_over_s", None)
+    return data
 
 
 class _Dumper(yaml.SafeDumper):
