@@ -117,7 +117,11 @@ def event_texts(result: StepResult) -> list[str]:
 
 def header_text(result: StepResult, camera_id: str) -> str:
     seq = result.frame.seq if result.frame is not None else -1
-    return f"t {result.now:.2f} s   frame {seq}   camera {camera_id}"
+    text = f"t {result.now:.2f} s   frame {seq}   camera {camera_id}"
+    sets = getattr(result.command, "zone_sets", ())
+    if sets:  # the zone sets in force; two or more while switching (docs/cases.md)
+        text += f"   sets {'+'.join(sets)}" + ("  (switching)" if len(sets) > 1 else "")
+    return text
 
 
 class Annotator:

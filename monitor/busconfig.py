@@ -62,6 +62,10 @@ class BusConfig:
     signing_key: ConfigPath = None  # Ed25519 private key (PEM, 0600) that signs commands
     operators_file: ConfigPath = None  # "<operator> ed25519:<base64>" per line: who may reset
     allow_unsigned_resets: Bool = False  # closed lab setups only: accept resets without keys
+    # "<selector> ed25519:<base64>" per line: who may select zone sets (docs/cases.md); None:
+    # every selection is refused (and is a STOP fault)
+    selectors_file: ConfigPath = None
+    case_window_s: WithinTenMinutes = 5.0  # a selection's wall time must be this close to ours
     reset_window_s: WithinTenMinutes = 30.0  # a reset's wall time must be this close to ours
     # a verified reset the policy did not decide on is refused after this
     reset_answer_s: WithinTenMinutes = 2.0

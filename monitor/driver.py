@@ -48,6 +48,8 @@ class StepInputs:
     tool_speed_mps: float | None = None
     pose_time: float | None = None
     mutes: tuple[MuteRequest, ...] = ()  # verified mute requests (judged by the pipeline)
+    # zone set selections and refused selection requests (monitor/cases/), oldest first
+    case_events: tuple = ()
 
 
 @dataclass(frozen=True)
@@ -166,6 +168,9 @@ class Driver:
         (each a decision with every camera's newest answer), stall detection as ``step``."""
         inputs = self._judge_mutes(inputs, now)
         start = self.clock() if self.stall_after_s is not None else 0.0
+        if inputs.case_events:
+            self.pipeline.take_case_events(inputs.case_events, now)
+            inputs = dataclasses.replace(inputs, case_events=())  # taken once, even on a stall
         if self._stall_gap(start, self._last_end) is not None:
             return [self._stalled(start - self._last_end, inputs)]
         if self._discard_before is not None:
@@ -197,6 +202,9 @@ class Driver:
         """One pipeline step (a frame, or a tick when ``frame`` is None), fed to the sinks."""
         inputs = self._judge_mutes(inputs, now)
         start = self.clock() if self.stall_after_s is not None else 0.0
+        if inputs.case_events:
+            self.pipeline.take_case_events(inputs.case_events, now)
+            inputs = dataclasses.replace(inputs, case_events=())  # taken once
         if self._stall_gap(start, self._last_end) is not None:
             return self._stalled(start - self._last_end, inputs)
         if frame is not None and self._discard_before is not None \

@@ -22,6 +22,7 @@ from dataclasses import dataclass, field, replace
 import cv2
 import numpy as np
 
+from monitor.cases import sets as cases
 from monitor.detector import Detector
 from monitor.health import CameraHealth, HealthReport
 from monitor.muting import Mute, MuteOutcome, MuteRequest, Mutes
@@ -193,6 +194,12 @@ class Pipeline:
         self._mute_outcomes: list[MuteOutcome] = []
         self._mute_alerts: list[Alert] = []
 
+        # zone sets (monitor/cases/): None without ``sets`` in the zone file; the state starts
+        # with the default set at the first step (the selector's ttl counts from there)
+        self.case_plan = cases.plan_of(cell.spec) if cell is not None else None
+        self.case_state: cases.CaseState | None = None
+        self.zones_in_force: cases.ZonesInForce | None = None
+
     def request_mutes(self, requests: Sequence[MuteRequest], now: float
                       ) -> tuple[MuteOutcome, ...]:
         """Judge mute requests at ``now`` (before this step's decision): accepted ones hold
@@ -229,6 +236,16 @@ class Pipeline:
         self._mute_outcomes.clear()
         self._mute_alerts.clear()
         return outcomes, alerts
+
+    def take_case_events(self, events: Sequence[cases.Selection | cases.Refusal],
+                         now: float) -> None:
+        """Zone set selections (verified) and refused requests received since the last step;
+        the next decision uses them. Without sets in the zone file they are ignored
+        (none are received then: without sets every zone applies, the most protection)."""
+        if self.case_plan is None:
+            return
+        state = self.case_state or cases.initial_case(self.case_plan, now)
+        self.case_state = cases.apply_events(self.case_plan, state, events, now)
 
     def _to_floor(self, camera_id: str):
         model = self.cell.camera_models.get(camera_id) if self.cell is not None else None
@@ -502,6 +519,7 @@ class Pipeline:
             if cam.report is not None:
                 reports.append(cam.report)
         report = functools.reduce(merge_towards_danger, reports) if reports else None
+        report = self._in_force(report, now, faults)
         # muted zones as the zone file says (docs/muting.md): on the merged answer at this
         # decision only, so a mute's end applies exactly at the first decision after it
         muted, notes = self._muted(now)
@@ -517,8 +535,22 @@ class Pipeline:
                             latch_nonce=self.latch_nonces(self.state.latches + 1)
                             if self.latch_nonces is not None else "")
 
+    def _in_force(self, report: ZoneReport | None, now: float,
+                  faults: list[Fault]) -> ZoneReport | None:
+        """The merged answer with only the zones of the sets applying at ``now``; the
+        selection's faults added to ``faults``."""
+        if self.case_plan is None:
+            return report
+        state = self.case_state or cases.initial_case(self.case_plan, now)
+        self.case_state = cases.advance(self.case_plan, state, now)
+        self.zones_in_force = cases.in_force(self.case_plan, self.case_state, now)
+        faults.extend(self.zones_in_force.faults)
+        return cases.filter_report(report, self.zones_in_force)
+
     def _decide(self, inputs: PolicyInputs, now: float) -> Command:
         self.state, command = step(self.state, inputs, now, self.policy)
+        if self.zones_in_force is not None:
+            command = replace(command, zone_sets=self.zones_in_force.sets)
         return command
 
     def _changed(self, command: Command) -> bool:

@@ -156,6 +156,8 @@ def command_event(result: StepResult, index: int, tick: bool = False) -> dict:
             event[key] = _rounded(cmd[key])
     if "reset" in cmd:
         event["reset"] = cmd["reset"]
+    if "zone_sets" in cmd:  # the zone sets in force (docs/cases.md)
+        event["zone_sets"] = cmd["zone_sets"]
     event["describe"] = describe(result.command)
     return event
 

@@ -29,6 +29,7 @@ from pathlib import Path
 from monitor.bus import BusConfig, SafetyBus
 from monitor.capacity import CameraDemand, Limits
 from monitor.capacity import check as capacity_check
+from monitor.cases.receiver import CaseReceiver
 from monitor.config import DEMO_SOURCE, MonitorConfig, demo_cell_path, load_config
 from monitor.detector.test_model import TEST_MODEL_REASON, require_real_model
 from monitor.driver import (
@@ -342,12 +343,20 @@ def _run(config_path, log_json: bool, duration: float | None, signals: StopSigna
                 bus.update_status(protective_zone=False, warning=warning)
             if test_model:
                 bus.update_status(test_model=test_model)
+            # zone set selections (monitor/cases/): only with sets in the zone file
+            cases = (CaseReceiver.for_bus(bus.session, bus.config, pipeline.case_plan)
+                     if pipeline.case_plan is not None else None)
+            if cases is not None:
+                cases.__enter__()
+                closers.append(cases.close)
+                event("zone sets", default=pipeline.case_plan.default, key=cases.key_expr,
+                      selectors=bus.config.selectors_file or "none (every selection refused)")
             try:
                 # the embedded demo's capacity only warns: a demonstration, not a cell
                 _serve(config, pipeline, bus, expected, metrics, stop, duration,
                        LatestFrameGrabber, SourceOptions, open_source, test_model,
                        "warn" if config_path is None else config.service.capacity_check,
-                       closers)
+                       closers, cases)
             finally:
                 forget()
             event("shutting down: final STOP published")
@@ -368,7 +377,7 @@ def shutdown_forced() -> Command:
 def _serve(config: MonitorConfig, pipeline: Pipeline, bus: SafetyBus, expected: dict, metrics,
            stop: threading.Event, duration: float | None, grabber_cls, options_cls,
            open_source, test_model: str | None = None, capacity_mode: str = "refuse",
-           closers: list | None = None) -> None:
+           closers: list | None = None, cases=None) -> None:
     # zones that follow the tool need the pose too (without it they stay at their maximum)
     following = pipeline.prepared is not None and bool(pipeline.prepared.moving)
     pose = (bus.pose_subscriber(tracker_clock=config.tracker_clock)
@@ -410,6 +419,7 @@ def _serve(config: MonitorConfig, pipeline: Pipeline, bus: SafetyBus, expected: 
         feed = LiveFeed(grabbers, bus, pose, config.service.tick_s, stop, duration,
                         sink.alert, pipeline.prepared,
                         max_fps={c.id: c.max_fps for c in config.cameras})
+        feed.cases = cases
         # after the service's sink: the command of a step is published when it times it
         reaction = reaction_sink(config, pipeline, capacity, bus, metrics, sink.alert)
         # the safety sink first; the recorder (an optional extra) last
@@ -456,6 +466,7 @@ class LiveFeed:
         self.wait = tick_s / len(grabbers)
         self.end = time.monotonic() + duration if duration is not None else None
         self.turn = 0
+        self.cases = None  # the zone set selections' receiver (None: no sets)
         # None: never connected yet (start-up is no loss); True / False after that
         self.was_connected: dict[str, bool | None] = {g.camera_id: None for g in grabbers}
 
@@ -504,6 +515,7 @@ class LiveFeed:
 
     def inputs(self, now: float) -> StepInputs:
         resets = self.bus.poll_resets()
+        case_events = self.cases.poll() if self.cases is not None else ()
         pose_time = tool_pose = tool_speed = None
         faults = list(self.camera_faults()) + list(self.bus.faults())  # e.g. duplicate_monitor
         if self.pose is not None:
@@ -523,7 +535,7 @@ class LiveFeed:
         return StepInputs(reset=resets[-1] if resets else None,
                           extra_faults=tuple(faults), tool_pose=tool_pose,
                           tool_speed_mps=tool_speed, pose_time=pose_time,
-                          mutes=self.bus.poll_mutes())
+                          mutes=self.bus.poll_mutes(), case_events=case_events)
 
     def camera_faults(self) -> tuple[Fault, ...]:
         """A loss a grabber has seen (read/open error, wrong size, end of stream) is a STOP
@@ -623,7 +635,8 @@ class ServiceSink:
         cameras = [{"id": s.camera_id, "connected": s.connected, "dropped": s.dropped,
                     "reconnects": s.reconnects, "last_error": s.last_error} for s in statuses]
         self.bus.update_status(fps=round(fps, 2), inference_ms=round(inf_ms, 2),
-                               camera=cameras[0], cameras=cameras)
+                               camera=cameras[0], cameras=cameras,
+                               zone_sets=list(result.command.zone_sets) or None)
         m = self.metrics
         m.fps.set(fps)
         m.inference_ms.set(inf_ms)

@@ -32,6 +32,7 @@ COMMAND_MODULES = (
     "monitor.console.cli",
     "monitor.cli.incidents",
     "monitor.cli.mute",
+    "monitor.cli.cases",
 )
 DEBUG_HELP = "show the full traceback on errors (anywhere on the command line)"
 

@@ -157,6 +157,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
     zone_cameras.register(sub)
 
+    from monitor.cli import cases
+
+    cases.register_zone_sets(sub)
+
 
 _POSITIONAL_HELP = {"file": "zone file (YAML)", "id": "zone id", "ids": "zone ids"}
 

@@ -173,6 +173,8 @@ class Command:
     reset_possible_since: float | None = None
     clear_for_s: float | None = None
     phase: str = ""  # the machine's state (``PHASES``); empty for commands made elsewhere
+    # the zone sets applying (two or more while switching; docs/cases.md); () without sets
+    zone_sets: tuple[str, ...] = ()
 
     def same_as(self, other: Command | None) -> bool:
         """True when nothing a controller or operator acts on changed: same state, speed,
@@ -186,6 +188,7 @@ class Command:
             and self.latched == other.latched
             and self.reset_possible == other.reset_possible
             and [r.key() for r in self.reasons] == [r.key() for r in other.reasons]
+            and self.zone_sets == other.zone_sets
         )
 
     def describe(self, when: TimeText = seconds) -> str:
@@ -235,6 +238,8 @@ class Command:
             out["reset_possible_since"] = self.reset_possible_since
         if self.reset is not None:
             out["reset"] = dict(self.reset.__dict__)
+        if self.zone_sets:
+            out["zone_sets"] = list(self.zone_sets)
         return out
 
 

@@ -300,7 +300,11 @@ def _as_tuples(data: Any) -> Any:
 def cell_to_data(cell_or_spec: Cell | CellSpec) -> dict:
     """Plain data (lists, dicts, numbers) of a cell, as it is written to YAML."""
     spec = cell_or_spec.spec if isinstance(cell_or_spec, Cell) else cell_or_spec
-    return spec.model_dump(mode="json", exclude_none=True)
+    data = spec.model_dump(mode="json", exclude_none=True)
+    if not spec.sets:  # zone set keys only in files that use sets (docs/cases.md)
+        data.pop("sets", None)
+        data.pop("switch_over_s", None)
+    return data
 
 
 class _Dumper(yaml.SafeDumper):
@@ -457,6 +461,13 @@ def config_hash(spec: CellSpec, meshes_sha: Mapping[str, str] | None = None) -> 
     if spec.floors:  # only when set: older files keep their hash
         payload["floors"] = sorted((f.model_dump(mode="json", exclude={"name"})
                                     for f in spec.floors), key=lambda f: f["id"])
+    if spec.sets:  # only when set: older files keep their hash (monitor/cases/)
+        payload["sets"] = {
+            "sets": sorted((z.model_dump(mode="json", exclude={"name"}) for z in spec.sets),
+                           key=lambda z: z["id"]),
+            "default_set": spec.default_set,
+            "transitions": sorted(spec.transitions) if spec.transitions is not None else None,
+            "switch_over_s": spec.switch_over_s, "selector_ttl_s": spec.selector_ttl_s}
     if spec.robot_base is not None:  # only when set (the default base is fixed in code)
         payload["robot_base"] = spec.robot_base.model_dump(mode="json")
     blob = json.dumps(payload, sort_keys=True, separators=(",", ":"), allow_nan=False)

@@ -338,6 +338,17 @@ class RobotBaseSpec(_Strict):
 ROBOT_BASE_ID = "robot_base"  # the id of the robot base's occluder (not a zone of the file)
 
 
+class ZoneSetSpec(_Strict):
+    """A zone set (a monitoring case): the protective and warning zones that apply while the
+    robot program has selected it (docs/cases.md). Zones that no set names apply always.
+    ``speed_scale`` caps the speed of the set's warning zones while it applies."""
+
+    id: str = Field(pattern=_ID)
+    name: str = ""
+    zones: tuple[str, ...] = Field(min_length=1, max_length=1000)
+    speed_scale: float | None = Field(default=None, ge=0.0, lt=1.0)
+
+
 class CellSpec(_Strict):
     """The whole zone file."""
 
@@ -352,6 +363,12 @@ class CellSpec(_Strict):
     zones: tuple[ZoneSpec, ...] = ()
     floors: tuple[FloorSpec, ...] = ()  # raised or sunken floor regions (platforms, pits)
     robot_base: RobotBaseSpec | None = None  # None: RobotBaseSpec() (the default base)
+    # zone sets switched by a signed selection (docs/cases.md, monitor/cases/)
+    sets: tuple[ZoneSetSpec, ...] = ()
+    default_set: str | None = None  # the set in force at start (required with sets)
+    transitions: tuple[tuple[str, str], ...] | None = None  # allowed [from, to]; None: any
+    switch_over_s: float = Field(default=1.0, ge=0.0, le=60.0)  # both sets apply this long
+    selector_ttl_s: float | None = Field(default=None, gt=0.0, le=3600.0)  # None: not watched
 
     def occluder_zones(self) -> tuple:
         """Every fixture that can hide a person: the enabled ``occluder`` volumes of the file

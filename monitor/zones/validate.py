@@ -29,6 +29,7 @@ from monitor.zones.schema import (
     ToolBox,
     ToolMesh,
 )
+from monitor.zones.set_checks import check_sets
 
 # --------------------------------------------------------------------------------------------
 # Error messages
@@ -181,6 +182,7 @@ def _check_spec(spec: CellSpec, base: Path
     errors += follow_faults(spec)
     errors += _check_horizon(spec, models)
     errors += check_floors(spec)
+    errors += check_sets(spec)
     if not errors:  # every protective and warning zone watched, or flagged (coverage.py)
         unseen_errors, unseen_warnings = coverage_faults(spec, models, meshes)
         errors += unseen_errors

@@ -1,0 +1,117 @@
+"""Zone set selections off Zenoh: ``<prefix>safety/case`` as a queryable (the answer says
+whether the request was verified) and as a subscriber (a PLC adapter or robot program that
+only puts). Each request becomes an event for the pipeline's switch (``Pipeline.
+take_case_events``): a verified ``Selection`` or a ``Refusal`` with the reason."""
+
+from __future__ import annotations
+
+import collections
+import contextlib
+import json
+import threading
+import time
+
+import zenoh
+
+from monitor.cases.requests import CaseGate, CasePolicy
+from monitor.cases.sets import CasePlan, Refusal, Selection
+from monitor.signing import load_operators
+
+CASE_ANSWER_SCHEMA = "workcell.safety.case-answer/1"
+
+
+def case_key(prefix: str) -> str:
+    return (prefix if prefix.endswith("/") else prefix + "/") + "safety/case"
+
+
+class CaseReceiver:
+    """Verifies selection requests as they arrive and queues them (bounded: the newest 64; a
+    flood still leaves its refusals in the queue). Thread-safe ``poll``."""
+
+    def __init__(self, session: zenoh.Session, key_expr: str, gate: CaseGate,
+                 plan: CasePlan | None = None) -> None:
+        self.session = session
+        self.key_expr = key_expr
+        self.gate = gate
+        self.plan = plan
+        self._lock = threading.Lock()
+        self._events: collections.deque[Selection | Refusal] = collections.deque(maxlen=64)
+        self._entities: list = []
+        self.accepted = 0
+        self.refused = 0
+
+    @classmethod
+    def for_bus(cls, session: zenoh.Session, bus_config, plan: CasePlan | None
+                ) -> CaseReceiver:
+        key = case_key(bus_config.key_prefix)
+        selectors = (load_operators(bus_config.selectors_file)
+                     if bus_config.selectors_file else None)
+        return cls(session, key, CaseGate(CasePolicy(selectors, bus_config.cell, key,
+                                                     bus_config.case_window_s)), plan)
+
+    def __enter__(self) -> CaseReceiver:
+        self._entities = [self.session.declare_queryable(self.key_expr, self._on_query),
+                          self.session.declare_subscriber(self.key_expr, self._on_sample)]
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def close(self) -> None:
+        for entity in self._entities:
+            with contextlib.suppress(Exception):  # the session may be closed: nothing to undo
+                entity.undeclare()
+        self._entities = []
+
+    def poll(self) -> tuple[Selection | Refusal, ...]:
+        with self._lock:
+            out = tuple(self._events)
+            self._events.clear()
+        return out
+
+    def _take(self, payload: bytes, signature: bytes | None) -> dict:
+        try:
+            with self._lock:
+                event = self.gate.judge(payload, signature, time.time())
+        except Exception:  # nothing a sender does may kill this callback
+            event = Refusal("malformed selection request")
+        with self._lock:
+            self._events.append(event)
+            if isinstance(event, Refusal):
+                self.refused += 1
+                return {"accepted": False, "reason": event.reason}
+            self.accepted += 1
+        known = self.plan is None or self.plan.get(event.set_id) is not None
+        reason = "verified; the switch follows the zone file's rules" if known else \
+            f"unknown zone set {event.set_id!r}: the cell STOPs until a valid selection"
+        return {"accepted": known, "reason": reason, "set": event.set_id, "seq": event.seq}
+
+    def _on_query(self, query: zenoh.Query) -> None:
+        payload = query.payload.to_bytes() if query.payload is not None else b""
+        signature = query.attachment.to_bytes() if query.attachment is not None else None
+        answer = self._take(payload, signature)
+        try:
+            query.reply(self.key_expr, json.dumps({"schema": CASE_ANSWER_SCHEMA, **answer}))
+        except Exception:  # the querier may be gone: the event is queued all the same
+            pass
+        finally:
+            query.drop()
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        signature = sample.attachment.to_bytes() if sample.attachment is not None else None
+        self._take(sample.payload.to_bytes(), signature)
+
+
+def request_case(session: zenoh.Session, key_expr: str, payload: bytes,
+                 signature: bytes | None, timeout: float) -> dict | None:
+    """Send a selection as a query; the monitor's answer or None on timeout."""
+    for reply in session.get(key_expr, payload=payload, attachment=signature, timeout=timeout):
+        if reply.ok is None:
+            continue
+        try:
+            body = json.loads(reply.ok.payload.to_bytes())
+        except (ValueError, UnicodeDecodeError):
+            continue
+        if isinstance(body, dict) and isinstance(body.get("accepted"), bool):
+            return body
+    return None
