@@ -6,8 +6,9 @@ reference server, with TLS built in. The pages are plain HTML and one small scri
 (``static/console.js``) that polls JSON: nothing to compile, nothing fetched from the internet.
 
 Routes: ``/`` live view, ``/incidents`` list and playback, ``/zones`` zone editor (pages);
-``/api/state``, ``/api/live/{camera}.jpg``, ``/api/incidents``, ``/api/incidents/{id}/clip``,
-``/api/zones``, ``/api/zones/{camera}/image.jpg`` (read-only, no login);
+``/api/state``, ``/api/live/{camera}.jpg``, ``/api/incidents``,
+``/api/incidents/{id}/clip[?camera=]``, ``/api/zones``, ``/api/zones/{camera}/image.jpg``
+(read-only, no login);
 ``PUT /api/zones/{id}`` (an operator's credential; audited, accepted or refused).
 """
 
@@ -101,7 +102,8 @@ def build_app(console: Console) -> Starlette:
         return _json({"incidents": console.incidents.list(filters)})
 
     async def clip(request: Request) -> Response:
-        path = console.incidents.clip_path(request.path_params["id"])
+        path = console.incidents.clip_path(request.path_params["id"],
+                                           request.query_params.get("camera") or None)
         if path is None:
             return _json({"error": "no clip for this incident"}, 404)
         media = "video/mp4" if path.suffix.lower() in (".mp4", ".m4v") else None
