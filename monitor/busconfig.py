@@ -104,13 +104,15 @@ class BusKeys:
     reset: str
     alive: str  # prefix of the liveliness tokens: alive + "/" + instance
     pose: str
+    zones_apply: str = ""  # signed zone applies (monitor.zone_apply)
 
     @classmethod
     def of(cls, prefix: str) -> BusKeys:
         p = prefix if prefix.endswith("/") else prefix + "/"
         return cls(command=p + "safety/command", alert=p + "safety/alert",
                    detections=p + "safety/detections", status=p + "safety/status",
-                   reset=p + "safety/reset", alive=p + "safety/alive", pose=p + "tracker/pose")
+                   reset=p + "safety/reset", alive=p + "safety/alive", pose=p + "tracker/pose",
+                   zones_apply=p + "safety/zones/apply")
 
 
 def zenoh_config(bus: BusConfig) -> zenoh.Config:
