@@ -15,6 +15,7 @@ from monitor.console.auth import (
     read_passwords,
     require_safe_listen,
 )
+from monitor.console.edits import BUSY_S, ZoneEditIncidents
 from monitor.console.incidents import IncidentFilters, RecorderIncidents
 from monitor.console.live import LiveRenderer, LiveState
 from monitor.console.zones_api import ZoneEditor
@@ -37,10 +38,12 @@ def _client(tmp_path, with_passwords: bool = True):
     cell = zone_file(tmp_path)
     editor = ZoneEditor(cell)
     live = LiveState()
+    incidents = incident_dir(tmp_path)
     console = Console("c", live, LiveRenderer(live, editor.cell, {}), editor,
-                      RecorderIncidents(incident_dir(tmp_path)),
+                      RecorderIncidents(incidents),
                       Operators(passwords(tmp_path) if with_passwords else None),
-                      AuditLog(tmp_path / "audit.jsonl"), {})
+                      AuditLog(tmp_path / "audit.jsonl"), {},
+                      edits=ZoneEditIncidents(incidents, "c"))
     return TestClient(build_app(console)), cell
 
 
@@ -223,6 +226,61 @@ def test_incident_source_filters_and_never_serves_outside_its_directory(tmp_path
     r = client.get(f"/api/incidents/{listed[0]['id']}/clip", headers={"range": "bytes=0-99"})
     assert r.status_code == 206 and len(r.content) == 100  # seeking in the player
     assert r.headers["content-type"] == "video/mp4"
+
+
+def test_every_zone_edit_is_an_incident_of_the_recorder_and_a_locked_index_only_audits(
+        tmp_path):
+    import json
+    import sqlite3
+    import time
+
+    from monitor.incidents import IncidentIndex
+
+    client, cell = _client(tmp_path)
+    d = tmp_path / "incidents"
+    before = load_cell(cell).config_hash
+    body = {"camera": "cam0", "kind": "protective", "points_px": SQUARE}
+    assert client.put("/api/zones/aisle", json=body,
+                      headers=_auth("mallory", PASSWORD)).status_code == 401
+    r = client.put("/api/zones/aisle", json={**body, "points_px": BOWTIE},
+                   headers=_auth(OPERATOR, PASSWORD))
+    assert r.status_code == 422 and r.json()["incident"]
+    ok = client.put("/api/zones/aisle", json=body, headers=_auth(OPERATOR, PASSWORD))
+    assert ok.status_code == 200 and ok.json()["incident"]
+    after = load_cell(cell).config_hash
+    edits = list(reversed(IncidentIndex(d).list(cause="zone_edit")))
+    assert [(e.operator, e.record["zone_edit"]["result"], e.record["zone_edit"]["accepted"])
+            for e in edits] == [(None, "refused", False), (OPERATOR, "invalid", False),
+                                (OPERATOR, "saved", True)]
+    assert "self-intersecting polygon" in edits[1].record["zone_edit"]["message"]
+    assert (edits[2].record["zone_edit"]["old_hash"],
+            edits[2].record["zone_edit"]["new_hash"]) == (before, after)
+    assert edits[2].id == ok.json()["incident"] and not any(e.clip_paths() for e in edits)
+    assert all(e.complete and e.causes == ("zone_edit",) for e in edits)
+    # the console lists them beside the recorder's own incidents
+    listed = client.get("/api/incidents?cause=zone_edit").json()["incidents"]
+    assert len(listed) == 3 and not any(i["has_clip"] for i in listed)
+    # another process holds the index's write lock past the console's busy timeout: the edit
+    # is still saved and audited, the audit says the incident could not be written
+    lock = sqlite3.connect(str(d / "index.sqlite3"), isolation_level=None)
+    lock.execute("BEGIN EXCLUSIVE")
+    try:
+        started = time.monotonic()
+        r = client.put("/api/zones/aisle", json={**body, "points_px": [[900, 160], *SQUARE[1:]]},
+                       headers=_auth(OPERATOR, PASSWORD))
+        waited = time.monotonic() - started
+    finally:
+        lock.execute("ROLLBACK")
+        lock.close()
+    assert r.status_code == 200 and r.json()["incident"] is None
+    assert waited >= BUSY_S * 0.9  # SQLite's lock serialised the writers: it waited, then gave up
+    audit = [json.loads(line) for line in (tmp_path / "audit.jsonl").read_text().splitlines()]
+    assert audit[-2]["result"] == "saved"
+    assert audit[-1]["event"] == "zone_edit_incident_error" and "locked" in \
+        audit[-1]["incident_error"]
+    # the lock gone, the next edit is recorded again
+    r = client.put("/api/zones/aisle", json=body, headers=_auth(OPERATOR, PASSWORD))
+    assert r.status_code == 200 and r.json()["incident"]
 
 
 def test_live_image_and_state_need_no_login(tmp_path):

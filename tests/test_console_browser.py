@@ -260,4 +260,16 @@ def test_console_live_incidents_and_zone_editor_in_a_browser(browser, cell_and_c
     d.get(url + "/")
     _wait(d, lambda _: d.find_element(By.ID, "pending").is_displayed(),
           what="zone file pending shown")
-    assert "restarts" in d.find_element(By.ID, "pending").text
+    assert "monitor zones apply" in d.find_element(By.ID, "pending").text
+
+    # every edit attempt is an incident of the recorder's data dir too (cause zone_edit)
+    edits = IncidentIndex(tmp_path / "incidents").list(cause="zone_edit")
+    assert [e.record["zone_edit"]["result"] for e in reversed(edits)] == ["invalid", "saved"]
+    assert all(e.operator == OPERATOR and not e.clip_paths() for e in edits)
+    saved_edit = edits[0].record["zone_edit"]
+    assert saved_edit["new_hash"] == load_cell(cell).config_hash == audit[1]["config_hash"]
+    assert saved_edit["old_hash"] == audit[1]["config_hash_before"] != saved_edit["new_hash"]
+    assert "self-intersecting polygon" in edits[1].record["zone_edit"]["message"]
+    d.get(url + "/incidents")
+    _wait(d, lambda _: d.find_element(By.ID, "count").text == "3 incident(s)",
+          what="the two zone edits listed with the recorded entry")

@@ -119,6 +119,7 @@ def _serve(args, host: str, port: int, tls: bool, operators, references, audit) 
     from monitor.bus import BusKeys, default_instance, open_session
     from monitor.cli.bus import _bus_config, _watchdog
     from monitor.console.app import Console, build_app
+    from monitor.console.edits import ZoneEditIncidents
     from monitor.console.incidents import NoIncidents, RecorderIncidents
     from monitor.console.live import LiveRenderer, LiveState, subscribe_live
     from monitor.console.zones_api import ZoneEditor
@@ -137,7 +138,9 @@ def _serve(args, host: str, port: int, tls: bool, operators, references, audit) 
                       renderer=LiveRenderer(live, editor.cell, references), editor=editor,
                       incidents=RecorderIncidents(args.incidents) if args.incidents
                       else NoIncidents(), operators=operators, audit=audit,
-                      references=references)
+                      references=references,
+                      edits=ZoneEditIncidents(args.incidents, bus.cell) if args.incidents
+                      else None)
     app = build_app(console)
     session = open_session(bus)
     stop = threading.Event()
