@@ -129,8 +129,9 @@ def test_a_signed_apply_swaps_the_zones_a_person_in_the_new_zone_stops(service):
     assert "zones applied by tester" in proc.stdout
     i, first = svc.next_command(mark, lambda c: c["config_hash"] == new, 10, "the new hash")
     assert first["state"] == "STOP"  # the apply's own STOP comes with the new hash
+    assert "zones_applying" in {r.get("fault") for r in first["reasons"]}
     svc.next_command(i, lambda c: "protective_zone" in codes(c)
-                     and "zones_applying" not in codes(c), 15,
+                     and "zones_applying" not in {r.get("fault") for r in c["reasons"]}, 15,
                      "STOP for the person in the new protective zone")
     assert all(c["config_hash"] == new for c in svc.commands[i:])
     assert all(c["state"] != "RUN" and c["state"] != "SLOW" for c in svc.commands[i:])
@@ -154,3 +155,42 @@ def test_the_cli_refuses_an_invalid_file_before_sending(tmp_path):
                        "tcp/127.0.0.1:9", "--zones", cell, timeout=60)
     assert proc.returncode == 2 and "self-intersecting" in proc.stderr
     assert len(proc.stderr.strip().splitlines()) <= 2  # the key note and the one-line error
+
+
+def test_a_swap_stops_for_at_least_one_decision_and_clear_time_on_the_new_zones(detector,
+                                                                                tmp_path):
+    """Even when the first frame after the swap comes in the very next step, the cell STOPs
+    (zones_applying) and RUN waits clear_time on the new zones (fails without the forced STOP:
+    the swap would go from RUN to RUN)."""
+    from monitor.pipeline import Pipeline
+    from monitor.policy import PolicyConfig
+    from monitor.types import FrameInfo
+
+    image = next(iter(DemoScene().frames()))[0]  # nobody in the cell yet
+    cell = load_cell(demo_cell_path())
+    policy = PolicyConfig()
+    pipeline = Pipeline(detector, ["cam0"], policy, cell)
+    h, w = image.shape[:2]
+    t, seq, states = 0.0, 0, []
+
+    def step() -> str:
+        nonlocal t, seq
+        t += 0.1
+        seq += 1
+        result = pipeline.process(image, FrameInfo("cam0", seq, t, w, h), t)
+        return result.command
+
+    while (cmd := step()).state != "RUN":
+        assert t < 10
+    changed = tmp_path / "cell.yaml"
+    changed.write_text(Path(demo_cell_path()).read_text() + NEW_ZONE)
+    pipeline.swap_cell(load_cell(changed), note=" by tester")
+    swapped_at = t
+    first = step()
+    assert first.state == "STOP" and not first.latched  # a start on new zones: no reset
+    assert "zones_applying" in {r.fault for r in first.reasons}
+    while (cmd := step()).state != "RUN":
+        states.append(cmd.state)
+        assert t < swapped_at + 10
+    assert t - (swapped_at + 0.1) >= policy.clear_time - 1e-6  # clear_time on the new zones
+    assert pipeline.cell.config_hash == load_cell(changed).config_hash and not states.count("RUN")
