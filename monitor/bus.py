@@ -13,6 +13,7 @@ Keys (``prefix`` defaults to ``workcell/<cell>/``):
                                     (``monitor.resets``); the reply is the answer
 ``<prefix>safety/mute``             queryable: signed mute requests
                                     (``monitor.mute_requests``; docs/muting.md)
+``<prefix>safety/zones/apply``     queryable: signed zone applies (``monitor.zone_swap``)
 ``<prefix>safety/alive/<instance>`` liveliness token of the running monitor
 ``<prefix>tracker/pose``            tool pose samples (``monitor.pose``)
 =================================  =========================================================
@@ -160,6 +161,7 @@ class SafetyBus:
         self._foreign = ForeignCommands(self._signer.key.public_key() if self._signer else None,
                                         self.keys.command)
         self._status_extra: dict = {}
+        self._next_config_hash: str | None = None  # a signed zone apply, from the next command
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._session: zenoh.Session | None = None
@@ -391,9 +393,15 @@ class SafetyBus:
                     since=self._clock(), reset=command.reset)
         with self._cmd_lock:  # decide and send as one step: concurrent callers stay ordered
             with self._lock:
+                new_zones = self._next_config_hash is not None
+                if new_zones:
+                    self.config = dataclasses.replace(self.config,
+                                                      config_hash=self._next_config_hash)
+                    self._next_config_hash = None
                 self._latest = command
                 self._latest_time = self._clock()
-                changed = not command.same_as(self._published) or command.reset is not None
+                changed = (not command.same_as(self._published) or command.reset is not None
+                           or new_zones)
                 if changed:
                     self._published = command
                 if command.reset is not None:
@@ -464,6 +472,13 @@ class SafetyBus:
             body = self._envelope(self.keys.detections, DETECTIONS_SCHEMA,
                                   {**detections_body(persons, zone_report), **extra})
         self._put(self._pub_detections, self.keys.detections, json.dumps(body).encode())
+
+    def set_config_hash(self, config_hash: str) -> None:
+        """The zone set in force changed (a signed apply): from the next command handed in
+        (the first decided on it) every message names it; a heartbeat repeating a command
+        decided on the old zones never carries the new hash."""
+        with self._lock:
+            self._next_config_hash = config_hash
 
     def update_status(self, **fields) -> None:
         """Merge fields (e.g. fps=12.5, cameras={...}) into what the status queryable answers."""

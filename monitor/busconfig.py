@@ -109,6 +109,7 @@ class BusKeys:
     alive: str  # prefix of the liveliness tokens: alive + "/" + instance
     pose: str
     mute: str = ""  # signed mute requests (monitor.mute_requests; docs/muting.md)
+    zones_apply: str = ""  # signed zone applies (monitor.zone_apply)
 
     @classmethod
     def of(cls, prefix: str) -> BusKeys:
@@ -116,7 +117,8 @@ class BusKeys:
         return cls(command=p + "safety/command", alert=p + "safety/alert",
                    detections=p + "safety/detections", status=p + "safety/status",
                    reset=p + "safety/reset", alive=p + "safety/alive", pose=p + "tracker/pose",
-                   mute=p + "safety/mute")
+                   mute=p + "safety/mute",
+                   zones_apply=p + "safety/zones/apply")
 
 
 def zenoh_config(bus: BusConfig) -> zenoh.Config:

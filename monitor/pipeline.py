@@ -49,7 +49,9 @@ from monitor.zones.moving import ToolState
 log = logging.getLogger(__name__)
 
 # Faults that are expected at start-up or say nothing a person must act on.
-QUIET_FAULTS = frozenset({"camera_waiting"})
+# (zones_applying: the zones_applied alert already says it, with operator and hashes)
+QUIET_FAULTS = frozenset({"camera_waiting", "zones_applying"})
+ZONES_APPLYING = "zones_applying"
 
 
 def _snapshot(image: np.ndarray | None, max_width: int = 1280) -> bytes | None:
@@ -193,12 +195,19 @@ class Pipeline:
         self.when: TimeText = seconds  # times in mute reasons (live: the wall clock)
         self._mute_outcomes: list[MuteOutcome] = []
         self._mute_alerts: list[Alert] = []
+        self._mutes_end_why = ""  # set by a zone swap: every mute ends at the next decision
 
         # zone sets (monitor/cases/): None without ``sets`` in the zone file; the state starts
         # with the default set at the first step (the selector's ttl counts from there)
         self.case_plan = cases.plan_of(cell.spec) if cell is not None else None
         self.case_state: cases.CaseState | None = None
         self.zones_in_force: cases.ZonesInForce | None = None
+
+        # after a zone swap: cameras without a frame checked against the new zones yet, and
+        # whether a decision has seen the swap's STOP (``swap_cell``)
+        self.zones_waiting: set[str] = set()
+        self._zones_stop_unseen = False
+        self._zones_note = ""
 
     def request_mutes(self, requests: Sequence[MuteRequest], now: float
                       ) -> tuple[MuteOutcome, ...]:
@@ -222,6 +231,14 @@ class Pipeline:
         that ended is alerted here, at the first decision at or after its end."""
         from monitor.alerts import unmute_alert
 
+        if self._mutes_end_why:  # a zone apply ends every mute (the rules may have changed)
+            for mute in self.mutes.active:
+                log.warning("mute of zone %s by %s ended: %s", mute.zone, mute.operator,
+                            self._mutes_end_why)
+                self._mute_alerts.append(unmute_alert(mute, now, self.when,
+                                                      self._mutes_end_why))
+            self.mutes = replace(Mutes.of(self.cell), seen=self.mutes.seen)
+            self._mutes_end_why = ""
         self.mutes, ended = self.mutes.expire(now)
         for mute in ended:
             log.warning("mute of zone %s by %s ended", mute.zone, mute.operator)
@@ -246,6 +263,37 @@ class Pipeline:
             return
         state = self.case_state or cases.initial_case(self.case_plan, now)
         self.case_state = cases.apply_events(self.case_plan, state, events, now)
+
+    def swap_cell(self, cell: Cell, prepared=None,
+                  health: Mapping[str, CameraHealth | None] | None = None,
+                  note: str = "") -> None:
+        """Decide with ``cell`` from the next step on (a signed zone apply, monitor.zone_swap).
+
+        Everything derived from the zone set is replaced here: the prepared zones (with the
+        reaction time of separation monitoring when given), the mask rules, each tracker's
+        floor mapping, and the health checkers of cameras whose watch zones changed
+        (``health``). The cell is then in STOP (``zones_applying``) until every camera has a
+        frame checked against the new zones, and at least for one decision, so the policy's
+        clear_time runs on the new zones before RUN; no decision mixes the two zone sets with
+        RUN. Holds of lost persons are kept (their zones may be gone: still a STOP)."""
+        self.cell = cell
+        self.prepared = prepared if prepared is not None else cell.prepared
+        self._mask_rules = {}
+        for cid, cam in self.cameras.items():
+            if cam.tracker is not None:
+                cam.tracker.to_floor = self._to_floor(cid)
+            if health is not None and cid in health:
+                cam.health = health[cid]
+        self.zones_waiting = set(self.camera_ids)
+        self._zones_stop_unseen = True
+        self._zones_note = note
+        # muting and zone sets follow the new file: every mute ends at the next decision (its
+        # zone is protective again; re-mute under the new rules), the sets start again from
+        # the new default
+        self._mutes_end_why = "zones applied"
+        self.case_plan = cases.plan_of(cell.spec)
+        self.case_state = None
+        self.zones_in_force = None
 
     def _to_floor(self, camera_id: str):
         model = self.cell.camera_models.get(camera_id) if self.cell is not None else None
@@ -423,6 +471,7 @@ class Pipeline:
                 faults.append(Fault("health_check_error", _one_line(exc), True,
                                     frame.camera_id))
         t3 = time.perf_counter()
+        self.zones_waiting.discard(frame.camera_id)  # this frame was checked on the new zones
         cam.frame_time, cam.report, cam.faults = frame.capture_time, report, tuple(faults)
         cam.detector_error = detector_error
         cleared = self._confirm_clear(reset, now)
@@ -502,6 +551,11 @@ class Pipeline:
                 reset: ResetRequest | None, with_frame: bool) -> PolicyInputs:
         """The policy's evidence: every camera's newest answer, merged towards danger."""
         faults = list(extra)
+        if self.zones_waiting or self._zones_stop_unseen:
+            waiting = ", ".join(sorted(self.zones_waiting)) or "none"
+            faults.append(Fault(ZONES_APPLYING, f"new zone set applied{self._zones_note}: "
+                                f"cameras without a frame on it yet: {waiting}", True, "zones"))
+            self._zones_stop_unseen = False
         reports, times, detector_error = [], [], None
         for cid, cam in self.cameras.items():
             faults.extend(cam.faults)

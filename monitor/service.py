@@ -174,39 +174,60 @@ def build_pipeline(config: MonitorConfig):
     from monitor.models import synthetic
     from monitor.zones import load_cell, watch_regions
 
-    zones_file = config.zones.file
-    if zones_file is None and all(c.source == DEMO_SOURCE for c in config.cameras):
-        zones_file = str(demo_cell_path())
+    zones_file = zones_file_of(config)
     cell = load_cell(zones_file) if zones_file else None
-    require_protective_zone(cell, config.zones.allow_no_protective,
-                            zones_file or "(no [zones] file)")
+    zone_checks(config, cell, zones_file)
     health, expected = {}, {}
     for cam in config.cameras:
-        if cell is not None and cam.id not in cell.cameras:
-            raise ConfigError(f"camera {cam.id!r} is not in zone file {zones_file} "
-                              f"(has {', '.join(cell.cameras)})")
         reference = load_reference(cam.reference) if cam.reference else None
         watch = watch_regions(cell, cam.id) if cell is not None else []
         health[cam.id] = CameraHealth(config.health, cam.id, reference, watch)
         expected[cam.id] = (cell.cameras[cam.id].width, cell.cameras[cam.id].height) \
             if cell else None
+    model = Path(config.model.path) if config.model.path else synthetic.ensure_model()
+    detector = Detector(model, config.detector)  # one model, shared by the cameras in turn
+    test_model = require_real_model(detector.test_model, config.cameras,
+                                    config.model.allow_test_model)
+    pipeline = Pipeline(detector, [c.id for c in config.cameras], config.policy, cell, health)
+    pipeline.prepared = prepared_zones(config, cell)
+    return pipeline, cell, expected, test_model
+
+
+def zones_file_of(config: MonitorConfig) -> str | None:
+    """The zone file the service runs with (the demo cell for the demo source), or None."""
+    zones_file = config.zones.file
+    if zones_file is None and all(c.source == DEMO_SOURCE for c in config.cameras):
+        zones_file = str(demo_cell_path())
+    return zones_file
+
+
+def zone_checks(config: MonitorConfig, cell, zones_file: str | None) -> None:
+    """What a zone set must pass to be decided with, at start and at a signed apply
+    (monitor.zone_swap): a protective zone, every fed camera in it, no zone of an unfed
+    camera, and a tool with a calibrated camera for separation monitoring. ConfigError."""
+    require_protective_zone(cell, config.zones.allow_no_protective,
+                            zones_file or "(no [zones] file)")
+    for cam in config.cameras:
+        if cell is not None and cam.id not in cell.cameras:
+            raise ConfigError(f"camera {cam.id!r} is not in zone file {zones_file} "
+                              f"(has {', '.join(cell.cameras)})")
     _require_fed_cameras(cell, config, zones_file)
     if config.policy.separation_monitoring:
         if cell is None:
             raise ConfigError("policy.separation_monitoring needs a zone file with a tool and a "
                               "calibrated camera ([zones] file)")
         require_separation_ready(cell)
-    model = Path(config.model.path) if config.model.path else synthetic.ensure_model()
-    detector = Detector(model, config.detector)  # one model, shared by the cameras in turn
-    test_model = require_real_model(detector.test_model, config.cameras,
-                                    config.model.allow_test_model)
-    pipeline = Pipeline(detector, [c.id for c in config.cameras], config.policy, cell, health)
-    if config.policy.separation_monitoring or (
-            pipeline.prepared is not None and pipeline.prepared.moving):
+
+
+def prepared_zones(config: MonitorConfig, cell):
+    """The cell's prepared zones as the pipeline decides with them (None: no cell)."""
+    if cell is None:
+        return None
+    if config.policy.separation_monitoring or cell.prepared.moving:
         # T_r is never smaller than the delays this configuration lets pass (ISO/TS 15066);
         # zones that grow with the tool speed use S_p too
-        pipeline.prepared = with_reaction_time(pipeline.prepared, reaction_budget(config))
-    return pipeline, cell, expected, test_model
+        return with_reaction_time(cell.prepared, reaction_budget(config))
+    return cell.prepared
 
 
 def check_capacity(config: MonitorConfig, detector, expected: dict, mode: str,
@@ -419,6 +440,21 @@ def _serve(config: MonitorConfig, pipeline: Pipeline, bus: SafetyBus, expected: 
         feed = LiveFeed(grabbers, bus, pose, config.service.tick_s, stop, duration,
                         sink.alert, pipeline.prepared,
                         max_fps={c.id: c.max_fps for c in config.cameras})
+        # signed zone applies: checked on the bus, swapped in by the loop between two steps
+        from monitor.zone_swap import LiveZones, ZoneApplies
+
+        applies = ZoneApplies(bus)
+        closers.insert(0, applies.close)
+        rec = recorder[0] if recorder is not None else None
+
+        def applied(cell) -> None:
+            feed.use_zones(pipeline.prepared)
+            if rec is not None:
+                rec.zones_changed(cell)
+
+        feed.zones = LiveZones(config, zones_file_of(config), pipeline, bus, applies,
+                               sink.alert, event, on_applied=applied)
+        bus.update_status(zones_file=zones_file_of(config) or "")
         feed.cases = cases
         # after the service's sink: the command of a step is published when it times it
         reaction = reaction_sink(config, pipeline, capacity, bus, metrics, sink.alert)
@@ -455,10 +491,8 @@ class LiveFeed:
         # in the grabber, which keeps only the newest)
         self.min_interval = {cid: 1.0 / fps for cid, fps in (max_fps or {}).items() if fps}
         self.last_taken: dict[str, float] = {}
-        # the tool points whose speed bounds the whole tool's (none without a tool)
-        self.tool_points = tool_points_in_tracker(prepared) if prepared is not None else None
-        self.unknown_speed = (prepared.separation.robot_speed_default_mps
-                              if prepared is not None else 0.0)
+        self.use_zones(prepared)
+        self.zones = None  # monitor.zone_swap.LiveZones: signed zone applies, between steps
         self.bus = bus
         self.pose = pose
         self.stop = stop
@@ -469,6 +503,12 @@ class LiveFeed:
         self.cases = None  # the zone set selections' receiver (None: no sets)
         # None: never connected yet (start-up is no loss); True / False after that
         self.was_connected: dict[str, bool | None] = {g.camera_id: None for g in grabbers}
+
+    def use_zones(self, prepared) -> None:
+        """The tool points whose speed bounds the whole tool's (none without a tool)."""
+        self.tool_points = tool_points_in_tracker(prepared) if prepared is not None else None
+        self.unknown_speed = (prepared.separation.robot_speed_default_mps
+                              if prepared is not None else 0.0)
 
     def next(self):
         if self.end is not None and time.monotonic() >= self.end:
@@ -514,6 +554,8 @@ class LiveFeed:
         return interval is None or last is None or time.monotonic() - last >= interval
 
     def inputs(self, now: float) -> StepInputs:
+        if self.zones is not None:
+            self.zones.poll(now)  # the loop's thread, before this step: the next decides on it
         resets = self.bus.poll_resets()
         case_events = self.cases.poll() if self.cases is not None else ()
         pose_time = tool_pose = tool_speed = None

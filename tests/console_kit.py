@@ -1,11 +1,11 @@
-"""What the console tests share: a zone file, a reference image, an incident directory with
-a real H.264 clip (PyAV, libx264) and the placeholder index, and an operator password."""
+"""What the console tests share: a zone file, a reference image, a real incident recorder's
+data dir (a replay with the recorder on: H.264 clips, SQLite index), an operator password."""
 
 from __future__ import annotations
 
+import functools
 import shutil
-import sqlite3
-import time
+import tempfile
 from pathlib import Path
 
 import cv2
@@ -36,35 +36,38 @@ def reference_image(tmp: Path, person: bool = False) -> Path:
     return path
 
 
-def h264_clip(path: Path, frames: int = 40, fps: int = 10) -> Path:
-    import av
+@functools.lru_cache(maxsize=1)
+def _recorded() -> Path:
+    """A real recorder data dir, made once per test session: the demo cell's replay of a
+    person walking into the protective zone (``monitor replay --incidents DIR``'s code path:
+    the recorder's worker, its H.264 clips and its SQLite index)."""
+    from monitor.models import synthetic
 
-    with av.open(str(path), "w", options={"movflags": "faststart"}) as out:
-        stream = out.add_stream("libx264", rate=fps)
-        stream.width, stream.height, stream.pix_fmt = 320, 240, "yuv420p"
-        for k in range(frames):
-            img = np.zeros((240, 320, 3), np.uint8)
-            cv2.rectangle(img, (10 + 6 * k, 80), (60 + 6 * k, 200), (255, 0, 255), -1)
-            for packet in stream.encode(av.VideoFrame.from_ndarray(img, format="bgr24")):
-                out.mux(packet)
-        for packet in stream.encode():
-            out.mux(packet)
-    return path
+    from monitor.detector import Detector
+    from monitor.incidents import RecorderConfig
+    from monitor.replay import ReplaySettings, replay
+    from monitor.scene import DemoScene, write_video
+    from monitor.zones import load_cell
+
+    base = Path(tempfile.mkdtemp(prefix="console-incidents-"))
+    video = base / "walk-in.mp4"
+    scene = DemoScene(fps=5.0, duration_s=2.4,
+                      path=((0.0, -2.6, -0.3), (1.2, -0.4, -0.3), (9.0, -0.4, -0.3)))
+    write_video(video, scene.frames(), scene.fps)
+    model = base / "model.onnx"
+    synthetic.write_model(model)
+    settings = ReplaySettings(out_dir=base / "out", annotate=False, progress=False,
+                              incidents_dir=base / "incidents",
+                              recorder=RecorderConfig(enabled=True, pre_s=1.0, post_s=0.6))
+    replay(video, Detector(model), load_cell(ROOT / "zones" / "demo-cell.yaml"), settings)
+    return base / "incidents"
 
 
 def incident_dir(tmp: Path) -> Path:
-    """The placeholder layout: DIR/index.sqlite with two incidents, one with a clip."""
+    """A copy of a real recorder data dir (index.sqlite3, incident.json, cam0.mp4) with at
+    least one incident (stop, latch) whose H.264 clip plays."""
     d = tmp / "incidents"
-    (d / "clips").mkdir(parents=True)
-    h264_clip(d / "clips" / "inc-1.mp4")
-    now = time.time()
-    with sqlite3.connect(d / "index.sqlite") as db:
-        db.execute("CREATE TABLE incidents (id TEXT PRIMARY KEY, started REAL, cause TEXT, "
-                   "state TEXT, camera TEXT, clip TEXT)")
-        db.executemany("INSERT INTO incidents VALUES (?, ?, ?, ?, ?, ?)", [
-            ("inc-1", now - 60, "protective_zone", "STOP", "cam0", "clips/inc-1.mp4"),
-            ("inc-2", now - 30, "camera_lost", "STOP", "cam1", None),
-        ])
+    shutil.copytree(_recorded(), d)
     return d
 
 

@@ -56,7 +56,7 @@ class Service:
     connected to it, recording commands, detections and the liveliness token."""
 
     def __init__(self, tmp: Path, model: Path, camera: str, extra: str = "",
-                 allow_test_model: bool = False) -> None:
+                 allow_test_model: bool = False, camera_lines: str = "") -> None:
         self.bus_port, self.metrics_port = free_port(), free_port()
         self.keys = BusKeys.of("workcell/t5/")
         # a real operator key: the monitor refuses unsigned resets from a config file
@@ -67,7 +67,7 @@ class Service:
         (tmp / "operators").write_text(f"tester {public}\n")
         self.config = tmp / "monitor.toml"
         self.config.write_text(
-            f'[camera]\nsource = "{camera}"\n'
+            f'[camera]\nsource = "{camera}"\n{camera_lines}'
             f'[model]\npath = "{model}"\n'
             + ("allow_test_model = true\n" if allow_test_model else "")
             + f'[bus]\ncell = "t5"\ninstance = "svc-test"\noperators_file = "operators"\n'

@@ -4,7 +4,6 @@ the zone editor's rules (Starlette's test client against the real app and zone f
 from __future__ import annotations
 
 import base64
-import sqlite3
 
 import pytest
 from starlette.testclient import TestClient
@@ -16,7 +15,8 @@ from monitor.console.auth import (
     read_passwords,
     require_safe_listen,
 )
-from monitor.console.incidents import DirectoryIncidents, IncidentFilters
+from monitor.console.edits import BUSY_S, ZoneEditIncidents
+from monitor.console.incidents import IncidentFilters, RecorderIncidents
 from monitor.console.live import LiveRenderer, LiveState
 from monitor.console.zones_api import ZoneEditor
 from monitor.errors import ConfigError
@@ -38,10 +38,12 @@ def _client(tmp_path, with_passwords: bool = True):
     cell = zone_file(tmp_path)
     editor = ZoneEditor(cell)
     live = LiveState()
+    incidents = incident_dir(tmp_path)
     console = Console("c", live, LiveRenderer(live, editor.cell, {}), editor,
-                      DirectoryIncidents(incident_dir(tmp_path)),
+                      RecorderIncidents(incidents),
                       Operators(passwords(tmp_path) if with_passwords else None),
-                      AuditLog(tmp_path / "audit.jsonl"), {})
+                      AuditLog(tmp_path / "audit.jsonl"), {},
+                      edits=ZoneEditIncidents(incidents, "c"))
     return TestClient(build_app(console)), cell
 
 
@@ -174,24 +176,111 @@ def test_console_passwd_writes_a_private_scrypt_line(tmp_path):
     assert short.returncode == 2 and "too short" in short.stderr
 
 
+def _forge(d, source_id: str, new_id: str, **changes) -> None:
+    """Another row in the real index, written by the recorder's own store."""
+    from monitor.incidents import IncidentIndex
+    from monitor.incidents.store import IncidentStore
+
+    record = {**IncidentIndex(d).get(source_id).record, "id": new_id, **changes}
+    store = IncidentStore(d)
+    try:
+        store.put(record, complete=True)
+    finally:
+        store.close()
+
+
 def test_incident_source_filters_and_never_serves_outside_its_directory(tmp_path):
+    from monitor.incidents import IncidentIndex
+
     d = incident_dir(tmp_path)
+    (real,) = IncidentIndex(d).list()  # the replay's entry: stop, latch, a cam0 clip
+    assert real.causes == ("stop", "latch") and real.clip_paths()
     (tmp_path / "secret.txt").write_text("not a clip")
-    with sqlite3.connect(d / "index.sqlite") as db:
-        db.execute("INSERT INTO incidents VALUES ('evil', 0, 'x', 'STOP', 'cam0', "
-                   "'../secret.txt')")
-    src = DirectoryIncidents(d)
-    assert [i["id"] for i in src.list(IncidentFilters(camera="cam0", cause="protective_zone"))
-            ] == ["inc-1"]
-    assert [i["id"] for i in src.list(IncidentFilters(since=1.0))] == ["inc-2", "inc-1"]
-    assert src.clip_path("inc-1").name == "inc-1.mp4"
-    assert src.clip_path("inc-2") is None and src.clip_path("evil") is None
-    assert DirectoryIncidents(tmp_path / "nowhere").list(IncidentFilters()) == []
+    (d / "evil").mkdir()
+    (d / "evil" / "cam0.mp4").symlink_to(tmp_path / "secret.txt")
+    _forge(d, real.id, "evil", wall=real.wall - 60,
+           clips={"cam0": {"file": "../../secret.txt"}, "cam1": {"file": "cam0.mp4"}})
+    _forge(d, real.id, "alert-1", wall=real.wall + 30, causes=["alert"], state="RUN",
+           clips={})
+    src = RecorderIncidents(d)
+    assert [i["id"] for i in src.list(IncidentFilters())] == ["alert-1", real.id, "evil"]
+    assert [i["id"] for i in src.list(IncidentFilters(camera="cam0", cause="stop",
+                                                      state="STOP"))] == [real.id, "evil"]
+    assert [i["id"] for i in src.list(IncidentFilters(state="RUN"))] == ["alert-1"]
+    assert [i["id"] for i in src.list(IncidentFilters(since=real.wall - 1,
+                                                      until=real.wall + 1))] == [real.id]
+    assert [i["id"] for i in src.list(IncidentFilters(limit=1))] == ["alert-1"]
+    row = src.list(IncidentFilters(cause="latch"))[0]
+    assert row["has_clip"] and row["cause"] == "stop,latch" and row["camera"] == "cam0"
+    assert src.clip_path(real.id).name == "cam0.mp4"
+    # a forged record naming a file outside the data dir, or a symlink out of it: no clip
+    assert src.clip_path("evil") is None and src.clip_path("evil", "cam1") is None
+    assert not src.list(IncidentFilters(state="STOP"))[1]["has_clip"]
+    assert src.clip_path("alert-1") is None and src.clip_path("nothing") is None
+    assert RecorderIncidents(tmp_path / "nowhere").list(IncidentFilters()) == []
     (tmp_path / "app").mkdir()
     client, _ = _client(tmp_path / "app")
+    listed = client.get("/api/incidents").json()["incidents"]
+    assert listed and listed[0]["has_clip"]
     assert client.get("/api/incidents/evil/clip").status_code == 404
-    r = client.get("/api/incidents/inc-1/clip", headers={"range": "bytes=0-99"})
+    r = client.get(f"/api/incidents/{listed[0]['id']}/clip", headers={"range": "bytes=0-99"})
     assert r.status_code == 206 and len(r.content) == 100  # seeking in the player
+    assert r.headers["content-type"] == "video/mp4"
+
+
+def test_every_zone_edit_is_an_incident_of_the_recorder_and_a_locked_index_only_audits(
+        tmp_path):
+    import json
+    import sqlite3
+    import time
+
+    from monitor.incidents import IncidentIndex
+
+    client, cell = _client(tmp_path)
+    d = tmp_path / "incidents"
+    before = load_cell(cell).config_hash
+    body = {"camera": "cam0", "kind": "protective", "points_px": SQUARE}
+    assert client.put("/api/zones/aisle", json=body,
+                      headers=_auth("mallory", PASSWORD)).status_code == 401
+    r = client.put("/api/zones/aisle", json={**body, "points_px": BOWTIE},
+                   headers=_auth(OPERATOR, PASSWORD))
+    assert r.status_code == 422 and r.json()["incident"]
+    ok = client.put("/api/zones/aisle", json=body, headers=_auth(OPERATOR, PASSWORD))
+    assert ok.status_code == 200 and ok.json()["incident"]
+    after = load_cell(cell).config_hash
+    edits = list(reversed(IncidentIndex(d).list(cause="zone_edit")))
+    assert [(e.operator, e.record["zone_edit"]["result"], e.record["zone_edit"]["accepted"])
+            for e in edits] == [(None, "refused", False), (OPERATOR, "invalid", False),
+                                (OPERATOR, "saved", True)]
+    assert "self-intersecting polygon" in edits[1].record["zone_edit"]["message"]
+    assert (edits[2].record["zone_edit"]["old_hash"],
+            edits[2].record["zone_edit"]["new_hash"]) == (before, after)
+    assert edits[2].id == ok.json()["incident"] and not any(e.clip_paths() for e in edits)
+    assert all(e.complete and e.causes == ("zone_edit",) for e in edits)
+    # the console lists them beside the recorder's own incidents
+    listed = client.get("/api/incidents?cause=zone_edit").json()["incidents"]
+    assert len(listed) == 3 and not any(i["has_clip"] for i in listed)
+    # another process holds the index's write lock past the console's busy timeout: the edit
+    # is still saved and audited, the audit says the incident could not be written
+    lock = sqlite3.connect(str(d / "index.sqlite3"), isolation_level=None)
+    lock.execute("BEGIN EXCLUSIVE")
+    try:
+        started = time.monotonic()
+        r = client.put("/api/zones/aisle", json={**body, "points_px": [[900, 160], *SQUARE[1:]]},
+                       headers=_auth(OPERATOR, PASSWORD))
+        waited = time.monotonic() - started
+    finally:
+        lock.execute("ROLLBACK")
+        lock.close()
+    assert r.status_code == 200 and r.json()["incident"] is None
+    assert waited >= BUSY_S * 0.9  # SQLite's lock serialised the writers: it waited, then gave up
+    audit = [json.loads(line) for line in (tmp_path / "audit.jsonl").read_text().splitlines()]
+    assert audit[-2]["result"] == "saved"
+    assert audit[-1]["event"] == "zone_edit_incident_error" and "locked" in \
+        audit[-1]["incident_error"]
+    # the lock gone, the next edit is recorded again
+    r = client.put("/api/zones/aisle", json=body, headers=_auth(OPERATOR, PASSWORD))
+    assert r.status_code == 200 and r.json()["incident"]
 
 
 def test_live_image_and_state_need_no_login(tmp_path):

@@ -20,6 +20,7 @@ import cv2
 import pytest
 
 from monitor.bus import BusConfig, SafetyBus
+from monitor.incidents import IncidentIndex
 from monitor.policy import Command, Reason
 from monitor.signing import new_key_pair
 from monitor.types import Alert
@@ -188,10 +189,13 @@ def test_console_live_incidents_and_zone_editor_in_a_browser(browser, cell_and_c
     _shot(d, "live-stop.png")
 
     # --- incidents: the list, and the H.264 clip plays in the browser --------------------
+    # the real recorder's data dir (a replay of a walk-in): one stop,latch incident, a clip
+    (entry,) = IncidentIndex(tmp_path / "incidents").list()
     d.get(url + "/incidents")
-    _wait(d, lambda _: len(d.find_elements(By.CSS_SELECTOR, "#rows tr")) == 2,
-          what="two incidents")
-    d.find_element(By.CSS_SELECTOR, "#rows tr[data-id='inc-1'] button.play").click()
+    _wait(d, lambda _: [r.get_attribute("data-id") for r in
+                        d.find_elements(By.CSS_SELECTOR, "#rows tr")] == [entry.id],
+          what="the recorded incident")
+    d.find_element(By.CSS_SELECTOR, f"#rows tr[data-id='{entry.id}'] button.play").click()
     played = _wait(d, lambda _: d.execute_script(
         "const v = document.getElementById('player');"
         "return v.error ? 'error ' + v.error.code : (v.currentTime > 0.5 ? 'played' : null)"),
@@ -200,8 +204,7 @@ def test_console_live_incidents_and_zone_editor_in_a_browser(browser, cell_and_c
     _shot(d, "incidents.png")
     d.find_element(By.NAME, "camera").send_keys("cam1")
     d.find_element(By.CSS_SELECTOR, "#filters button").click()
-    _wait(d, lambda _: [r.get_attribute("data-id") for r in
-                        d.find_elements(By.CSS_SELECTOR, "#rows tr")] == ["inc-2"],
+    _wait(d, lambda _: d.find_element(By.ID, "count").text == "0 incident(s)",
           what="filtered by camera")
 
     # --- zones: a self-intersecting polygon is refused, a valid one saved ----------------
@@ -257,4 +260,16 @@ def test_console_live_incidents_and_zone_editor_in_a_browser(browser, cell_and_c
     d.get(url + "/")
     _wait(d, lambda _: d.find_element(By.ID, "pending").is_displayed(),
           what="zone file pending shown")
-    assert "restarts" in d.find_element(By.ID, "pending").text
+    assert "monitor zones apply" in d.find_element(By.ID, "pending").text
+
+    # every edit attempt is an incident of the recorder's data dir too (cause zone_edit)
+    edits = IncidentIndex(tmp_path / "incidents").list(cause="zone_edit")
+    assert [e.record["zone_edit"]["result"] for e in reversed(edits)] == ["invalid", "saved"]
+    assert all(e.operator == OPERATOR and not e.clip_paths() for e in edits)
+    saved_edit = edits[0].record["zone_edit"]
+    assert saved_edit["new_hash"] == load_cell(cell).config_hash == audit[1]["config_hash"]
+    assert saved_edit["old_hash"] == audit[1]["config_hash_before"] != saved_edit["new_hash"]
+    assert "self-intersecting polygon" in edits[1].record["zone_edit"]["message"]
+    d.get(url + "/incidents")
+    _wait(d, lambda _: d.find_element(By.ID, "count").text == "3 incident(s)",
+          what="the two zone edits listed with the recorded entry")

@@ -120,6 +120,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("file", type=Path)
     p.set_defaults(func=cmd_hash)
 
+    from monitor.cli.zones_apply import register as register_apply
+
+    register_apply(sub)
+
     p = sub.add_parser(
         "calibrate-tool", help="measure the tracker's mounting and frame from robot poses",
         description="Closed-loop calibration of the tracked tool (docs/separation.md): from "

@@ -6,14 +6,16 @@ reference server, with TLS built in. The pages are plain HTML and one small scri
 (``static/console.js``) that polls JSON: nothing to compile, nothing fetched from the internet.
 
 Routes: ``/`` live view, ``/incidents`` list and playback, ``/zones`` zone editor (pages);
-``/api/state``, ``/api/live/{camera}.jpg``, ``/api/incidents``, ``/api/incidents/{id}/clip``,
-``/api/zones``, ``/api/zones/{camera}/image.jpg`` (read-only, no login);
+``/api/state``, ``/api/live/{camera}.jpg``, ``/api/incidents``,
+``/api/incidents/{id}/clip[?camera=]``, ``/api/zones``, ``/api/zones/{camera}/image.jpg``
+(read-only, no login);
 ``PUT /api/zones/{id}`` (an operator's credential; audited, accepted or refused).
 """
 
 from __future__ import annotations
 
 import json
+import sqlite3
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,6 +28,7 @@ from starlette.routing import Mount, Route
 from starlette.staticfiles import StaticFiles
 
 from monitor.console.auth import AuditLog, Operators
+from monitor.console.edits import ZoneEditIncidents
 from monitor.console.incidents import IncidentFilters, IncidentSource
 from monitor.console.live import LiveRenderer, LiveState, reference_image
 from monitor.console.zones_api import ZoneEditor
@@ -55,6 +58,7 @@ class Console:
     operators: Operators
     audit: AuditLog
     references: dict[str, Path]
+    edits: ZoneEditIncidents | None = None  # --incidents DIR: each edit is an incident too
 
 
 def _json(body: object, status: int = 200) -> JSONResponse:
@@ -101,7 +105,8 @@ def build_app(console: Console) -> Starlette:
         return _json({"incidents": console.incidents.list(filters)})
 
     async def clip(request: Request) -> Response:
-        path = console.incidents.clip_path(request.path_params["id"])
+        path = console.incidents.clip_path(request.path_params["id"],
+                                           request.query_params.get("camera") or None)
         if path is None:
             return _json({"error": "no clip for this incident"}, 404)
         media = "video/mp4" if path.suffix.lower() in (".mp4", ".m4v") else None
@@ -122,6 +127,20 @@ def build_app(console: Console) -> Starlette:
         _, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 85])
         return Response(buf.tobytes(), media_type="image/jpeg", headers=_SECURITY_HEADERS)
 
+    def edit_incident(entry: dict) -> str | None:
+        """The audited attempt as a ``zone_edit`` incident (None: no --incidents, or it could
+        not be written: then the audit log says why)."""
+        if console.edits is None:
+            return None
+        try:
+            return console.edits.record(entry, str(console.live.state().get("state") or ""))
+        except (OSError, sqlite3.Error) as exc:
+            console.audit.record(event="zone_edit_incident_error", zone=entry.get("zone"),
+                                 operator=entry.get("operator"), result=entry.get("result"),
+                                 incident_error=str(exc).splitlines()[0] if str(exc) else
+                                 type(exc).__name__)
+            return None
+
     async def save_zone(request: Request) -> Response:
         zone_id = request.path_params["id"]
         operator = console.operators.check(request.headers.get("authorization"))
@@ -130,8 +149,9 @@ def build_app(console: Console) -> Starlette:
             why = ("editing is off: the console was started without --passwords"
                    if not console.operators.enabled else
                    "operator name or password not accepted")
-            console.audit.record(zone=zone_id, operator=None, client=client, result="refused",
-                                 error=why)
+            entry = console.audit.record(zone=zone_id, operator=None, client=client,
+                                         result="refused", error=why)
+            await run_in_threadpool(edit_incident, entry)
             return _json({"error": why}, 403 if not console.operators.enabled else 401)
         raw = await request.body()
         if len(raw) > MAX_BODY or "json" not in request.headers.get("content-type", ""):
@@ -146,17 +166,22 @@ def build_app(console: Console) -> Starlette:
             cell, new, before = await run_in_threadpool(console.editor.save_polygon,
                                                          zone_id, body)
         except ConfigError as exc:
-            console.audit.record(zone=zone_id, operator=operator, client=client,
-                                 result="invalid", error=str(exc))
-            return _json({"error": str(exc)}, 422)
+            entry = console.audit.record(zone=zone_id, operator=operator, client=client,
+                                         result="invalid", error=str(exc),
+                                         config_hash_before=console.editor.cell().config_hash
+                                         if console.editor.path.is_file() else "")
+            incident = await run_in_threadpool(edit_incident, entry)
+            return _json({"error": str(exc), "incident": incident}, 422)
         entry = console.audit.record(zone=zone_id, operator=operator, client=client,
                                      result="saved", action="added" if new else "changed",
                                      config_hash_before=before, config_hash=cell.config_hash,
                                      file=str(console.editor.path))
+        incident = await run_in_threadpool(edit_incident, entry)
         return _json({"saved": zone_id, "config_hash": cell.config_hash, "audit": entry,
-                      "warnings": list(cell.warnings),
-                      "note": "the running monitor keeps its zone set until it "
-                              "restarts (its commands name the hash in force)"})
+                      "incident": incident, "warnings": list(cell.warnings),
+                      "note": "the running monitor keeps its zone set until an operator "
+                              "applies it (monitor zones apply; its commands name the hash in "
+                              "force)"})
 
     routes = [
         Route("/", page("live.html")),

@@ -35,7 +35,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--listen", dest="http_listen", default=DEFAULT_LISTEN, metavar="HOST:PORT",
                    help="HTTP(S) address of the console")
     p.add_argument("--incidents", type=Path, metavar="DIR",
-                   help="the incident recorder's directory (DIR/index.sqlite) (default: none)")
+                   help="the incident recorder's data dir ([recorder] data_dir: "
+                   "DIR/index.sqlite3); zone edits are recorded there too (default: none)")
     p.add_argument("--reference", action="append", default=[], metavar="CAMERA=FILE",
                    help="a camera's reference image for the live view and the editor "
                    "(repeatable; default: a grey canvas)")
@@ -118,7 +119,8 @@ def _serve(args, host: str, port: int, tls: bool, operators, references, audit) 
     from monitor.bus import BusKeys, default_instance, open_session
     from monitor.cli.bus import _bus_config, _watchdog
     from monitor.console.app import Console, build_app
-    from monitor.console.incidents import DirectoryIncidents, NoIncidents
+    from monitor.console.edits import ZoneEditIncidents
+    from monitor.console.incidents import NoIncidents, RecorderIncidents
     from monitor.console.live import LiveRenderer, LiveState, subscribe_live
     from monitor.console.zones_api import ZoneEditor
     from monitor.inbox import Inbox
@@ -134,9 +136,11 @@ def _serve(args, host: str, port: int, tls: bool, operators, references, audit) 
     live = LiveState()
     console = Console(cell_name=bus.cell, live=live,
                       renderer=LiveRenderer(live, editor.cell, references), editor=editor,
-                      incidents=DirectoryIncidents(args.incidents) if args.incidents
+                      incidents=RecorderIncidents(args.incidents) if args.incidents
                       else NoIncidents(), operators=operators, audit=audit,
-                      references=references)
+                      references=references,
+                      edits=ZoneEditIncidents(args.incidents, bus.cell) if args.incidents
+                      else None)
     app = build_app(console)
     session = open_session(bus)
     stop = threading.Event()

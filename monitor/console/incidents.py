@@ -1,19 +1,21 @@
-"""The console's view of the incident recorder: a narrow interface and a placeholder.
+"""The console's view of the incident recorder: a narrow interface over its reader.
 
-The console never writes incidents and never needs the recorder's internals: it lists them
-(with filters) and asks for a clip's file. ``DirectoryIncidents`` reads a directory with an
-``index.sqlite`` (table ``incidents(id, started, cause, state, camera, clip)``, ``clip``
-relative to the directory): the shape the recorder is expected to write; wiring the console to
-the recorder's own reader replaces only this class.
+The console lists incidents (with filters) and asks for a clip's file; it reads the recorder's
+index only through ``monitor.incidents.IncidentIndex`` (read-only connections, one per
+request). ``RecorderIncidents`` adapts it to ``IncidentSource``: state and camera filters the
+index does not know are applied here, and a clip path is served only when it is an existing
+file inside the data directory (an index row or ``incident.json`` naming ``../../etc/passwd``
+is never followed).
 """
 
 from __future__ import annotations
 
-import contextlib
 import sqlite3
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
+
+from monitor.incidents import Incident, IncidentIndex
 
 MAX_LISTED = 500  # a page, not the whole history
 
@@ -31,14 +33,14 @@ class IncidentFilters:
 
 
 class IncidentSource(Protocol):
-    """Where the console reads incidents from (the recorder, or the placeholder below)."""
+    """Where the console reads incidents from (the recorder's data dir, or none)."""
 
     def list(self, filters: IncidentFilters) -> list[dict]:
         """Incidents, newest first: dicts with id, started (Unix s), cause, state, camera,
-        has_clip."""
+        has_clip, cameras, describe, operator."""
         ...
 
-    def clip_path(self, incident_id: str) -> Path | None:
+    def clip_path(self, incident_id: str, camera: str | None = None) -> Path | None:
         """The incident's clip (an existing file inside the source's directory) or None."""
         ...
 
@@ -49,56 +51,74 @@ class NoIncidents:
     def list(self, filters: IncidentFilters) -> list[dict]:
         return []
 
-    def clip_path(self, incident_id: str) -> Path | None:
+    def clip_path(self, incident_id: str, camera: str | None = None) -> Path | None:
         return None
 
 
-class DirectoryIncidents:
-    """Placeholder over ``DIR/index.sqlite``, opened read-only per request (the recorder may be
-    writing; a missing or half-written index lists nothing rather than failing the page)."""
+class RecorderIncidents:
+    """The recorder's data dir (``DIR/index.sqlite3``, written by the service's recorder).
+
+    A missing, locked or half-written index lists nothing rather than failing the page."""
 
     def __init__(self, directory: str | Path) -> None:
         self.directory = Path(directory).resolve()
+        self.index = IncidentIndex(self.directory)
 
-    def _rows(self, sql: str, params: tuple) -> list[tuple]:
-        index = self.directory / "index.sqlite"
-        if not index.is_file():
-            return []
-        try:
-            with contextlib.closing(sqlite3.connect(f"file:{index}?mode=ro", uri=True,
-                                                    timeout=1.0)) as db:
-                return db.execute(sql, params).fetchall()
-        except sqlite3.Error:
-            return []
+    def _inside(self, path: Path) -> Path | None:
+        resolved = path.resolve()
+        # a clip path never leads outside the data dir (a forged row, a symlink out)
+        if not resolved.is_relative_to(self.directory) or not resolved.is_file():
+            return None
+        return resolved
+
+    def _clips(self, incident: Incident) -> dict[str, Path]:
+        out = {}
+        for camera, path in incident.clip_paths().items():
+            inside = self._inside(path)
+            if inside is not None:
+                out[camera] = inside
+        return out
+
+    def _row(self, incident: Incident) -> dict:
+        clips = self._clips(incident)
+        cameras = sorted(incident.record.get("clips", {})) or sorted(clips)
+        return {"id": incident.id, "started": float(incident.wall),
+                "cause": ",".join(incident.causes), "state": incident.state,
+                "camera": ",".join(cameras), "cameras": cameras, "has_clip": bool(clips),
+                "clip_cameras": sorted(clips), "describe": incident.describe,
+                "operator": incident.operator, "reset_accepted": incident.reset_accepted,
+                "complete": incident.complete}
 
     def list(self, filters: IncidentFilters) -> list[dict]:
-        where, params = [], []
-        for column in ("cause", "state", "camera"):
-            value = getattr(filters, column)
-            if value:
-                where.append(f"{column} = ?")
-                params.append(value)
-        if filters.since is not None:
-            where.append("started >= ?")
-            params.append(filters.since)
-        if filters.until is not None:
-            where.append("started <= ?")
-            params.append(filters.until)
-        sql = "SELECT id, started, cause, state, camera, clip FROM incidents"
-        if where:
-            sql += " WHERE " + " AND ".join(where)
-        sql += " ORDER BY started DESC LIMIT ?"
-        params.append(max(1, min(int(filters.limit), MAX_LISTED)))
-        return [{"id": str(i), "started": float(t or 0.0), "cause": str(c or ""),
-                 "state": str(s or ""), "camera": str(cam or ""), "has_clip": bool(clip)}
-                for i, t, c, s, cam, clip in self._rows(sql, tuple(params))]
+        limit = max(1, min(int(filters.limit), MAX_LISTED))
+        # state and camera are not columns the index filters on: read all that match the
+        # index's filters (bounded by retention) and narrow here
+        narrow = bool(filters.state or filters.camera)
+        try:
+            found = self.index.list(since=filters.since, until=filters.until,
+                                    cause=filters.cause or None,
+                                    limit=None if narrow else limit)
+        except (sqlite3.Error, OSError, ValueError):
+            return []
+        rows = []
+        for incident in found:
+            if filters.state and incident.state != filters.state:
+                continue
+            if filters.camera and filters.camera not in incident.record.get("clips", {}):
+                continue
+            rows.append(self._row(incident))
+            if len(rows) >= limit:
+                break
+        return rows
 
-    def clip_path(self, incident_id: str) -> Path | None:
-        rows = self._rows("SELECT clip FROM incidents WHERE id = ?", (incident_id,))
-        if not rows or not rows[0][0]:
+    def clip_path(self, incident_id: str, camera: str | None = None) -> Path | None:
+        try:
+            incident = self.index.get(incident_id)
+        except (sqlite3.Error, OSError, ValueError):
             return None
-        path = (self.directory / str(rows[0][0])).resolve()
-        # a clip path in the index never leads outside the directory (../../etc/passwd)
-        if not path.is_relative_to(self.directory) or not path.is_file():
+        if incident is None:
             return None
-        return path
+        clips = self._clips(incident)
+        if camera is None:
+            return next(iter(clips.values()), None)
+        return clips.get(camera)

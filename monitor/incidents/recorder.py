@@ -147,6 +147,12 @@ class IncidentRecorder:
         self._last_taken[info.camera_id] = info.capture_time
         return True
 
+    def zones_changed(self, cell) -> None:
+        """A signed zone apply: incidents from now name and draw the new zone set."""
+        self.cell = cell
+        self.zones_hash = cell.config_hash
+        self._watch = {}  # the worker re-derives each camera's watch regions
+
     def close(self, timeout: float | None = 5.0) -> None:
         """Finish every open incident (clips cut at this moment) and stop the worker; waits
         ``timeout`` (None: as long as it takes, for a replay)."""

@@ -1,9 +1,11 @@
 """The incident index: one SQLite file beside the incidents' folders.
 
 ``data_dir/index.sqlite3`` (WAL) holds one row per incident; ``data_dir/<id>/`` holds its
-``incident.json`` and ``<camera>.mp4`` clips. The recorder's worker thread is the only writer
-(``IncidentStore``); readers (the CLI, the console, the Zenoh queryable) open their own
-read-only connection (``IncidentIndex``), so a reader never holds up a write for long.
+``incident.json`` and ``<camera>.mp4`` clips. Writers (``IncidentStore``): the recorder's worker
+thread, and the web console for zone edits (``monitor.console.edits``: one short INSERT;
+SQLite's file locks serialise the two processes); readers (the CLI, the console, the Zenoh
+queryable) open their own read-only connection (``IncidentIndex``), so a reader never holds up
+a write for long.
 """
 
 from __future__ import annotations
@@ -82,7 +84,7 @@ def row_values(record: dict, size: int = 0, complete: bool = False) -> tuple:
     reset = record.get("reset") or {}
     return (record["id"], record["wall"], record["time_s"], record["cell"],
             ",".join(record["causes"]), record["state"], int(record["latched"]),
-            record["describe"], reset.get("operator"),
+            record["describe"], reset.get("operator") or record.get("operator"),
             None if not reset else int(reset["accepted"]), reset.get("message"),
             record["zones_hash"], record["config_hash"], size, int(complete),
             json.dumps(record))

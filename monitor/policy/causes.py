@@ -119,7 +119,8 @@ def fail_safe_causes(inputs: PolicyInputs, now: float, config: PolicyConfig,
 # not delivered its first frame): a STOP like the start-up one, and like it never latched by
 # the manual interlock (unless ``startup_requires_reset``), so a restart of a multi-camera cell
 # never waits for an operator. A latching fault (``Fault.latch``) still latches.
-STARTUP_FAULTS = frozenset({"camera_waiting"})
+# A signed zone apply (monitor.zone_swap) is a start on new zones: the same STOP, not latched.
+STARTUP_FAULTS = frozenset({"camera_waiting", "zones_applying"})
 
 
 def is_startup(reason: Reason) -> bool:

@@ -38,8 +38,8 @@ async function pollState() {
   const pending = $("pending");
   pending.hidden = !s.zone_file_pending;
   pending.textContent = "The zone file (" + s.zone_file_hash + ") differs from the zone set " +
-    "the monitor decides with (" + s.zone_hash + "): it takes effect only when the monitor " +
-    "restarts with it.";
+    "the monitor decides with (" + s.zone_hash + "): it takes effect only when an operator " +
+    "applies it (monitor zones apply, signed) or the monitor restarts with it.";
   const cams = s.camera_ids || [];
   if (cams.join() !== liveCameras.join()) {
     liveCameras = cams;

@@ -1,0 +1,106 @@
+"""``monitor zones apply``: ask the running monitor to decide with a changed zone file.
+
+Reads the zone file, validates it (the one-line error of ``monitor zones validate``), computes
+its hash (``monitor zones hash``), signs a request naming that hash with the operator's key
+(``monitor.zone_apply``) and prints the monitor's answer. The monitor re-reads the file from
+its own configured path and applies it only when that file has the signed hash.
+Exit 0 applied, 1 refused (reason printed), 2 bad input or no monitor answered.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+from monitor.errors import ConfigError
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    from monitor.cli.bus import KEY_DIR, _add_zenoh_args
+
+    p = sub.add_parser(
+        "apply", help="apply a changed zone file to the running monitor (signed by an operator)",
+        description="Validates the zone file, signs its zone-set hash with the operator's key "
+        "and asks the running monitor to apply it. The monitor re-reads the file from its own "
+        "[zones] file path, refuses unless that file has the signed hash, validates it, and "
+        "then decides with it (STOP until every camera is checked on the new zones, then "
+        "clear_time). Exit 0 applied, 1 refused, 2 no answer or bad input.")
+    _add_zenoh_args(p, default_connect=True)
+    p.add_argument("--operator", required=True, help="operator id, as in the monitor's "
+                   "operators file (required)")
+    p.add_argument("--key", metavar="FILE", help="the operator's private key (default "
+                   f"{KEY_DIR}/<operator>.key when it exists)")
+    p.add_argument("--zones", type=Path, metavar="FILE",
+                   help="the zone file to validate and sign (default: the file the monitor "
+                   "runs with, from its status; on the monitor's host)")
+    p.add_argument("--note", default="", help="free text for the log (default empty)")
+    p.add_argument("--timeout", type=float, default=5.0,
+                   help="s to wait for the monitor's answer (default 5)")
+    p.set_defaults(func=cmd_apply)
+
+
+def cmd_apply(args: argparse.Namespace) -> int:
+    from monitor import zones as zn
+    from monitor.bus import BusKeys, default_instance, open_session
+    from monitor.cli.bus import (
+        _bounded,
+        _bus_config,
+        _first_status,
+        _nothing_found_hint,
+        _operator_key_path,
+    )
+    from monitor.signals import Interrupted, StopSignals, call_interruptible
+    from monitor.signing import load_private_key
+    from monitor.zone_apply import apply_payload, request_apply
+
+    with StopSignals(name="monitor zones apply") as stop:
+        bus = _bus_config(args, instance=args.instance or default_instance("zones-apply"))
+        keys = BusKeys.of(bus.key_prefix)
+        key_path = _operator_key_path(args)
+        signer = load_private_key(key_path) if key_path else None
+        if signer is None:
+            print(f"monitor zones apply: no key for {args.operator} (--key): sending unsigned; "
+                  "the monitor refuses it", file=sys.stderr, flush=True)
+        if args.zones is not None:  # a broken file: its one line, nothing sent
+            cell = zn.load_cell(args.zones)
+        try:
+            session = call_interruptible(lambda: open_session(bus), stop)
+        except Interrupted:
+            return 130
+        with _bounded(session, "monitor zones apply") as session:
+            started = time.monotonic()
+            status = _first_status(session, keys, args.timeout, stop)
+            if status is None:
+                if stop.is_set():
+                    return 130
+                raise ConfigError(f"monitor zones apply: no monitor answered on {keys.status} "
+                                  f"within {args.timeout:g} s; {_nothing_found_hint(bus)}")
+            if args.zones is None:
+                path = status.get("zones_file")
+                if not path:
+                    raise ConfigError("monitor zones apply: the monitor names no zone file in "
+                                      "its status: give --zones FILE")
+                cell = zn.load_cell(path)
+            in_force = status.get("config_hash") or ""
+            print(f"zone set in force {in_force[:12] or '(none)'}, file {cell.label}: "
+                  f"{cell.config_hash}", file=sys.stderr, flush=True)
+            payload = apply_payload(args.operator, cell.config_hash,
+                                    cell=bus.cell if bus.prefix is None else "",
+                                    boot=str(status.get("boot") or ""), note=args.note)
+            signature = signer.sign(keys.zones_apply, payload) if signer else None
+            left = max(0.1, args.timeout - (time.monotonic() - started))
+            try:
+                answer = call_interruptible(lambda: request_apply(
+                    session, keys.zones_apply, payload, signature, left), stop)
+            except Interrupted:
+                return 130
+    if answer is None:
+        raise ConfigError(f"monitor zones apply: no monitor answered on {keys.zones_apply} "
+                          f"within {args.timeout:g} s; {_nothing_found_hint(bus)}")
+    if answer["accepted"]:
+        print(f"zones applied by {args.operator}: {answer.get('reason', '')}")
+        return 0
+    print(f"zone apply by {args.operator} REFUSED: {answer.get('reason', '')}")
+    return 1

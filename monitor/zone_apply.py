@@ -1,0 +1,160 @@
+"""Signed zone applies on ``safety/zones/apply``: the wire format and the bus-side gate.
+
+The running monitor swaps its zone set only when an operator asks for it with a request
+signed by a key of the operators file (the same keys as resets, ``monitor keys new
+--operator``) that names the hash of the zone set to apply (``monitor zones hash``). The
+service then re-reads the zone file from its own configured path and applies it only when the
+file's hash is the signed one (``monitor.zone_swap``): an operator signs what they validated,
+and a file changed after that is refused, never applied in their name.
+
+Checked here, before the loop sees it: the operator is listed and the signature matches (an
+unsigned request is always refused: there is no ``allow_unsigned`` for zones), the cell, this
+run of the monitor (``boot``, read from its status), the time (``wall`` within ``window_s``)
+and the request id (never seen before).
+
+Payload (UTF-8 JSON; the Ed25519 signature of ``monitor.signing.signed_message(<apply key>,
+payload)`` is the attachment)::
+
+    {"schema": "workcell.safety.zones-apply/1", "cell": "cell1", "operator": "anna",
+     "request_id": "anna-1732400000.123-5f3a", "zones_hash": "9c1f...", "note": "...",
+     "wall": 1732400000.123, "boot": "4dee5337..."}
+"""
+
+from __future__ import annotations
+
+import collections
+import json
+import os
+import re
+import time
+from dataclasses import dataclass
+
+from monitor.resets import MAX_FIELD, MAX_RESET_PAYLOAD, _finite
+from monitor.signing import verify
+
+APPLY_SCHEMA = "workcell.safety.zones-apply/1"
+APPLY_ANSWER_SCHEMA = "workcell.safety.zones-apply-answer/1"
+_HASH = re.compile(r"^[0-9a-f]{8,128}$")
+
+
+class ApplyRefused(ValueError):
+    """A zone apply that is refused; the message is the one-line reason told to the sender."""
+
+
+@dataclass(frozen=True)
+class ApplyRequest:
+    """A verified request: apply the zone set ``zones_hash`` (the file must have it)."""
+
+    operator: str
+    request_id: str
+    zones_hash: str
+    note: str
+    received: float  # the bus's monotonic clock
+
+
+def apply_payload(operator: str, zones_hash: str, *, cell: str = "", boot: str = "",
+                  note: str = "", request_id: str = "", wall: float | None = None) -> bytes:
+    """A zone-apply request body; ``boot``: the monitor's boot from its status."""
+    wall = time.time() if wall is None else wall
+    rid = request_id or f"{operator}-{wall:.3f}-{os.urandom(3).hex()}"
+    body = {"schema": APPLY_SCHEMA, "operator": operator, "request_id": rid,
+            "zones_hash": zones_hash, "note": note, "wall": wall, "boot": boot}
+    if cell:
+        body["cell"] = cell
+    return json.dumps(body).encode()
+
+
+class ApplyGate:
+    """Checks zone-apply requests; remembers request ids (not thread-safe)."""
+
+    def __init__(self, operators: dict | None, cell: str, key_expr: str,
+                 window_s: float = 30.0) -> None:
+        self.operators = operators
+        self.cell = cell
+        self.key_expr = key_expr
+        self.window_s = window_s
+        self._seen: collections.OrderedDict[str, float] = collections.OrderedDict()
+
+    def check(self, payload: bytes, signature: bytes | None, received: float,
+              wall_now: float | None = None, *, boot: str | None = None) -> ApplyRequest:
+        wall_now = time.time() if wall_now is None else wall_now
+        body = _parse(payload)
+        operator = body["operator"]
+        if self.operators is None:
+            raise ApplyRefused("no operators configured on this monitor (bus.operators_file): "
+                               "zone applies are refused")
+        if operator not in self.operators:
+            raise ApplyRefused(f"unknown operator {operator!r}")
+        if signature is None:
+            raise ApplyRefused(f"unsigned zone apply in the name of {operator!r}")
+        if not verify(self.operators[operator], self.key_expr, payload, signature):
+            raise ApplyRefused(f"signature does not match operator {operator!r}")
+        cell = body.get("cell", self.cell)
+        if cell != self.cell:
+            raise ApplyRefused(f"request is for cell {cell!r}, this is {self.cell!r}")
+        if not body["boot"]:
+            raise ApplyRefused("zone apply names no monitor boot (read it from the monitor's "
+                               "status; `monitor zones apply` does)")
+        if boot is not None and body["boot"] != boot:
+            raise ApplyRefused(f"zone apply made for boot {body['boot']!r}, this monitor runs "
+                               f"boot {boot!r} (a request from before a restart)")
+        if abs(body["wall"] - wall_now) > self.window_s:
+            raise ApplyRefused(f"request time is {body['wall'] - wall_now:+.1f} s off the "
+                               f"monitor's clock (allowed ±{self.window_s:g} s): replayed or "
+                               "clock wrong")
+        rid = body["request_id"]
+        while self._seen and (wall_now - next(iter(self._seen.values())) > 2 * self.window_s
+                              or len(self._seen) > 10_000):
+            self._seen.popitem(last=False)
+        if rid in self._seen:
+            raise ApplyRefused(f"request id {rid!r} was already used (replayed)")
+        self._seen[rid] = wall_now
+        return ApplyRequest(operator, rid, body["zones_hash"], body["note"], received)
+
+
+def _parse(payload: bytes) -> dict:
+    if len(payload) > MAX_RESET_PAYLOAD:
+        raise ApplyRefused("zone apply request too large")
+    try:
+        body = json.loads(payload)
+    except (ValueError, UnicodeDecodeError, RecursionError):
+        raise ApplyRefused("zone apply request is not JSON") from None
+    if not isinstance(body, dict) or body.get("schema") != APPLY_SCHEMA:
+        raise ApplyRefused(f"zone apply request is not a {APPLY_SCHEMA} object")
+    operator = body.get("operator")
+    if not isinstance(operator, str) or not operator.strip() or len(operator) > MAX_FIELD:
+        raise ApplyRefused("zone apply request without an operator id")
+    rid = body.get("request_id")
+    if not isinstance(rid, str) or not rid or len(rid) > MAX_FIELD:
+        raise ApplyRefused("zone apply request without a request_id")
+    zones_hash = body.get("zones_hash")
+    if not isinstance(zones_hash, str) or not _HASH.match(zones_hash):
+        raise ApplyRefused("zone apply request without a zone hash (`monitor zones hash`)")
+    wall = body.get("wall")
+    if isinstance(wall, bool) or not isinstance(wall, int | float) or not _finite(wall):
+        raise ApplyRefused("zone apply request without a valid wall time")
+    note, boot, cell = body.get("note", ""), body.get("boot", ""), body.get("cell")
+    if not isinstance(note, str) or len(note) > 4 * MAX_FIELD:
+        raise ApplyRefused("zone apply request with a malformed note")
+    if not isinstance(boot, str) or len(boot) > MAX_FIELD:
+        raise ApplyRefused("zone apply request with a malformed boot")
+    if cell is not None and not isinstance(cell, str):
+        raise ApplyRefused("zone apply request with a malformed cell")
+    return {"operator": operator.strip(), "request_id": rid, "zones_hash": zones_hash,
+            "wall": float(wall), "note": note, "boot": boot, **({"cell": cell} if cell else {})}
+
+
+def request_apply(session, key_expr: str, payload: bytes, signature: bytes | None,
+                  timeout: float) -> dict | None:
+    """Send a zone apply as a query; the monitor's answer ``{"accepted", "reason", ...}`` or
+    None on timeout."""
+    for reply in session.get(key_expr, payload=payload, attachment=signature, timeout=timeout):
+        if reply.ok is None:
+            continue
+        try:
+            body = json.loads(reply.ok.payload.to_bytes())
+        except (ValueError, UnicodeDecodeError):
+            continue
+        if isinstance(body, dict) and isinstance(body.get("accepted"), bool):
+            return body
+    return None
