@@ -306,22 +306,24 @@ def reaction_sink(config: MonitorConfig, pipeline: Pipeline, capacity, bus: Safe
 
 def run_service(config_path: str | Path | None, log_json: bool = False,
                 duration: float | None = None, stop: threading.Event | None = None,
-                signals: StopSignals | None = None) -> int:
+                signals: StopSignals | None = None, capacity_check: str | None = None) -> int:
     """The service until ``duration`` has passed or a signal (or ``stop``) ends it.
 
     ``signals``: handlers the caller installed as early as it could (``monitor run`` does so
     before the model runtime is imported); without them they are installed here.
+    ``capacity_check``: overrides ``[service] capacity_check`` ("refuse", "warn", "off").
     """
     own_signals = signals is None
     signals = signals or StopSignals(name="monitor run", stop=stop).install()
     try:
-        return _run(config_path, log_json, duration, signals)
+        return _run(config_path, log_json, duration, signals, capacity_check)
     finally:
         if own_signals:
             signals.restore()
 
 
-def _run(config_path, log_json: bool, duration: float | None, signals: StopSignals) -> int:
+def _run(config_path, log_json: bool, duration: float | None, signals: StopSignals,
+         capacity_check: str | None = None) -> int:
     from monitor.frames import LatestFrameGrabber, SourceOptions, open_source
 
     stop = signals.stop
@@ -376,7 +378,8 @@ def _run(config_path, log_json: bool, duration: float | None, signals: StopSigna
                 # the embedded demo's capacity only warns: a demonstration, not a cell
                 _serve(config, pipeline, bus, expected, metrics, stop, duration,
                        LatestFrameGrabber, SourceOptions, open_source, test_model,
-                       "warn" if config_path is None else config.service.capacity_check,
+                       capacity_check or ("warn" if config_path is None
+                                          else config.service.capacity_check),
                        closers, cases)
             finally:
                 forget()

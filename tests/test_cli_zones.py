@@ -93,7 +93,8 @@ def test_round_trip_leaves_a_valid_file_and_preview_draws(tmp_path):
     cv2.fillPoly(inside_mask, [np.array([[520, 400], [800, 400], [780, 540], [500, 540]])], 1)
     changed = np.any(drawn != frame, axis=2)
     assert changed[inside_mask == 1].mean() > 0.95
-    assert not changed[5:60, 1150:1275].any()  # a corner no zone reaches
+    assert changed[5:60, 1150:1275].any()  # the legend (top right) names the kinds
+    assert not changed[300:330, 1150:1275].any()  # a strip no zone or legend reaches
 
 
 def test_refused_edit_is_one_line_exit_2_and_file_unchanged(tmp_path):

@@ -2,7 +2,8 @@
 monitor bus on 127.0.0.1, ``monitor console`` as its own process, and a user who watches the
 state go from RUN to STOP, plays an incident clip, draws a self-intersecting polygon (refused,
 file untouched), then a valid one (saved: the file ``monitor zones list`` shows). Screenshots
-of each page go to docs/console/."""
+of each page go to the test's tmp folder; with UPDATE_CONSOLE_SHOTS=1 to docs/console/ (the
+docs' pictures), so a test run never changes the checkout."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ import os
 import shutil
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from pathlib import Path
@@ -38,7 +40,9 @@ from tests.helpers import free_port, run_monitor
 
 CHROMIUM = Path("/usr/bin/chromium")
 CHROMEDRIVER = Path(shutil.which("chromedriver") or "/usr/bin/chromedriver")
-SHOTS = ROOT / "docs" / "console"
+DOC_SHOTS = ROOT / "docs" / "console"
+SHOTS = DOC_SHOTS if os.environ.get("UPDATE_CONSOLE_SHOTS") == "1" else \
+    Path(tempfile.gettempdir()) / "console-shots"
 
 pytestmark = [
     pytest.mark.slow,

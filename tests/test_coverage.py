@@ -175,7 +175,8 @@ def test_monitor_run_logs_the_opt_in_at_start(tmp_path, synthetic_model):
     config = tmp_path / "monitor.toml"
     config.write_text(f'[model]\npath = "{synthetic_model}"\n[zones]\nfile = "{cell}"\n'
                       f'[bus]\ncell = "cov"\nlisten = ["tcp/127.0.0.1:{free_port()}"]\n')
-    proc = run_monitor("run", "--config", config, "--duration", "1", timeout=60)
+    proc = run_monitor("run", "--config", config, "--duration", "1", "--capacity-check",
+                       "warn", timeout=60)
     assert proc.returncode == 0, proc.stderr
     lines = [ln for ln in (proc.stderr + proc.stdout).splitlines()
              if "robot-protective" in ln and "unobserved_ok" in ln]

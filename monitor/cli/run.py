@@ -101,6 +101,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                      help="one JSON object per log line (default: text, or [service] log_json)")
     run.add_argument("--duration", type=float,
                      help="stop after this many seconds (default: run until SIGINT/SIGTERM)")
+    run.add_argument("--capacity-check", choices=("refuse", "warn", "off"),
+                     help="override [service] capacity_check for this run (e.g. warn while "
+                     "commissioning on a busy host; default: the config's, refuse)")
     run.set_defaults(func=cmd_run)
 
 
@@ -277,7 +280,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         from monitor.service import run_service
 
         code = run_service(args.config, log_json=args.log_json, duration=args.duration,
-                           signals=signals)
+                           signals=signals, capacity_check=args.capacity_check)
         if signals.received is not None:  # stopped by a signal: everything is closed
             signals.exit_now(code)
         return code
