@@ -388,7 +388,7 @@ class OpcUaOutput:
                 shown = await self._write(server, nodes, shown, new, ua, snap)
         finally:
             self._loop = None
-            await server.stop()
+            await _shutdown(server)
 
     async def _write(self, server, nodes: dict, shown: dict, new: dict, ua,
                      snap: SafetySnapshot | None) -> dict:
@@ -462,6 +462,19 @@ class OpcUaOutput:
                 ua.Variant(ua.LocalizedText(v.description), ua.VariantType.LocalizedText)))
             nodes[v.name] = (var.nodeid, vtype)
         return server, nodes
+
+
+async def _shutdown(server) -> None:
+    """Stop ``server`` within the adapter's shutdown grace: asyncua's clock task sleeps 1 s
+    between updates and ``stop`` waits for it, so cancel it first."""
+    task = getattr(server.iserver, "time_task", None)
+    if task is not None:
+        task.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await task
+        server.iserver.time_task = None
+    with contextlib.suppress(TimeoutError):
+        await asyncio.wait_for(server.stop(), 0.8)
 
 
 class _Users:
