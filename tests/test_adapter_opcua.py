@@ -104,7 +104,17 @@ def connect(url: str, **kw) -> Client:
     client = Client(url, timeout=10)
     for k, v in kw.items():
         getattr(client, f"set_{k}")(v)
-    client.connect()
+    return _connected(client)
+
+
+def _connected(client: Client) -> Client:
+    """``client`` connected; if that fails, its loop thread stopped (else pytest never exits)."""
+    try:
+        client.connect()
+    except BaseException:
+        with contextlib.suppress(Exception):
+            client.disconnect()
+        raise
     return client
 
 
@@ -478,8 +488,7 @@ def _secure(url: str, cert: Path, key: Path, user: str | None = None,
     if user is not None:
         client.set_user(user)
         client.set_password(password)
-    client.connect()
-    return client
+    return _connected(client)
 
 
 @pytest.mark.slow
