@@ -3,6 +3,7 @@
 Each kind is a module of ``monitor.adapters`` with two functions:
 
 - ``add_arguments(parser)``: its own options (address, port, register map, security ...);
+- optionally ``check_arguments(args)``: raise a ConfigError for bad options before Zenoh opens;
 - ``make_outputs(args, session, keys) -> list[Output]``: its outputs, started (a server on its
   own thread, a Zenoh publisher); they are closed in reverse order when the adapter stops.
 
@@ -36,6 +37,8 @@ KINDS["plc"] = ("modbus", "Modbus TCP server: the verdict in a documented regist
                  "PLC (docs/plc.md)")
 KINDS["ros2"] = ("ros2", "ROS 2 topics over Zenoh in rmw_zenoh's format: speed override, "
                   "diagnostics, command JSON (no ROS installation needed; docs/ros2.md)")
+KINDS["opcua"] = ("opcua", "OPC UA server: the safety state as read-only variables "
+                  "(docs/opcua.md)")
 
 
 def add_consumer_args(p: argparse.ArgumentParser) -> None:
@@ -86,6 +89,8 @@ def cmd_bridge(args: argparse.Namespace) -> int:
     if args.tick <= 0 or args.inbox < 1:
         raise ConfigError(f"{name}: --tick must be > 0 and --inbox at least 1")
     module = importlib.import_module(f"monitor.adapters.{args.adapter_module}")
+    if hasattr(module, "check_arguments"):  # bad options fail before Zenoh opens
+        module.check_arguments(args)
     with StopSignals(name=name) as stop:
         bus = _bus_config(args, instance=args.instance or default_instance(args.bridge_kind))
         keys = BusKeys.of(bus.key_prefix)
