@@ -135,3 +135,28 @@ def test_an_overriding_verdict_says_nothing_about_cameras_or_zones():
                         ("cam0", "cam1"))
     assert stale.cameras == {"cam0": False, "cam1": False} and stale.zone_id is None
     assert stale.reason_code == "ttl" and stale.age_ms == pytest.approx(1010.0)
+
+
+def test_a_step_reads_only_what_waited_so_a_flood_never_starves_the_outputs():
+    """The Zenoh threads may refill the inbox as fast as it is read: a step takes at most
+    what was there when it began, then hands a snapshot on (and the loop sees a stop)."""
+    inbox = Inbox(10_000)
+    dog = CommandWatchdog(cell=CELL, require_liveliness=False)
+    follower = Follower(dog, inbox)
+
+    class Refilling:
+        """An inbox that gets a new forged command for every one read (a flood)."""
+
+        def get(self, timeout: float):
+            item = inbox.get(timeout)
+            inbox.put("command", ("command", b"{}", None, 0.0, 0.0))
+            return item
+
+        def __len__(self) -> int:
+            return len(inbox)
+
+    for _ in range(50):
+        inbox.put("command", ("command", b"{}", None, 0.0, 0.0))
+    follower.inbox = Refilling()
+    snap = follower.step()  # returns at all: the old drain read the flood forever
+    assert snap.state == "STOP" and 50 <= sum(dog.rejected.values()) <= 52

@@ -65,9 +65,14 @@ class Follower:
         self.alerts: list[tuple[bytes, float]] = []  # raw alerts since the last step
 
     def drain(self, timeout: float = 0.0) -> None:
-        """Feed everything waiting (waiting up to ``timeout`` s for the first item)."""
+        """Feed what is waiting now (waiting up to ``timeout`` s for the first item). At most
+        the entries present at the start: under a flood the Zenoh threads refill the inbox as
+        fast as it is read, and an unbounded drain would never hand a snapshot to the outputs
+        (nor see a stop signal)."""
         entry = self.inbox.get(timeout=timeout)
-        while entry is not None:
+        budget = len(self.inbox) + 1
+        while entry is not None and budget > 0:
+            budget -= 1
             kind, payload, extra, t_recv, *rest = entry
             if kind == "command":
                 # both clocks read on arrival: time in the inbox counts against the ttl
@@ -79,7 +84,7 @@ class Follower:
             elif kind == "alert":
                 self.alerts.append((payload, t_recv))
                 del self.alerts[:-64]  # bounded: outputs take what they want each step
-            entry = self.inbox.get(timeout=0.0)
+            entry = self.inbox.get(timeout=0.0) if budget > 0 else None
 
     def step(self, timeout: float = 0.0) -> SafetySnapshot:
         self.drain(timeout)
