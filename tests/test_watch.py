@@ -317,7 +317,7 @@ def test_the_demos_unsigned_reset_is_bound_to_the_latch_too(tmp_path):
 
 
 def test_watch_shows_the_latched_state_with_or_without_the_policys_details():
-    from monitor.cli.bus import _latch_text
+    from monitor.cli.watch import _latch_text
 
     assert _latch_text({"latched": False}) == ""
     assert _latch_text({"latched": True}) == "LATCHED"  # an older monitor: no details

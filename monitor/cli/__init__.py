@@ -23,7 +23,11 @@ from monitor.errors import MonitorError
 COMMAND_MODULES = (
     "monitor.cli.detect",
     "monitor.cli.model",
-    "monitor.cli.bus",
+    "monitor.cli.watch",
+    "monitor.cli.bridge",
+    "monitor.cli.router",
+    "monitor.cli.operator",
+    "monitor.cli.keys",
     "monitor.cli.zones",
     "monitor.cli.reference",
     "monitor.cli.run",
