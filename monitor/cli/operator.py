@@ -4,9 +4,13 @@ from __future__ import annotations
 
 import argparse
 import json
+import queue
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
+
+import zenoh
 
 from monitor.bus import BusKeys, default_instance, open_session
 from monitor.cli.keys import KEY_DIR
@@ -21,6 +25,9 @@ from monitor.errors import ConfigError
 from monitor.resets import latch_of_status, request_reset, reset_payload
 from monitor.signals import Interrupted, StopSignals, call_interruptible
 from monitor.signing import load_private_key
+
+STATUS_GRACE_S = 0.2  # s to wait for more monitors' status after the first
+_END = object()  # put by the query's drop callback: no more replies will come
 
 
 def _operator_key_path(args: argparse.Namespace) -> Path | None:
@@ -92,60 +99,86 @@ def cmd_reset(args: argparse.Namespace) -> int:
     return 0 if answer["accepted"] else 1
 
 
-def _first_status(session, keys: BusKeys, timeout: float, stop) -> dict | None:
-    """The first status answer (a JSON object) within ``timeout``; None when none came."""
+def ask(session, key: str, timeout: float, stop, want: Callable[[bytes], dict | None],
+        grace: float = 0.0) -> list[dict]:
+    """The answers on ``key`` that ``want`` accepts (it returns None for the others), returned
+    at the first one: only those arriving within ``grace`` s after it are added (a second
+    monitor on the cell). It never waits for the query itself to end: a queryable that never
+    finishes its answer (a hung peer) would hold the command until ``timeout``. A query that
+    ends unanswered (nothing routed yet: the session is still connecting) is asked again until
+    ``timeout``. Returns [] when nothing answered or ``stop`` was set."""
     started = time.monotonic()
-    while not stop.is_set():
+    answers: list[dict] = []
+    first_at: float | None = None
+    while not stop.is_set() and not answers:
         left = timeout - (time.monotonic() - started)
         if left <= 0:
-            return None
-        try:
-            replies = call_interruptible(lambda left=left: [
-                r.ok.payload.to_bytes() for r in session.get(keys.status, timeout=left)
-                if r.ok is not None], stop)
-        except Interrupted:
-            return None
-        for payload in replies:
-            body = safe_json(payload)
-            if isinstance(body.get("boot"), str):
-                return body
-        stop.wait(min(0.2, max(0.0, left)))  # nothing routed yet: ask again
-    return None
+            break
+        inbox: queue.SimpleQueue = queue.SimpleQueue()
+        # no consolidation: Zenoh's default keeps every reply until all queryables finished
+        session.get(key, handler=zenoh.handlers.Callback(inbox.put, lambda q=inbox: q.put(_END)),
+                    consolidation=zenoh.ConsolidationMode.NONE, timeout=left)
+        while not stop.is_set():
+            until = started + timeout if first_at is None else first_at + grace
+            wait = until - time.monotonic()
+            if wait <= 0:
+                return answers
+            try:  # in slices: the stop signal is seen within 50 ms
+                reply = inbox.get(timeout=min(0.05, wait))
+            except queue.Empty:
+                continue
+            if reply is _END:
+                break  # the query ended: with answers, done; without, ask again
+            body = want(reply.ok.payload.to_bytes()) if reply.ok is not None else None
+            if body is not None:
+                answers.append(body)
+                first_at = first_at if first_at is not None else time.monotonic()
+        if not answers:
+            stop.wait(min(0.1, max(0.0, left)))
+    return answers
+
+
+def _monitor_status(payload: bytes) -> dict | None:
+    body = safe_json(payload)
+    return body if isinstance(body.get("boot"), str) else None
+
+
+def _first_status(session, keys: BusKeys, timeout: float, stop) -> dict | None:
+    """The first status answer of a monitor within ``timeout``; None when none came."""
+    answers = ask(session, keys.status, timeout, stop, _monitor_status)
+    return answers[0] if answers else None
 
 
 def cmd_status(args: argparse.Namespace) -> int:
     with StopSignals(name="monitor status") as stop:
         bus = bus_config(args, instance=args.instance or default_instance("status"))
         keys = BusKeys.of(bus.key_prefix)
-        answers = 0
         try:
             session = call_interruptible(lambda: open_session(bus), stop)
         except Interrupted:
             return 130
         started = time.monotonic()
         with bounded(session, "monitor status") as session:
-            while not answers and not stop.is_set():
-                left = args.timeout - (time.monotonic() - started)
-                if left <= 0:
-                    break
-                try:
-                    replies = call_interruptible(lambda left=left: [
-                        r.ok.payload.to_bytes() for r in session.get(keys.status, timeout=left)
-                        if r.ok is not None], stop)
-                except Interrupted:
-                    break
-                for payload in replies:
-                    answers += 1
-                    print(json.dumps(json.loads(payload), indent=2))
-                if not answers:
-                    stop.wait(min(0.2, max(0.0, left)))  # nothing routed yet: ask again
+            # every monitor that answers within STATUS_GRACE_S of the first is shown (two
+            # monitors on one cell is a fault the operator must see)
+            answers = ask(session, keys.status, args.timeout, stop, _any_json, STATUS_GRACE_S)
         waited = time.monotonic() - started
     if stop.is_set():
         return 130
     if not answers:
         raise ConfigError(f"monitor status: no answer on {keys.status} within {waited:.1f} s; "
                           f"{nothing_found_hint(bus)}")
+    for body in answers:
+        print(json.dumps(body, indent=2))
     return 0
+
+
+def _any_json(payload: bytes) -> dict | None:
+    try:
+        return json.loads(payload)
+    except (ValueError, UnicodeDecodeError, RecursionError):
+        return None
+
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
