@@ -162,6 +162,21 @@ def test_watch_without_monitor_reports_stop_and_exits_cleanly():
     assert "STOP" in out.stdout and "no command received yet" in out.stdout
 
 
+def test_watch_says_where_it_looked_when_nothing_answers():
+    """Silence is STOP on stdout; stderr says once where watch looked and what to try."""
+    port = free_port()
+    with open_session(BusConfig(cell="nobody", listen=(f"tcp/127.0.0.1:{port}",))):
+        out = subprocess.run(
+            [sys.executable, "-m", "monitor", "watch", "--cell", "nobody",
+             "--connect", f"tcp/127.0.0.1:{port}", "--duration", "1.5", "--hint-after", "0.5"],
+            capture_output=True, text=True, timeout=30)
+    assert out.returncode == 0, out.stderr
+    (line,) = [x for x in out.stderr.splitlines() if "nothing heard" in x] or [out.stderr]
+    assert f"tcp/127.0.0.1:{port}" in line and "'nobody'" in line and "--connect" in line
+    assert "--cell" in line and "monitor run" in line
+    assert "STOP" in out.stdout
+
+
 def test_bus_cli_errors_are_one_line():
     out = subprocess.run([sys.executable, "-m", "monitor", "watch", "--connect",
                           "nonsense-endpoint"], capture_output=True, text=True, timeout=30)

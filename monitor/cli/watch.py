@@ -11,7 +11,7 @@ import time
 import zenoh
 
 from monitor.bus import BusConfig, BusKeys, CommandWatchdog, Verdict, default_instance, open_session
-from monitor.cli.zenoh_args import add_zenoh_args, bus_config, safe_json
+from monitor.cli.zenoh_args import add_zenoh_args, bus_config, nothing_found_hint, safe_json
 from monitor.consumer import DEFAULT_CLOCK_SYNC_MS
 from monitor.errors import ConfigError
 from monitor.inbox import DEFAULT_BOUND, Inbox
@@ -23,6 +23,8 @@ from monitor.signals import (
     exit_if_stopped,
 )
 from monitor.signing import load_public_key
+
+HINT_AFTER_S = 3.0  # s of silence before watch says where it looked and what to try
 
 
 def _fmt_time() -> str:
@@ -97,7 +99,7 @@ def cmd_watch(args: argparse.Namespace) -> int:
         entities = []
         try:
             entities = _watch_subscriptions(session, keys, inbox, clock)
-            _watch_loop(args, dog, inbox, stop, clock)
+            _watch_loop(args, dog, inbox, stop, clock, nothing_found_hint(bus))
         finally:
             if not close_bounded(session, 1.0, entities):
                 print("monitor watch: Zenoh did not close within 1 s; exiting anyway",
@@ -122,8 +124,10 @@ def _watch_subscriptions(session, keys: BusKeys, inbox, clock) -> list:
     ]
 
 
-def _watch_loop(args, dog: CommandWatchdog, inbox, stop, clock) -> None:
+def _watch_loop(args, dog: CommandWatchdog, inbox, stop, clock, hint: str) -> None:
     end = clock() + args.duration if args.duration else None
+    heard = clock()  # when the last message of any kind arrived (start: none yet)
+    hinted = False
     shown: tuple | None = None
     shown_at = clock()
     last_summary = clock()
@@ -134,6 +138,12 @@ def _watch_loop(args, dog: CommandWatchdog, inbox, stop, clock) -> None:
         kind = None
         if entry is not None:
             kind, payload, extra, t_recv, *wall_recv = entry
+            heard, hinted = t_recv, False
+        elif not hinted and clock() - heard >= args.hint_after:
+            # silence says STOP below; this says where we looked and what to try
+            hinted = True
+            print(f"monitor watch: nothing heard for {args.hint_after:g} s (no command, alert "
+                  f"or liveliness token); {hint}", file=sys.stderr, flush=True)
         if kind == "command":
             # both clocks read on arrival: waiting in the inbox is no reason to drop a command
             why = dog.on_command(payload, t_recv, extra, wall_recv[0])
@@ -227,4 +237,5 @@ def register(subparsers) -> None:
                    help="messages of each kind held while this consumer is busy; when full the "
                    f"oldest is dropped and counted (default {DEFAULT_BOUND})")
     p.add_argument("--tick", type=float, default=0.01, help=argparse.SUPPRESS)
+    p.add_argument("--hint-after", type=float, default=HINT_AFTER_S, help=argparse.SUPPRESS)
     p.set_defaults(func=cmd_watch)
