@@ -7,6 +7,7 @@ import argparse
 import json
 import socket
 import sys
+import threading
 import time
 
 import zenoh
@@ -73,11 +74,47 @@ def _bridge_otus(args: argparse.Namespace, stop) -> int:
                             pose_timeout=args.pose_timeout)
         print(f"monitor bridge otus: UDP {host}:{sock.getsockname()[1]} -> {keys.pose}",
               file=sys.stderr, flush=True)
-        bridge.run(stop)
+        if not (bus.connect or bus.listen or bus.zenoh_config_file):
+            print("monitor bridge otus: warning: no --connect, --zenoh-listen or --zenoh-config: "
+                  "no monitor can reach this bridge" + (" unless multicast scouting finds one"
+                                                        if bus.multicast_scouting else "")
+                  + "; give --connect tcp/<monitor host>:7447", file=sys.stderr, flush=True)
+        done = threading.Event()
+        watcher = threading.Thread(target=_warn_unmatched, daemon=True, name="pose-matching",
+                                   args=(pubs["tracker/pose"], keys.pose, args.unmatched_warn,
+                                         stop, done))
+        watcher.start()
+        try:
+            bridge.run(stop)
+        finally:
+            done.set()
+            watcher.join(timeout=1.0)
         v = bridge.validator
         print(f"monitor bridge otus: {bridge.packets} packets, {v.accepted} published, "
               f"rejected {dict(v.rejected)}, {bridge.silences} silences", file=sys.stderr)
     return exit_if_stopped(stop)
+
+
+def _warn_unmatched(publisher, key: str, after: float, stop, done: threading.Event) -> None:
+    """Warn (stderr) when no subscriber has matched ``publisher`` for ``after`` seconds: the
+    poses go nowhere (Zenoh matching status). Once per unmatched spell; a match clears it."""
+    since, warned = time.monotonic(), False
+    while not done.wait(0.1) and not stop.is_set():
+        try:
+            matched = publisher.matching_status.matching
+        except Exception:  # the publisher is closing
+            return
+        now = time.monotonic()
+        if matched:
+            if warned:
+                print(f"monitor bridge otus: a subscriber to {key} matched again",
+                      file=sys.stderr, flush=True)
+            since, warned = now, False
+        elif not warned and now - since >= after:
+            warned = True
+            print(f"monitor bridge otus: warning: no subscriber to {key} for {after:g} s: the "
+                  "poses go nowhere (is the monitor up, on this cell, with separation "
+                  "monitoring on? check --connect and --cell)", file=sys.stderr, flush=True)
 
 def register(subparsers) -> None:
     bridge = subparsers.add_parser("bridge", help="bridge external streams onto the bus")
@@ -97,6 +134,9 @@ def register(subparsers) -> None:
     p.add_argument("--pose-timeout", type=float, default=0.1,
                    help="s of UDP silence that raise a pose_silence alert (once per gap; "
                    "default 0.1)")
+    p.add_argument("--unmatched-warn", type=float, default=5.0, metavar="S",
+                   help="s without any subscriber to the pose samples before a warning "
+                   "(default 5)")
     p.add_argument("--alert-interval", type=float, default=5.0,
                    help="s between two pose_rejected alerts (repeats are counted; default 5)")
     p.set_defaults(func=cmd_bridge_otus)
