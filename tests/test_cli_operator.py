@@ -29,27 +29,32 @@ def monitor_and_a_hung_queryable():
         bus.publish_command(Command("RUN", 1.0, ()))
         bus.update_status(fps=9.5)
         held: list = []
+        hung_port = free_port()
         with open_session(BusConfig(cell="lat", instance="hung",
+                                    listen=(f"tcp/127.0.0.1:{hung_port}",),
                                     connect=(f"tcp/127.0.0.1:{port}",))) as hung:
             keys = BusKeys.of("workcell/lat/")
             qs = [hung.declare_queryable(k, held.append) for k in (keys.status, keys.reset)]
-            yield port, held, bus
+            # the commands connect to both: the hung peer is there before the first query
+            # (found by gossip only, it might be reached too late to hold anything)
+            yield ["--connect", f"tcp/127.0.0.1:{port}", "--connect",
+                   f"tcp/127.0.0.1:{hung_port}"], held, bus
             for q in qs:
                 q.undeclare()
             held.clear()
 
 
-def _run(port: int, *argv: str) -> tuple[subprocess.CompletedProcess, float]:
+def _run(connect: list[str], *argv: str) -> tuple[subprocess.CompletedProcess, float]:
     started = time.monotonic()
-    out = subprocess.run([sys.executable, "-m", "monitor", *argv, "--cell", "lat",
-                          "--connect", f"tcp/127.0.0.1:{port}", "--timeout", f"{TIMEOUT_S:g}"],
+    out = subprocess.run([sys.executable, "-m", "monitor", *argv, "--cell", "lat", *connect,
+                          "--timeout", f"{TIMEOUT_S:g}"],
                          capture_output=True, text=True, timeout=TIMEOUT_S + 30)
     return out, time.monotonic() - started
 
 
 def test_status_returns_at_the_monitors_first_reply(monitor_and_a_hung_queryable):
-    port, held, _ = monitor_and_a_hung_queryable
-    out, took = _run(port, "status")
+    connect, held, _ = monitor_and_a_hung_queryable
+    out, took = _run(connect, "status")
     assert out.returncode == 0, out.stderr
     status = json.loads(out.stdout)
     assert status["instance"] == "mon-lat" and status["fps"] == 9.5
@@ -59,8 +64,8 @@ def test_status_returns_at_the_monitors_first_reply(monitor_and_a_hung_queryable
 
 
 def test_reset_reads_the_status_at_the_first_reply(monitor_and_a_hung_queryable):
-    port, held, _ = monitor_and_a_hung_queryable
-    out, took = _run(port, "reset", "--operator", "anna")
+    connect, held, _ = monitor_and_a_hung_queryable
+    out, took = _run(connect, "reset", "--operator", "anna")
     # not latched: said by the CLI after reading the status (the old code spent its whole
     # --timeout on that status query and then reported no monitor at all)
     assert out.returncode == 1 and "not latched" in out.stdout, (out.stdout, out.stderr)
@@ -71,13 +76,13 @@ def test_reset_returns_at_the_monitors_answer(monitor_and_a_hung_queryable):
     from monitor.policy import Latch, ResetOutcome
     from monitor.resets import LatchNonces
 
-    port, held, bus = monitor_and_a_hung_queryable
+    connect, held, bus = monitor_and_a_hung_queryable
     latched = Command("STOP", 0.0, (), latched=True, latched_by=Latch(
         "protective_zone", "person 0 in P1", 1.0, nonce=LatchNonces(bus.boot)(1)))
     bus.publish_command(latched)
     started = time.monotonic()
     proc = subprocess.Popen([sys.executable, "-m", "monitor", "reset", "--operator", "anna",
-                             "--cell", "lat", "--connect", f"tcp/127.0.0.1:{port}",
+                             "--cell", "lat", *connect,
                              "--timeout", f"{TIMEOUT_S:g}"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     got: list = []

@@ -363,16 +363,20 @@ def _bridge_stderr(argv: list[str], seconds: float) -> str:
         time.sleep(seconds)
     finally:
         proc.send_signal(signal.SIGINT)
-        _, err = proc.communicate(timeout=10)
-    assert proc.returncode in (0, 130), head + err
-    return head + err
+        proc.wait(timeout=10)
+    # read through the same file object: communicate(timeout=...) reads the pipe itself and
+    # would miss the lines readline() already buffered
+    err = head + proc.stderr.read()
+    proc.stderr.close()
+    assert proc.returncode in (0, 130), err
+    return err
 
 
 def test_bridge_without_an_endpoint_or_a_subscriber_warns():
     """No --connect/--zenoh-listen/--zenoh-config: the poses can reach nobody; said at start,
     and again when no subscriber matched the pose key for --unmatched-warn seconds."""
     err = _bridge_stderr(["--cell", "nobody"], 1.5)
-    assert "warning: no --connect, --zenoh-listen or --zenoh-config" in err
+    assert "warning: no --connect, --zenoh-listen or --zenoh-config" in err, err
     assert "warning: no subscriber to workcell/nobody/tracker/pose for 0.5 s" in err
 
 
