@@ -89,6 +89,9 @@ def alert_from_dict(body: dict, attachment: bytes | None = None) -> Alert:
     )
 
 
+RESET_SOURCE = "reset"  # source of the alerts on the policy's reset decisions
+
+
 def reset_alert(outcome, source: str, now: float) -> Alert:
     """Alert for a reset request the policy handled (``monitor.policy.ResetOutcome``):
     info when accepted, warning when refused (an operator believed the cell was clear)."""

@@ -281,9 +281,10 @@ class Driver:
     def _emit(self, result: StepResult, frame: Frame | None,
               stalled_s: float | None = None) -> Step:
         if result.command.reset is not None:
-            from monitor.alerts import reset_alert
+            from monitor.alerts import RESET_SOURCE, reset_alert
 
-            alert = reset_alert(result.command.reset, self.pipeline.camera_id, result.now)
+            # the operator's act, not a camera's finding (the operator is in the details)
+            alert = reset_alert(result.command.reset, RESET_SOURCE, result.now)
             result = dataclasses.replace(result, alerts=(*result.alerts, alert))
         possible = bool(reset_possible(result.command))
         became_possible = possible and not self._reset_possible

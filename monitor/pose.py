@@ -3,9 +3,9 @@
 The OTUS tracker (ZČU Plzeň tracker report, 2018) sends one UDP datagram per pose: 23 little-
 endian IEEE-754 doubles, 184 bytes, in this order: device id, timestamp, position xyz, linear
 velocity xyz, linear acceleration xyz, orientation quaternion xyzw, angular velocity xyz,
-angular acceleration xyz, button 1, button 2. Units are taken as SI: metres, seconds, radians
-(the vendor's OpenVR-based software works in metres); the frame is the tracker's own frame,
-before the tool mounting offset is applied.
+angular acceleration xyz, button 1, button 2 (table: docs/otus.md). Units are taken as SI:
+metres, seconds, radians (the vendor's OpenVR-based software works in metres); the frame is the
+tracker's own frame, before the tool mounting offset is applied.
 
 The tracker's measurements contain unflagged "nonsense values", so nothing is trusted:
 ``PoseValidator`` rejects a sample with a named reason (``REJECT_REASONS``) and the pipeline

@@ -35,6 +35,8 @@ import os
 import time
 from dataclasses import dataclass, field
 
+import zenoh
+
 from monitor.policy import ResetRequest
 from monitor.signing import Signer, verify
 
@@ -219,7 +221,10 @@ def request_reset(session, key_expr: str, payload: bytes, signature: bytes | Non
                   timeout: float) -> dict | None:
     """Send a reset request as a query and wait for the monitor's answer (the first reply),
     ``{"accepted": bool, "reason": str, "stage": "bus"|"policy", ...}``; None on timeout."""
-    for reply in session.get(key_expr, payload=payload, attachment=signature, timeout=timeout):
+    # no consolidation: Zenoh's default would hold the monitor's answer until every queryable
+    # on the key finished (one that never does would hold it until ``timeout``)
+    for reply in session.get(key_expr, payload=payload, attachment=signature, timeout=timeout,
+                             consolidation=zenoh.ConsolidationMode.NONE):
         if reply.ok is None:
             continue
         try:

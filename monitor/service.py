@@ -42,6 +42,7 @@ from monitor.driver import (
 from monitor.errors import ConfigError
 from monitor.geometry import ReactionBudget, describe_separation
 from monitor.health import LOST
+from monitor.metrics import CameraFigures, Metrics
 from monitor.pipeline import Pipeline, StepResult
 from monitor.policy import STOP, Command, Reason
 from monitor.reaction import (
@@ -109,45 +110,6 @@ def bus_config_for(config: MonitorConfig, cell) -> BusConfig:
     return dataclasses.replace(config.bus, config_hash=cell.config_hash if cell else "")
 
 
-class Metrics:
-    """Prometheus gauges and counters, served on 127.0.0.1:<port> when the port is set."""
-
-    def __init__(self, port: int, host: str) -> None:
-        from prometheus_client import CollectorRegistry, Counter, Gauge, start_http_server
-
-        self.registry = CollectorRegistry()
-        r = self.registry
-        self.fps = Gauge("monitor_fps", "processed frames per second", registry=r)
-        self.inference_ms = Gauge("monitor_inference_ms", "inference time of the last frame",
-                                  registry=r)
-        self.state = Gauge("monitor_state", "0 RUN, 1 SLOW, 2 STOP", registry=r)
-        self.dropped = Gauge("monitor_dropped_frames", "frames dropped by the grabber",
-                             registry=r)
-        self.alerts = Counter("monitor_alerts", "alerts raised", ["kind"], registry=r)
-        self.persons = Gauge("monitor_persons", "persons in the last frame", registry=r)
-        self.foreign_commands = Gauge(
-            "monitor_commands_foreign", "commands on the command key not from this monitor "
-            "(unsigned, wrongly signed, ...), ignored", ["kind"], registry=r)
-        self.incidents = Counter("monitor_incidents", "incidents recorded, per cause",
-                                 ["cause"], registry=r)
-        self.recording = Gauge("monitor_recorder_recording", "1 while incidents are recorded "
-                               "(0: stopped or off)", registry=r)
-        self.recorder_dropped = Gauge("monitor_recorder_dropped_frames", "frames the recorder "
-                                      "dropped to keep the safety loop at speed", registry=r)
-        self.server = None
-        if port:
-            try:
-                self.server, self._thread = start_http_server(port, addr=host, registry=r)
-            except OSError as exc:
-                raise ConfigError(f"service.metrics_port: cannot serve metrics on "
-                                  f"{host}:{port}: {exc.strerror or exc}") from None
-
-    def close(self) -> None:
-        if self.server is not None:
-            self.server.shutdown()
-
-
-STATE_LEVEL = {"RUN": 0, "SLOW": 1, "STOP": 2}
 
 
 
@@ -614,8 +576,10 @@ class ServiceSink:
         self.notice = Reason(TEST_MODEL_REASON, notice) if notice else None
         self.metrics = metrics
         self.grabbers = grabbers
-        self.frame_times: deque[float] = deque(maxlen=30)
-        self.inference: deque[float] = deque(maxlen=30)
+        # per camera: the times and inference ms of its last 30 frames, its last person count
+        self.frame_times: dict[str, deque[float]] = {}
+        self.inference: dict[str, deque[float]] = {}
+        self.persons: dict[str, int] = {}
         self.last_status = -math.inf
         self.when = wall_clock()  # the policy's monotonic times as the operator's local time
         self.recorder = None  # the incident recorder, for its status and gauges
@@ -635,8 +599,12 @@ class ServiceSink:
         if step.frame is not None:
             # the body's "frame" holds camera, seq, capture time and size (no override here)
             self.bus.publish_detections(result.persons, result.zone_report)
-            self.frame_times.append(result.now)
-            self.inference.append(result.stage_ms.get("inference", 0.0))
+            cam = step.frame.info.camera_id
+            self.frame_times.setdefault(cam, deque(maxlen=30)).append(result.now)
+            self.inference.setdefault(cam, deque(maxlen=30)).append(
+                result.stage_ms.get("inference", 0.0))
+            if result.persons is not None:
+                self.persons[cam] = len(result.persons)
         if step.stalled_s is not None:
             event("monitor stalled: STOP latched", logging.ERROR, gap_s=round(step.stalled_s, 3))
         if result.changed:
@@ -671,26 +639,23 @@ class ServiceSink:
             event(f"alert {alert.kind}", level, severity=alert.severity, message=alert.message)
 
     def status(self, result: StepResult) -> None:
-        fps = 0.0
-        times = self.frame_times
-        if len(times) >= 2 and times[-1] > times[0]:
-            fps = (len(times) - 1) / (times[-1] - times[0])
-        inf_ms = statistics.median(self.inference) if self.inference else 0.0
         statuses = [g.status() for g in self.grabbers]
+        figures = [CameraFigures(
+            s.camera_id, _fps(self.frame_times.get(s.camera_id, ())),
+            statistics.median(self.inference[s.camera_id]) if self.inference.get(s.camera_id)
+            else 0.0, s.dropped, s.connected, self.persons.get(s.camera_id)) for s in statuses]
+        every = sorted(t for times in self.frame_times.values() for t in times)[-30:]
+        inference = [ms for q in self.inference.values() for ms in q]
         cameras = [{"id": s.camera_id, "connected": s.connected, "dropped": s.dropped,
-                    "reconnects": s.reconnects, "last_error": s.last_error} for s in statuses]
-        self.bus.update_status(fps=round(fps, 2), inference_ms=round(inf_ms, 2),
-                               camera=cameras[0], cameras=cameras,
-                               zone_sets=list(result.command.zone_sets) or None)
+                    "reconnects": s.reconnects, "last_error": s.last_error,
+                    "fps": round(f.fps, 2)} for s, f in zip(statuses, figures, strict=True)]
+        self.bus.update_status(
+            fps=round(_fps(every), 2),
+            inference_ms=round(statistics.median(inference) if inference else 0.0, 2),
+            camera=cameras[0], cameras=cameras,
+            zone_sets=list(result.command.zone_sets) or None)
+        self.metrics.update(result.command.state, figures, self.bus.foreign_commands())
         m = self.metrics
-        m.fps.set(fps)
-        m.inference_ms.set(inf_ms)
-        m.state.set(STATE_LEVEL[result.command.state])
-        m.dropped.set(sum(s.dropped for s in statuses))
-        for kind, n in self.bus.foreign_commands().items():
-            m.foreign_commands.labels(kind).set(n)
-        if result.persons is not None:
-            m.persons.set(len(result.persons))
         if self.recorder is not None:
             with contextlib.suppress(Exception):  # an extra's numbers never stop this sink
                 rec = self.recorder.status()
@@ -700,3 +665,11 @@ class ServiceSink:
 
     def close(self) -> None:
         pass
+
+
+def _fps(times) -> float:
+    """Frames per second over the frame times ``times`` (oldest first)."""
+    times = list(times)
+    if len(times) >= 2 and times[-1] > times[0]:
+        return (len(times) - 1) / (times[-1] - times[0])
+    return 0.0

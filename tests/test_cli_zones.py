@@ -159,6 +159,27 @@ def test_calibrate_from_csv_with_noise_reports_small_error(tmp_path, monkeypatch
     assert valid[0] and np.linalg.norm(floor[0] - [0, -1]) < 0.05
 
 
+def test_calibrate_warns_naming_the_worst_pair_above_2_px(tmp_path, monkeypatch, capsys):
+    """One pair with its floor point 0.3 m off (a mistyped coordinate): the fit absorbs part of
+    it, the RMS goes past 2 px, and calibrate says so on stderr naming that pair."""
+    monkeypatch.chdir(tmp_path)
+    assert main("new", "c.yaml", "--camera", "cam0", "--size", "1280x720") == 0
+    rows = demo_pairs(n=10, seed=3)
+    rows[6, 2] += 0.3
+    pairs = " ".join(",".join(f"{v:.6f}" for v in r) for r in rows)
+    capsys.readouterr()
+    assert main("calibrate", "c.yaml", "--camera", "cam0", "--pairs", pairs) == 0
+    out, err = capsys.readouterr()
+    rms = float(out.split("RMS ")[1].split(" px")[0])
+    assert rms > 2.0
+    (line,) = [x for x in err.splitlines() if "likely wrong" in x] or [err]
+    assert line.startswith("monitor: warning: ") and "pair 7 (" in line, err
+    # a good calibration says nothing
+    pairs = " ".join(",".join(f"{v:.6f}" for v in r) for r in demo_pairs(n=10, seed=3))
+    assert main("calibrate", "c.yaml", "--camera", "cam0", "--pairs", pairs) == 0
+    assert "RMS" not in capsys.readouterr().err
+
+
 def test_calibrate_pnp_recovers_the_demo_extrinsics(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
     path = tmp_path / "c.yaml"

@@ -267,6 +267,9 @@ def test_reset_outcomes_raise_alerts_in_replay_too(detector, empty_cell_image):
                 StepInputs(reset=ResetRequest("ops", 0.0, "r1")))
     kinds = {a.kind: a for a in rec.steps[-1].result.alerts}
     assert kinds["reset_refused"].details["request_id"] == "r1"
+    # an operator's act, not a camera's finding: the source says "reset", never "cam0"
+    assert kinds["reset_refused"].source == "reset"
+    assert kinds["reset_refused"].details["operator"] == "ops"
 
 
 def test_driver_closes_every_sink_even_when_one_fails():

@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import signal
 import socket
 import struct
 import subprocess
@@ -343,3 +344,66 @@ def test_subscriber_measures_the_tool_speed_of_a_lying_stream():
     assert speed.measured_mps == pytest.approx(1.0, rel=1e-6)
     assert speed.speed_mps == pytest.approx(1.0, rel=1e-6) and speed.reported_mps == 0.0
     assert speed.fault is not None and speed.fault.name == "pose_implausible"
+
+
+def _bridge_stderr(argv: list[str], seconds: float) -> str:
+    """`monitor bridge otus ARGV` for ``seconds``, then SIGINT; its stderr."""
+    proc = subprocess.Popen([sys.executable, "-m", "monitor", "bridge", "otus",
+                             "--listen", f"127.0.0.1:{free_port(socket.SOCK_DGRAM)}",
+                             "--unmatched-warn", "0.5", *argv],
+                            stderr=subprocess.PIPE, text=True)
+    head = ""
+    try:
+        deadline = time.monotonic() + 20
+        while time.monotonic() < deadline:  # the bridge is up when it names its UDP port
+            line = proc.stderr.readline()
+            head += line
+            if "UDP" in line or not line:
+                break
+        time.sleep(seconds)
+    finally:
+        proc.send_signal(signal.SIGINT)
+        proc.wait(timeout=10)
+    # read through the same file object: communicate(timeout=...) reads the pipe itself and
+    # would miss the lines readline() already buffered
+    err = head + proc.stderr.read()
+    proc.stderr.close()
+    assert proc.returncode in (0, 130), err
+    return err
+
+
+def test_bridge_without_an_endpoint_or_a_subscriber_warns():
+    """No --connect/--zenoh-listen/--zenoh-config: the poses can reach nobody; said at start,
+    and again when no subscriber matched the pose key for --unmatched-warn seconds."""
+    err = _bridge_stderr(["--cell", "nobody"], 1.5)
+    assert "warning: no --connect, --zenoh-listen or --zenoh-config" in err, err
+    assert "warning: no subscriber to workcell/nobody/tracker/pose for 0.5 s" in err
+
+
+def test_bridge_with_a_subscriber_does_not_warn():
+    zport = free_port()
+    keys = BusKeys.of("workcell/heard/")
+    with open_session(BusConfig(cell="heard", listen=(f"tcp/127.0.0.1:{zport}",))) as session:
+        session.declare_subscriber(keys.pose, lambda s: None)
+        err = _bridge_stderr(["--cell", "heard", "--connect", f"tcp/127.0.0.1:{zport}"], 1.5)
+    assert "warning" not in err, err
+
+
+def test_the_documented_packet_layout_is_the_codecs():
+    """docs/otus.md's table, row by row, against monitor.pose: byte range, order and field."""
+    import re
+    from pathlib import Path
+
+    from monitor.pose import OTUS_FORMAT
+
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "otus.md").read_text(encoding="utf-8")
+    rows = re.findall(r"^\| (\d+)-(\d+) \| ([^|]+) \| `([a-z_0-9]+)(?:\[(\d)\])?` \|", doc, re.M)
+    assert len(rows) == 23, rows
+    assert OTUS_FORMAT == "<23d" and "little-endian" in doc and "(float64)" in doc
+    assert int(rows[-1][1]) + 1 == OTUS_SIZE == 184 and "184 bytes" in doc
+    # a packet whose k-th double is k: each documented field must decode to its row's index
+    decoded = decode_otus(struct.pack("<23d", *range(23)))
+    for k, (first, last, name, attr, index) in enumerate(rows):
+        assert (int(first), int(last)) == (8 * k, 8 * k + 7), name
+        value = getattr(decoded, attr)
+        assert (value[int(index)] if index else value) == k, f"row {k} ({name}): {attr}"

@@ -62,9 +62,16 @@ def test_sigterm_after_commands_over_zenoh_status_and_metrics(tmp_path, syntheti
             text = urllib.request.urlopen(url, timeout=3).read().decode()
             return {line.split()[0]: float(line.split()[1]) for line in text.splitlines()
                     if line.startswith("monitor_")}
-        values = wait_for(lambda: (m := metrics()).get("monitor_fps") and m, 10, "metrics", svc)
-        assert values["monitor_state"] in (0.0, 1.0, 2.0)  # RUN, SLOW, STOP
-        assert values["monitor_inference_ms"] > 0 and "monitor_dropped_frames" in values
+        cam0 = '{camera="cam0"}'
+        values = wait_for(lambda: (m := metrics()).get("monitor_fps" + cam0) and m, 10,
+                          "metrics", svc)
+        # readable: one gauge per state, exactly one of them 1; and the level for thresholds
+        states = {s: values[f'monitor_state{{state="{s}"}}'] for s in ("RUN", "SLOW", "STOP")}
+        assert sorted(states.values()) == [0.0, 0.0, 1.0], states
+        assert values["monitor_state_level"] in (0.0, 1.0, 2.0)  # RUN, SLOW, STOP
+        assert values["monitor_inference_ms" + cam0] > 0
+        assert "monitor_dropped_frames" + cam0 in values
+        assert values["monitor_camera_connected" + cam0] == 1.0
         # heartbeats (10 Hz) and changes: wait for ten of them rather than hoping the steps
         # above took long enough (they do not on a fast machine, and under load they may not)
         wait_for(lambda: len(svc.commands) >= 10, 10, "ten commands", svc)
@@ -202,6 +209,30 @@ def test_camera_loss_stops_at_once_then_frames_reset_and_clear_time_give_run(
 # --- bad monitor.toml and files: one line, exit 2, no traceback -------------------------------
 
 
+
+
+def test_metrics_are_per_camera_and_the_state_is_readable():
+    """Two cameras: each gauge has a camera label (a sum over cameras hides the one that
+    stalls); the state is monitor_state{state="STOP"} 1, not a bare number."""
+    from prometheus_client import generate_latest
+
+    from monitor.metrics import CameraFigures, Metrics
+
+    m = Metrics(0, "127.0.0.1")
+    m.update("SLOW", [CameraFigures("cam0", 15.0, 12.5, 3, True, 2),
+                      CameraFigures("cam1", 0.0, 0.0, 40, False, None)], {"unsigned": 4})
+    text = generate_latest(m.registry).decode()
+    for line in ('monitor_state{state="SLOW"} 1.0', 'monitor_state{state="STOP"} 0.0',
+                 'monitor_state{state="RUN"} 0.0', "monitor_state_level 1.0",
+                 'monitor_fps{camera="cam0"} 15.0', 'monitor_fps{camera="cam1"} 0.0',
+                 'monitor_dropped_frames{camera="cam1"} 40.0',
+                 'monitor_camera_connected{camera="cam1"} 0.0',
+                 'monitor_inference_ms{camera="cam0"} 12.5', 'monitor_persons{camera="cam0"} 2.0',
+                 'monitor_commands_foreign{kind="unsigned"} 4.0'):
+        assert line in text.splitlines(), line
+    assert 'monitor_persons{camera="cam1"}' not in text  # no frame yet: no count, not 0
+    m.update("STOP", [], {})
+    assert 'monitor_state{state="STOP"} 1.0' in generate_latest(m.registry).decode()
 
 
 @pytest.mark.parametrize(("text", "needles"), [

@@ -170,7 +170,7 @@ def test_the_watch_inbox_stays_bounded_under_a_flood_and_the_newest_command_wins
     import zenoh
 
     from monitor.bus import BusConfig, BusKeys, open_session
-    from monitor.cli.bus import _watch_subscriptions
+    from monitor.cli.watch import _watch_subscriptions
     from monitor.inbox import Inbox
 
     port = free_port()

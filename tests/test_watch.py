@@ -162,6 +162,21 @@ def test_watch_without_monitor_reports_stop_and_exits_cleanly():
     assert "STOP" in out.stdout and "no command received yet" in out.stdout
 
 
+def test_watch_says_where_it_looked_when_nothing_answers():
+    """Silence is STOP on stdout; stderr says once where watch looked and what to try."""
+    port = free_port()
+    with open_session(BusConfig(cell="nobody", listen=(f"tcp/127.0.0.1:{port}",))):
+        out = subprocess.run(
+            [sys.executable, "-m", "monitor", "watch", "--cell", "nobody",
+             "--connect", f"tcp/127.0.0.1:{port}", "--duration", "1.5", "--hint-after", "0.5"],
+            capture_output=True, text=True, timeout=30)
+    assert out.returncode == 0, out.stderr
+    (line,) = [x for x in out.stderr.splitlines() if "nothing heard" in x] or [out.stderr]
+    assert f"tcp/127.0.0.1:{port}" in line and "'nobody'" in line and "--connect" in line
+    assert "--cell" in line and "monitor run" in line
+    assert "STOP" in out.stdout
+
+
 def test_bus_cli_errors_are_one_line():
     out = subprocess.run([sys.executable, "-m", "monitor", "watch", "--connect",
                           "nonsense-endpoint"], capture_output=True, text=True, timeout=30)
@@ -317,7 +332,7 @@ def test_the_demos_unsigned_reset_is_bound_to_the_latch_too(tmp_path):
 
 
 def test_watch_shows_the_latched_state_with_or_without_the_policys_details():
-    from monitor.cli.bus import _latch_text
+    from monitor.cli.watch import _latch_text
 
     assert _latch_text({"latched": False}) == ""
     assert _latch_text({"latched": True}) == "LATCHED"  # an older monitor: no details

@@ -80,7 +80,8 @@ def register_bridges(bsub, add_zenoh_args) -> None:
 
 def cmd_bridge(args: argparse.Namespace) -> int:
     from monitor.bus import BusKeys, default_instance, open_session
-    from monitor.cli.bus import _bus_config, _watchdog
+    from monitor.cli.watch import _watchdog
+    from monitor.cli.zenoh_args import bus_config
 
     name = f"monitor bridge {args.bridge_kind}"
     if not args.monitor_key and not args.unauthenticated:
@@ -92,7 +93,7 @@ def cmd_bridge(args: argparse.Namespace) -> int:
     if hasattr(module, "check_arguments"):  # bad options fail before Zenoh opens
         module.check_arguments(args)
     with StopSignals(name=name) as stop:
-        bus = _bus_config(args, instance=args.instance or default_instance(args.bridge_kind))
+        bus = bus_config(args, instance=args.instance or default_instance(args.bridge_kind))
         keys = BusKeys.of(bus.key_prefix)
         dog = _watchdog(args, bus, keys)
         inbox = Inbox(args.inbox)

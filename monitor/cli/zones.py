@@ -526,6 +526,9 @@ def _read_pairs(args: argparse.Namespace) -> np.ndarray:
     return np.array(rows, dtype=float)
 
 
+RMS_WARN_PX = 2.0  # more: a wrong pair or unmodelled distortion (zones/README.md)
+
+
 def cmd_calibrate(args: argparse.Namespace) -> int:
     data = _read(args.file)
     cams = data.get("cameras") or []
@@ -557,6 +560,11 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     rms = float(np.sqrt(np.mean(np.square(errors))))
     print(f"reprojection error: RMS {rms:.3f} px, max {float(np.max(errors)):.3f} px "
           f"over {len(errors)} pairs")
+    if rms > RMS_WARN_PX:  # a wrong pair (or unmodelled distortion) bends every zone
+        worst = int(np.argmax(errors))
+        print(f"monitor: warning: RMS {rms:.2f} px > {RMS_WARN_PX:g} px: a pair is likely wrong; "
+              f"check pair {worst + 1} ({pairs[worst, 0]:g}, {pairs[worst, 1]:g}) px first "
+              f"(error {errors[worst]:.2f} px), or model the lens distortion", file=sys.stderr)
     exact = 4 if not args.pnp else 3  # a homography has 8 unknowns, extrinsics 6
     if len(pairs) <= exact + 1:
         print(f"monitor: warning: {len(pairs)} pairs leave "

@@ -1,0 +1,49 @@
+"""``monitor keys new``: Ed25519 key pairs for the monitor and for operators."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from monitor.errors import ConfigError
+from monitor.signing import new_key_pair
+
+KEY_DIR = Path("~/.config/workcell-monitor/keys")
+
+
+def cmd_keys_new(args: argparse.Namespace) -> int:
+    if args.path:
+        path = Path(args.path)
+    elif args.operator:
+        path = (KEY_DIR / f"{args.operator}.key").expanduser()
+    else:
+        raise ConfigError("monitor keys new: give a PATH for the key, or --operator NAME "
+                          f"(then {KEY_DIR}/NAME.key)")
+    if args.operator and any(c.isspace() or c == "#" for c in args.operator):
+        raise ConfigError(f"--operator {args.operator!r}: no spaces or '#' in operator ids")
+    private, public, text = new_key_pair(path, force=args.force)
+    print(f"private key: {private} (mode 600; keep it on this host only)")
+    print(f"public key:  {public}")
+    print(text)
+    if args.operator:
+        print(f"add this line to the monitor's operators file (bus.operators_file):\n"
+              f"{args.operator} {text}")
+    else:
+        print("monitor: set bus.signing_key to the private key; give consumers the public key "
+              "(`monitor watch --monitor-key " + str(public) + "`)")
+    return 0
+
+
+def register(subparsers) -> None:
+    keys = subparsers.add_parser("keys", help="make signing keys (monitor, operators)")
+    ksub = keys.add_subparsers(dest="keys_action", metavar="ACTION", required=True)
+    p = ksub.add_parser("new", help="write a new Ed25519 key pair (private key mode 600)",
+                        description="Writes PATH (private, mode 600) and PATH.pub (public). "
+                        "Never overwrites an existing key unless --force.")
+    p.add_argument("path", nargs="?", help="private key file to write (default "
+                   f"{KEY_DIR}/<operator>.key with --operator)")
+    p.add_argument("--operator", help="operator id: print the line for the operators file "
+                   "(default: a monitor key)")
+    p.add_argument("--force", action="store_true",
+                   help="replace existing key files (default: refuse)")
+    p.set_defaults(func=cmd_keys_new)

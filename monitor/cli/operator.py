@@ -1,0 +1,208 @@
+"""Operator commands: ``monitor reset`` (release a latched STOP) and ``monitor status``."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import queue
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import zenoh
+
+from monitor.bus import BusKeys, default_instance, open_session
+from monitor.cli.keys import KEY_DIR
+from monitor.cli.zenoh_args import (
+    add_zenoh_args,
+    bounded,
+    bus_config,
+    nothing_found_hint,
+    safe_json,
+)
+from monitor.errors import ConfigError
+from monitor.resets import latch_of_status, request_reset, reset_payload
+from monitor.signals import Interrupted, StopSignals, call_interruptible
+from monitor.signing import load_private_key
+
+STATUS_GRACE_S = 0.2  # s to wait for more monitors' status after the first
+_END = object()  # put by the query's drop callback: no more replies will come
+
+
+def _operator_key_path(args: argparse.Namespace) -> Path | None:
+    if args.key:
+        return Path(args.key)
+    default = (KEY_DIR / f"{args.operator}.key").expanduser()
+    return default if default.exists() else None
+
+
+def cmd_reset(args: argparse.Namespace) -> int:
+    """Exit 0 when the monitor accepted the reset, 1 when it refused (reason printed), 2 when
+    nothing answered."""
+    with StopSignals(name="monitor reset") as stop:
+        bus = bus_config(args, instance=args.instance or default_instance("reset"))
+        keys = BusKeys.of(bus.key_prefix)
+        key_path = _operator_key_path(args)
+        signer = load_private_key(key_path) if key_path else None
+        if signer is None:
+            print(f"monitor reset: no key for {args.operator} (--key, or "
+                  f"{KEY_DIR}/{args.operator}.key): sending unsigned; a monitor with "
+                  "operators configured refuses it", file=sys.stderr, flush=True)
+        try:
+            session = call_interruptible(lambda: open_session(bus), stop)
+        except Interrupted:
+            return 130
+        with bounded(session, "monitor reset") as session:
+            started = time.monotonic()
+            answer = None
+            # the reset names the monitor's boot and the latch it releases (signed into it)
+            status = _first_status(session, keys, args.timeout, stop)
+            if status is None:
+                if stop.is_set():
+                    return 130
+                raise ConfigError(f"monitor reset: no monitor answered on {keys.status} within "
+                                  f"{args.timeout:g} s; {nothing_found_hint(bus)}")
+            boot, latch = latch_of_status(status)
+            if latch is None:
+                print(f"monitor reset: nothing to reset: the monitor is not latched (state "
+                      f"{status.get('state')}, no latch nonce in its status)")
+                return 1
+            payload = reset_payload(args.operator, args.request_id, args.note,
+                                    cell=bus.cell if bus.prefix is None else "",
+                                    confirm_clear=args.confirm_clear, boot=boot, latch=latch)
+            signature = signer.sign(keys.reset, payload) if signer else None
+            if args.confirm_clear:
+                print(f"monitor reset: {args.operator} confirms having looked: the cell is "
+                      "clear (logged and alerted by the monitor)", file=sys.stderr, flush=True)
+            while answer is None and not stop.is_set():
+                left = args.timeout - (time.monotonic() - started)
+                if left <= 0:
+                    break
+                asked = time.monotonic()
+                try:
+                    answer = call_interruptible(lambda left=left: request_reset(
+                        session, keys.reset, payload, signature, left), stop)
+                except Interrupted:
+                    break
+                if answer is not None or time.monotonic() - asked > 0.2:
+                    break  # answered, or a monitor got it and did not answer in time
+                stop.wait(0.1)  # nothing routed yet (session still connecting): ask again
+        if stop.is_set():
+            return 130
+    if answer is None:
+        raise ConfigError(f"monitor reset: no monitor answered on {keys.reset} within "
+                          f"{args.timeout:g} s; {nothing_found_hint(bus)}")
+    verdict = "accepted" if answer["accepted"] else "REFUSED"
+    print(f"reset by {args.operator} {verdict}: {answer.get('reason', '')}"
+          + (f" (monitor now {answer['state']})" if answer.get("state") else ""))
+    return 0 if answer["accepted"] else 1
+
+
+def ask(session, key: str, timeout: float, stop, want: Callable[[bytes], dict | None],
+        grace: float = 0.0) -> list[dict]:
+    """The answers on ``key`` that ``want`` accepts (it returns None for the others), returned
+    at the first one: only those arriving within ``grace`` s after it are added (a second
+    monitor on the cell). It never waits for the query itself to end: a queryable that never
+    finishes its answer (a hung peer) would hold the command until ``timeout``. A query that
+    ends unanswered (nothing routed yet: the session is still connecting) is asked again until
+    ``timeout``. Returns [] when nothing answered or ``stop`` was set."""
+    started = time.monotonic()
+    answers: list[dict] = []
+    first_at: float | None = None
+    while not stop.is_set() and not answers:
+        left = timeout - (time.monotonic() - started)
+        if left <= 0:
+            break
+        inbox: queue.SimpleQueue = queue.SimpleQueue()
+        # no consolidation: Zenoh's default keeps every reply until all queryables finished
+        session.get(key, handler=zenoh.handlers.Callback(inbox.put, lambda q=inbox: q.put(_END)),
+                    consolidation=zenoh.ConsolidationMode.NONE, timeout=left)
+        while not stop.is_set():
+            until = started + timeout if first_at is None else first_at + grace
+            wait = until - time.monotonic()
+            if wait <= 0:
+                return answers
+            try:  # in slices: the stop signal is seen within 50 ms
+                reply = inbox.get(timeout=min(0.05, wait))
+            except queue.Empty:
+                continue
+            if reply is _END:
+                break  # the query ended: with answers, done; without, ask again
+            body = want(reply.ok.payload.to_bytes()) if reply.ok is not None else None
+            if body is not None:
+                answers.append(body)
+                first_at = first_at if first_at is not None else time.monotonic()
+        if not answers:
+            stop.wait(min(0.1, max(0.0, left)))
+    return answers
+
+
+def _monitor_status(payload: bytes) -> dict | None:
+    body = safe_json(payload)
+    return body if isinstance(body.get("boot"), str) else None
+
+
+def _first_status(session, keys: BusKeys, timeout: float, stop) -> dict | None:
+    """The first status answer of a monitor within ``timeout``; None when none came."""
+    answers = ask(session, keys.status, timeout, stop, _monitor_status)
+    return answers[0] if answers else None
+
+
+def cmd_status(args: argparse.Namespace) -> int:
+    with StopSignals(name="monitor status") as stop:
+        bus = bus_config(args, instance=args.instance or default_instance("status"))
+        keys = BusKeys.of(bus.key_prefix)
+        try:
+            session = call_interruptible(lambda: open_session(bus), stop)
+        except Interrupted:
+            return 130
+        started = time.monotonic()
+        with bounded(session, "monitor status") as session:
+            # every monitor that answers within STATUS_GRACE_S of the first is shown (two
+            # monitors on one cell is a fault the operator must see)
+            answers = ask(session, keys.status, args.timeout, stop, _any_json, STATUS_GRACE_S)
+        waited = time.monotonic() - started
+    if stop.is_set():
+        return 130
+    if not answers:
+        raise ConfigError(f"monitor status: no answer on {keys.status} within {waited:.1f} s; "
+                          f"{nothing_found_hint(bus)}")
+    for body in answers:
+        print(json.dumps(body, indent=2))
+    return 0
+
+
+def _any_json(payload: bytes) -> dict | None:
+    try:
+        return json.loads(payload)
+    except (ValueError, UnicodeDecodeError, RecursionError):
+        return None
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "reset", help="ask the monitor to release a latched STOP; waits for its answer",
+        description="Sends a reset request signed with the operator's key and prints the "
+        "monitor's answer. Exit 0 accepted, 1 refused (reason printed), 2 no answer.")
+    add_zenoh_args(p, default_connect=True)
+    p.add_argument("--operator", required=True, help="operator id, as in the monitor's "
+                   "operators file (required)")
+    p.add_argument("--key", metavar="FILE", help="the operator's private key (default "
+                   f"{KEY_DIR}/<operator>.key when it exists)")
+    p.add_argument("--confirm-clear", action="store_true",
+                   help="I have looked: the cell is clear; lets the monitor drop holds of "
+                   "persons lost inside a zone (never of persons seen); logged and alerted "
+                   "(default off)")
+    p.add_argument("--request-id", default="",
+                   help="unique id of this request (default <operator>-<time>-<random>)")
+    p.add_argument("--note", default="", help="free text for the log (default empty)")
+    p.add_argument("--timeout", type=float, default=3.0,
+                   help="s to wait for the monitor's answer (default 3)")
+    p.set_defaults(func=cmd_reset)
+
+    p = subparsers.add_parser("status", help="query the monitor's status")
+    add_zenoh_args(p, default_connect=True)
+    p.add_argument("--timeout", type=float, default=3.0,
+                   help="s to wait for an answer (default 3)")
+    p.set_defaults(func=cmd_status)

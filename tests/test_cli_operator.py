@@ -1,0 +1,99 @@
+"""`monitor status` and `monitor reset` against a monitor on 127.0.0.1: they answer at the
+monitor's first reply, not at the end of the query (a second queryable on the cell that never
+finishes its answer must not hold them until --timeout)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+
+import pytest
+
+from monitor.bus import BusConfig, BusKeys, SafetyBus, open_session
+from monitor.policy import Command
+from tests.helpers import free_port
+
+TIMEOUT_S = 30.0  # what the commands may wait; they must return long before it
+
+
+@pytest.fixture
+def monitor_and_a_hung_queryable():
+    """A monitor (SafetyBus, peer listening on loopback) and a second session whose queryables
+    on the status and reset keys take every query and never answer or finish it."""
+    port = free_port()
+    cfg = BusConfig(cell="lat", instance="mon-lat", listen=(f"tcp/127.0.0.1:{port}",),
+                    allow_unsigned_resets=True)
+    with SafetyBus(cfg, startup_check_s=0.2) as bus:
+        bus.publish_command(Command("RUN", 1.0, ()))
+        bus.update_status(fps=9.5)
+        held: list = []
+        hung_port = free_port()
+        with open_session(BusConfig(cell="lat", instance="hung",
+                                    listen=(f"tcp/127.0.0.1:{hung_port}",),
+                                    connect=(f"tcp/127.0.0.1:{port}",))) as hung:
+            keys = BusKeys.of("workcell/lat/")
+            qs = [hung.declare_queryable(k, held.append) for k in (keys.status, keys.reset)]
+            # the commands connect to both: the hung peer is there before the first query
+            # (found by gossip only, it might be reached too late to hold anything)
+            yield ["--connect", f"tcp/127.0.0.1:{port}", "--connect",
+                   f"tcp/127.0.0.1:{hung_port}"], held, bus
+            for q in qs:
+                q.undeclare()
+            held.clear()
+
+
+def _run(connect: list[str], *argv: str) -> tuple[subprocess.CompletedProcess, float]:
+    started = time.monotonic()
+    out = subprocess.run([sys.executable, "-m", "monitor", *argv, "--cell", "lat", *connect,
+                          "--timeout", f"{TIMEOUT_S:g}"],
+                         capture_output=True, text=True, timeout=TIMEOUT_S + 30)
+    return out, time.monotonic() - started
+
+
+def test_status_returns_at_the_monitors_first_reply(monitor_and_a_hung_queryable):
+    connect, held, _ = monitor_and_a_hung_queryable
+    out, took = _run(connect, "status")
+    assert out.returncode == 0, out.stderr
+    status = json.loads(out.stdout)
+    assert status["instance"] == "mon-lat" and status["fps"] == 9.5
+    assert held, "the hung queryable never saw the query: the test proves nothing"
+    # generous (process start, imports, a loaded machine); the old code waited TIMEOUT_S
+    assert took < 10.0, f"monitor status took {took:.1f} s"
+
+
+def test_reset_reads_the_status_at_the_first_reply(monitor_and_a_hung_queryable):
+    connect, held, _ = monitor_and_a_hung_queryable
+    out, took = _run(connect, "reset", "--operator", "anna")
+    # not latched: said by the CLI after reading the status (the old code spent its whole
+    # --timeout on that status query and then reported no monitor at all)
+    assert out.returncode == 1 and "not latched" in out.stdout, (out.stdout, out.stderr)
+    assert held and took < 10.0, f"monitor reset took {took:.1f} s"
+
+
+def test_reset_returns_at_the_monitors_answer(monitor_and_a_hung_queryable):
+    from monitor.policy import Latch, ResetOutcome
+    from monitor.resets import LatchNonces
+
+    connect, held, bus = monitor_and_a_hung_queryable
+    latched = Command("STOP", 0.0, (), latched=True, latched_by=Latch(
+        "protective_zone", "person 0 in P1", 1.0, nonce=LatchNonces(bus.boot)(1)))
+    bus.publish_command(latched)
+    started = time.monotonic()
+    proc = subprocess.Popen([sys.executable, "-m", "monitor", "reset", "--operator", "anna",
+                             "--cell", "lat", *connect,
+                             "--timeout", f"{TIMEOUT_S:g}"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    got: list = []
+    while not got and time.monotonic() - started < TIMEOUT_S:
+        got = bus.poll_resets()  # the policy's part: decide and answer
+        time.sleep(0.01)
+    assert got, "no reset request reached the monitor"
+    bus.publish_command(Command("RUN", 1.0, (), reset=ResetOutcome(
+        "anna", True, "reset accepted", got[0].request_id)))
+    stdout, stderr = proc.communicate(timeout=TIMEOUT_S + 30)
+    took = time.monotonic() - started
+    assert proc.returncode == 0 and "accepted" in stdout, (stdout, stderr)
+    assert len(held) >= 2, "the hung queryables did not see both queries"
+    assert took < 10.0, f"monitor reset took {took:.1f} s"
