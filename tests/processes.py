@@ -34,7 +34,7 @@ def wait_for(cond: Callable[[], object], timeout: float, what: str, proc=None):
         if value:
             return value
         if proc is not None and proc.poll() is not None:
-            raise AssertionError(f"service exited ({proc.returncode}) waiting for {what}: "
+            raise AssertionError(f"service exited ({proc.poll()}) waiting for {what}: "
                                  f"{proc.log()}")
         time.sleep(0.02)
     raise AssertionError(f"timed out waiting for {what}" + (f": {proc.log()}" if proc else ""))

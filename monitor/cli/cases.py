@@ -17,7 +17,8 @@ from monitor.errors import ConfigError
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    from monitor.cli.bus import KEY_DIR, _add_zenoh_args
+    from monitor.cli.keys import KEY_DIR
+    from monitor.cli.zenoh_args import add_zenoh_args as _add_zenoh_args
 
     parser = subparsers.add_parser("case", help="select the zone set the robot works in "
                                    "(signed; docs/cases.md)")
@@ -116,7 +117,10 @@ def cmd_set_show(args: argparse.Namespace) -> int:
 
 def cmd_select(args: argparse.Namespace) -> int:
     from monitor.bus import default_instance, open_session
-    from monitor.cli.bus import KEY_DIR, _bounded, _bus_config, _nothing_found_hint
+    from monitor.cli.keys import KEY_DIR
+    from monitor.cli.zenoh_args import bounded as _bounded
+    from monitor.cli.zenoh_args import bus_config as _bus_config
+    from monitor.cli.zenoh_args import nothing_found_hint as _nothing_found_hint
     from monitor.signing import load_private_key
 
     bus = _bus_config(args, instance=args.instance or default_instance("case"))

@@ -12,15 +12,12 @@ import sys
 import time
 
 from monitor.bus import BusKeys, default_instance, open_session
-from monitor.cli.bus import (
-    KEY_DIR,
-    _add_zenoh_args,
-    _bounded,
-    _bus_config,
-    _first_status,
-    _nothing_found_hint,
-    _operator_key_path,
-)
+from monitor.cli.keys import KEY_DIR
+from monitor.cli.operator import _first_status, _operator_key_path
+from monitor.cli.zenoh_args import add_zenoh_args as _add_zenoh_args
+from monitor.cli.zenoh_args import bounded as _bounded
+from monitor.cli.zenoh_args import bus_config as _bus_config
+from monitor.cli.zenoh_args import nothing_found_hint as _nothing_found_hint
 from monitor.errors import ConfigError
 from monitor.mute_requests import mute_payload, request_mute
 from monitor.signals import Interrupted, StopSignals, call_interruptible

@@ -18,7 +18,8 @@ from monitor.errors import ConfigError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from monitor.cli.bus import KEY_DIR, _add_zenoh_args
+    from monitor.cli.keys import KEY_DIR
+    from monitor.cli.zenoh_args import add_zenoh_args as _add_zenoh_args
 
     p = sub.add_parser(
         "apply", help="apply a changed zone file to the running monitor (signed by an operator)",
@@ -44,13 +45,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 def cmd_apply(args: argparse.Namespace) -> int:
     from monitor import zones as zn
     from monitor.bus import BusKeys, default_instance, open_session
-    from monitor.cli.bus import (
-        _bounded,
-        _bus_config,
-        _first_status,
-        _nothing_found_hint,
-        _operator_key_path,
-    )
+    from monitor.cli.operator import _first_status, _operator_key_path
+    from monitor.cli.zenoh_args import bounded as _bounded
+    from monitor.cli.zenoh_args import bus_config as _bus_config
+    from monitor.cli.zenoh_args import nothing_found_hint as _nothing_found_hint
     from monitor.signals import Interrupted, StopSignals, call_interruptible
     from monitor.signing import load_private_key
     from monitor.zone_apply import apply_payload, request_apply

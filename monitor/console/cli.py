@@ -20,7 +20,7 @@ DEFAULT_LISTEN = "127.0.0.1:8080"
 def register(subparsers: argparse._SubParsersAction) -> None:
     from monitor.adapters.follower import DEFAULT_TICK_S
     from monitor.cli.adapters import add_consumer_args
-    from monitor.cli.bus import _add_zenoh_args
+    from monitor.cli.zenoh_args import add_zenoh_args as _add_zenoh_args
 
     p = subparsers.add_parser(
         "console", help="web console: live state, incidents, zone editor (docs/console.md)",
@@ -117,7 +117,8 @@ def _serve(args, host: str, port: int, tls: bool, operators, references, audit) 
 
     from monitor.adapters.follower import Follower, subscribe
     from monitor.bus import BusKeys, default_instance, open_session
-    from monitor.cli.bus import _bus_config, _watchdog
+    from monitor.cli.watch import _watchdog
+    from monitor.cli.zenoh_args import bus_config as _bus_config
     from monitor.console.app import Console, build_app
     from monitor.console.edits import ZoneEditIncidents
     from monitor.console.incidents import NoIncidents, RecorderIncidents
