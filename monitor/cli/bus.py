@@ -189,7 +189,7 @@ def _cell_watchdog(args: argparse.Namespace, bus: BusConfig, public_keys: tuple
                             cell=bus.cell if bus.prefix is None else None,
                             clock_sync_ms=args.clock_sync_ms)
     except ValueError as exc:
-        raise ConfigError(f"monitor: {exc}") from None
+        raise ConfigError(str(exc)) from None
 
 
 def add_expect_arg(p: argparse.ArgumentParser) -> None:
