@@ -22,8 +22,8 @@ JSON encoding and signing) to the consumer's callback after the signature is ver
 clock: one host). It includes signing, two hops through the router, verification and the
 Python callback, under whatever else the machine runs (the load average is printed).
 Router CPU is the router process's utime + stime (/proc/<pid>/stat) over the window, in % of
-one core. Two monitors of one cell have their own keys (``workcell/<cell>/m<j>/...``): one
-monitor per key space is enforced.
+one core. Two monitors of one cell have their own roles (``[bus] role = "m<j>"``: keys
+``workcell/<cell>/safety/m<j>/...``, docs/consumer.md): one monitor per role is enforced.
 """
 
 from __future__ import annotations
@@ -49,8 +49,8 @@ def cell_name(i: int) -> str:
     return f"cell{i:03d}"
 
 
-def prefix(i: int, j: int) -> str:
-    return f"workcell/{cell_name(i)}/m{j}/"
+def role(j: int) -> str:
+    return f"m{j}"
 
 
 def cpu_seconds(pid: int) -> float:
@@ -72,7 +72,7 @@ def _publishers(port: int, monitors: list[tuple[int, int]], key: str, fps: float
     buses = []
     try:
         for i, j in monitors:
-            cfg = BusConfig(cell=cell_name(i), prefix=prefix(i, j), instance=f"mon-{i}-{j}",
+            cfg = BusConfig(cell=cell_name(i), role=role(j), instance=f"mon-{i}-{j}",
                             mode="client", connect=(f"tcp/127.0.0.1:{port}",),
                             signing_key=key)
             # startup_check_s=0: skip the one-monitor-per-cell query at start (1 s each);
@@ -153,11 +153,11 @@ def _consumer(port: int, n_cells: int, public_key: str, ready, window, out) -> N
         for i in range(n_cells):
             s = open_session(BusConfig(cell=cell_name(i), instance=f"ctl-{i}", mode="client",
                                        connect=(f"tcp/127.0.0.1:{port}",)))
-            s.declare_subscriber(f"workcell/{cell_name(i)}/*/safety/command", on_command)
+            s.declare_subscriber(f"workcell/{cell_name(i)}/safety/*/command", on_command)
             sessions.append(s)
         dash = open_session(BusConfig(cell="dashboard", instance="dashboard", mode="client",
                                       connect=(f"tcp/127.0.0.1:{port}",)))
-        dash.declare_subscriber("workcell/**/safety/detections", on_detections)
+        dash.declare_subscriber("workcell/*/safety/**/detections", on_detections)
         sessions.append(dash)
         ready.set()
         while window[1] == 0 or time.monotonic() < window[1] + 0.5:

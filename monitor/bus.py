@@ -35,10 +35,15 @@ instance, boot, seq, state, speed_scale, ttl_ms, mono and wall. Resets are queri
 others itself (answered to the sender, alerted) and hands the pipeline only verified requests
 (``monitor.resets``). The policy's outcome is the answer to the query.
 
-One monitor per cell: the instance id is unique by default (host, pid, random); at start the
-bus refuses to run when another monitor's liveliness token is present on the cell, and later it
-reports ``duplicate_monitor`` (``faults()``) and sends STOP while another monitor's token or
-commands are seen. Only commands signed with this cell's monitor key count as another
+Several monitors per cell (``BusConfig.role``, docs/consumer.md): a monitor with a role has its
+keys under ``<prefix>safety/<role>/`` (command, alert, detections, status, reset, mute, zones
+apply) and its token under ``<prefix>safety/alive/<role>/<instance>``; role "" keeps the keys
+above. Consumers expect each role with its key (``monitor.cell_consumer.CellWatchdog``).
+
+One monitor per cell (per role): the instance id is unique by default (host, pid, random); at
+start the bus refuses to run when another monitor's liveliness token is present on the cell, and
+later it reports ``duplicate_monitor`` (``faults()``) and sends STOP while another monitor's
+token or commands are seen. Only commands signed with this cell's monitor key count as another
 monitor's; unsigned or wrongly signed ones are counted and alerted (``monitor.foreign``).
 
 Consumer rule: ``monitor.consumer.CommandWatchdog`` (shown by ``monitor watch``; docs/consumer.md).
@@ -130,7 +135,7 @@ class SafetyBus:
                  clock: Callable[[], float] = time.monotonic,
                  startup_check_s: float = 1.0) -> None:
         self.config = config
-        self.keys = BusKeys.of(config.key_prefix)
+        self.keys = BusKeys.of(config.key_prefix, config.role)
         self._clock = clock
         self._startup_check_s = startup_check_s
         self._signer: Signer | None = (load_private_key(config.signing_key)
@@ -224,8 +229,9 @@ class SafetyBus:
                     others.append(str(reply.ok.key_expr).rsplit("/", 1)[-1])
         if others:
             raise DuplicateMonitor(
-                f"another monitor ({others[0]}) is already live on cell {self.config.cell!r} "
-                f"({self.keys.alive}/{others[0]}); run one monitor per cell")
+                f"another monitor ({others[0]}) is already live {self._where()} "
+                f"({self.keys.alive}/{others[0]}); run one monitor per "
+                + ("role" if self.config.role else "cell"))
 
     def __exit__(self, *exc) -> None:
         self.close()
@@ -282,9 +288,14 @@ class SafetyBus:
         others = self._other_monitors()
         if not others:
             return []
-        return [Fault("duplicate_monitor", f"another monitor is live on cell "
-                      f"{self.config.cell!r} ({', '.join(others[:3])}); run one per cell",
+        return [Fault("duplicate_monitor", f"another monitor is live {self._where()} "
+                      f"({', '.join(others[:3])}); run one per "
+                      + ("role" if self.config.role else "cell"),
                       stop=True, source="bus", latch=True)]
+
+    def _where(self) -> str:
+        role = f" as {self.config.role!r}" if self.config.role else ""
+        return f"on cell {self.config.cell!r}{role}"
 
     def _other_monitors(self) -> list[str]:
         now = self._clock()
@@ -328,7 +339,8 @@ class SafetyBus:
         return {"schema": schema, "cell": self.config.cell, "seq": self._seq[key],
                 "mono": self._clock(), "wall": time.time(), "ttl_ms": self.config.ttl_ms,
                 "config_hash": self.config.config_hash, "instance": self.config.instance,
-                "boot": self._boot, **body}
+                "boot": self._boot, **({"role": self.config.role} if self.config.role else {}),
+                **body}
 
     def _put(self, publisher, key: str, payload: bytes, attachment: bytes | None = None) -> bool:
         matched = publisher.matching_status.matching
@@ -602,7 +614,7 @@ class SafetyBus:
         with self._lock:
             latest = self._latest
             return {
-                "schema": STATUS_SCHEMA, "cell": self.config.cell,
+                "schema": STATUS_SCHEMA, "cell": self.config.cell, "role": self.config.role,
                 "instance": self.config.instance, "boot": self._boot,
                 "config_hash": self.config.config_hash, "uptime_s": now - self._started_mono,
                 "started_wall": self._started_wall, "wall": time.time(),

@@ -26,6 +26,25 @@ def _key_chunk(value: str) -> str:
 
 
 KeyChunk = Annotated[Text, AfterValidator(_key_chunk)]
+
+# chunks under ``safety/`` that are keys of their own: a role by one of these names would mix
+# its keys with the cell's (``safety/<role>/...``)
+RESERVED_ROLES = frozenset({"alive", "alert", "case", "command", "detections", "holds",
+                            "incidents", "mute", "reset", "status", "zones"})
+
+
+def _role(value: str) -> str:
+    """A monitor's role in the cell ("" = the single monitor of the cell, today's keys)."""
+    if value == "":
+        return value
+    _key_chunk(value)
+    if value in RESERVED_ROLES or len(value) > 64:
+        raise ValueError(f"{value!r} is not a role name (at most 64 characters, none of "
+                         f"{', '.join(sorted(RESERVED_ROLES))})")
+    return value
+
+
+Role = Annotated[Text, AfterValidator(_role)]
 WithinTenMinutes = Annotated[Float, Field(gt=0, le=600)]
 
 
@@ -40,6 +59,10 @@ class BusConfig:
     cell: KeyChunk = "cell1"
     prefix: Text | None = None  # default f"workcell/{cell}/"
     instance: KeyChunk = field(default_factory=lambda: default_instance("monitor"))
+    # this monitor's role in a cell watched by several monitors (e.g. "monitor-a"): its keys
+    # are safety/<role>/... and its liveliness token safety/alive/<role>/<instance>; consumers
+    # expect each role with its own key (docs/consumer.md). "" = the cell's only monitor.
+    role: Role = ""
     mode: Literal["peer", "client", "router"] | None = None  # None = file's value or peer
     listen: tuple[Text, ...] = ()
     connect: tuple[Text, ...] = ()
@@ -110,15 +133,22 @@ class BusKeys:
     pose: str
     mute: str = ""  # signed mute requests (monitor.mute_requests; docs/muting.md)
     zones_apply: str = ""  # signed zone applies (monitor.zone_apply)
+    holds: str = ""  # signed holds of persons lost inside zones (monitor.cell_holds)
+    role: str = ""
 
     @classmethod
-    def of(cls, prefix: str) -> BusKeys:
+    def of(cls, prefix: str, role: str = "") -> BusKeys:
+        """The keys of the monitor with ``role`` under ``prefix``: role "" (the cell's only
+        monitor) keeps ``safety/command`` ...; a role puts its own under ``safety/<role>/``
+        and its liveliness tokens under ``safety/alive/<role>/``. The tool pose is the
+        cell's, shared by all roles."""
         p = prefix if prefix.endswith("/") else prefix + "/"
-        return cls(command=p + "safety/command", alert=p + "safety/alert",
-                   detections=p + "safety/detections", status=p + "safety/status",
-                   reset=p + "safety/reset", alive=p + "safety/alive", pose=p + "tracker/pose",
-                   mute=p + "safety/mute",
-                   zones_apply=p + "safety/zones/apply")
+        s = p + "safety/" + (f"{role}/" if role else "")
+        return cls(command=s + "command", alert=s + "alert",
+                   detections=s + "detections", status=s + "status",
+                   reset=s + "reset", alive=p + "safety/alive" + (f"/{role}" if role else ""),
+                   pose=p + "tracker/pose", mute=s + "mute", zones_apply=s + "zones/apply",
+                   holds=s + "holds", role=role)
 
 
 def zenoh_config(bus: BusConfig) -> zenoh.Config:

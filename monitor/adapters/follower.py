@@ -18,6 +18,7 @@ from collections.abc import Callable, Sequence
 import zenoh
 
 from monitor.adapters.snapshot import Output, SafetySnapshot, snapshot_of
+from monitor.cell_consumer import CellWatchdog
 from monitor.consumer import CommandWatchdog
 from monitor.inbox import Inbox
 
@@ -50,7 +51,8 @@ def subscribe(session: zenoh.Session, keys, inbox: Inbox,
 class Follower:
     """The consumer rule over the inbox; a ``SafetySnapshot`` per ``step``."""
 
-    def __init__(self, dog: CommandWatchdog, inbox: Inbox, cameras: Sequence[str] = (),
+    def __init__(self, dog: CommandWatchdog | CellWatchdog, inbox: Inbox,
+                 cameras: Sequence[str] = (),
                  clock: Callable[[], float] = time.monotonic,
                  wall: Callable[[], float] = time.time) -> None:
         self.dog = dog
@@ -76,7 +78,8 @@ class Follower:
             kind, payload, extra, t_recv, *rest = entry
             if kind == "command":
                 # both clocks read on arrival: time in the inbox counts against the ttl
-                if self.dog.on_command(payload, t_recv, extra, rest[0]) is None:
+                # rest: the wall clock on arrival (and, from subscribe_cell, the key)
+                if self.dog.on_command(payload, t_recv, extra, *rest) is None:
                     self.accepted += 1
                     self.received = t_recv
             elif kind == "alive":

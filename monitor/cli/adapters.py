@@ -20,6 +20,7 @@ import sys
 import threading
 
 from monitor.adapters.follower import DEFAULT_TICK_S, Follower, subscribe
+from monitor.cell_consumer import subscribe_cell
 from monitor.consumer import DEFAULT_CLOCK_SYNC_MS
 from monitor.errors import ConfigError
 from monitor.inbox import DEFAULT_BOUND, Inbox
@@ -58,6 +59,9 @@ def add_consumer_args(p: argparse.ArgumentParser) -> None:
                    help="only accept this monitor instance (default: any, one at a time)")
     p.add_argument("--no-liveliness", action="store_true",
                    help="do not require the liveliness token (not recommended; default off)")
+    from monitor.cli.watch import add_expect_arg
+
+    add_expect_arg(p)
     p.add_argument("--camera", action="append", default=[], dest="cameras", metavar="ID",
                    help="camera ids to report ok bits for (repeatable; default none)")
     p.add_argument("--tick", type=float, default=DEFAULT_TICK_S,
@@ -84,7 +88,7 @@ def cmd_bridge(args: argparse.Namespace) -> int:
     from monitor.cli.zenoh_args import bus_config
 
     name = f"monitor bridge {args.bridge_kind}"
-    if not args.monitor_key and not args.unauthenticated:
+    if not args.monitor_key and not args.expect and not args.unauthenticated:
         raise ConfigError(f"{name}: give --monitor-key FILE (the monitor's public key), or "
                           "--unauthenticated for a bench")
     if args.tick <= 0 or args.inbox < 1:
@@ -103,9 +107,11 @@ def cmd_bridge(args: argparse.Namespace) -> int:
             return 0
         entities, outputs = [], []
         try:
-            entities = subscribe(session, keys, inbox)
+            entities = (subscribe_cell(session, bus.key_prefix, inbox) if args.expect
+                        else subscribe(session, keys, inbox))
             outputs = module.make_outputs(args, session, keys)
-            print(f"{name}: following {keys.command} -> "
+            print(f"{name}: following "
+                  f"{'the expected monitors' if args.expect else keys.command} -> "
                   f"{', '.join(o.name for o in outputs)}", file=sys.stderr, flush=True)
             follower = Follower(dog, inbox, cameras=tuple(args.cameras))
             follower.run(outputs, stop, args.tick, args.duration)

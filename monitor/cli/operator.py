@@ -54,6 +54,10 @@ def cmd_reset(args: argparse.Namespace) -> int:
         except Interrupted:
             return 130
         with bounded(session, "monitor reset") as session:
+            if args.role:  # several monitors on the cell: each latched one (cell_reset.py)
+                from monitor.cli.cell_reset import reset_roles
+
+                return reset_roles(args, bus, session, signer, stop, _first_status)
             started = time.monotonic()
             answer = None
             # the reset names the monitor's boot and the latch it releases (signed into it)
@@ -199,6 +203,10 @@ def register(subparsers) -> None:
     p.add_argument("--note", default="", help="free text for the log (default empty)")
     p.add_argument("--timeout", type=float, default=3.0,
                    help="s to wait for the monitor's answer (default 3)")
+    p.add_argument("--role", action="append", default=[], metavar="ROLE",
+                   help="a monitor of the cell by its [bus] role (repeatable: name every "
+                   "monitor of the cell); each latched one gets its own signed request and "
+                   "answers; exit 0 only when all accepted (default: the cell's only monitor)")
     p.set_defaults(func=cmd_reset)
 
     p = subparsers.add_parser("status", help="query the monitor's status")

@@ -11,6 +11,7 @@ import time
 import zenoh
 
 from monitor.bus import BusConfig, BusKeys, CommandWatchdog, Verdict, default_instance, open_session
+from monitor.cell_consumer import CellWatchdog, parse_expect, subscribe_cell
 from monitor.cli.zenoh_args import add_zenoh_args, bus_config, nothing_found_hint, safe_json
 from monitor.consumer import DEFAULT_CLOCK_SYNC_MS
 from monitor.errors import ConfigError
@@ -68,8 +69,11 @@ def _emit(args, event: dict, text: str) -> None:
         print(f"{_fmt_time()} {text}", flush=True)
 
 
-def _watchdog(args: argparse.Namespace, bus: BusConfig, keys: BusKeys) -> CommandWatchdog:
+def _watchdog(args: argparse.Namespace, bus: BusConfig, keys: BusKeys
+              ) -> CommandWatchdog | CellWatchdog:
     public_keys = tuple(load_public_key(p) for p in args.monitor_key)
+    if getattr(args, "expect", None):  # several monitors on the cell (docs/consumer.md)
+        return _cell_watchdog(args, bus, public_keys)
     try:
         return CommandWatchdog(max_ttl_ms=args.ttl_ms, instance=args.follow,
                                require_liveliness=not args.no_liveliness,
@@ -78,6 +82,29 @@ def _watchdog(args: argparse.Namespace, bus: BusConfig, keys: BusKeys) -> Comman
                                key_expr=keys.command, clock_sync_ms=args.clock_sync_ms)
     except ValueError as exc:  # --ttl-ms / --clock-sync-ms out of range
         raise ConfigError(f"monitor watch: {exc}") from None
+
+
+def _cell_watchdog(args: argparse.Namespace, bus: BusConfig, public_keys: tuple
+                   ) -> CellWatchdog:
+    if public_keys or args.follow:
+        raise ConfigError("--expect ROLE=KEYFILE names every monitor and its key: use it "
+                          "instead of --monitor-key and --follow")
+    try:
+        expected = parse_expect(args.expect, load_public_key)
+        return CellWatchdog(expected, bus.key_prefix, max_ttl_ms=args.ttl_ms,
+                            require_liveliness=not args.no_liveliness,
+                            cell=bus.cell if bus.prefix is None else None,
+                            clock_sync_ms=args.clock_sync_ms)
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
+
+
+def add_expect_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--expect", action="append", default=[], metavar="ROLE=KEYFILE",
+                   help="a monitor of this cell by its [bus] role and its public key file "
+                   "(repeatable: every monitor of the cell; the cell RUNs only when all say "
+                   "RUN, an unexpected one is STOP; docs/consumer.md; default: one monitor, "
+                   "--monitor-key)")
 
 
 def cmd_watch(args: argparse.Namespace) -> int:
@@ -98,7 +125,9 @@ def cmd_watch(args: argparse.Namespace) -> int:
                   "(anyone on the bus can forge RUN)", file=sys.stderr, flush=True)
         entities = []
         try:
-            entities = _watch_subscriptions(session, keys, inbox, clock)
+            entities = (subscribe_cell(session, bus.key_prefix, inbox, clock)
+                        if isinstance(dog, CellWatchdog) else
+                        _watch_subscriptions(session, keys, inbox, clock))
             _watch_loop(args, dog, inbox, stop, clock, nothing_found_hint(bus))
         finally:
             if not close_bounded(session, 1.0, entities):
@@ -146,7 +175,8 @@ def _watch_loop(args, dog: CommandWatchdog, inbox, stop, clock, hint: str) -> No
                   f"or liveliness token); {hint}", file=sys.stderr, flush=True)
         if kind == "command":
             # both clocks read on arrival: waiting in the inbox is no reason to drop a command
-            why = dog.on_command(payload, t_recv, extra, wall_recv[0])
+            # wall_recv: the wall clock on arrival (and the key, from subscribe_cell)
+            why = dog.on_command(payload, t_recv, extra, *wall_recv)
             accepted += why is None
             # every rejection code is shown at most once a second (a flood is counted)
             loud = why and t_recv - rejected_shown.get(why, -1e9) >= 1.0
@@ -223,6 +253,7 @@ def register(subparsers) -> None:
                    f"{DEFAULT_CLOCK_SYNC_MS:g})")
     p.add_argument("--follow", metavar="INSTANCE",
                    help="only accept this monitor instance (default: any, one at a time)")
+    add_expect_arg(p)
     p.add_argument("--no-liveliness", action="store_true",
                    help="do not require the liveliness token (not recommended; default off)")
     p.add_argument("--json", action="store_true",

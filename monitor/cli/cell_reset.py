@@ -1,0 +1,79 @@
+"""`monitor reset --role ROLE ...`: a reset for a cell watched by several monitors.
+
+Each monitor of the cell latches its own STOP and judges its own resets (its boot, its latch
+nonce, its view of the cell), so one signed request goes to each named role: its status is read
+(boot and latch nonce), a request naming them is signed for that role's reset key, and each
+answer is printed with the role's name. A role that is not latched needs nothing. The cell runs
+again only when every latched monitor accepted: exit 0 then, 1 when any refused (or none was
+latched), 2 when any did not answer.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+from monitor.busconfig import BusConfig, BusKeys
+from monitor.resets import latch_of_status, request_reset, reset_payload
+from monitor.signals import Interrupted, call_interruptible
+
+
+def reset_roles(args: argparse.Namespace, bus: BusConfig, session, signer, stop,
+                first_status) -> int:
+    """Reset every latched monitor of ``args.role``; print one line per role; the exit code."""
+    refused = silent = latched = 0
+    for role in args.role:
+        keys = BusKeys.of(bus.key_prefix, role)
+        if stop.is_set():
+            return 130
+        status = first_status(session, keys, args.timeout, stop)
+        if status is None:
+            silent += 1
+            print(f"{role}: NO ANSWER on {keys.status} within {args.timeout:g} s")
+            continue
+        boot, latch = latch_of_status(status)
+        if latch is None:
+            print(f"{role}: not latched (state {status.get('state')}): nothing to reset")
+            continue
+        latched += 1
+        rid = f"{args.request_id}-{role}" if args.request_id else ""
+        payload = reset_payload(args.operator, rid, args.note,
+                                cell=bus.cell if bus.prefix is None else "",
+                                confirm_clear=args.confirm_clear, boot=boot, latch=latch)
+        signature = signer.sign(keys.reset, payload) if signer else None
+        answer = _ask(session, keys.reset, payload, signature, args.timeout, stop)
+        if answer is None:
+            silent += 1
+            print(f"{role}: NO ANSWER on {keys.reset} within {args.timeout:g} s")
+            continue
+        ok = answer["accepted"]
+        refused += not ok
+        print(f"{role}: reset by {args.operator} {'accepted' if ok else 'REFUSED'}: "
+              f"{answer.get('reason', '')}"
+              + (f" (monitor now {answer['state']})" if answer.get("state") else ""))
+    if stop.is_set():
+        return 130
+    if refused or (not latched and not silent):
+        if not latched and not silent:
+            print("monitor reset: nothing to reset: no monitor of the cell is latched")
+        return 1
+    return 2 if silent else 0
+
+
+def _ask(session, key: str, payload: bytes, signature: bytes | None, timeout: float,
+         stop) -> dict | None:
+    started = time.monotonic()
+    while not stop.is_set():
+        left = timeout - (time.monotonic() - started)
+        if left <= 0:
+            return None
+        asked = time.monotonic()
+        try:
+            answer = call_interruptible(lambda left=left: request_reset(
+                session, key, payload, signature, left), stop)
+        except Interrupted:
+            return None
+        if answer is not None or time.monotonic() - asked > 0.2:
+            return answer  # answered, or a monitor got it and did not answer in time
+        stop.wait(0.1)  # nothing routed yet: ask again
+    return None

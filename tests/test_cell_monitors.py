@@ -1,0 +1,196 @@
+"""Several monitors on one cell, for real: a `monitor router`, two `monitor run` processes with
+the roles monitor-a and monitor-b (each its own MJPEG camera and its own key), and the consumer
+rule (CellWatchdog) in this process over real Zenoh. The cell RUNs only when both say RUN;
+a stopped camera, a frozen or killed monitor, a duplicate or an unknown third monitor is STOP
+by name; a reset goes to both latched monitors."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import zenoh
+
+from monitor.adapters.follower import Follower
+from monitor.bus import BusConfig, BusKeys, open_session
+from monitor.cell_consumer import CellWatchdog, subscribe_cell
+from monitor.consumer import Verdict
+from monitor.inbox import Inbox
+from monitor.signing import load_public_key, new_key_pair
+from tests.helpers import free_port
+from tests.processes import CAPACITY, Monitor, wait_for
+from tests.test_service import MjpegCamera, demo_jpegs
+
+CELL = "tc"
+PREFIX = f"workcell/{CELL}/"
+
+
+def _config(tmp: Path, role: str, camera: str, router: int, instance: str | None = None
+            ) -> Path:
+    key = tmp / f"{role}.key"
+    if not key.exists():
+        new_key_pair(key)
+    config = tmp / f"{instance or role}.toml"
+    config.write_text(
+        f'[camera]\nsource = "{camera}"\n'
+        '[model]\nallow_test_model = true\npath = "MODEL"\n'
+        '[zones]\nallow_no_protective = true\n'
+        f'[service]\n{CAPACITY}'
+        f'[bus]\ncell = "{CELL}"\nrole = "{role}"\ninstance = "{instance or role}"\n'
+        f'signing_key = "{key}"\noperators_file = "operators"\n'
+        f'connect = ["tcp/127.0.0.1:{router}"]\n')
+    return config
+
+
+class Consumer:
+    """The consumer rule for the cell, in this process, over the router."""
+
+    def __init__(self, router: int, expected: dict) -> None:
+        self.session = open_session(BusConfig(cell=CELL, instance="consumer",
+                                              connect=(f"tcp/127.0.0.1:{router}",)))
+        self.dog = CellWatchdog(expected, PREFIX, cell=CELL)
+        self.inbox = Inbox(256)
+        self.entities = subscribe_cell(self.session, PREFIX, self.inbox)
+        self.follower = Follower(self.dog, self.inbox)
+        self.seen: list[tuple[str, str]] = []
+
+    def verdict(self) -> Verdict:
+        self.follower.drain(0.0)
+        v = self.dog.verdict(time.monotonic())
+        if not self.seen or self.seen[-1] != (v.state, v.reason):
+            self.seen.append((v.state, v.reason))
+        return v
+
+    def wait(self, pred, timeout: float, what: str, proc=None) -> Verdict:
+        try:
+            return wait_for(lambda: (v := self.verdict()) and pred(v) and v, timeout, what, proc)
+        except AssertionError as exc:
+            raise AssertionError(f"{exc}; verdicts seen: {self.seen[-8:]}") from None
+
+    def close(self) -> None:
+        self.session.close()
+
+
+def _reset(tmp: Path, router: int) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "monitor", "reset", "--operator", "tester", "--key",
+         str(tmp / "tester.key"), "--cell", CELL, "--connect", f"tcp/127.0.0.1:{router}",
+         "--role", "monitor-a", "--role", "monitor-b", "--timeout", "8"],
+        capture_output=True, text=True, timeout=60)
+
+
+@pytest.mark.slow
+def test_two_monitors_one_cell_run_only_together_and_every_fault_is_named(
+        tmp_path, synthetic_model):
+    router_port = free_port()
+    _, _, public = new_key_pair(tmp_path / "tester.key")
+    (tmp_path / "operators").write_text(f"tester {public}\n")
+    router = subprocess.Popen([sys.executable, "-m", "monitor", "router", "--listen",
+                               f"tcp/127.0.0.1:{router_port}"],
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    procs: list[Monitor] = []
+    consumer = None
+
+    def start(role: str, url: str, instance: str | None = None) -> Monitor:
+        config = _config(tmp_path, role, url, router_port, instance)
+        config.write_text(config.read_text().replace("MODEL", str(synthetic_model)))
+        mon = Monitor(config, 0, tmp_path / f"{instance or role}.log")
+        procs.append(mon)
+        return mon
+
+    def recover(what: str) -> None:
+        """RUN again: a stall of this loaded machine (a third process loading its model)
+        latches a monitor's STOP, which then needs the operator's reset, like on site."""
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline:
+            try:
+                consumer.wait(lambda v: v.state == "RUN", 3, what)
+                return
+            except AssertionError:
+                _reset(tmp_path, router_port)
+        consumer.wait(lambda v: v.state == "RUN", 1, what)
+
+    try:
+        with MjpegCamera(demo_jpegs()) as cam_a, MjpegCamera(demo_jpegs()) as cam_b:
+            a = start("monitor-a", cam_a.url)
+            b = start("monitor-b", cam_b.url)
+            expected = {r: (load_public_key(tmp_path / f"{r}.key.pub"),)
+                        for r in ("monitor-a", "monitor-b")}
+            consumer = Consumer(router_port, expected)
+            consumer.wait(lambda v: v.state == "RUN", 120, "RUN from both monitors", a)
+
+            # --- an unknown third monitor with its own key on the cell: STOP, named -------
+            c = start("monitor-c", cam_a.url)
+            v = consumer.wait(lambda v: v.code == "unknown_monitor", 90, "unknown monitor-c", c)
+            assert v.state == "STOP" and "monitor-c" in v.reason
+            c.proc.kill()
+            c.proc.wait(10)
+            recover("RUN after monitor-c left")
+
+            # --- a second monitor-a: refused at start, and a live duplicate is STOP, named -
+            dup = start("monitor-a", cam_a.url, instance="monitor-a-2")
+            assert dup.proc.wait(90) != 0
+            assert "already live on cell 'tc' as 'monitor-a'" in dup.log()
+            token = consumer.session.liveliness().declare_token(
+                BusKeys.of(PREFIX, "monitor-a").alive + "/monitor-a-2")
+            v = consumer.wait(lambda v: v.code == "duplicate_monitor", 30, "duplicate a", a)
+            assert v.state == "STOP" and v.reason.startswith("monitor-a: duplicate_monitor")
+            token.undeclare()
+            recover("RUN after the duplicate left")
+
+            # --- one monitor's own STOP is the cell's; a reset goes to both latched -------
+            cam_b.online.clear()
+            v = consumer.wait(lambda v: v.state == "STOP", 30, "STOP from monitor-b", b)
+            assert v.reason.startswith("monitor-b:") and "monitor-a" not in v.reason
+            cam_a.online.clear()
+            consumer.wait(lambda v: "monitor-a:" in v.reason and "monitor-b:" in v.reason,
+                          30, "STOP from both", a)
+            refused = _reset(tmp_path, router_port)  # the cameras are still away
+            assert refused.returncode == 1, refused.stdout + refused.stderr
+            assert "monitor-a: reset by tester REFUSED" in refused.stdout
+            assert "monitor-b: reset by tester REFUSED" in refused.stdout
+            cam_a.online.set()
+            cam_b.online.set()
+            deadline = time.monotonic() + 60
+            while True:  # frames come back after the grabbers' backoff
+                done = _reset(tmp_path, router_port)
+                if done.returncode == 0 or time.monotonic() > deadline:
+                    break
+                time.sleep(1.0)
+            assert done.returncode == 0, done.stdout + done.stderr
+            assert "monitor-a: reset by tester accepted" in done.stdout
+            assert "monitor-b: reset by tester accepted" in done.stdout
+            consumer.wait(lambda v: v.state == "RUN", 60, "RUN after both resets", a)
+
+            # --- a frozen monitor, then a killed one: STOP, named ------------------------
+            b.proc.send_signal(signal.SIGSTOP)
+            try:
+                v = consumer.wait(lambda v: v.state == "STOP", 30, "STOP, b frozen")
+                assert v.reason.startswith("monitor-b: silence"), v
+                assert "monitor-a" not in v.reason
+            finally:
+                b.proc.send_signal(signal.SIGCONT)
+            a.proc.kill()
+            v = consumer.wait(lambda v: "monitor-a: silence" in v.reason, 30, "a killed")
+            assert v.state == "STOP"
+    finally:
+        if consumer is not None:
+            consumer.close()
+        for mon in procs:
+            mon.close()
+        router.kill()
+        router.wait(10)
+
+
+def test_a_role_monitor_keeps_single_monitor_keys_apart(tmp_path):
+    """A role's monitor does not see the cell's role-less token as its duplicate, and the
+    consumer of a single monitor (CommandWatchdog on safety/command) never hears roles."""
+    assert BusKeys.of(PREFIX, "monitor-a").alive + "/x" != BusKeys.of(PREFIX).alive + "/x"
+    assert zenoh.KeyExpr(BusKeys.of(PREFIX).alive + "/*").intersects(
+        zenoh.KeyExpr(BusKeys.of(PREFIX, "monitor-a").alive + "/i")) is False
+    assert zenoh.KeyExpr(BusKeys.of(PREFIX).command).intersects(
+        zenoh.KeyExpr(BusKeys.of(PREFIX, "monitor-a").command)) is False
