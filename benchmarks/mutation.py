@@ -143,13 +143,14 @@ EQUIVALENT: dict[str, str] = {
     **{f"monitor.zones.check.x__volume_hits__mutmut_{n}":
        "a miss of the per-person shape cache: the same shapes are built again"
        for n in (35, 36)},
-    # the pipeline's timer step and confirm-clear (monitor/pipeline.py)
+    # the pipeline's timer step and confirm-clear (monitor/pipeline.py; numbers as mutmut 3.8
+    # gives them for the current file: they shift when the named functions change)
     "monitor.pipeline.xǁPipelineǁtick__mutmut_11":
         "with_frame=None vs False: it is only read for truth",
-    "monitor.pipeline.xǁPipelineǁ_inputs__mutmut_66":
+    "monitor.pipeline.xǁPipelineǁ_inputs__mutmut_106":
         "the zone report handed in on a tick too: the policy reads zone_report only when the "
         "step has a frame (frame_time set), and a tick has none",
-    "monitor.pipeline.xǁPipelineǁ_confirm_clear__mutmut_6":
+    "monitor.pipeline.xǁPipelineǁ_confirm_clear__mutmut_11":
         "break vs continue on a camera without a tracker: every camera gets one in __init__",
     "monitor.boxes.x_merge_boxes__mutmut_12":
         "reshape(None) of the empty 1-D score array is the same (0,) array",

@@ -26,6 +26,8 @@ from monitor.cases import sets as cases
 from monitor.detector import Detector
 from monitor.health import CameraHealth, HealthReport
 from monitor.muting import Mute, MuteOutcome, MuteRequest, Mutes
+from monitor.pipeline_cases import ZoneSets
+from monitor.pipeline_mutes import MuteDesk
 from monitor.policy import (
     STOP,
     Command,
@@ -37,8 +39,7 @@ from monitor.policy import (
     stale_latch,
     step,
 )
-from monitor.policy.model import Reason
-from monitor.timetext import TimeText, seconds
+from monitor.timetext import TimeText
 from monitor.tracks import Hold, PersonTracker, TrackerConfig
 from monitor.types import Alert, Fault, FrameInfo, Persons, ZoneReport
 from monitor.zones import Cell, check_persons, merge_towards_danger
@@ -69,15 +70,6 @@ def _snapshot(image: np.ndarray | None, max_width: int = 1280) -> bytes | None:
 def _one_line(exc: BaseException) -> str:
     text = str(exc).strip()
     return f"{type(exc).__name__}: {text.splitlines()[0]}" if text else type(exc).__name__
-
-
-def mute_text(mute: Mute, when: TimeText = seconds) -> str:
-    """E.g. ``zone robot-protective muted by anna until 14:03:12 (60 s, 120 s max): checked
-    as a warning zone (SLOW x0.30)``."""
-    what = (f"checked as a warning zone (SLOW x{mute.scale:.2f})" if mute.as_ == "warning"
-            else "not checked")
-    return (f"zone {mute.zone} muted by {mute.operator} until {when(mute.end)} "
-            f"({mute.end - mute.start:g} s, {mute.max_s:g} s max): {what}")
 
 
 @dataclass(frozen=True)
@@ -190,18 +182,10 @@ class Pipeline:
         # serial -> nonce of a new latch (live: ``monitor.resets.LatchNonces`` of the bus's
         # boot); None: ``latch-<serial>``, deterministic for replay
         self.latch_nonces: Callable[[int], str] | None = None
-        # zones muted by operators (``request_mutes``); applied at each decision
-        self.mutes = Mutes.of(cell)
-        self.when: TimeText = seconds  # times in mute reasons (live: the wall clock)
-        self._mute_outcomes: list[MuteOutcome] = []
-        self._mute_alerts: list[Alert] = []
-        self._mutes_end_why = ""  # set by a zone swap: every mute ends at the next decision
-
-        # zone sets (monitor/cases/): None without ``sets`` in the zone file; the state starts
-        # with the default set at the first step (the selector's ttl counts from there)
-        self.case_plan = cases.plan_of(cell.spec) if cell is not None else None
-        self.case_state: cases.CaseState | None = None
-        self.zones_in_force: cases.ZonesInForce | None = None
+        # zones muted by operators (``request_mutes``), applied at each decision; zone sets
+        # (monitor/cases/), None without ``sets`` in the zone file
+        self.mute_desk = MuteDesk(cell)
+        self.zone_sets = ZoneSets(cell)
 
         # after a zone swap: cameras without a frame checked against the new zones yet, and
         # whether a decision has seen the swap's STOP (``swap_cell``)
@@ -214,55 +198,44 @@ class Pipeline:
         """Judge mute requests at ``now`` (before this step's decision): accepted ones hold
         from ``now`` for their duration. The outcomes and their alerts ride on the next
         ``StepResult``."""
-        from monitor.alerts import mute_alert
-
-        out = []
-        for req in requests:
-            self.mutes, outcome = self.mutes.request(req, now)
-            out.append(outcome)
-            log.warning("mute of zone %s by %s %s: %s", req.zone, req.operator,
-                        "accepted" if outcome.accepted else "refused", outcome.reason)
-            self._mute_alerts.append(mute_alert(outcome, now, self.when))
-        self._mute_outcomes.extend(out)
-        return tuple(out)
-
-    def _muted(self, now: float) -> tuple[dict[str, float | None], tuple[Reason, ...]]:
-        """The zones muted at ``now`` (for ``apply_mutes``) and the policy's notes; a mute
-        that ended is alerted here, at the first decision at or after its end."""
-        from monitor.alerts import unmute_alert
-
-        if self._mutes_end_why:  # a zone apply ends every mute (the rules may have changed)
-            for mute in self.mutes.active:
-                log.warning("mute of zone %s by %s ended: %s", mute.zone, mute.operator,
-                            self._mutes_end_why)
-                self._mute_alerts.append(unmute_alert(mute, now, self.when,
-                                                      self._mutes_end_why))
-            self.mutes = replace(Mutes.of(self.cell), seen=self.mutes.seen)
-            self._mutes_end_why = ""
-        self.mutes, ended = self.mutes.expire(now)
-        for mute in ended:
-            log.warning("mute of zone %s by %s ended", mute.zone, mute.operator)
-            self._mute_alerts.append(unmute_alert(mute, now, self.when, "expired"))
-        holding = self.mutes.holding(now)
-        notes = tuple(Reason("muted", mute_text(m, self.when), zone_id=m.zone,
-                             source=m.operator, since=None) for m in holding)
-        return self.mutes.muted_zones(now), notes
-
-    def _take_mute_events(self) -> tuple[tuple[MuteOutcome, ...], tuple[Alert, ...]]:
-        outcomes, alerts = tuple(self._mute_outcomes), tuple(self._mute_alerts)
-        self._mute_outcomes.clear()
-        self._mute_alerts.clear()
-        return outcomes, alerts
+        return self.mute_desk.request(requests, now)
 
     def take_case_events(self, events: Sequence[cases.Selection | cases.Refusal],
                          now: float) -> None:
         """Zone set selections (verified) and refused requests received since the last step;
         the next decision uses them. Without sets in the zone file they are ignored
         (none are received then: without sets every zone applies, the most protection)."""
-        if self.case_plan is None:
-            return
-        state = self.case_state or cases.initial_case(self.case_plan, now)
-        self.case_state = cases.apply_events(self.case_plan, state, events, now)
+        self.zone_sets.take_events(events, now)
+
+    @property
+    def mutes(self) -> Mutes:
+        """The mute state (``monitor.muting.Mutes``)."""
+        return self.mute_desk.mutes
+
+    @mutes.setter
+    def mutes(self, mutes: Mutes) -> None:
+        self.mute_desk.mutes = mutes
+
+    @property
+    def when(self) -> TimeText:
+        """Times in mute reasons (live: the wall clock)."""
+        return self.mute_desk.when
+
+    @when.setter
+    def when(self, when: TimeText) -> None:
+        self.mute_desk.when = when
+
+    @property
+    def case_plan(self) -> cases.CasePlan | None:
+        return self.zone_sets.plan
+
+    @property
+    def case_state(self) -> cases.CaseState | None:
+        return self.zone_sets.state
+
+    @property
+    def zones_in_force(self) -> cases.ZonesInForce | None:
+        return self.zone_sets.in_force
 
     def swap_cell(self, cell: Cell, prepared=None,
                   health: Mapping[str, CameraHealth | None] | None = None,
@@ -290,10 +263,8 @@ class Pipeline:
         # muting and zone sets follow the new file: every mute ends at the next decision (its
         # zone is protective again; re-mute under the new rules), the sets start again from
         # the new default
-        self._mutes_end_why = "zones applied"
-        self.case_plan = cases.plan_of(cell.spec)
-        self.case_state = None
-        self.zones_in_force = None
+        self.mute_desk.end_all(cell, "zones applied")
+        self.zone_sets.restart(cell)
 
     def _to_floor(self, camera_id: str):
         model = self.cell.camera_models.get(camera_id) if self.cell is not None else None
@@ -477,7 +448,7 @@ class Pipeline:
         cleared = self._confirm_clear(reset, now)
         inputs = self._inputs(now, extra_faults, pose_time, reset, with_frame=True)
         command = self._decide(inputs, now)
-        outcomes, mute_alerts = self._take_mute_events()
+        outcomes, mute_alerts = self.mute_desk.take_events()
         alerts = (*cleared, *mute_alerts, *(health.alerts if health else ()),
                   *self._fault_alerts(inputs.faults, detector_error, now, image))
         t4 = time.perf_counter()
@@ -485,7 +456,7 @@ class Pipeline:
                      policy=(t4 - t3) * 1e3)
         return StepResult(now, command, self._changed(command), frame, persons, cam.report,
                           health, inputs.faults, alerts, stage, track_ids, tally.masked,
-                          outcomes, self.mutes.holding(now))
+                          outcomes, self.mute_desk.holding(now))
 
     def tick(self, now: float, pose_time: float | None = None,
              reset: ResetRequest | None = None, extra_faults: tuple[Fault, ...] = ()) -> StepResult:
@@ -495,11 +466,11 @@ class Pipeline:
         command = self._decide(inputs, now)
         detector_error = next((c.detector_error for c in self.cameras.values()
                                if c.detector_error), None)
-        outcomes, mute_alerts = self._take_mute_events()
+        outcomes, mute_alerts = self.mute_desk.take_events()
         return StepResult(now, command, self._changed(command), faults=inputs.faults,
                           alerts=(*cleared, *mute_alerts,
                                   *self._fault_alerts(inputs.faults, detector_error, now, None)),
-                          mute_outcomes=outcomes, mutes=self.mutes.holding(now))
+                          mute_outcomes=outcomes, mutes=self.mute_desk.holding(now))
 
     def _confirm_clear(self, reset: ResetRequest | None, now: float) -> tuple[Alert, ...]:
         """An operator looked and confirms the cell clear: drop every hold of a *lost* person
@@ -573,10 +544,10 @@ class Pipeline:
             if cam.report is not None:
                 reports.append(cam.report)
         report = functools.reduce(merge_towards_danger, reports) if reports else None
-        report = self._in_force(report, now, faults)
+        report = self.zone_sets.filter(report, now, faults)
         # muted zones as the zone file says (docs/muting.md): on the merged answer at this
         # decision only, so a mute's end applies exactly at the first decision after it
-        muted, notes = self._muted(now)
+        muted, notes = self.mute_desk.muted(now)
         report = apply_mutes(report, muted)
         # the oldest camera's frame: a camera that falls behind or stops makes the cell STOP
         oldest = min(times) if with_frame and times else (None, None)
@@ -589,22 +560,10 @@ class Pipeline:
                             latch_nonce=self.latch_nonces(self.state.latches + 1)
                             if self.latch_nonces is not None else "")
 
-    def _in_force(self, report: ZoneReport | None, now: float,
-                  faults: list[Fault]) -> ZoneReport | None:
-        """The merged answer with only the zones of the sets applying at ``now``; the
-        selection's faults added to ``faults``."""
-        if self.case_plan is None:
-            return report
-        state = self.case_state or cases.initial_case(self.case_plan, now)
-        self.case_state = cases.advance(self.case_plan, state, now)
-        self.zones_in_force = cases.in_force(self.case_plan, self.case_state, now)
-        faults.extend(self.zones_in_force.faults)
-        return cases.filter_report(report, self.zones_in_force)
-
     def _decide(self, inputs: PolicyInputs, now: float) -> Command:
         self.state, command = step(self.state, inputs, now, self.policy)
-        if self.zones_in_force is not None:
-            command = replace(command, zone_sets=self.zones_in_force.sets)
+        if self.zone_sets.in_force is not None:
+            command = replace(command, zone_sets=self.zone_sets.in_force.sets)
         return command
 
     def _changed(self, command: Command) -> bool:
