@@ -66,13 +66,14 @@ TARGETS = {
                ("tests/test_boxes.py", "tests/test_boxes_edges.py",
                 "tests/test_safety_mutants.py", "-m", "not slow")),
         # the fault decisions (the STOP faults and their timers), not the drawing and scene code
-        Target("health", ("monitor/health.py",),
+        Target("health", ("monitor/health/camera.py",),
                ("tests/test_health.py", "tests/test_health_edges.py",
                 "tests/test_safety_mutants.py", "-m", "not slow"),
-               names=("monitor.health.xǁ_Timerǁ*", "monitor.health.xǁCameraHealthǁcheck_lost*",
-                      "monitor.health.xǁCameraHealthǁ_check_blinded*",
-                      "monitor.health.xǁCameraHealthǁ_check_frozen*",
-                      "monitor.health.xǁCameraHealthǁ_check_moved*")),
+               names=("monitor.health.camera.xǁ_Timerǁ*",
+                      "monitor.health.camera.xǁCameraHealthǁcheck_lost*",
+                      "monitor.health.camera.xǁCameraHealthǁ_check_blinded*",
+                      "monitor.health.camera.xǁCameraHealthǁ_check_frozen*",
+                      "monitor.health.camera.xǁCameraHealthǁ_check_moved*")),
     )
 }
 
@@ -100,19 +101,19 @@ EQUIVALENT: dict[str, str] = {
                                       "'stable'",
     "monitor.boxes.x_merge_boxes__mutmut_124": "numpy reads sort kinds case-insensitively: "
                                                "'STABLE' is 'stable'",
-    # camera health fault decisions (monitor/health.py)
-    "monitor.health.xǁ_Timerǁupdate__mutmut_4": "the 'not holding' sentinel -1.0 vs -2.0: "
-                                                "only compared with limits >= 0",
-    "monitor.health.xǁCameraHealthǁ_check_blinded__mutmut_17":
+    # camera health fault decisions (monitor/health/camera.py)
+    "monitor.health.camera.xǁ_Timerǁupdate__mutmut_4":
+        "the 'not holding' sentinel -1.0 vs -2.0: only compared with limits >= 0",
+    "monitor.health.camera.xǁCameraHealthǁ_check_blinded__mutmut_17":
         "reason None vs '' before a check sets it: both falsy, and only read for truth",
-    "monitor.health.xǁCameraHealthǁ_check_blinded__mutmut_39":
+    "monitor.health.camera.xǁCameraHealthǁ_check_blinded__mutmut_39":
         "'reason or held >= limit': without a reason the timer says -1, below every limit >= 0",
-    **{f"monitor.health.xǁCameraHealthǁ_check_{check}__mutmut_{n}":
+    **{f"monitor.health.camera.xǁCameraHealthǁ_check_{check}__mutmut_{n}":
        "held > limit vs >=: the timer adds 1e-9 to what has held, so the two differ only when "
        "float sums meet a limit exactly" for check, n in (("blinded", 40), ("frozen", 21))},
-    "monitor.health.xǁCameraHealthǁ_check_moved__mutmut_42":
+    "monitor.health.camera.xǁCameraHealthǁ_check_moved__mutmut_42":
         "_moved_raw None vs False: it is only read for truth",
-    "monitor.health.xǁCameraHealthǁ_check_moved__mutmut_5":
+    "monitor.health.camera.xǁCameraHealthǁ_check_moved__mutmut_5":
         "margin=None vs False: _small_boxes reads it only for truth",
     # the zone check (monitor/zones/check.py)
     **{f"monitor.zones.check.x__check__mutmut_{n}":

@@ -1,5 +1,5 @@
 """The camera health checks at their limits: exact thresholds, the measures they report, the
-fault each raises and its words (found by mutation testing of monitor/health.py's fault
+fault each raises and its words (found by mutation testing of monitor/health/camera.py's fault
 decisions). Frames are 320x240 with a 320-px analysis image, so pixel values are exact."""
 
 from __future__ import annotations

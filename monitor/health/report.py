@@ -1,0 +1,39 @@
+"""What the health checks answer for one frame: ``HealthReport`` and each watch zone's
+``ZoneStatus``."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from monitor.types import Alert, Fault
+
+
+@dataclass(frozen=True)
+class ZoneStatus:
+    """State of one watch zone after a frame: "learning" (no background yet), "normal",
+    "pending" (changed, not yet for ``persist_time_s``), "active" (alert raised) or "clearing"."""
+
+    zone_id: str
+    state: str
+    changed_area_px: float = 0.0  # px² of the changed region in this frame
+    box_px: tuple[int, int, int, int] | None = None  # x1, y1, x2, y2 of the change
+
+
+
+@dataclass(frozen=True)
+class HealthReport:
+    """Answer of ``CameraHealth.check`` for one frame.
+
+    ``faults`` are the faults active now (the policy STOPs on ``stop`` ones); ``alerts`` are the
+    alerts this frame raised (events, each reported once). ``measures`` holds the raw numbers for
+    the replay summary (brightness, contrast, saturated, frame_diff, sharpness_ratio, shift_px,
+    match); ``timings_ms`` the cost of each check in milliseconds (keys in ``CHECKS`` and "total").
+    """
+
+    camera_id: str
+    time: float
+    faults: tuple[Fault, ...] = ()
+    alerts: tuple[Alert, ...] = ()
+    zones: tuple[ZoneStatus, ...] = ()
+    measures: dict[str, float] = field(default_factory=dict)
+    timings_ms: dict[str, float] = field(default_factory=dict)
