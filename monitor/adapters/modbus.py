@@ -8,8 +8,8 @@ adapter's loop, and a frozen loop shows as an unchanging heartbeat and a growing
 map (read-only registers, value ranges, the client allow-list) and refused with a Modbus
 exception code. The PLC's watchdog register, and (with ``--inputs``) a reset request and the
 monitoring case, are the only inputs; what they cause (an alert on the bus's alert key, an
-operator reset signed with the adapter's operator key) runs in a worker thread, never in the
-server's loop.
+operator reset signed with the adapter's operator key, a zone set selection signed with the
+adapter's selector key: docs/cases.md) runs in a worker thread, never in the server's loop.
 """
 
 from __future__ import annotations
@@ -63,8 +63,10 @@ def is_loopback(host: str) -> bool:
 
 
 class ModbusOutput:
-    """The Modbus TCP server as an ``Output``. ``on_alert(Alert)`` and ``on_reset(peer)`` are
-    called from the worker thread (they may block briefly: a Zenoh put, a reset query)."""
+    """The Modbus TCP server as an ``Output``. ``on_alert(Alert)``, ``on_reset(peer)`` and
+    ``on_case(peer, index)`` are called from the worker thread (they may block briefly: a
+    Zenoh put, a reset or selection query). With ``on_case`` and ``state.case_sets`` a change
+    of the monitoring case register is a zone set selection; without, it is stored only."""
 
     name = "plc"
 
@@ -73,13 +75,14 @@ class ModbusOutput:
                  allow: frozenset[str] | None = None,
                  on_alert: Callable[[Alert], None] | None = None,
                  on_reset: Callable[[str], str] | None = None,
+                 on_case: Callable[[str, int], str] | None = None,
                  clock: Callable[[], float] = time.monotonic) -> None:
         self.host, self.port, self.device_id = host, port, device_id
         self.st = state or mm.AdapterState()
         self.st.written = {a: 0 for a in mm.WRITABLE}
         self.watchdog_s = watchdog_s
         self.allow = allow  # None: any client may write the watchdog; inputs need a list
-        self.on_alert, self.on_reset = on_alert, on_reset
+        self.on_alert, self.on_reset, self.on_case = on_alert, on_reset, on_case
         self.clock = clock
         self.latest: SafetySnapshot | None = None
         self.refused: dict[int, int] = {}  # exception code -> count
@@ -193,7 +196,8 @@ class ModbusOutput:
         # the watchdog: any client unless there is an allow-list; the inputs: listed only
         allowed = listed if (touches_inputs or self.allow is not None) else True
         code = mm.check_write(address, values, allowed_client=allowed,
-                              inputs_enabled=self.st.inputs_enabled)
+                              inputs_enabled=self.st.inputs_enabled,
+                              case_limit=len(self.st.case_sets) if self.selects else None)
         if code is not None:
             if code == mm.ILLEGAL_FUNCTION:
                 log.warning("plc: write to %d refused: client %s not on the allow-list",
@@ -208,12 +212,31 @@ class ModbusOutput:
                 self.watchdog_changed = now
             elif a == mm.ADDRESS["reset_request"] and old == 0 and value == 1:
                 self._reset_edge(peer)
-            elif a == mm.ADDRESS["monitoring_case"] and value != self.st.case:
-                log.warning("plc: client %s set the monitoring case %d -> %d (reserved: "
+            elif a == mm.ADDRESS["monitoring_case"] and self.selects and value != old:
+                self._case_change(peer, old, value)
+            elif a == mm.ADDRESS["monitoring_case"] and not self.selects \
+                    and value != self.st.case:
+                log.warning("plc: client %s set the monitoring case %d -> %d (no --case-key: "
                             "stored only)", peer, self.st.case, value)
                 self.st.case = value
         return None
 
+    @property
+    def selects(self) -> bool:
+        """Register 34 selects zone sets (else it is stored only)."""
+        return self.on_case is not None and bool(self.st.case_sets)
+
+    def _case_change(self, peer: str, old: int, value: int) -> None:
+        if value == 0:  # "no selection": nothing to send, the monitor keeps its sets
+            log.warning("plc: client %s set the monitoring case %d -> 0 (no selection: "
+                        "nothing sent; the monitor keeps the set in force)", peer, old)
+            return
+        self.st.case_count += 1
+        self.st.case_latest += 1
+        self.st.case_result = mm.CASE_RESULT["pending"]
+        log.warning("plc: client %s selects zone set %d (%s), was %d", peer, value,
+                    self.st.case_sets[value - 1], old)
+        self._submit(("case", (peer, value, self.st.case_latest)))
     def _reset_edge(self, peer: str) -> None:
         if self.st.reset_result == mm.RESET_RESULT["pending"]:
             log.warning("plc: reset request from %s ignored: the previous one is pending", peer)
@@ -249,6 +272,8 @@ class ModbusOutput:
             log.error("plc: event queue full, dropped %s", job[0])
             if job[0] == "reset":
                 self.st.reset_result = mm.RESET_RESULT["busy"]
+            elif job[0] == "case":
+                self.st.case_result = mm.CASE_RESULT["busy"]
 
     def _work(self) -> None:
         while (job := self._jobs.get()) is not None:
@@ -262,10 +287,22 @@ class ModbusOutput:
                 elif kind == "reset":
                     result = self.on_reset(item) if self.on_reset else "refused"
                     self.st.reset_result = mm.RESET_RESULT.get(result, 3)
+                elif kind == "case":
+                    self._case_answer(item, self.on_case(item[0], item[1]))
             except Exception as exc:  # a failing put or query never stops the worker
                 log.error("plc: %s failed: %s", kind, exc)
                 if kind == "reset":
                     self.st.reset_result = mm.RESET_RESULT["no_answer"]
+                elif kind == "case":
+                    self._case_answer(item, "no_answer")
+
+    def _case_answer(self, job: tuple[str, int, int], outcome: str) -> None:
+        _peer, index, number = job
+        if number != self.st.case_latest:
+            return  # a newer selection is on its way: its answer is the one to show
+        self.st.case_result = mm.CASE_RESULT.get(outcome, mm.CASE_RESULT["refused"])
+        if outcome == "accepted":
+            self.st.case = index
 
 
 # --- the command line ------------------------------------------------------------------------
@@ -299,6 +336,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="that operator's private key (monitor keys new --operator NAME)")
     g.add_argument("--reset-timeout", type=float, default=3.0,
                    help="s to wait for the monitor's answer to a PLC reset (default 3)")
+    g.add_argument("--case-key", metavar="FILE",
+                   help="a selector's private key: register 34 then selects zone sets "
+                   "(docs/cases.md; default: register 34 is stored only)")
+    g.add_argument("--case-selector", metavar="NAME",
+                   help="that selector's name, as in the monitor's selectors file")
+    g.add_argument("--case-sets", metavar="A,B,C",
+                   help="zone set ids in the order of register 34's index 1..n (0: no "
+                   "selection)")
+    g.add_argument("--case-timeout", type=float, default=3.0,
+                   help="s to wait for the monitor's answer to a selection (default 3)")
 
 
 def make_outputs(args: argparse.Namespace, session, keys) -> list:
@@ -319,19 +366,25 @@ def make_outputs(args: argparse.Namespace, session, keys) -> list:
             ipaddress.ip_address(ip)
         except ValueError:
             raise ConfigError(f"--allow-client {ip!r}: not an IP address") from None
-    signer = None
+    case_sets = parse_case_sets(args)
+    signer = case_signer = None
     if args.inputs:
-        if not args.reset_operator or not args.reset_key:
-            raise ConfigError("monitor bridge plc: --inputs needs --reset-operator NAME and "
-                              "--reset-key FILE (a PLC reset is an operator's signed reset)")
         from monitor.signing import load_private_key
 
-        signer = load_private_key(Path(args.reset_key))
+        if (args.reset_operator or args.reset_key or not case_sets) \
+                and (not args.reset_operator or not args.reset_key):
+            raise ConfigError("monitor bridge plc: --inputs needs --reset-operator NAME and "
+                              "--reset-key FILE (a PLC reset is an operator's signed reset), "
+                              "or --case-key for zone set selections only")
+        if args.reset_key:
+            signer = load_private_key(Path(args.reset_key))
+        if case_sets:
+            case_signer = load_private_key(Path(args.case_key))
     alerts = AlertSender(session, keys, args.instance or "plc", getattr(args, "ttl_ms", 1000))
     cell = args.cell if not getattr(args, "prefix", None) else ""
     state = mm.AdapterState(stale_s=args.stale_ms / 1000.0, zones=tuple(args.zones),
                             cameras=tuple(args.cameras), inputs_enabled=args.inputs,
-                            unauthenticated=args.unauthenticated)
+                            unauthenticated=args.unauthenticated, case_sets=case_sets)
 
     def reset(peer: str) -> str:
         outcome, reason = send_reset(session, keys, signer, args.reset_operator, cell, peer,
@@ -342,11 +395,85 @@ def make_outputs(args: argparse.Namespace, session, keys) -> list:
                               "outcome": outcome}))
         return outcome
 
+    selection = CaseSelection(session, case_key(keys.pose[:-len("tracker/pose")]),
+                              case_signer, args.case_selector or "", cell, case_sets,
+                              args.case_timeout, alerts) if case_signer else None
     out = ModbusOutput(host, port, device_id=args.device_id, state=state,
                        watchdog_s=args.watchdog_ms / 1000.0,
                        allow=frozenset(args.allow_client) or None,
-                       on_alert=alerts, on_reset=reset if signer else None)
+                       on_alert=alerts, on_reset=reset if signer else None,
+                       on_case=selection)
     return [out.start()]
+
+
+def parse_case_sets(args: argparse.Namespace) -> tuple[str, ...]:
+    """--case-sets as register 34's table (index 1..n), checked with the other --case-*
+    options: all three or none, and only with --inputs."""
+    given = [args.case_key, args.case_selector, args.case_sets]
+    if not any(given):
+        return ()
+    if not all(given):
+        raise ConfigError("monitor bridge plc: --case-key FILE, --case-selector NAME and "
+                          "--case-sets A,B,... go together")
+    if not args.inputs:
+        raise ConfigError("monitor bridge plc: --case-key needs --inputs (and --allow-client "
+                          "IP): register 34 is an input")
+    sets = tuple(s.strip() for s in args.case_sets.split(","))
+    if not all(sets) or len(set(sets)) != len(sets) or len(sets) > 255:
+        raise ConfigError(f"--case-sets {args.case_sets!r}: give 1..255 distinct, non-empty "
+                          "zone set ids separated by commas")
+    if not 0 < args.case_timeout <= 60:
+        raise ConfigError("monitor bridge plc: --case-timeout must be in (0, 60] s")
+    return sets
+
+
+def case_key(prefix: str) -> str:
+    from monitor.cases.receiver import case_key as key
+
+    return key(prefix)
+
+
+class CaseSelection:
+    """Register 34's index -> one signed zone set selection, sent as `monitor case select`
+    sends it (called in the worker thread). seq starts at the wall clock's milliseconds and
+    grows by at least one per selection, so a restarted adapter's seq is above its last run's.
+    A refused or unanswered selection is an alert; every outcome is logged."""
+
+    def __init__(self, session, key: str, signer, selector: str, cell: str,
+                 sets: tuple[str, ...], timeout: float, alerts: Callable[[Alert], None]) -> None:
+        self.session, self.key, self.signer, self.selector = session, key, signer, selector
+        self.cell, self.sets, self.timeout, self.alerts = cell, sets, timeout, alerts
+        self.seq = int(time.time() * 1000) - 1
+
+    def __call__(self, peer: str, index: int) -> str:
+        from monitor.cases.receiver import request_case
+        from monitor.cases.requests import case_payload
+
+        set_id = self.sets[index - 1]
+        self.seq = max(self.seq + 1, int(time.time() * 1000))
+        payload = case_payload(self.selector, set_id, self.seq, cell=self.cell)
+        try:
+            answer = request_case(self.session, self.key, payload,
+                                  self.signer.sign(self.key, payload), self.timeout)
+        except Exception as exc:  # a closed session: no answer
+            answer, why = None, f"{type(exc).__name__}: {exc}"
+        else:
+            why = f"no monitor answered on {self.key} within {self.timeout:g} s"
+        if answer is None:
+            outcome, reason = "no_answer", why
+        else:
+            outcome = "accepted" if answer["accepted"] else "refused"
+            reason = str(answer.get("reason", ""))
+        text = (f"PLC zone set selection {index} ({set_id!r}) from {peer} as selector "
+                f"{self.selector} (seq {self.seq}): {outcome}: {reason}")
+        if outcome == "accepted":
+            log.warning("plc: %s", text)
+        else:
+            self.alerts(Alert("plc_case", "warning", text, "plc", time.monotonic(),
+                              details={"peer": peer, "selector": self.selector,
+                                       "set": set_id, "index": index, "seq": self.seq,
+                                       "outcome": outcome}))
+        return outcome
 
 
 class AlertSender:

@@ -53,6 +53,8 @@ STATUS_BITS: tuple[str, ...] = (
 
 RESET_RESULT = {"none": 0, "pending": 1, "accepted": 2, "refused": 3, "no_answer": 4,
                 "busy": 5}
+CASE_RESULT = RESET_RESULT  # the same codes for a zone set selection
+CASE_SETS_OTHER_BIT = 15  # ``case_sets``: a set in force that --case-sets does not list
 
 
 @dataclass(frozen=True)
@@ -89,14 +91,23 @@ REGISTERS: tuple[Register, ...] = (
     Register(14, "reset_result", "R", "0 none, 1 pending, 2 accepted, 3 refused, "
              "4 no answer, 5 busy", "outcome of the last PLC reset request"),
     Register(15, "reset_count", "R", "0..65535, wraps", "PLC reset requests sent"),
-    Register(16, "case_echo", "R", "0..255", "the monitoring case last accepted (reserved)"),
+    Register(16, "case_echo", "R", "0 none, 1..n",
+             "with --case-key: the --case-sets index the monitor last accepted; without: the "
+             "value last written to 34"),
     Register(17, "write_errors", "R", "0..65535, wraps", "writes refused (any client)"),
+    Register(18, "case_result", "R", "0 none, 1 pending, 2 accepted, 3 refused, 4 no answer, "
+             "5 busy", "outcome of the last zone set selection sent for register 34"),
+    Register(19, "case_count", "R", "0..65535, wraps", "zone set selections sent"),
+    Register(20, "case_sets", "R", "bitmap, bit i-1 = i-th --case-sets set; bit 15 other",
+             "the zone sets the last verified command applies (two while switching; 0 while "
+             "overridden)"),
     Register(32, "plc_watchdog", "RW", "any 0..65535",
              "the PLC writes a CHANGED value at least every --watchdog-ms, else an alert"),
     Register(33, "reset_request", "RW", "0/1",
              "rising edge 0 -> 1 sends an operator reset (--inputs, allow-listed client)"),
-    Register(34, "monitoring_case", "RW", "0..255",
-             "reserved: stored and logged (--inputs, allow-listed client)"),
+    Register(34, "monitoring_case", "RW", "0 none, 1..n (--case-sets); 0..255 without",
+             "a change selects the n-th --case-sets zone set: one signed selection (--inputs, "
+             "--case-key, allow-listed client); without --case-key stored only"),
 )
 ADDRESS = {r.name: r.address for r in REGISTERS}
 SIZE = max(r.address for r in REGISTERS) + 1  # addresses 0..SIZE-1 read (gaps read 0)
@@ -118,6 +129,10 @@ class AdapterState:
     reset_result: int = 0
     reset_count: int = 0
     case: int = 0
+    case_sets: tuple[str, ...] = ()  # register 34's index 1..n -> set id; () store only
+    case_result: int = 0
+    case_count: int = 0
+    case_latest: int = 0  # the number of the newest selection: older answers are not shown
     write_errors: int = 0
     written: dict[int, int] | None = None  # writable address -> last accepted value
 
@@ -148,6 +163,7 @@ def render(snap: SafetySnapshot | None, now: float, st: AdapterState) -> list[in
         regs[9] = _fault_bits(snap.faults)
         regs[10] = sum(1 << i for i, c in enumerate(st.cameras[:16]) if snap.cameras.get(c))
         regs[3] = int(snap.reset_possible)
+        regs[20] = _set_bits(snap.zone_sets, st.case_sets)
     else:
         regs[4] = REASON_CODES["no_command" if snap is None else "adapter_stale"]
     if snap is not None:
@@ -164,9 +180,18 @@ def render(snap: SafetySnapshot | None, now: float, st: AdapterState) -> list[in
     regs[15] = st.reset_count & U16
     regs[16] = st.case
     regs[17] = st.write_errors & U16
+    regs[18] = st.case_result
+    regs[19] = st.case_count & U16
     for address, value in (st.written or {}).items():
         regs[address] = value
     return regs
+
+
+def _set_bits(applied: tuple[str, ...], table: tuple[str, ...]) -> int:
+    bits = 0
+    for s in applied:
+        bits |= 1 << (table.index(s) if s in table[:15] else CASE_SETS_OTHER_BIT)
+    return bits
 
 
 def _fault_bits(faults: tuple[str, ...]) -> int:
@@ -183,9 +208,13 @@ ILLEGAL_VALUE = 3  # a value out of the register's range
 
 
 def check_write(address: int, values: list[int], *, allowed_client: bool,
-                inputs_enabled: bool) -> int | None:
+                inputs_enabled: bool, case_limit: int | None = None) -> int | None:
     """None when the write of ``values`` from ``address`` on is accepted, else the Modbus
-    exception code. All or nothing: one bad register refuses the whole request."""
+    exception code. All or nothing: one bad register refuses the whole request.
+    ``case_limit``: the number of --case-sets (register 34 then takes 0..that only)."""
+    limits = dict(VALUE_LIMIT)
+    if case_limit is not None:
+        limits[ADDRESS["monitoring_case"]] = case_limit
     inputs = {ADDRESS["reset_request"], ADDRESS["monitoring_case"]}
     for i in range(len(values)):
         a = address + i
@@ -195,7 +224,7 @@ def check_write(address: int, values: list[int], *, allowed_client: bool,
         return ILLEGAL_FUNCTION
     for i, value in enumerate(values):
         if isinstance(value, bool) or not isinstance(value, int) \
-                or not 0 <= value <= VALUE_LIMIT[address + i]:
+                or not 0 <= value <= limits[address + i]:
             return ILLEGAL_VALUE
     return None
 

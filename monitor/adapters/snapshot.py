@@ -40,6 +40,7 @@ class SafetySnapshot:
     cell: str = ""
     instance: str = ""  # the monitor followed
     zone_hash: str = ""  # the command's config_hash: the zone set in force
+    zone_sets: tuple[str, ...] = ()  # the zone sets the command says apply (both: switching)
 
     @property
     def state_code(self) -> int:
@@ -91,4 +92,10 @@ def snapshot_of(verdict: Verdict, now: float, wall: float, counter: int,
         seq=verdict.seq, age_ms=age, counter=counter, mono=now, wall=wall, faults=faults,
         cameras={c: (not overridden and c not in sources) for c in cameras},
         cell=str(body.get("cell", "")), instance=str(body.get("instance", "")),
-        zone_hash=str(body.get("config_hash", "")))
+        zone_hash=str(body.get("config_hash", "")),
+        zone_sets=() if overridden else _zone_sets(cmd))
+
+
+def _zone_sets(command: dict | None) -> tuple[str, ...]:
+    sets = (command or {}).get("zone_sets", [])
+    return tuple(str(s) for s in sets) if isinstance(sets, list) else ()
