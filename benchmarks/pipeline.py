@@ -47,17 +47,18 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from monitor.models import synthetic
 
-from monitor import service
 from monitor.bus import BusConfig, SafetyBus, open_session
 from monitor.config import MonitorConfig, demo_cell_path
 from monitor.detector import Detector, DetectorConfig, letterbox
 from monitor.driver import Driver
 from monitor.frames import LatestFrameGrabber, PacedSource, VideoFileReader
 from monitor.health import CameraHealth, HealthConfig
+from monitor.metrics import Metrics
 from monitor.pipeline import Pipeline
 from monitor.policy import PolicyConfig
 from monitor.replay import ReplaySummary, SummarySink, VideoFeed
 from monitor.scene import DemoScene, write_video
+from monitor.service_loop import LiveFeed, ServiceSink
 from monitor.zones import Cell, parse_cell, read_cell_data, watch_regions
 
 SIZE = (1920, 1080)
@@ -225,9 +226,9 @@ def latency(video: Path, detector: Detector, cell: Cell, seconds: float) -> dict
         source.open()
         grabber = LatestFrameGrabber(source, stop=stop, expected_size=SIZE).start()
         try:
-            sink = service.ServiceSink(bus, service.Metrics(0, "127.0.0.1"), [grabber])
-            feed = service.LiveFeed([grabber], bus, None, config.service.tick_s, stop,
-                                    seconds + 0.5, sink.alert)
+            sink = ServiceSink(bus, Metrics(0, "127.0.0.1"), [grabber])
+            feed = LiveFeed([grabber], bus, None, config.service.tick_s, stop,
+                            seconds + 0.5, sink.alert)
             Driver(pipeline, [sink], stall_after_s=config.policy.frame_timeout).run(feed, stop)
         finally:
             stop.set()

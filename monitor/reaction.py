@@ -1,8 +1,8 @@
 """The reaction-time budget, measured: is the T_r that S_p was computed with long enough here?
 
-``monitor run`` computes T_r from the configuration (``service.reaction_budget``: the delays the
-policy lets pass before it STOPs anyway). This module measures the same chain on the host, per
-camera, from a person stepping in to the robot starting to brake:
+``monitor run`` computes T_r from the configuration (``service_setup.reaction_budget``: the
+delays the policy lets pass before it STOPs anyway). This module measures the same chain on the
+host, per camera, from a person stepping in to the robot starting to brake:
 
 * ``frame_interval_s``: the person may step in just after a frame was captured; the next one
   this camera processes comes this much later (p99 of the gaps between its processed frames);
@@ -241,7 +241,7 @@ def status_of(verdicts: Mapping[str, Verdict], configured_s: float) -> dict:
 
 def reaction_gauges(registry):
     """Prometheus gauges of the budget, on the service's registry (kept apart from
-    ``service.Metrics``): measured per camera, configured, exceeded per camera."""
+    ``monitor.metrics.Metrics``): measured per camera, configured, exceeded per camera."""
     from prometheus_client import Gauge
 
     return (Gauge("monitor_reaction_budget_seconds", "measured reaction budget (p99 chain)",

@@ -8,7 +8,7 @@ request id), answers a refused one at once and queues the others for the safety 
 own thread: the pipeline is never touched from another thread). For each request it re-reads
 the zone file from the service's configured path, refuses unless the file's zone-set hash is
 the signed one ("the file changed after you signed"), validates it as at start
-(``monitor.service.zone_checks``; the cameras and their sizes must stay, they need a restart),
+(``monitor.service_setup.zone_checks``; the cameras and their sizes must stay, they need a restart),
 builds what derives from it (prepared zones, watch regions of the health checks) and only then
 swaps it into the pipeline (``Pipeline.swap_cell``), the bus (``config_hash`` of the status and
 of every command) and the recorder, with a ``zones_applied`` alert naming the operator and the
@@ -169,7 +169,7 @@ class LiveZones:
     def apply(self, req: ApplyRequest) -> str:
         """Swap the zones when everything holds; ApplyRefused (nothing changed) otherwise."""
         from monitor.health import CameraHealth, load_reference
-        from monitor.service import prepared_zones, zone_checks
+        from monitor.service_setup import prepared_zones, zone_checks
         from monitor.zones import load_cell, watch_regions
 
         if not self.zones_file:

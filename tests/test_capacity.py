@@ -140,7 +140,7 @@ def test_max_fps_caps_how_often_the_service_takes_a_camera(batch):
     import threading
 
     from monitor.frames import LatestFrameGrabber, open_source
-    from monitor.service import LiveFeed
+    from monitor.service_loop import LiveFeed
 
     stop = threading.Event()
     grabber = LatestFrameGrabber(open_source("synthetic:demo", "cam0", realtime=True),

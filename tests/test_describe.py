@@ -17,7 +17,7 @@ from monitor.policy import (
     initial_state,
     step,
 )
-from monitor.service import command_fields
+from monitor.service_log import command_fields
 from monitor.timetext import video_time, wall_clock
 from tests.test_policy import frame, lost, reset, run, warmed
 from tests.test_policy_properties import CONFIGS, _inputs, sequences

@@ -150,7 +150,7 @@ def do_replay(video: Path, zones: Path | None, model: Path | None, config_path: 
     if not publish:
         return replay(video, detector, cell, settings, stop=stop)
     from monitor.bus import SafetyBus
-    from monitor.service import bus_config_for
+    from monitor.service_setup import bus_config_for
 
     with SafetyBus(bus_config_for(config, cell)) as bus:
         def send(result) -> None:
