@@ -345,7 +345,8 @@ def test_the_service_records_the_demo_stop_and_answers_the_incidents_query(
             assert body["schema"] == "workcell.safety.incidents/1" and body["cell"] == "t5"
             return [r for r in body["incidents"] if r["complete"]]
 
-        rows = wait_for(incidents, 20, "a complete STOP incident", svc)
+        # the recorder works at low priority: on a loaded machine its clip takes a while
+        rows = wait_for(incidents, 90, "a complete STOP incident", svc)
         url = f"http://127.0.0.1:{svc.metrics_port}/metrics"
         def metrics() -> str | None:
             text = urllib.request.urlopen(url, timeout=3).read().decode()
