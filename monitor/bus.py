@@ -33,7 +33,8 @@ Ed25519 signature of its exact payload bytes as the sample attachment; the paylo
 instance, boot, seq, state, speed_scale, ttl_ms, mono and wall. Resets are queries on
 ``safety/reset`` signed by an operator key listed in ``operators_file``; the bus refuses the
 others itself (answered to the sender, alerted) and hands the pipeline only verified requests
-(``monitor.resets``). The policy's outcome is the answer to the query.
+(``monitor.resets``; the bus's side: ``monitor.bus_resets.ResetDesk``). The policy's outcome is
+the answer to the query.
 
 Several monitors per cell (``BusConfig.role``, docs/consumer.md): a monitor with a role has its
 keys under ``<prefix>safety/<role>/`` (command, alert, detections, status, reset, mute, zones
@@ -44,7 +45,8 @@ One monitor per cell (per role): the instance id is unique by default (host, pid
 start the bus refuses to run when another monitor's liveliness token is present on the cell, and
 later it reports ``duplicate_monitor`` (``faults()``) and sends STOP while another monitor's
 token or commands are seen. Only commands signed with this cell's monitor key count as another
-monitor's; unsigned or wrongly signed ones are counted and alerted (``monitor.foreign``).
+monitor's; unsigned or wrongly signed ones are counted and alerted (``monitor.foreign``). The
+bus's side: ``monitor.bus_peers.PeerWatch``.
 
 Consumer rule: ``monitor.consumer.CommandWatchdog`` (shown by ``monitor watch``; docs/consumer.md).
 """
@@ -63,6 +65,8 @@ from collections.abc import Callable
 import zenoh
 
 from monitor.alerts import AlertLimiter, AlertLimits, alert_to_dict
+from monitor.bus_peers import DuplicateMonitor, PeerWatch
+from monitor.bus_resets import RESET_ANSWER_SCHEMA, ResetDesk
 from monitor.busconfig import (
     MODES,
     BusConfig,
@@ -73,34 +77,24 @@ from monitor.busconfig import (
     zenoh_config,
 )
 from monitor.consumer import COMMAND_SCHEMA, CommandWatchdog, Verdict
-from monitor.errors import ConfigError
-from monitor.foreign import ForeignCommands
 from monitor.mute_requests import MuteDesk, MuteGate
 from monitor.muting import MuteOutcome, MuteRequest
 from monitor.policy import STOP, Command, Reason, ResetRequest
-from monitor.resets import (
-    RESET_SCHEMA,
-    ResetGate,
-    ResetPolicy,
-    ResetRefused,
-    latch_of,
-    reset_payload,
-)
+from monitor.resets import RESET_SCHEMA, ResetGate, ResetPolicy, latch_of, reset_payload
 from monitor.signals import close_bounded
 from monitor.signing import Signer, load_operators, load_private_key
 from monitor.types import Alert, Fault, Persons, ZoneReport
 
 _log = logging.getLogger("monitor.bus")
 
-__all__ = ["COMMAND_SCHEMA", "MODES", "RESET_SCHEMA", "BusConfig", "BusKeys", "CommandWatchdog",
-           "DuplicateMonitor", "SafetyBus", "Verdict", "_zenoh_error", "default_instance",
-           "open_session", "reset_payload", "zenoh_config"]
+__all__ = ["COMMAND_SCHEMA", "MODES", "RESET_ANSWER_SCHEMA", "RESET_SCHEMA", "BusConfig",
+           "BusKeys", "CommandWatchdog", "DuplicateMonitor", "SafetyBus", "Verdict",
+           "_zenoh_error", "default_instance", "open_session", "reset_payload", "zenoh_config"]
 
 SCHEMA_VERSION = 1
 ALERT_SCHEMA = f"workcell.safety.alert/{SCHEMA_VERSION}"
 DETECTIONS_SCHEMA = f"workcell.safety.detections/{SCHEMA_VERSION}"
 STATUS_SCHEMA = f"workcell.safety.status/{SCHEMA_VERSION}"
-RESET_ANSWER_SCHEMA = f"workcell.safety.reset-answer/{SCHEMA_VERSION}"
 def detections_body(persons: Persons | None, zone_report: ZoneReport | None) -> dict:
     body: dict = {}
     if persons is not None:
@@ -117,10 +111,6 @@ def detections_body(persons: Persons | None, zone_report: ZoneReport | None) -> 
         body["tool_separation_m"] = zone_report.tool_separation_m
         body["required_separation_m"] = zone_report.required_separation_m
     return body
-
-
-class DuplicateMonitor(ConfigError):
-    """Another monitor is live on this cell."""
 
 
 class SafetyBus:
@@ -141,8 +131,6 @@ class SafetyBus:
         self._signer: Signer | None = (load_private_key(config.signing_key)
                                        if config.signing_key else None)
         operators = load_operators(config.operators_file) if config.operators_file else None
-        self._gate = ResetGate(ResetPolicy(operators, config.cell, self.keys.reset,
-                                           config.allow_unsigned_resets, config.reset_window_s))
         self._mutes = MuteDesk(MuteGate(operators, config.cell, self.keys.mute,
                                         config.reset_window_s), config.reset_answer_s)
         self._limiter = AlertLimiter(alert_limits or AlertLimits())
@@ -155,16 +143,15 @@ class SafetyBus:
         self._latest: Command | None = None
         self._latest_time: float | None = None
         self._published: Command | None = None
-        self._resets: collections.deque[ResetRequest] = collections.deque(maxlen=16)
-        self._pending: dict[str, tuple[zenoh.Query | None, float]] = {}  # request id -> query
-        self._resets_invalid = 0
-        self._resets_refused = 0
-        self._last_reset: dict | None = None
-        self._refused_alerts: collections.deque[Alert] = collections.deque(maxlen=16)
-        self._others_alive: set[str] = set()  # other monitors' liveliness tokens on this cell
-        self._others_seen: dict[str, float] = {}  # other monitors' boots -> last command time
-        self._foreign = ForeignCommands(self._signer.key.public_key() if self._signer else None,
-                                        self.keys.command)
+        # resets share the bus's lock: checked against the latch published at that moment
+        self._resets = ResetDesk(
+            ResetGate(ResetPolicy(operators, config.cell, self.keys.reset,
+                                  config.allow_unsigned_resets, config.reset_window_s)),
+            self.keys.reset, config.reset_answer_s, clock, self._lock)
+        self._peers = PeerWatch(
+            cell=config.cell, role=config.role, instance=config.instance,
+            alive_key=self.keys.alive, command_key=self.keys.command,
+            public_key=self._signer.key.public_key() if self._signer else None, clock=clock)
         self._status_extra: dict = {}
         self._next_config_hash: str | None = None  # a signed zone apply, from the next command
         self._stop = threading.Event()
@@ -184,7 +171,7 @@ class SafetyBus:
         try:
             s = self._session
             self._boot = str(s.zid())
-            self._refuse_if_another_monitor(s)
+            self._peers.refuse_if_another(s, self._startup_check_s)
             self._pub_command = s.declare_publisher(
                 self.keys.command, encoding="application/json",
                 priority=zenoh.Priority.REAL_TIME, express=True,
@@ -200,12 +187,15 @@ class SafetyBus:
                 priority=zenoh.Priority.DATA, congestion_control=zenoh.CongestionControl.DROP)
             self._entities = [
                 s.declare_queryable(self.keys.status, self._on_status_query),
-                s.declare_queryable(self.keys.reset, self._on_reset_query),
-                s.declare_subscriber(self.keys.reset, self._on_reset),
+                s.declare_queryable(self.keys.reset, lambda q: self._resets.on_query(
+                    q, self._boot, self._latch_now)),
+                s.declare_subscriber(self.keys.reset, lambda sample: self._resets.on_sample(
+                    sample, self._boot, self._latch_now)),
                 s.declare_queryable(self.keys.mute, self._on_mute_query),
-                s.declare_subscriber(self.keys.command, self._on_command_seen,
+                s.declare_subscriber(self.keys.command,
+                                     lambda sample: self._peers.on_command(sample, self._boot),
                                      allowed_origin=zenoh.Locality.REMOTE),
-                s.liveliness().declare_subscriber(self.keys.alive + "/*", self._on_alive),
+                s.liveliness().declare_subscriber(self.keys.alive + "/*", self._peers.on_alive),
             ]
             self._token = s.liveliness().declare_token(f"{self.keys.alive}/{self.config.instance}")
             self._thread = threading.Thread(target=self._heartbeat_loop, name="bus-heartbeat",
@@ -216,22 +206,6 @@ class SafetyBus:
             self._session = None
             raise
         return self
-
-    def _refuse_if_another_monitor(self, s: zenoh.Session) -> None:
-        """Refuse to start when a monitor's liveliness token is already present on the cell."""
-        if self._startup_check_s <= 0:
-            return
-        others = []
-        with contextlib.suppress(Exception):
-            for reply in s.liveliness().get(self.keys.alive + "/*",
-                                            timeout=self._startup_check_s):
-                if reply.ok is not None:
-                    others.append(str(reply.ok.key_expr).rsplit("/", 1)[-1])
-        if others:
-            raise DuplicateMonitor(
-                f"another monitor ({others[0]}) is already live {self._where()} "
-                f"({self.keys.alive}/{others[0]}); run one monitor per "
-                + ("role" if self.config.role else "cell"))
 
     def __exit__(self, *exc) -> None:
         self.close()
@@ -252,7 +226,7 @@ class SafetyBus:
             with self._lock:
                 self._counters["errors"]["shutdown"] += 1
         finally:
-            self._answer_all_pending("the monitor is shutting down")
+            self._resets.answer_all("the monitor is shutting down")
             self._mutes.answer_all("the monitor is shutting down")
             self.closed_cleanly = close_bounded(session, timeout, [*self._entities, self._token])
 
@@ -280,57 +254,16 @@ class SafetyBus:
         return PoseSubscriber(self.session, self.keys.pose, limits, self._clock, on_reject,
                               tracker_clock=tracker_clock)
 
-    # --- one monitor per cell ----------------------------------------------------------------
+    # --- one monitor per cell (monitor.bus_peers) ------------------------------------------
 
     def faults(self) -> list[Fault]:
         """Faults the bus sees (poll every step): ``duplicate_monitor`` while another monitor's
         liveliness token or commands (within the last 2 s) are seen on this cell."""
-        others = self._other_monitors()
-        if not others:
-            return []
-        return [Fault("duplicate_monitor", f"another monitor is live {self._where()} "
-                      f"({', '.join(others[:3])}); run one per "
-                      + ("role" if self.config.role else "cell"),
-                      stop=True, source="bus", latch=True)]
-
-    def _where(self) -> str:
-        role = f" as {self.config.role!r}" if self.config.role else ""
-        return f"on cell {self.config.cell!r}{role}"
-
-    def _other_monitors(self) -> list[str]:
-        now = self._clock()
-        with self._lock:
-            seen = {f"boot {b}" for b, t in self._others_seen.items() if now - t < 2.0}
-            return sorted(self._others_alive | seen)
+        return self._peers.faults()
 
     def foreign_commands(self) -> dict[str, int]:
         """Commands on our key ignored per kind (unsigned, signature, ...; ``monitor.foreign``)."""
-        return self._foreign.counts()
-
-    def _on_alive(self, sample: zenoh.Sample) -> None:
-        instance = str(sample.key_expr).rsplit("/", 1)[-1]
-        if instance == self.config.instance:
-            return
-        with self._lock:
-            if sample.kind == zenoh.SampleKind.PUT:
-                if len(self._others_alive) < 64:
-                    self._others_alive.add(instance)
-            else:
-                self._others_alive.discard(instance)
-
-    def _on_command_seen(self, sample: zenoh.Sample) -> None:
-        """Commands on our key from another sender: a second monitor when signed with our key
-        (``monitor.foreign``), else counted and alerted."""
-        try:
-            signature = sample.attachment.to_bytes() if sample.attachment is not None else None
-            boot = self._foreign.classify(sample.payload.to_bytes(), signature, self._boot,
-                                          self._clock(), time.time())
-        except Exception:  # nothing a sender does may kill this callback
-            return
-        if boot is not None:
-            with self._lock:
-                if len(self._others_seen) < 64 or boot in self._others_seen:
-                    self._others_seen[boot] = self._clock()
+        return self._peers.foreign_counts()
 
     # --- publishing --------------------------------------------------------------------------
 
@@ -360,20 +293,8 @@ class SafetyBus:
         with self._cmd_lock:
             return self._put_command_locked(command, heartbeat)
 
-    def _guarded(self, command: Command) -> Command:
-        """STOP while another monitor is live on the cell: the consumer cannot know whom to
-        follow, and neither monitor alone sees what the other sees."""
-        others = self._other_monitors()
-        if not others or (command.state == STOP and any(
-                r.code == "duplicate_monitor" for r in command.reasons)):
-            return command
-        reason = Reason("duplicate_monitor", f"another monitor is live on this cell "
-                        f"({', '.join(others[:3])})")
-        return Command(STOP, 0.0, (*command.reasons, reason), command.since, command.latched,
-                       command.reset)
-
     def _put_command_locked(self, command: Command, heartbeat: bool) -> int:
-        command = self._guarded(command)
+        command = self._peers.guarded(command)
         with self._lock:
             # boot_wall orders boots: a consumer drops an older boot's commands for good
             body = self._envelope(self.keys.command, COMMAND_SCHEMA,
@@ -417,11 +338,11 @@ class SafetyBus:
                 if changed:
                     self._published = command
                 if command.reset is not None:
-                    self._last_reset = {**command.reset.__dict__, "wall": time.time()}
+                    self._resets.last_reset = {**command.reset.__dict__, "wall": time.time()}
             seq = self._put_command_locked(command, heartbeat=False) if changed else None
         if command.reset is not None:
             r = command.reset
-            self._answer(r.request_id, r.accepted, r.message, "policy", command.state)
+            self._resets.answer(r.request_id, r.accepted, r.message, "policy", command.state)
         return seq
 
     def _heartbeat_command(self) -> Command:
@@ -458,7 +379,7 @@ class SafetyBus:
                 return
             try:
                 self._put_command(self._heartbeat_command(), heartbeat=True)
-                self._expire_pending()
+                self._resets.expire()
                 self._mutes.expire(self._clock())
                 self._flush_refused_alerts()
             except Exception:  # keep beating; the failure is counted by _put
@@ -497,96 +418,20 @@ class SafetyBus:
         with self._lock:
             self._status_extra.update(fields)
 
-    # --- resets ------------------------------------------------------------------------------
+    # --- resets (monitor.bus_resets) --------------------------------------------------------
 
     def poll_resets(self) -> list[ResetRequest]:
         """Verified reset requests received since the last call (oldest first). Refused ones
         never appear here: the bus answered and alerted them itself."""
-        with self._lock:
-            out = list(self._resets)
-            self._resets.clear()
-        return out
+        return self._resets.poll()
 
-    def _on_reset_query(self, query: zenoh.Query) -> None:
-        payload = query.payload.to_bytes() if query.payload is not None else b""
-        signature = query.attachment.to_bytes() if query.attachment is not None else None
-        self._take_reset(payload, signature, query)
-
-    def _on_reset(self, sample: zenoh.Sample) -> None:
-        signature = sample.attachment.to_bytes() if sample.attachment is not None else None
-        self._take_reset(sample.payload.to_bytes(), signature, None)
-
-    def _take_reset(self, payload: bytes, signature: bytes | None,
-                    query: zenoh.Query | None) -> None:
-        now = self._clock()
-        try:
-            with self._lock:  # bound to this boot and the latch published now
-                req = self._gate.check(payload, signature, now, boot=self._boot,
-                                       latch=latch_of(self._latest))
-        except ResetRefused as exc:
-            operator = _operator_of(payload)
-            with self._lock:
-                self._resets_refused += 1
-                if operator is None:
-                    self._resets_invalid += 1
-                self._last_reset = {"operator": operator, "accepted": False,
-                                    "message": f"refused by the bus: {exc}", "wall": time.time()}
-                self._refused_alerts.append(Alert(
-                    "reset_refused", "warning",
-                    f"reset in the name of {operator or '?'} refused by the bus: {exc}", "bus",
-                    now, details={"operator": operator, "stage": "bus"}))
-            if query is not None:
-                _reply(query, self.keys.reset, {"accepted": False, "stage": "bus",
-                                                "reason": str(exc), "operator": operator})
-            return
-        except Exception:  # nothing a sender does may kill this callback
-            with self._lock:
-                self._resets_invalid += 1
-            if query is not None:
-                _reply(query, self.keys.reset, {"accepted": False, "stage": "bus",
-                                                "reason": "malformed reset request"})
-            return
-        if req.confirm_clear:
-            with self._lock:
-                self._refused_alerts.append(Alert(
-                    "reset_confirm_clear", "warning",
-                    f"{req.operator} confirms the cell is clear (looked): holds of lost persons "
-                    "may be released", "bus", now,
-                    details={"operator": req.operator, "request_id": req.request_id}))
-        with self._lock:
-            self._resets.append(req)
-            if query is not None:
-                self._pending[req.request_id] = (query, now + self.config.reset_answer_s)
-
-    def _answer(self, request_id: str, accepted: bool, message: str, stage: str,
-                state: str | None = None) -> None:
-        with self._lock:
-            query, _ = self._pending.pop(request_id, (None, 0.0))
-        if query is not None:
-            _reply(query, self.keys.reset, {"accepted": accepted, "stage": stage,
-                                            "reason": message, "request_id": request_id,
-                                            "state": state})
-
-    def _expire_pending(self) -> None:
-        now = self._clock()
-        with self._lock:
-            late = [rid for rid, (_, deadline) in self._pending.items() if now > deadline]
-        for rid in late:
-            self._answer(rid, False, "the monitor did not decide on this request in time "
-                         "(superseded by a newer request, or the pipeline is stalled)", "bus")
-
-    def _answer_all_pending(self, why: str) -> None:
-        with self._lock:
-            rids = list(self._pending)
-        for rid in rids:
-            self._answer(rid, False, why, "bus")
+    def _latch_now(self) -> str | None:
+        """The latch published now (called by the reset desk with the bus's lock held)."""
+        return latch_of(self._latest)
 
     def _flush_refused_alerts(self) -> None:
-        with self._lock:
-            alerts = list(self._refused_alerts)
-            self._refused_alerts.clear()
-        alerts += self._mutes.drain_alerts()
-        foreign = self._foreign.alert("bus", self._clock())
+        alerts = self._resets.drain_alerts() + self._mutes.drain_alerts()
+        foreign = self._peers.foreign_alert("bus")
         for alert in [*alerts, *([foreign] if foreign else [])]:
             self.publish_alert(alert)
 
@@ -610,7 +455,7 @@ class SafetyBus:
     def status(self) -> dict:
         """What the ``safety/status`` queryable answers."""
         now = self._clock()
-        others = self._other_monitors()
+        others = self._peers.others()
         with self._lock:
             latest = self._latest
             return {
@@ -621,14 +466,14 @@ class SafetyBus:
                 "state": latest.state if latest else STOP,
                 "command": latest.to_dict() if latest else None,
                 "latch": latch_of(latest),  # the nonce a reset must name (None: not latched)
-                "last_reset": self._last_reset, "heartbeat_hz": self.config.heartbeat_hz,
+                "last_reset": self._resets.last_reset, "heartbeat_hz": self.config.heartbeat_hz,
                 "ttl_ms": self.config.ttl_ms, "heartbeats": self._heartbeats,
                 "signed": self._signer is not None, "public_key": self.public_key,
                 "other_monitors": others,
                 "puts": dict(self._counters["puts"]),
                 "puts_unmatched": dict(self._counters["unmatched"]),
                 "put_errors": dict(self._counters["errors"]),
-                "resets_invalid": self._resets_invalid, "resets_refused": self._resets_refused,
+                "resets_invalid": self._resets.invalid, "resets_refused": self._resets.refused,
                 "mutes_accepted": self._mutes.accepted, "mutes_refused": self._mutes.refused,
                 "commands_foreign": self.foreign_commands(),
                 "alerts_held": self._limiter.held(),
@@ -641,19 +486,3 @@ class SafetyBus:
             query.reply(self.keys.status, json.dumps(self.status(), default=str).encode(),
                         encoding="application/json")
 
-
-def _operator_of(payload: bytes) -> str | None:
-    with contextlib.suppress(Exception):
-        op = json.loads(payload).get("operator")
-        if isinstance(op, str) and op.strip():
-            return op.strip()[:64]
-    return None
-
-
-def _reply(query: zenoh.Query, key: str, body: dict) -> None:
-    """Answer a reset query and finalise it (the querier's get then returns at once)."""
-    with contextlib.suppress(Exception):
-        query.reply(key, json.dumps({"schema": RESET_ANSWER_SCHEMA, **body}).encode(),
-                    encoding="application/json")
-    with contextlib.suppress(Exception):
-        query.drop()

@@ -210,7 +210,7 @@ def test_rogue_resets_are_refused_with_an_alert_and_a_signed_one_is_accepted(tmp
         answers = []
         t = threading.Thread(target=lambda: answers.append(ask("anna", "anna")))
         t.start()
-        assert wait_for(lambda: bool(getattr(bus, "_pending", None)), 10)
+        assert wait_for(lambda: bool(bus._resets.pending), 10)
         (req,) = bus.poll_resets()
         assert req.operator == "anna"
         bus.publish_command(Command("RUN", 1.0, (), reset=ResetOutcome(
@@ -260,7 +260,7 @@ def test_a_reset_captured_before_a_restart_or_a_new_latch_is_refused_naming_its_
             peer, keys.reset, payload, sig, 5.0)))
         t.start()
         if outcome is not None:  # the policy's answer to a request that passed the bus
-            assert wait_for(lambda: bool(bus._pending))
+            assert wait_for(lambda: bool(bus._resets.pending))
             (req,) = bus.poll_resets()
             bus.publish_command(Command("RUN", 1.0, (), reset=ResetOutcome(
                 "anna", outcome, "reset accepted", req.request_id)))

@@ -1,0 +1,156 @@
+"""The bus's side of operator resets on ``<prefix>safety/reset`` (``monitor.bus.SafetyBus``).
+
+A reset arrives as a query (or a put) signed by an operator key; the desk checks it with
+``monitor.resets.ResetGate`` bound to this boot and the latch published now. Refused requests
+are answered at once and alerted (``drain_alerts``); verified ones wait for the pipeline
+(``poll``), their queries until the policy's outcome is published (``answer``) or
+``answer_s`` has passed (``expire``).
+"""
+
+from __future__ import annotations
+
+import collections
+import contextlib
+import json
+import threading
+import time
+from collections.abc import Callable
+
+import zenoh
+
+from monitor.policy import ResetRequest
+from monitor.resets import ResetGate, ResetRefused
+from monitor.types import Alert
+
+SCHEMA_VERSION = 1
+RESET_ANSWER_SCHEMA = f"workcell.safety.reset-answer/{SCHEMA_VERSION}"
+
+
+class ResetDesk:
+    """Verified reset requests for the pipeline, and the queries waiting for their answer.
+
+    Shares the bus's lock (``lock``): a request is checked against the latch the bus publishes
+    at that moment (``latch``, called with the lock held), and the bus records the policy's
+    outcome (``last_reset``) in the same critical section as the command carrying it."""
+
+    def __init__(self, gate: ResetGate, key: str, answer_s: float,
+                 clock: Callable[[], float], lock: threading.Lock) -> None:
+        self.gate = gate
+        self.key = key
+        self.answer_s = answer_s
+        self._clock = clock
+        self._lock = lock
+        self._queue: collections.deque[ResetRequest] = collections.deque(maxlen=16)
+        self.pending: dict[str, tuple[zenoh.Query | None, float]] = {}  # request id -> query
+        self.invalid = 0
+        self.refused = 0
+        self.last_reset: dict | None = None  # written with the bus's lock held
+        self._alerts: collections.deque[Alert] = collections.deque(maxlen=16)
+
+    def poll(self) -> list[ResetRequest]:
+        """Verified reset requests received since the last call (oldest first)."""
+        with self._lock:
+            out = list(self._queue)
+            self._queue.clear()
+        return out
+
+    def on_query(self, query: zenoh.Query, boot: str, latch: Callable[[], str | None]) -> None:
+        payload = query.payload.to_bytes() if query.payload is not None else b""
+        signature = query.attachment.to_bytes() if query.attachment is not None else None
+        self.take(payload, signature, query, boot, latch)
+
+    def on_sample(self, sample: zenoh.Sample, boot: str,
+                  latch: Callable[[], str | None]) -> None:
+        signature = sample.attachment.to_bytes() if sample.attachment is not None else None
+        self.take(sample.payload.to_bytes(), signature, None, boot, latch)
+
+    def take(self, payload: bytes, signature: bytes | None, query: zenoh.Query | None,
+             boot: str, latch: Callable[[], str | None]) -> None:
+        """One request from the bus (``query``: the Zenoh query to answer, or None)."""
+        now = self._clock()
+        try:
+            with self._lock:  # bound to this boot and the latch published now
+                req = self.gate.check(payload, signature, now, boot=boot, latch=latch())
+        except ResetRefused as exc:
+            operator = _operator_of(payload)
+            with self._lock:
+                self.refused += 1
+                if operator is None:
+                    self.invalid += 1
+                self.last_reset = {"operator": operator, "accepted": False,
+                                   "message": f"refused by the bus: {exc}", "wall": time.time()}
+                self._alerts.append(Alert(
+                    "reset_refused", "warning",
+                    f"reset in the name of {operator or '?'} refused by the bus: {exc}", "bus",
+                    now, details={"operator": operator, "stage": "bus"}))
+            if query is not None:
+                _reply(query, self.key, {"accepted": False, "stage": "bus",
+                                         "reason": str(exc), "operator": operator})
+            return
+        except Exception:  # nothing a sender does may kill this callback
+            with self._lock:
+                self.invalid += 1
+            if query is not None:
+                _reply(query, self.key, {"accepted": False, "stage": "bus",
+                                         "reason": "malformed reset request"})
+            return
+        if req.confirm_clear:
+            with self._lock:
+                self._alerts.append(Alert(
+                    "reset_confirm_clear", "warning",
+                    f"{req.operator} confirms the cell is clear (looked): holds of lost persons "
+                    "may be released", "bus", now,
+                    details={"operator": req.operator, "request_id": req.request_id}))
+        with self._lock:
+            self._queue.append(req)
+            if query is not None:
+                self.pending[req.request_id] = (query, now + self.answer_s)
+
+    def answer(self, request_id: str, accepted: bool, message: str, stage: str,
+               state: str | None = None) -> None:
+        """Answer that request's query (if it is still waiting) and finalise it."""
+        with self._lock:
+            query, _ = self.pending.pop(request_id, (None, 0.0))
+        if query is not None:
+            _reply(query, self.key, {"accepted": accepted, "stage": stage,
+                                     "reason": message, "request_id": request_id,
+                                     "state": state})
+
+    def expire(self) -> None:
+        """Answer queries the policy has not decided on within ``answer_s``."""
+        now = self._clock()
+        with self._lock:
+            late = [rid for rid, (_, deadline) in self.pending.items() if now > deadline]
+        for rid in late:
+            self.answer(rid, False, "the monitor did not decide on this request in time "
+                        "(superseded by a newer request, or the pipeline is stalled)", "bus")
+
+    def answer_all(self, why: str) -> None:
+        with self._lock:
+            rids = list(self.pending)
+        for rid in rids:
+            self.answer(rid, False, why, "bus")
+
+    def drain_alerts(self) -> list[Alert]:
+        """Alerts of refused resets and of confirmed-clear resets, since the last call."""
+        with self._lock:
+            out = list(self._alerts)
+            self._alerts.clear()
+        return out
+
+
+def _operator_of(payload: bytes) -> str | None:
+    with contextlib.suppress(Exception):
+        op = json.loads(payload).get("operator")
+        if isinstance(op, str) and op.strip():
+            return op.strip()[:64]
+    return None
+
+
+def _reply(query: zenoh.Query, key: str, body: dict) -> None:
+    """Answer a reset query and finalise it (the querier's get then returns at once)."""
+    with contextlib.suppress(Exception):
+        query.reply(key, json.dumps({"schema": RESET_ANSWER_SCHEMA, **body}).encode(),
+                    encoding="application/json")
+    with contextlib.suppress(Exception):
+        query.drop()
