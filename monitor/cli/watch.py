@@ -8,8 +8,7 @@ import json
 import sys
 import time
 
-import zenoh
-
+from monitor.adapters.follower import subscribe
 from monitor.bus import BusConfig, BusKeys, CommandWatchdog, Verdict, default_instance, open_session
 from monitor.cell_consumer import CellWatchdog, parse_expect, subscribe_cell
 from monitor.cli.zenoh_args import add_zenoh_args, bus_config, nothing_found_hint, safe_json
@@ -137,20 +136,8 @@ def cmd_watch(args: argparse.Namespace) -> int:
 
 
 def _watch_subscriptions(session, keys: BusKeys, inbox, clock) -> list:
-    def attachment(s) -> bytes | None:
-        return s.attachment.to_bytes() if s.attachment is not None else None
-
-    def put(kind: str, *item) -> None:
-        inbox.put(kind, (kind, *item))
-
-    return [
-        session.declare_subscriber(keys.command, lambda s: put(
-            "command", s.payload.to_bytes(), attachment(s), clock(), time.time())),
-        session.declare_subscriber(keys.alert, lambda s: put(
-            "alert", s.payload.to_bytes(), attachment(s), clock())),
-        session.liveliness().declare_subscriber(keys.alive + "/*", lambda s: put(
-            "alive", str(s.key_expr), s.kind == zenoh.SampleKind.PUT, clock()), history=True),
-    ]
+    """What the reference consumer listens to: the adapters' own subscriptions (one code)."""
+    return subscribe(session, keys, inbox, clock)
 
 
 def _watch_loop(args, dog: CommandWatchdog, inbox, stop, clock, hint: str) -> None:
