@@ -56,11 +56,18 @@ class PeerWatch:
         """Refuse to start when a monitor's liveliness token is already present on the cell."""
         if check_s <= 0:
             return
-        others = []
-        with contextlib.suppress(Exception):
-            for reply in session.liveliness().get(self.alive_key + "/*", timeout=check_s):
-                if reply.ok is not None:
-                    others.append(str(reply.ok.key_expr).rsplit("/", 1)[-1])
+        others: list[str] = []
+        deadline = self._clock() + check_s
+        # asked again until the window ends: a client whose link to the router is still being
+        # set up gets an empty answer at once, and would miss a monitor that is live
+        while not others and (left := deadline - self._clock()) > 0:
+            asked = self._clock()
+            with contextlib.suppress(Exception):
+                for reply in session.liveliness().get(self.alive_key + "/*", timeout=left):
+                    if reply.ok is not None:
+                        others.append(str(reply.ok.key_expr).rsplit("/", 1)[-1])
+            if not others and self._clock() - asked < 0.05:
+                time.sleep(min(0.1, max(0.0, deadline - self._clock())))
         if others:
             raise DuplicateMonitor(
                 f"another monitor ({others[0]}) is already live {self.where()} "

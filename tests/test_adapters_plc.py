@@ -12,14 +12,11 @@ import subprocess
 import sys
 import threading
 import time
-from pathlib import Path
 
 import pytest
 
 pytest.importorskip("pymodbus")
 import contextlib
-
-from pymodbus.client import ModbusTcpClient
 
 from monitor.adapters import modbus_map as mm
 from monitor.adapters.modbus import ModbusOutput
@@ -30,10 +27,8 @@ from monitor.policy import Command, Latch, Reason
 from monitor.policy.model import ResetOutcome
 from monitor.signing import load_private_key, new_key_pair
 from tests.helpers import free_port, wait_for
+from tests.plc_kit import CELL, ROOT, TTL_MS, Plc, _env, start_adapter, stop_process
 
-CELL = "plc"
-TTL_MS = 300
-ROOT = Path(__file__).resolve().parents[1]
 STATE, SCALE, REASON, ZONE, HEARTBEAT, STATUS = 0, 1, 4, 5, 7, 11
 RUN, SLOW, STOP = 2, 1, 0
 
@@ -52,65 +47,12 @@ with SafetyBus(cfg) as bus:
 """
 
 
-def _env() -> dict:
-    return {**os.environ, "PYTHONPATH": str(ROOT)}
 
 
-class Plc:
-    """A pymodbus client as a PLC would use it: read the map, write the watchdog."""
-
-    def __init__(self, port: int) -> None:
-        self.client = ModbusTcpClient("127.0.0.1", port=port, timeout=2, retries=0)
-        self.client.connect()
-
-    def read(self) -> list[int] | None:
-        try:
-            r = self.client.read_holding_registers(0, count=mm.SIZE, device_id=1)
-        except Exception:
-            self.client.connect()
-            return None
-        return None if r.isError() else list(r.registers)
-
-    def write(self, address: int, *values: int):
-        if len(values) == 1:
-            return self.client.write_register(address, values[0], device_id=1)
-        return self.client.write_registers(address, list(values), device_id=1)
-
-    def wait(self, cond, timeout: float = 5.0) -> list[int] | None:
-        return wait_for(lambda: (r := self.read()) is not None and cond(r) and r, timeout)
-
-    def close(self) -> None:
-        self.client.close()
 
 
-def start_adapter(zport: int, mport: int, pub: Path, *extra: str) -> subprocess.Popen:
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "monitor", "bridge", "plc", "--connect",
-         f"tcp/127.0.0.1:{zport}", "--cell", CELL, "--monitor-key", str(pub),
-         "--ttl-ms", str(TTL_MS), "--modbus-listen", f"127.0.0.1:{mport}", "--zone", "P",
-         "--zone", "W", "--camera", "cam0", *extra],
-        cwd=ROOT, env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-
-    def up() -> bool:
-        if proc.poll() is not None:
-            raise AssertionError(f"the adapter exited: {proc.communicate()[1]}")
-        with socket.socket() as s:
-            return s.connect_ex(("127.0.0.1", mport)) == 0
-
-    assert wait_for(up, 30.0), "the adapter's Modbus server did not come up"
-    return proc
 
 
-def stop_process(proc: subprocess.Popen) -> str:
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGCONT)
-        proc.terminate()
-        try:
-            proc.wait(10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(10)
-    return proc.stderr.read() if proc.stderr else ""
 
 
 @pytest.fixture()

@@ -28,7 +28,7 @@ from monitor.cases.sets import (
 from monitor.policy import Command, Reason
 from monitor.signing import new_key_pair
 from tests.helpers import free_port, wait_for
-from tests.test_adapters_plc import CELL, TTL_MS, Plc, start_adapter, stop_process
+from tests.plc_kit import CELL, TTL_MS, Plc, start_adapter, stop_process
 
 CASE = mm.ADDRESS["monitoring_case"]
 ECHO, RESULT, COUNT, SETS = (mm.ADDRESS[n] for n in ("case_echo", "case_result", "case_count",
@@ -223,7 +223,7 @@ def test_bad_case_options_are_a_one_line_error(side, extra, needle):
     import subprocess
     import sys
 
-    from tests.test_adapters_plc import ROOT, _env
+    from tests.plc_kit import ROOT, _env
 
     _cfg, public, _, _ = side
     proc = subprocess.run([sys.executable, "-m", "monitor", "bridge", "plc", "--connect",

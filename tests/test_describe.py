@@ -19,8 +19,7 @@ from monitor.policy import (
 )
 from monitor.service_log import command_fields
 from monitor.timetext import video_time, wall_clock
-from tests.test_policy import frame, lost, reset, run, warmed
-from tests.test_policy_properties import CONFIGS, _inputs, sequences
+from tests.policy_kit import CONFIGS, _inputs, frame, lost, reset, run, sequences, warmed
 
 MANUAL = PolicyConfig()
 

@@ -20,60 +20,23 @@ from monitor.policy import (
     step,
 )
 from monitor.types import Fault, ZoneHit, ZoneReport
-
-AUTO = PolicyConfig(restart_interlock="auto")
-MANUAL = PolicyConfig()
-
+from tests.policy_kit import AUTO, MANUAL, frame, lost, prot, reset, run, tick, warmed, warn
 
 # --- small factories ---------------------------------------------------------------------------
 
 
-def prot(zone: str = "Z1", person: int = 0, distance: float | None = 0.0) -> ZoneHit:
-    return ZoneHit(zone, "protective", person, 0.0, distance)
 
 
-def warn(zone: str = "W1", scale: float = 0.5, person: int = 0) -> ZoneHit:
-    return ZoneHit(zone, "warning", person, scale, 1.2)
 
 
-def frame(t: float, *hits: ZoneHit, **kw) -> PolicyInputs:
-    """A fresh frame captured 20 ms before the decision at ``t``."""
-    return PolicyInputs(frame_time=t - 0.02, zone_report=ZoneReport(hits=tuple(hits)), **kw)
 
 
-def tick(**kw) -> PolicyInputs:
-    """A step without a new frame (timers only)."""
-    return PolicyInputs(**kw)
 
 
-def reset(t: float, operator: str = "op7") -> ResetRequest:
-    return ResetRequest(operator=operator, time=t, request_id=f"r{t}")
 
 
-def warmed(config: PolicyConfig = MANUAL, until: float = 1.0):
-    """State after clear frames (and fresh poses) from t=0 to ``until`` (RUN from clear_time)."""
-    state = initial_state()
-    t = 0.0
-    while t <= until + 1e-9:
-        state, cmd = step(state, frame(t, pose_time=t - 0.01), t, config)
-        t = round(t + 0.1, 6)
-    return state, cmd
 
 
-def run(timeline, config=MANUAL, state=None):
-    """Apply rows (t, inputs, state, scale or None, reason codes that must be present)."""
-    state = state if state is not None else warmed(config)[0]
-    commands = []
-    for t, inputs, want_state, want_scale, want_codes in timeline:
-        state, cmd = step(state, inputs, t, config)
-        codes = [r.code for r in cmd.reasons]
-        assert cmd.state == want_state, f"t={t}: {cmd.state} != {want_state} ({codes})"
-        if want_scale is not None:
-            assert cmd.speed_scale == pytest.approx(want_scale), f"t={t}: scale"
-        for code in want_codes:
-            assert code in codes, f"t={t}: reason {code} missing in {codes}"
-        commands.append(cmd)
-    return state, commands
 
 
 # --- start-up ------------------------------------------------------------------------------
@@ -432,9 +395,6 @@ def test_the_same_hits_in_another_order_are_the_same_command():
 # --- lost persons, latching faults, the latched state told honestly ------------------------------
 
 
-def lost(zone: str = "robot-protective", track: int = 3, since: float = 8.1,
-         kind: str = "protective", scale: float = 0.0) -> ZoneHit:
-    return ZoneHit(zone, kind, 0, scale, None, track_id=track, lost=True, lost_since=since)
 
 
 def test_person_lost_in_protective_zone_stops_and_refuses_reset_with_confirm_clear_hint():

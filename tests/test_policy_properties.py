@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import math
 import os
-from dataclasses import dataclass
 
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -20,111 +19,33 @@ from monitor.policy import (
     SLOW,
     STOP,
     PolicyConfig,
-    PolicyInputs,
-    ResetRequest,
     initial_state,
     step,
 )
-from monitor.types import Fault, ZoneHit, ZoneReport
-
-EXAMPLES = int(os.environ.get("POLICY_PROPERTY_EXAMPLES", "300"))
-STEPS = 40
-NAN = float("nan")
-
-CONFIGS = [
-    PolicyConfig(),
-    PolicyConfig(restart_interlock="auto"),
-    PolicyConfig(restart_interlock="auto", clear_time=0.5, separation_monitoring=True),
-    PolicyConfig(startup_requires_reset=True, clear_time=0.3, frame_timeout=0.3),
-]
-
-FAULTS = (
-    Fault("camera_lost", "gone", True, "cam0"),
-    Fault("camera_defocused", "blur", False, "cam0"),
-    Fault("monitor_stalled", "stalled", True, "service", latch=True),
-    Fault("odd", "latch without stop", False, "x", latch=True),
+from tests.policy_kit import (
+    CONFIGS,
+    Step,
+    _inputs,
+    sequences,
 )
 
-
-@dataclass(frozen=True)
-class Step:
-    dt: float
-    has_frame: bool
-    frame_age: float
-    hits: tuple[ZoneHit, ...]
-    separation: tuple[float, float] | None
-    separation_scale: float | None
-    faults: tuple[Fault, ...]
-    detector_error: bool
-    zone_error: bool
-    pose_age: float | None
-    reset_age: float | None
+EXAMPLES = int(os.environ.get("POLICY_PROPERTY_EXAMPLES", "300"))
 
 
-class _Bits:
-    """Decodes one integer into choices, the simplest option first (so hypothesis shrinks a
-    failing step towards a plain clear frame). Far cheaper to draw than nested strategies."""
-
-    def __init__(self, value: int) -> None:
-        self.value = value
-
-    def pick(self, options):
-        self.value, index = divmod(self.value, len(options))
-        return options[index]
 
 
-def _decode(value: int) -> Step:
-    b = _Bits(value)
-    dt = b.pick((0.1, 0.05, 0.2, 0.01, 0.1, 0.35, 0.6, 1.0, 1.3, 0.1))
-    has_frame = b.pick((True, True, True, False))
-    frame_age = b.pick((0.02, 0.0, 0.02, 0.1, 0.25, 0.31, 1.0, NAN, -0.5, math.inf))
-    hits = [
-        ZoneHit(b.pick(("W1", "W2", "P1", "P2")), b.pick(("warning", "protective")),
-                b.pick((0, 1, 2)), b.pick((0.5, 0.2, 1.0, 0.0, NAN)),
-                track_id=b.pick((None, 7, 8)), lost=b.pick((False, True)),
-                lost_since=b.pick((None, 1.0)))
-        for _ in range(b.pick((0, 0, 1, 1, 2, 3)))
-    ]
-    separation = b.pick((None, None, (2.0, 0.8), (0.9, 0.8), (0.2, 0.8), (NAN, 0.8),
-                         (math.inf, 0.8), (2.0, NAN), (2.0, math.inf)))
-    sep_scale = b.pick((None, None, 1.0, 0.8, 0.3, 0.0, NAN, -1.0))
-    faults = tuple(FAULTS[i] for i in b.pick(((), (), (), (0,), (1,), (2,), (3,), (0, 1))))
-    detector_error = b.pick((False,) * 9 + (True,))
-    zone_error = b.pick((False,) * 19 + (True,))
-    pose_age = b.pick((0.01, 0.05, None, 0.2, NAN))
-    reset_age = b.pick((None, None, None, 0.0, 0.5, 3.0, NAN))
-    return Step(dt, has_frame, frame_age, tuple(hits), separation, sep_scale, faults,
-                detector_error, zone_error, pose_age, reset_age)
 
 
-STEP_BYTES = 11  # enough bits for every choice of one step
 
 
-def _sequence(raw: bytes) -> list[Step]:
-    return [_decode(int.from_bytes(raw[i:i + STEP_BYTES], "little"))
-            for i in range(0, len(raw), STEP_BYTES)]
 
 
-# one draw per sequence: cheap to generate, and shrinks towards zero bytes = clear frames
-sequences = st.binary(min_size=STEPS * STEP_BYTES, max_size=STEPS * STEP_BYTES).map(_sequence)
 
 
-def _inputs(s: Step, now: float) -> PolicyInputs:
-    report = ZoneReport(
-        hits=s.hits,
-        tool_separation_m=s.separation[0] if s.separation else None,
-        required_separation_m=s.separation[1] if s.separation else None,
-        separation_speed_scale=s.separation_scale,
-    )
-    return PolicyInputs(
-        frame_time=now - s.frame_age if s.has_frame else None,
-        zone_report=report if s.has_frame else None,
-        faults=s.faults,
-        detector_error="detector raised" if s.detector_error else None,
-        pose_time=None if s.pose_age is None else now - s.pose_age,
-        zone_error="zones.yaml: bad" if s.zone_error else None,
-        reset_request=None if s.reset_age is None else ResetRequest("op", now - s.reset_age),
-    )
+
+
+
+
 
 
 def _zone_stop(s: Step) -> bool:

@@ -20,7 +20,7 @@ from monitor.policy import Command, Latch
 from monitor.resets import LatchNonces, reset_payload
 from monitor.signing import load_private_key, load_public_key, new_key_pair
 from tests.helpers import free_port, wait_for
-from tests.test_bus import make_tls
+from tests.tls import make_tls
 
 ZENOH = Path(__file__).resolve().parents[1] / "deploy" / "zenoh"
 USERS = {  # one dictionary for both routers here; on site each router has its own
