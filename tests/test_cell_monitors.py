@@ -36,9 +36,11 @@ def _config(tmp: Path, role: str, camera: str, router: int, instance: str | None
         new_key_pair(key)
     config = tmp / f"{instance or role}.toml"
     config.write_text(
-        f'[camera]\nsource = "{camera}"\n'
+        # 4 frames a second: three monitors, a router and the cameras share 2 cores here
+        f'[camera]\nsource = "{camera}"\nmax_fps = 4.0\n'
         '[model]\nallow_test_model = true\npath = "MODEL"\n'
         '[zones]\nallow_no_protective = true\n'
+        '[policy]\nframe_timeout = 1.0\nmax_frame_age = 1.0\n'
         f'[service]\n{CAPACITY}'
         f'[bus]\ncell = "{CELL}"\nrole = "{role}"\ninstance = "{instance or role}"\n'
         f'signing_key = "{key}"\noperators_file = "operators"\n'
