@@ -28,6 +28,7 @@ import os
 import threading
 import time
 
+from monitor.answers import request_answer
 from monitor.muting import MuteOutcome, MuteRequest
 from monitor.signing import verify
 from monitor.types import Alert
@@ -240,18 +241,5 @@ def reply(query, key: str, body: dict) -> None:
         query.drop()
 
 
-def request_mute(session, key_expr: str, payload: bytes, signature: bytes | None,
-                 timeout: float) -> dict | None:
-    """Send a mute request as a query and wait for the monitor's answer, ``{"accepted":
-    bool, "reason": str, "stage": "bus"|"pipeline", ...}``; None on timeout."""
-    for answer in session.get(key_expr, payload=payload, attachment=signature,
-                              timeout=timeout):
-        if answer.ok is None:
-            continue
-        try:
-            body = json.loads(answer.ok.payload.to_bytes())
-        except (ValueError, UnicodeDecodeError):
-            continue
-        if isinstance(body, dict) and isinstance(body.get("accepted"), bool):
-            return body
-    return None
+# the answer to a signed request: one mechanism for every kind (monitor/answers.py)
+request_mute = request_answer

@@ -35,8 +35,7 @@ import os
 import time
 from dataclasses import dataclass, field
 
-import zenoh
-
+from monitor.answers import request_answer
 from monitor.policy import ResetRequest
 from monitor.signing import Signer, verify
 
@@ -217,20 +216,5 @@ def _parse(payload: bytes) -> dict:
             **({"cell": cell} if cell else {})}
 
 
-def request_reset(session, key_expr: str, payload: bytes, signature: bytes | None,
-                  timeout: float) -> dict | None:
-    """Send a reset request as a query and wait for the monitor's answer (the first reply),
-    ``{"accepted": bool, "reason": str, "stage": "bus"|"policy", ...}``; None on timeout."""
-    # no consolidation: Zenoh's default would hold the monitor's answer until every queryable
-    # on the key finished (one that never does would hold it until ``timeout``)
-    for reply in session.get(key_expr, payload=payload, attachment=signature, timeout=timeout,
-                             consolidation=zenoh.ConsolidationMode.NONE):
-        if reply.ok is None:
-            continue
-        try:
-            body = json.loads(reply.ok.payload.to_bytes())
-        except (ValueError, UnicodeDecodeError):
-            continue
-        if isinstance(body, dict) and isinstance(body.get("accepted"), bool):
-            return body
-    return None
+# the answer to a signed request: one mechanism for every kind (monitor/answers.py)
+request_reset = request_answer

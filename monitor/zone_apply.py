@@ -29,6 +29,7 @@ import re
 import time
 from dataclasses import dataclass
 
+from monitor.answers import request_answer
 from monitor.resets import MAX_FIELD, MAX_RESET_PAYLOAD, _finite
 from monitor.signing import verify
 
@@ -144,17 +145,5 @@ def _parse(payload: bytes) -> dict:
             "wall": float(wall), "note": note, "boot": boot, **({"cell": cell} if cell else {})}
 
 
-def request_apply(session, key_expr: str, payload: bytes, signature: bytes | None,
-                  timeout: float) -> dict | None:
-    """Send a zone apply as a query; the monitor's answer ``{"accepted", "reason", ...}`` or
-    None on timeout."""
-    for reply in session.get(key_expr, payload=payload, attachment=signature, timeout=timeout):
-        if reply.ok is None:
-            continue
-        try:
-            body = json.loads(reply.ok.payload.to_bytes())
-        except (ValueError, UnicodeDecodeError):
-            continue
-        if isinstance(body, dict) and isinstance(body.get("accepted"), bool):
-            return body
-    return None
+# the answer to a signed request: one mechanism for every kind (monitor/answers.py)
+request_apply = request_answer

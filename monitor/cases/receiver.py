@@ -13,6 +13,7 @@ import time
 
 import zenoh
 
+from monitor.answers import request_answer
 from monitor.cases.requests import CaseGate, CasePolicy
 from monitor.cases.sets import CasePlan, Refusal, Selection
 from monitor.signing import load_operators
@@ -102,16 +103,5 @@ class CaseReceiver:
         self._take(sample.payload.to_bytes(), signature)
 
 
-def request_case(session: zenoh.Session, key_expr: str, payload: bytes,
-                 signature: bytes | None, timeout: float) -> dict | None:
-    """Send a selection as a query; the monitor's answer or None on timeout."""
-    for reply in session.get(key_expr, payload=payload, attachment=signature, timeout=timeout):
-        if reply.ok is None:
-            continue
-        try:
-            body = json.loads(reply.ok.payload.to_bytes())
-        except (ValueError, UnicodeDecodeError):
-            continue
-        if isinstance(body, dict) and isinstance(body.get("accepted"), bool):
-            return body
-    return None
+# the answer to a signed request: one mechanism for every kind (monitor/answers.py)
+request_case = request_answer
