@@ -30,7 +30,7 @@ import time
 
 from monitor.answers import request_answer
 from monitor.muting import MuteOutcome, MuteRequest
-from monitor.signing import verify
+from monitor.signed_requests import RequestIds, RequestKind, check_cell, check_signer, check_window
 from monitor.types import Alert
 
 MUTE_SCHEMA = "workcell.safety.mute/1"
@@ -41,6 +41,9 @@ MAX_FIELD = 256
 
 class MuteRefused(ValueError):
     """A mute request the bus refuses; the message is the reason told to the sender."""
+
+
+MUTE = RequestKind("mute", "mutes", MuteRefused)
 
 
 def mute_payload(operator: str, zone: str, duration_s: float, *, cell: str, boot: str,
@@ -64,7 +67,7 @@ class MuteGate:
         self.cell = cell
         self.key_expr = key_expr
         self.window_s = window_s
-        self._seen: collections.OrderedDict[str, float] = collections.OrderedDict()
+        self._ids = RequestIds(window_s)
 
     def check(self, payload: bytes, signature: bytes | None, received: float,
               wall_now: float | None = None, *, boot: str | None = None) -> MuteRequest:
@@ -72,32 +75,15 @@ class MuteGate:
         wall_now = time.time() if wall_now is None else wall_now
         body = _parse(payload)
         operator = body["operator"]
-        if self.operators is None:
-            raise MuteRefused("no operators configured on this monitor (bus.operators_file); "
-                              "mutes are refused")
-        if operator not in self.operators:
-            raise MuteRefused(f"unknown operator {operator!r}")
-        if signature is None:
-            raise MuteRefused(f"unsigned mute in the name of {operator!r}")
-        if not verify(self.operators[operator], self.key_expr, payload, signature):
-            raise MuteRefused(f"signature does not match operator {operator!r}")
-        if body["cell"] != self.cell:
-            raise MuteRefused(f"request is for cell {body['cell']!r}, this is {self.cell!r}")
+        check_signer(MUTE, self.operators, operator, self.key_expr, payload, signature)
+        check_cell(MUTE, body["cell"], self.cell)
         if boot is not None and body["boot"] != boot:
             raise MuteRefused(f"request names monitor boot {body['boot']!r}, this monitor runs "
                               f"boot {boot!r} (a request from before a restart?)")
         wall = body["wall"]
-        if not abs(wall - wall_now) <= self.window_s:
-            raise MuteRefused(f"request time is {wall - wall_now:+.1f} s off the monitor's "
-                              f"clock (allowed ±{self.window_s:g} s): replayed or clock wrong")
+        check_window(MUTE, wall, wall_now, self.window_s)
         rid = body["request_id"]
-        horizon = 2 * self.window_s
-        while self._seen and (wall_now - next(iter(self._seen.values())) > horizon
-                              or len(self._seen) > 10_000):
-            self._seen.popitem(last=False)
-        if rid in self._seen:
-            raise MuteRefused(f"request id {rid!r} was already used (replayed)")
-        self._seen[rid] = wall_now
+        self._ids.use(MUTE, rid, wall_now)
         return MuteRequest(body["zone"], operator, body["duration_s"], rid, received,
                            end=body["end"], wall=wall)
 

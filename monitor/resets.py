@@ -26,7 +26,6 @@ payload)`` is the attachment)::
 
 from __future__ import annotations
 
-import collections
 import hashlib
 import hmac
 import json
@@ -37,7 +36,8 @@ from dataclasses import dataclass, field
 
 from monitor.answers import request_answer
 from monitor.policy import ResetRequest
-from monitor.signing import Signer, verify
+from monitor.signed_requests import RequestIds, RequestKind, check_cell, check_signer, check_window
+from monitor.signing import Signer
 
 RESET_SCHEMA = "workcell.safety.reset/1"
 MAX_RESET_PAYLOAD = 8 * 1024
@@ -46,6 +46,9 @@ MAX_FIELD = 256
 
 class ResetRefused(ValueError):
     """A reset request the bus refuses; the message is the reason told to the sender."""
+
+
+RESET = RequestKind("reset", "resets", ResetRefused)
 
 
 def reset_payload(operator: str, request_id: str = "", note: str = "", *, cell: str = "",
@@ -115,7 +118,7 @@ class ResetGate:
 
     def __init__(self, policy: ResetPolicy) -> None:
         self.policy = policy
-        self._seen: collections.OrderedDict[str, float] = collections.OrderedDict()
+        self._ids = RequestIds(policy.window_s)
 
     def check(self, payload: bytes, signature: bytes | None, received: float,
               wall_now: float | None = None, *, boot: str | None = None,
@@ -127,19 +130,9 @@ class ResetGate:
         wall_now = time.time() if wall_now is None else wall_now
         body = _parse(payload)
         operator = body["operator"]
-        if p.operators is None:
-            if not p.allow_unsigned:
-                raise ResetRefused("no operators configured on this monitor (bus.operators_file)"
-                                   "; resets are refused")
-        elif operator not in p.operators:
-            raise ResetRefused(f"unknown operator {operator!r}")
-        elif signature is None:
-            raise ResetRefused(f"unsigned reset in the name of {operator!r}")
-        elif not verify(p.operators[operator], p.key_expr, payload, signature):
-            raise ResetRefused(f"signature does not match operator {operator!r}")
-        cell = body.get("cell", p.cell)
-        if cell != p.cell:
-            raise ResetRefused(f"request is for cell {cell!r}, this is {p.cell!r}")
+        check_signer(RESET, p.operators, operator, p.key_expr, payload, signature,
+                     allow_unsigned=p.allow_unsigned)
+        check_cell(RESET, body.get("cell", p.cell), p.cell)
         nonce = body["latch"]
         if not nonce:
             raise ResetRefused("reset request names no latch nonce (read it from the monitor's "
@@ -154,24 +147,12 @@ class ResetGate:
         if latch is not None and nonce != latch:
             raise ResetRefused(f"stale latch nonce {nonce!r}: the STOP latched now has nonce "
                                f"{latch!r} (a reset made for an earlier latch)")
-        wall = body["wall"]
-        if abs(wall - wall_now) > p.window_s:
-            raise ResetRefused(f"request time is {wall - wall_now:+.1f} s off the monitor's "
-                               f"clock (allowed ±{p.window_s:g} s): replayed or clock wrong")
+        check_window(RESET, body["wall"], wall_now, p.window_s)
         rid = body["request_id"]
-        self._forget(wall_now)
-        if rid in self._seen:
-            raise ResetRefused(f"request id {rid!r} was already used (replayed)")
-        self._seen[rid] = wall_now
+        self._ids.use(RESET, rid, wall_now)
         return ResetRequest(operator=operator, time=received, request_id=rid,
                             note=body["note"], confirm_clear=body["confirm_clear"],
                             latch=nonce)
-
-    def _forget(self, wall_now: float) -> None:
-        horizon = 2 * self.policy.window_s
-        while self._seen and (wall_now - next(iter(self._seen.values())) > horizon
-                              or len(self._seen) > 10_000):
-            self._seen.popitem(last=False)
 
 
 def _finite(value: int | float) -> bool:

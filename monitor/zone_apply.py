@@ -22,7 +22,6 @@ payload)`` is the attachment)::
 
 from __future__ import annotations
 
-import collections
 import json
 import os
 import re
@@ -31,7 +30,7 @@ from dataclasses import dataclass
 
 from monitor.answers import request_answer
 from monitor.resets import MAX_FIELD, MAX_RESET_PAYLOAD, _finite
-from monitor.signing import verify
+from monitor.signed_requests import RequestIds, RequestKind, check_cell, check_signer, check_window
 
 APPLY_SCHEMA = "workcell.safety.zones-apply/1"
 APPLY_ANSWER_SCHEMA = "workcell.safety.zones-apply-answer/1"
@@ -40,6 +39,9 @@ _HASH = re.compile(r"^[0-9a-f]{8,128}$")
 
 class ApplyRefused(ValueError):
     """A zone apply that is refused; the message is the one-line reason told to the sender."""
+
+
+APPLY = RequestKind("zone apply", "zone applies", ApplyRefused, sep=":")
 
 
 @dataclass(frozen=True)
@@ -74,42 +76,24 @@ class ApplyGate:
         self.cell = cell
         self.key_expr = key_expr
         self.window_s = window_s
-        self._seen: collections.OrderedDict[str, float] = collections.OrderedDict()
+        self._ids = RequestIds(window_s)
 
     def check(self, payload: bytes, signature: bytes | None, received: float,
               wall_now: float | None = None, *, boot: str | None = None) -> ApplyRequest:
         wall_now = time.time() if wall_now is None else wall_now
         body = _parse(payload)
         operator = body["operator"]
-        if self.operators is None:
-            raise ApplyRefused("no operators configured on this monitor (bus.operators_file): "
-                               "zone applies are refused")
-        if operator not in self.operators:
-            raise ApplyRefused(f"unknown operator {operator!r}")
-        if signature is None:
-            raise ApplyRefused(f"unsigned zone apply in the name of {operator!r}")
-        if not verify(self.operators[operator], self.key_expr, payload, signature):
-            raise ApplyRefused(f"signature does not match operator {operator!r}")
-        cell = body.get("cell", self.cell)
-        if cell != self.cell:
-            raise ApplyRefused(f"request is for cell {cell!r}, this is {self.cell!r}")
+        check_signer(APPLY, self.operators, operator, self.key_expr, payload, signature)
+        check_cell(APPLY, body.get("cell", self.cell), self.cell)
         if not body["boot"]:
             raise ApplyRefused("zone apply names no monitor boot (read it from the monitor's "
                                "status; `monitor zones apply` does)")
         if boot is not None and body["boot"] != boot:
             raise ApplyRefused(f"zone apply made for boot {body['boot']!r}, this monitor runs "
                                f"boot {boot!r} (a request from before a restart)")
-        if abs(body["wall"] - wall_now) > self.window_s:
-            raise ApplyRefused(f"request time is {body['wall'] - wall_now:+.1f} s off the "
-                               f"monitor's clock (allowed ±{self.window_s:g} s): replayed or "
-                               "clock wrong")
+        check_window(APPLY, body["wall"], wall_now, self.window_s)
         rid = body["request_id"]
-        while self._seen and (wall_now - next(iter(self._seen.values())) > 2 * self.window_s
-                              or len(self._seen) > 10_000):
-            self._seen.popitem(last=False)
-        if rid in self._seen:
-            raise ApplyRefused(f"request id {rid!r} was already used (replayed)")
-        self._seen[rid] = wall_now
+        self._ids.use(APPLY, rid, wall_now)
         return ApplyRequest(operator, rid, body["zones_hash"], body["note"], received)
 
 

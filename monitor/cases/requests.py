@@ -27,7 +27,7 @@ import time
 from dataclasses import dataclass
 
 from monitor.cases.sets import Refusal, Selection
-from monitor.signing import verify
+from monitor.signed_requests import RequestKind, check_cell, check_signer, check_window
 
 CASE_SCHEMA = "workcell.safety.case/1"
 MAX_CASE_PAYLOAD = 4 * 1024
@@ -36,6 +36,10 @@ MAX_FIELD = 128
 
 class CaseRefused(ValueError):
     """A selection the monitor refuses; the message is the reason told to the sender."""
+
+
+CASE = RequestKind("selection", "zone set selections", CaseRefused, signer="selector",
+                   signers_option="bus.selectors_file")
 
 
 def case_payload(selector: str, set_id: str, seq: int, *, cell: str = "",
@@ -72,22 +76,9 @@ class CaseGate:
         wall_now = time.time() if wall_now is None else wall_now
         body = _parse(payload)
         who = body["selector"]
-        if p.selectors is None:
-            raise CaseRefused("no selectors configured on this monitor (bus.selectors_file); "
-                              "zone set selections are refused")
-        if who not in p.selectors:
-            raise CaseRefused(f"unknown selector {who!r}")
-        if signature is None:
-            raise CaseRefused(f"unsigned selection in the name of {who!r}")
-        if not verify(p.selectors[who], p.key_expr, payload, signature):
-            raise CaseRefused(f"signature does not match selector {who!r}")
-        cell = body.get("cell", p.cell)
-        if cell != p.cell:
-            raise CaseRefused(f"selection is for cell {cell!r}, this is {p.cell!r}")
-        off = body["wall"] - wall_now
-        if abs(off) > p.window_s:
-            raise CaseRefused(f"selection time is {off:+.1f} s off the monitor's clock (allowed "
-                              f"±{p.window_s:g} s): replayed or clock wrong")
+        check_signer(CASE, p.selectors, who, p.key_expr, payload, signature)
+        check_cell(CASE, body.get("cell", p.cell), p.cell, noun="selection")
+        check_window(CASE, body["wall"], wall_now, p.window_s, noun="selection")
         last = self._last_seq.get(who)
         if last is not None and body["seq"] <= last:
             raise CaseRefused(f"seq {body['seq']} of {who!r} is not above its last {last} "

@@ -1,0 +1,89 @@
+"""What every signed request to the monitor checks the same way: who signed it, for which cell,
+when, and whether it was seen before.
+
+Resets (``monitor.resets``), mutes (``monitor.mute_requests``), zone applies
+(``monitor.zone_apply``) and zone set selections (``monitor.cases.requests``) each have their own
+payload and their own rules (a latch nonce, a zone, a hash, a seq), but the first checks are one
+rule, kept here so that a fix to one is a fix to all: the signer is listed and the Ed25519
+signature over (key, payload) is theirs; the request names this cell; its wall time is within the
+window of the monitor's clock; its request id was not used before (replay).
+
+Each check raises the caller's own refusal class (a ``ValueError`` whose message is the reason
+told to the sender), so callers keep their exception types and the wording their users see.
+"""
+
+from __future__ import annotations
+
+import collections
+from dataclasses import dataclass
+
+from monitor.signing import verify
+
+# request ids remembered at most (a flood of valid requests must not grow memory without bound)
+MAX_REMEMBERED = 10_000
+
+
+@dataclass(frozen=True)
+class RequestKind:
+    """How one kind of request is named in its refusals."""
+
+    name: str  # "reset", "mute", "zone apply", "selection"
+    plural: str  # "resets", "mutes", ...
+    refused: type[ValueError]  # the caller's refusal class
+    signer: str = "operator"  # "operator" or "selector"
+    signers_option: str = "bus.operators_file"
+    sep: str = ";"  # how the "no signers" refusal joins its two halves (kept as users know it)
+
+
+def check_signer(kind: RequestKind, signers: dict | None, who: str, key_expr: str,
+                 payload: bytes, signature: bytes | None, *,
+                 allow_unsigned: bool = False) -> None:
+    """Refuse unless ``who`` is a listed signer whose signature over (key, payload) this is.
+    ``signers`` None: no file configured, everything refused (unless ``allow_unsigned``, a lab
+    setting only resets have)."""
+    if signers is None:
+        if allow_unsigned:
+            return
+        raise kind.refused(f"no {kind.signer}s configured on this monitor ({kind.signers_option})"
+                           f"{kind.sep} {kind.plural} are refused")
+    if who not in signers:
+        raise kind.refused(f"unknown {kind.signer} {who!r}")
+    if signature is None:
+        raise kind.refused(f"unsigned {kind.name} in the name of {who!r}")
+    if not verify(signers[who], key_expr, payload, signature):
+        raise kind.refused(f"signature does not match {kind.signer} {who!r}")
+
+
+def check_cell(kind: RequestKind, cell: str, ours: str, noun: str = "request") -> None:
+    """Refuse a request made for another cell."""
+    if cell != ours:
+        raise kind.refused(f"{noun} is for cell {cell!r}, this is {ours!r}")
+
+
+def check_window(kind: RequestKind, wall: float, wall_now: float, window_s: float,
+                 noun: str = "request") -> None:
+    """Refuse a request whose wall time is outside the window of the monitor's clock: replayed
+    later, or a wrong clock."""
+    off = wall - wall_now
+    if not abs(off) <= window_s:  # also refuses NaN
+        raise kind.refused(f"{noun} time is {off:+.1f} s off the monitor's clock (allowed "
+                           f"±{window_s:g} s): replayed or clock wrong")
+
+
+class RequestIds:
+    """Request ids seen in the last ``2 x window_s`` seconds (and at most ``MAX_REMEMBERED``):
+    older ones are refused by the clock window anyway. Not thread-safe."""
+
+    def __init__(self, window_s: float) -> None:
+        self.window_s = window_s
+        self._seen: collections.OrderedDict[str, float] = collections.OrderedDict()
+
+    def use(self, kind: RequestKind, request_id: str, wall_now: float) -> None:
+        """Remember ``request_id``, or refuse it as replayed when it was used before."""
+        horizon = 2 * self.window_s
+        while self._seen and (wall_now - next(iter(self._seen.values())) > horizon
+                              or len(self._seen) > MAX_REMEMBERED):
+            self._seen.popitem(last=False)
+        if request_id in self._seen:
+            raise kind.refused(f"request id {request_id!r} was already used (replayed)")
+        self._seen[request_id] = wall_now

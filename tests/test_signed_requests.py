@@ -1,0 +1,77 @@
+"""The checks every signed request shares (monitor.signed_requests): signer, cell, clock window,
+request ids. Each gate's own tests (resets, mutes, zone applies, selections) check the wording
+their users see; these check the rules themselves, once."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
+
+from monitor.signed_requests import (
+    MAX_REMEMBERED,
+    RequestIds,
+    RequestKind,
+    check_cell,
+    check_signer,
+    check_window,
+)
+from monitor.signing import Signer
+
+
+class Refused(ValueError):
+    pass
+
+
+KIND = RequestKind("thing", "things", Refused)
+KEY = "safety/thing"
+
+
+def _signer() -> tuple[Signer, dict]:
+    private = Ed25519PrivateKey.generate()
+    return Signer(private), {"anna": private.public_key()}
+
+
+def test_only_a_listed_signer_with_its_own_signature_passes() -> None:
+    signer, signers = _signer()
+    payload = b'{"x": 1}'
+    check_signer(KIND, signers, "anna", KEY, payload, signer.sign(KEY, payload))
+    with pytest.raises(Refused, match="unknown operator 'bob'"):
+        check_signer(KIND, signers, "bob", KEY, payload, signer.sign(KEY, payload))
+    with pytest.raises(Refused, match="unsigned thing in the name of 'anna'"):
+        check_signer(KIND, signers, "anna", KEY, payload, None)
+    with pytest.raises(Refused, match="signature does not match"):  # another payload
+        check_signer(KIND, signers, "anna", KEY, b'{"x": 2}', signer.sign(KEY, payload))
+    with pytest.raises(Refused, match="signature does not match"):  # another key
+        check_signer(KIND, signers, "anna", "safety/other", payload, signer.sign(KEY, payload))
+    other, _ = _signer()
+    with pytest.raises(Refused, match="signature does not match"):  # someone else's key
+        check_signer(KIND, signers, "anna", KEY, payload, other.sign(KEY, payload))
+
+
+def test_no_signers_file_refuses_everything_unless_unsigned_is_allowed() -> None:
+    with pytest.raises(Refused, match=r"no operators configured .*things are refused"):
+        check_signer(KIND, None, "anna", KEY, b"{}", b"x" * 64)
+    check_signer(KIND, None, "anna", KEY, b"{}", None, allow_unsigned=True)
+
+
+def test_other_cell_and_clock_window() -> None:
+    check_cell(KIND, "cell1", "cell1")
+    with pytest.raises(Refused, match="is for cell 'cell2', this is 'cell1'"):
+        check_cell(KIND, "cell2", "cell1")
+    check_window(KIND, 1000.0 + 30.0, 1000.0, 30.0)
+    for wall in (1000.0 + 30.5, 1000.0 - 30.5, math.nan, math.inf):
+        with pytest.raises(Refused, match="off the monitor's clock"):
+            check_window(KIND, wall, 1000.0, 30.0)
+
+
+def test_request_ids_refuse_a_replay_and_stay_bounded() -> None:
+    ids = RequestIds(window_s=30.0)
+    ids.use(KIND, "a", 1000.0)
+    with pytest.raises(Refused, match="'a' was already used"):
+        ids.use(KIND, "a", 1059.0)  # within 2 x window: still remembered
+    ids.use(KIND, "a", 1000.0 + 61.0 + 59.0)  # forgotten after 2 x window (then refused by it)
+    for i in range(MAX_REMEMBERED + 50):
+        ids.use(KIND, f"r{i}", 2000.0)
+    assert len(ids._seen) <= MAX_REMEMBERED + 1
