@@ -120,6 +120,10 @@ def test_mute_reaches_only_the_named_role_signed_for_its_key(cell, tmp_path):
                   "--key", str(private), timeout=2.0)
     assert_one_line_error(silent, "monitor mute: no monitor answered on "
                           "workcell/rl/safety/status", "monitor-a, monitor-b: pass --role")
+    typo = _run(cell, "mute", "robot-protective", "--for", "30s", "--operator", "anna",
+                "--key", str(private), "--role", "monitor-c", timeout=2.0)
+    assert_one_line_error(typo, "safety/monitor-c/status", "cell 'rl' are monitor-a, "
+                          "monitor-b: check --role")
     assert a.asked(a.keys.mute) == [] and len(b.asked(b.keys.mute)) == 1
 
 
