@@ -141,3 +141,96 @@ def test_line_and_cell_routers_linked_carry_signed_commands_and_keep_resets_at_t
             except subprocess.TimeoutExpired:
                 proc.kill()
                 proc.wait(5)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("config", ["router-cell.json5", "router-secure.json5"])
+def test_router_acl_gives_each_role_the_rights_of_the_cells_only_monitor(tmp_path, config):
+    """A cell with roles through the shipped router ACL: the monitor user's role keys (command,
+    token, status, reset and mute queryables) work; a read-only user can neither command nor
+    hold for a role, nor send an operator's correctly signed reset or mute; the cell router's
+    monitor user cannot command another cell."""
+    from monitor.cell_consumer import CellWatchdog
+    from monitor.mute_requests import mute_payload
+
+    tls = make_tls(tmp_path)
+    users = {**USERS, "rogue": "r-pw"}
+    (tmp_path / "users.txt").write_text("".join(f"{u}:{p}\n" for u, p in users.items()))
+    port = free_port()
+    conf = _site_config(tmp_path, config, tls)
+    signing_key, _, _ = new_key_pair(tmp_path / "monitor-a.key")
+    operator_key, _, operator_public = new_key_pair(tmp_path / "operator1.key")
+    (tmp_path / "operators").write_text(f"operator1 {operator_public}\n")
+
+    def client(user: str, **kw) -> BusConfig:
+        return BusConfig(cell="cell1", mode="client", instance=kw.pop("instance", user),
+                         zenoh_config_file=str(ZENOH / "client-secure.json5"),
+                         connect=(f"tls/localhost:{port}",), tls_root_ca=str(tls["ca"]),
+                         user=user, password=users[user], **kw)
+
+    keys = BusKeys.of("workcell/cell1/", "monitor-a")
+    other_cell = BusKeys.of("workcell/cell2/", "monitor-a")
+    dog = CellWatchdog({"monitor-a": (load_public_key(str(signing_key) + ".pub"),)},
+                       "workcell/cell1/", cell="cell1")
+    seen: list[tuple[str, dict]] = []
+
+    def on_sample(sample: zenoh.Sample) -> None:
+        payload, key = sample.payload.to_bytes(), str(sample.key_expr)
+        seen.append((key, json.loads(payload)))
+        if key.endswith("/command"):
+            sig = sample.attachment.to_bytes() if sample.attachment is not None else None
+            dog.on_command(payload, time.monotonic(), sig, wall_now=time.time(), key_expr=key)
+
+    router = _router(conf, port)
+    try:
+        with open_session(client("viewer")) as controller, \
+                SafetyBus(client("monitor", instance="mon-a", role="monitor-a",
+                                 signing_key=str(signing_key),
+                                 operators_file=str(tmp_path / "operators"))) as bus, \
+                open_session(client("rogue")) as rogue, \
+                open_session(client("operator1")) as panel:
+            controller.declare_subscriber("workcell/**", on_sample)
+            controller.liveliness().declare_subscriber(
+                "workcell/cell1/safety/alive/**", lambda s: dog.on_liveliness(
+                    str(s.key_expr), s.kind == zenoh.SampleKind.PUT), history=True)
+            # the role's command and token reach the consumer through the router
+            assert wait_for(lambda: bus._pub_command.matching_status.matching, timeout=10)
+            bus.publish_command(Command("RUN", 1.0, ()))
+            assert wait_for(lambda: dog.verdict(time.monotonic()).state == "RUN", timeout=5), \
+                dog.verdict(time.monotonic())
+            # everyone may read the role's status
+            replies = list(controller.get(keys.status, timeout=3.0))
+            assert json.loads(replies[0].ok.payload.to_bytes())["role"] == "monitor-a"
+
+            # a read-only user cannot command or hold for the role, nor release or mute with an
+            # operator's correctly signed request
+            for key in (keys.command, keys.holds):
+                rogue.put(key, json.dumps({"state": "RUN", "instance": "rogue"}))
+            latch = LatchNonces(bus.boot)(1)
+            bus.publish_command(Command("STOP", 0.0, (), 1.0, latched=True, latched_by=Latch(
+                "protective_zone", "person 0 in P1", 1.0, nonce=latch)))
+            reset = reset_payload("operator1", cell="cell1", boot=bus.boot, latch=latch)
+            reset_sig = load_private_key(operator_key).sign(keys.reset, reset)
+            mute = mute_payload("operator1", "P1", 30.0, cell="cell1", boot=bus.boot)
+            mute_sig = load_private_key(operator_key).sign(keys.mute, mute)
+            rogue.put(keys.reset, reset, attachment=reset_sig)
+            rogue.get(keys.reset, payload=reset, attachment=reset_sig, timeout=1.0)
+            rogue.get(keys.mute, payload=mute, attachment=mute_sig, timeout=1.0)
+            if config == "router-cell.json5":  # this router serves cell1 only
+                bus.session.put(other_cell.command, json.dumps({"instance": "mon-a-cell2"}))
+            time.sleep(1.0)
+            assert bus.poll_resets() == [] and bus.poll_mutes() == ()
+            assert not any(body.get("instance") in ("rogue", "mon-a-cell2")
+                           for _, body in seen), seen
+            # the cell's operator may: the same requests reach the role's monitor
+            panel.get(keys.mute, payload=mute, attachment=mute_sig, timeout=1.0)
+            assert [m.operator for m in wait_for(bus.poll_mutes, timeout=5)] == ["operator1"]
+            panel.put(keys.reset, reset, attachment=reset_sig)
+            assert [r.operator for r in wait_for(bus.poll_resets, timeout=5)] == ["operator1"]
+    finally:
+        router.terminate()
+        try:
+            router.wait(10)
+        except subprocess.TimeoutExpired:
+            router.kill()
+            router.wait(5)

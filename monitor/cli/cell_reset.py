@@ -13,7 +13,8 @@ from __future__ import annotations
 import argparse
 import time
 
-from monitor.busconfig import BusConfig, BusKeys
+from monitor.busconfig import BusConfig
+from monitor.cli.roles import role_keys
 from monitor.resets import latch_of_status, request_reset, reset_payload
 from monitor.signals import Interrupted, call_interruptible
 
@@ -23,7 +24,7 @@ def reset_roles(args: argparse.Namespace, bus: BusConfig, session, signer, stop,
     """Reset every latched monitor of ``args.role``; print one line per role; the exit code."""
     refused = silent = latched = 0
     for role in args.role:
-        keys = BusKeys.of(bus.key_prefix, role)
+        keys = role_keys(bus, role)
         if stop.is_set():
             return 130
         status = first_status(session, keys, args.timeout, stop)

@@ -11,9 +11,10 @@ import re
 import sys
 import time
 
-from monitor.bus import BusKeys, default_instance, open_session
+from monitor.bus import default_instance, open_session
 from monitor.cli.keys import KEY_DIR
 from monitor.cli.operator import _first_status, _operator_key_path
+from monitor.cli.roles import add_role_arg, no_answer, role_keys
 from monitor.cli.zenoh_args import add_zenoh_args as _add_zenoh_args
 from monitor.cli.zenoh_args import bounded as _bounded
 from monitor.cli.zenoh_args import bus_config as _bus_config
@@ -47,7 +48,7 @@ def cmd_mute(args: argparse.Namespace) -> int:
     signer = load_private_key(key_path)
     with StopSignals(name="monitor mute") as stop:
         bus = _bus_config(args, instance=args.instance or default_instance("mute"))
-        keys = BusKeys.of(bus.key_prefix)
+        keys = role_keys(bus, args.role)
         try:
             session = call_interruptible(lambda: open_session(bus), stop)
         except Interrupted:
@@ -59,8 +60,8 @@ def cmd_mute(args: argparse.Namespace) -> int:
             if status is None:
                 if stop.is_set():
                     return 130
-                raise ConfigError(f"monitor mute: no monitor answered on {keys.status} within "
-                                  f"{args.timeout:g} s; {_nothing_found_hint(bus)}")
+                raise no_answer("monitor mute", keys.status, args.timeout, bus, session, stop,
+                                args.role)
             boot = status.get("boot") if isinstance(status.get("boot"), str) else ""
             payload = mute_payload(args.operator, args.zone, duration, end=args.end,
                                    cell=status.get("cell") or bus.cell, boot=boot,
@@ -78,7 +79,9 @@ def cmd_mute(args: argparse.Namespace) -> int:
                           f"{args.timeout:g} s; {_nothing_found_hint(bus)}")
     verdict = "accepted" if answer["accepted"] else "REFUSED"
     what = "end of the mute of" if args.end else "mute of"
-    print(f"{what} zone {args.zone} by {args.operator} {verdict}: {answer.get('reason', '')}")
+    by = f"{args.role}: " if args.role else ""
+    print(f"{by}{what} zone {args.zone} by {args.operator} {verdict}: "
+          f"{answer.get('reason', '')}")
     if not answer["accepted"]:
         print(f"monitor mute: refused by the {answer.get('stage', 'monitor')}", file=sys.stderr)
     return 0 if answer["accepted"] else 1
@@ -101,6 +104,8 @@ def register(subparsers) -> None:
     p.add_argument("--key", metavar="FILE", help="the operator's private key (default "
                    f"{KEY_DIR}/<operator>.key when it exists)")
     _add_zenoh_args(p, default_connect=True)
+    add_role_arg(p, many=False, what="the zone is muted in that monitor's zones only (each "
+                 "monitor of a cell has its own zone file and mutes)")
     p.add_argument("--request-id", default="",
                    help="unique id of this request (default <operator>-<time>-<random>)")
     p.add_argument("--timeout", type=float, default=3.0,

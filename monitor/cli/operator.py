@@ -14,6 +14,7 @@ import zenoh
 
 from monitor.bus import BusKeys, default_instance, open_session
 from monitor.cli.keys import KEY_DIR
+from monitor.cli.roles import add_role_arg, no_answer, role_keys
 from monitor.cli.zenoh_args import (
     add_zenoh_args,
     bounded,
@@ -42,7 +43,7 @@ def cmd_reset(args: argparse.Namespace) -> int:
     nothing answered."""
     with StopSignals(name="monitor reset") as stop:
         bus = bus_config(args, instance=args.instance or default_instance("reset"))
-        keys = BusKeys.of(bus.key_prefix)
+        keys = role_keys(bus)
         key_path = _operator_key_path(args)
         signer = load_private_key(key_path) if key_path else None
         if signer is None:
@@ -65,8 +66,7 @@ def cmd_reset(args: argparse.Namespace) -> int:
             if status is None:
                 if stop.is_set():
                     return 130
-                raise ConfigError(f"monitor reset: no monitor answered on {keys.status} within "
-                                  f"{args.timeout:g} s; {nothing_found_hint(bus)}")
+                raise no_answer("monitor reset", keys.status, args.timeout, bus, session, stop)
             boot, latch = latch_of_status(status)
             if latch is None:
                 print(f"monitor reset: nothing to reset: the monitor is not latched (state "
@@ -156,25 +156,36 @@ def _first_status(session, keys: BusKeys, timeout: float, stop) -> dict | None:
 def cmd_status(args: argparse.Namespace) -> int:
     with StopSignals(name="monitor status") as stop:
         bus = bus_config(args, instance=args.instance or default_instance("status"))
-        keys = BusKeys.of(bus.key_prefix)
+        roles = list(dict.fromkeys(args.role)) or [""]
         try:
             session = call_interruptible(lambda: open_session(bus), stop)
         except Interrupted:
             return 130
-        started = time.monotonic()
+        answered: list[tuple[str, BusKeys, list[dict], float]] = []
         with bounded(session, "monitor status") as session:
-            # every monitor that answers within STATUS_GRACE_S of the first is shown (two
-            # monitors on one cell is a fault the operator must see)
-            answers = ask(session, keys.status, args.timeout, stop, _any_json, STATUS_GRACE_S)
-        waited = time.monotonic() - started
-    if stop.is_set():
-        return 130
-    if not answers:
-        raise ConfigError(f"monitor status: no answer on {keys.status} within {waited:.1f} s; "
-                          f"{nothing_found_hint(bus)}")
-    for body in answers:
-        print(json.dumps(body, indent=2))
-    return 0
+            for role in roles:
+                keys = role_keys(bus, role)
+                started = time.monotonic()
+                # every monitor that answers within STATUS_GRACE_S of the first is shown (two
+                # monitors on one cell, or of one role, is a fault the operator must see)
+                answers = ask(session, keys.status, args.timeout, stop, _any_json,
+                              STATUS_GRACE_S)
+                answered.append((role, keys, answers, time.monotonic() - started))
+                if stop.is_set():
+                    return 130
+            if roles == [""] and not answers:
+                raise no_answer("monitor status", keys.status, args.timeout, bus, session,
+                                stop)
+    silent = 0
+    for role, keys, answers, waited in answered:
+        if role and not answers:
+            silent += 1
+            print(f"{role}: NO ANSWER on {keys.status} within {waited:.1f} s")
+        for body in answers:
+            if role:
+                print(f"{role}:")
+            print(json.dumps(body, indent=2))
+    return 2 if silent else 0
 
 
 def _any_json(payload: bytes) -> dict | None:
@@ -203,14 +214,17 @@ def register(subparsers) -> None:
     p.add_argument("--note", default="", help="free text for the log (default empty)")
     p.add_argument("--timeout", type=float, default=3.0,
                    help="s to wait for the monitor's answer (default 3)")
-    p.add_argument("--role", action="append", default=[], metavar="ROLE",
-                   help="a monitor of the cell by its [bus] role (repeatable: name every "
-                   "monitor of the cell); each latched one gets its own signed request and "
-                   "answers; exit 0 only when all accepted (default: the cell's only monitor)")
+    add_role_arg(p, many=True, what="name every monitor of the cell: each latched one gets "
+                 "its own signed request and answers; exit 0 only when all accepted")
     p.set_defaults(func=cmd_reset)
 
-    p = subparsers.add_parser("status", help="query the monitor's status")
+    p = subparsers.add_parser(
+        "status", help="query the monitor's status",
+        description="Prints the status of the cell's monitor as JSON (every monitor that "
+        "answers, as a second one on the cell is a fault to see). With --role: each named "
+        "monitor's status under a line with its role; exit 2 when any did not answer.")
     add_zenoh_args(p, default_connect=True)
+    add_role_arg(p, many=True, what="each one's status is printed under its role's name")
     p.add_argument("--timeout", type=float, default=3.0,
                    help="s to wait for an answer (default 3)")
     p.set_defaults(func=cmd_status)

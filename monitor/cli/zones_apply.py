@@ -19,6 +19,7 @@ from monitor.errors import ConfigError
 
 def register(sub: argparse._SubParsersAction) -> None:
     from monitor.cli.keys import KEY_DIR
+    from monitor.cli.roles import add_role_arg
     from monitor.cli.zenoh_args import add_zenoh_args as _add_zenoh_args
 
     p = sub.add_parser(
@@ -29,6 +30,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "then decides with it (STOP until every camera is checked on the new zones, then "
         "clear_time). Exit 0 applied, 1 refused, 2 no answer or bad input.")
     _add_zenoh_args(p, default_connect=True)
+    add_role_arg(p, many=False, what="its zone file is read, signed and applied (each monitor of "
+                 "a cell has its own zone file)")
     p.add_argument("--operator", required=True, help="operator id, as in the monitor's "
                    "operators file (required)")
     p.add_argument("--key", metavar="FILE", help="the operator's private key (default "
@@ -44,8 +47,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def cmd_apply(args: argparse.Namespace) -> int:
     from monitor import zones as zn
-    from monitor.bus import BusKeys, default_instance, open_session
+    from monitor.bus import default_instance, open_session
     from monitor.cli.operator import _first_status, _operator_key_path
+    from monitor.cli.roles import no_answer, role_keys
     from monitor.cli.zenoh_args import bounded as _bounded
     from monitor.cli.zenoh_args import bus_config as _bus_config
     from monitor.cli.zenoh_args import nothing_found_hint as _nothing_found_hint
@@ -55,7 +59,7 @@ def cmd_apply(args: argparse.Namespace) -> int:
 
     with StopSignals(name="monitor zones apply") as stop:
         bus = _bus_config(args, instance=args.instance or default_instance("zones-apply"))
-        keys = BusKeys.of(bus.key_prefix)
+        keys = role_keys(bus, args.role)
         key_path = _operator_key_path(args)
         signer = load_private_key(key_path) if key_path else None
         if signer is None:
@@ -73,8 +77,8 @@ def cmd_apply(args: argparse.Namespace) -> int:
             if status is None:
                 if stop.is_set():
                     return 130
-                raise ConfigError(f"monitor zones apply: no monitor answered on {keys.status} "
-                                  f"within {args.timeout:g} s; {_nothing_found_hint(bus)}")
+                raise no_answer("monitor zones apply", keys.status, args.timeout, bus, session,
+                                stop, args.role)
             if args.zones is None:
                 path = status.get("zones_file")
                 if not path:
@@ -97,8 +101,9 @@ def cmd_apply(args: argparse.Namespace) -> int:
     if answer is None:
         raise ConfigError(f"monitor zones apply: no monitor answered on {keys.zones_apply} "
                           f"within {args.timeout:g} s; {_nothing_found_hint(bus)}")
+    by = f"{args.role}: " if args.role else ""
     if answer["accepted"]:
-        print(f"zones applied by {args.operator}: {answer.get('reason', '')}")
+        print(f"{by}zones applied by {args.operator}: {answer.get('reason', '')}")
         return 0
-    print(f"zone apply by {args.operator} REFUSED: {answer.get('reason', '')}")
+    print(f"{by}zone apply by {args.operator} REFUSED: {answer.get('reason', '')}")
     return 1
