@@ -8,13 +8,32 @@ threads, and this module's pure ``assess`` compares that with the config:
 - cameras run in turn, so one *cycle* (every camera processed once) costs ``n x frame_s``;
   ``frame_s`` is the measured detection time times ``PIPELINE_FACTOR`` (the rest of a step:
   tracks, zones, health, policy, publishing; the pipeline benchmark measures bare inference at
-  0.74 of a whole step at 1080p) plus the time to read and decode a frame;
-- a camera's newest processed frame is at most ``max(cycle, 1 / max_fps) + frame_s`` old when
-  the policy decides: that must stay under ``policy.max_frame_age``;
+  0.74 of a whole step at 1080p) plus the time to read and decode a frame, ``DECODE_S_PER_MP``
+  per megapixel of the camera's frame (it grows with the resolution);
+- a frame's *latency* (capture to decision) is the worst case of cameras in turn: every
+  camera's frame arrives at once and this one is processed last, ``n`` steps after its own
+  decoding, each step slowed by the other cameras' grabbers decoding on the same cores
+  (``CONTENTION`` per further camera), plus ``TAIL_S`` for the p99 tail (scheduler, GC,
+  onnxruntime threads waking): ``TAIL_S + decode + n x step x (1 + CONTENTION x (n - 1))``;
+- a camera's newest processed frame is at most ``max(cycle, 1 / max_fps) + latency`` old when
+  the policy decides (a whole interval until the next one is decided on): that must stay
+  under ``policy.max_frame_age``;
 - the gap between two decisions (one frame) must stay under ``bus.stall_timeout``, or the bus
   publishes "stalled" STOPs between them, and a cycle under ``policy.frame_timeout``;
 - cameras with ``max_fps`` ask for ``sum(max_fps)`` frames a second: more than the host
   processes is refused.
+
+Where the constants come from: ``benchmarks/capacity.py`` on a quiet 2-core host (1080p
+cameras paced at 10 fps, 2 inference threads; a 1080p frame decodes in 3.5 ms, 1.7 ms per
+megapixel). Measured p99 capture-to-decision latency: int8 (10.1 ms detection) 39 / 52 / 137 ms
+at 1 / 2 / 4 cameras, fp32 (19.1 ms) 53 / 66 / 228 ms. The former fixed 3 ms read allowance and
+one step of latency predicted 117 and 144 ms frame ages at 4 cameras, under those latencies
+alone: the decoding of 4 streams competing with inference for 2 cores and the tail were
+missing. ``TAIL_S`` covers the 1-camera p99 (25 ms over decode + step) and ``CONTENTION``
+the 4-camera one (0.4: int8 149 >= 137 ms, fp32 256 >= 228 ms predicted); they stay
+conservative on more cores. The processed fps keeps the throughput model (``frame_s``, measured
+9.0 fps against 8.7 predicted for fp32 at 4 cameras): the contention delays frames that arrive
+together, it does not lower the average rate.
 
 It refuses (one line saying what to change) when a limit is exceeded and warns when a figure
 uses more than ``THIN_MARGIN`` of its limit. What it cannot know: a camera's real frame rate
@@ -24,6 +43,7 @@ STOP then).
 
 from __future__ import annotations
 
+import dataclasses
 import statistics
 import time
 from collections.abc import Callable, Sequence
@@ -35,8 +55,14 @@ from monitor.errors import ConfigError
 
 # a whole step costs this many times the bare detection (benchmarks/pipeline.py: 0.74 at 1080p)
 PIPELINE_FACTOR = 1.35
-# reading and decoding one frame (1080p H.264: 1.5-2 ms measured), a fixed allowance
-READ_S = 0.003
+# reading and decoding one frame, per megapixel (benchmarks/capacity.py: 3.5 ms for a 1080p
+# frame on a quiet host = 1.7 ms/MP; 1080p H.264 1.5-2 ms): 1080p gets 4.1 ms
+DECODE_S_PER_MP = 0.002
+# each further camera slows a step by this share while frames arrive together: its grabber
+# decodes on the same cores (benchmarks/capacity.py: 4 cameras on 2 cores, see above)
+CONTENTION = 0.4
+# the p99 tail of a frame's latency over decode + steps (benchmarks/capacity.py: 1 camera)
+TAIL_S = 0.025
 # a figure above this share of its limit is a warning: little room for load or a slower frame
 THIN_MARGIN = 0.7
 TIMED_RUNS = 5
@@ -73,17 +99,20 @@ class Capacity:
     frames_per_s: float  # what the host processes in all
     refusal: str | None
     warnings: tuple[str, ...]
+    latency_s: float = 0.0  # p99 capture to decision of a frame, cameras in turn
 
     def describe(self) -> str:
         """One log line with the figures."""
         cams = ", ".join(f"{c} {self.processed_fps[c]:.1f} fps (frame age <= "
                          f"{self.frame_age_s[c] * 1e3:.0f} ms)" for c in self.processed_fps)
         return (f"capacity: {self.frame_s * 1e3:.1f} ms a frame, {self.frames_per_s:.1f} frames/s "
-                f"in all; cycle {self.cycle_s * 1e3:.0f} ms; {cams}")
+                f"in all; cycle {self.cycle_s * 1e3:.0f} ms; latency <= "
+                f"{self.latency_s * 1e3:.0f} ms; {cams}")
 
     def to_dict(self) -> dict:
         return {"frame_ms": round(self.frame_s * 1e3, 2), "cycle_ms": round(self.cycle_s * 1e3, 1),
                 "frames_per_s": round(self.frames_per_s, 2),
+                "latency_ms": round(self.latency_s * 1e3, 1),
                 "cameras": {c: {"fps": round(self.processed_fps[c], 2),
                                 "frame_age_ms": round(self.frame_age_s[c] * 1e3, 1)}
                             for c in self.processed_fps},
@@ -95,15 +124,18 @@ def assess(detect_s: float, cameras: Sequence[CameraDemand], limits: Limits) -> 
     if not (detect_s > 0 and np.isfinite(detect_s)):
         raise ConfigError(f"capacity: the detector's time per frame could not be measured "
                           f"({detect_s!r} s)")
-    frame_s = detect_s * PIPELINE_FACTOR + READ_S
     n = len(cameras)
+    decode_s = max(decode_time_s(c.width, c.height) for c in cameras)
+    step_s = detect_s * PIPELINE_FACTOR
+    frame_s = step_s + decode_s
     cycle = n * frame_s
     capacity_fps = 1.0 / frame_s
+    latency = TAIL_S + decode_s + n * step_s * (1.0 + CONTENTION * (n - 1))
     fps, age = {}, {}
     for cam in cameras:
         interval = cycle if cam.max_fps is None else max(cycle, 1.0 / cam.max_fps)
         fps[cam.camera_id] = 1.0 / interval
-        age[cam.camera_id] = interval + frame_s
+        age[cam.camera_id] = interval + latency
     hints = ["fewer cameras", "a smaller [detector] input_size", "an int8 model",
              "a faster host"]
     problems, warnings = [], []
@@ -134,7 +166,12 @@ def assess(detect_s: float, cameras: Sequence[CameraDemand], limits: Limits) -> 
         refusal = (f"this host cannot watch the cell in time ({frame_s * 1e3:.1f} ms a frame "
                    f"measured): {'; '.join(problems)}; use {', '.join(hints)}, or raise the "
                    f"limit if that is safe for the cell")
-    return Capacity(frame_s, cycle, age, fps, capacity_fps, refusal, tuple(warnings))
+    return Capacity(frame_s, cycle, age, fps, capacity_fps, refusal, tuple(warnings), latency)
+
+
+def decode_time_s(width: int, height: int) -> float:
+    """The allowance for reading and decoding one frame of this size (seconds)."""
+    return DECODE_S_PER_MP * width * height / 1e6
 
 
 def measure_detect_s(detect: Callable[[np.ndarray], object], sizes: Sequence[tuple[int, int]],
@@ -176,6 +213,5 @@ def check(detect: Callable[[np.ndarray], object], cameras: Sequence[CameraDemand
         return verdict
     if mode == "refuse":
         raise ConfigError(f"{verdict.refusal} ([service] capacity_check = \"warn\" starts anyway)")
-    return Capacity(verdict.frame_s, verdict.cycle_s, verdict.frame_age_s,
-                    verdict.processed_fps, verdict.frames_per_s, None,
-                    (verdict.refusal, *verdict.warnings))
+    return dataclasses.replace(verdict, refusal=None,
+                               warnings=(verdict.refusal, *verdict.warnings))

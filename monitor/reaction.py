@@ -105,7 +105,7 @@ def at_start(frame_s: float, processed_fps: Mapping[str, float],
              ) -> dict[str, MeasuredReaction]:
     """The budget estimated from the start-up capacity check (``monitor.capacity.Capacity``):
     a camera's processed frame interval is 1 / its processed fps, and its capture->command the
-    worst age of its newest frame at a decision (interval + one frame's step: a frame captured
+    worst age of its newest frame at a decision (interval + a frame's latency: a frame captured
     just after the grabber was read waits a whole interval) plus the publishing, within
     ``frame_s``'s allowance. Pure."""
     del frame_s  # part of frame_age_s already

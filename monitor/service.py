@@ -21,6 +21,7 @@ import time
 from pathlib import Path
 
 from monitor.bus import SafetyBus
+from monitor.camera_references import reference_warnings
 from monitor.cases.receiver import CaseReceiver
 from monitor.config import MonitorConfig, load_config
 from monitor.driver import Driver, protective_warning
@@ -86,6 +87,8 @@ def _run(config_path, log_json: bool, duration: float | None, signals: StopSigna
         event(test_model, logging.WARNING)
     for doubt in cell.warnings if cell else ():  # e.g. zone floor accepted as unobserved
         event(f"zone file {cell.label}: {doubt}", logging.WARNING)
+    for doubt in reference_warnings(config, cell):  # two references for one camera
+        event(doubt, logging.WARNING)
     if config.bus.allow_unsigned_resets:
         event("resets are accepted without an operator key (embedded demo on 127.0.0.1, or "
               "allow_unsigned_resets = true): not for a production cell", logging.WARNING)

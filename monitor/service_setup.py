@@ -53,8 +53,9 @@ def _require_fed_cameras(cell, config: MonitorConfig, zones_file: str | None) ->
 def build_pipeline(config: MonitorConfig):
     """Model, zones, health checker and pipeline from a validated config (I/O: files only);
     also the warning to carry when the synthetic test model is allowed on a live camera."""
+    from monitor.camera_references import choose_references, load_chosen_reference
     from monitor.detector import Detector
-    from monitor.health import CameraHealth, load_reference
+    from monitor.health import CameraHealth
     from monitor.models import synthetic
     from monitor.zones import load_cell, watch_regions
 
@@ -62,8 +63,9 @@ def build_pipeline(config: MonitorConfig):
     cell = load_cell(zones_file) if zones_file else None
     zone_checks(config, cell, zones_file)
     health, expected = {}, {}
+    references = choose_references(config, cell)  # the zone file's wins over monitor.toml's
     for cam in config.cameras:
-        reference = load_reference(cam.reference) if cam.reference else None
+        reference = load_chosen_reference(references[cam.id], cell)
         watch = watch_regions(cell, cam.id) if cell is not None else []
         health[cam.id] = CameraHealth(config.health, cam.id, reference, watch)
         expected[cam.id] = (cell.cameras[cam.id].width, cell.cameras[cam.id].height) \

@@ -33,7 +33,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from monitor.errors import ConfigError
+from monitor.errors import ConfigError, InputError
 from monitor.signing import load_operators
 from monitor.types import Alert
 from monitor.zone_apply import APPLY_ANSWER_SCHEMA, ApplyGate, ApplyRefused, ApplyRequest
@@ -168,7 +168,8 @@ class LiveZones:
 
     def apply(self, req: ApplyRequest) -> str:
         """Swap the zones when everything holds; ApplyRefused (nothing changed) otherwise."""
-        from monitor.health import CameraHealth, load_reference
+        from monitor.camera_references import choose_reference, load_chosen_reference
+        from monitor.health import CameraHealth
         from monitor.service_setup import prepared_zones, zone_checks
         from monitor.zones import load_cell, watch_regions
 
@@ -200,14 +201,16 @@ class LiveZones:
             health = {}
             for cam in self.config.cameras:
                 watch = watch_regions(cell, cam.id)
-                if old_cell is not None and _same_watch(watch, watch_regions(old_cell, cam.id)):
+                choice = choose_reference(cam.id, cam.reference, cell)
+                if old_cell is not None and _same_watch(watch, watch_regions(old_cell, cam.id)) \
+                        and choice == choose_reference(cam.id, cam.reference, old_cell):
                     continue  # the health checker keeps what it learned
                 if self.pipeline.cameras[cam.id].health is None:
                     continue
-                reference = load_reference(cam.reference) if cam.reference else None
+                reference = load_chosen_reference(choice, cell)
                 health[cam.id] = CameraHealth(self.config.health, cam.id, reference, watch)
             prepared = prepared_zones(self.config, cell)
-        except ConfigError as exc:
+        except (ConfigError, InputError) as exc:  # InputError: a reference image missing
             raise ApplyRefused(f"the zone file is refused: {_line(exc)}") from None
         self.pipeline.swap_cell(cell, prepared, health, note=f" by {req.operator}")
         self.bus.set_config_hash(cell.config_hash)

@@ -45,6 +45,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                          help="image file to write (PNG recommended); a directory (or a name "
                          "without suffix) gets <camera>.png (default: the camera's reference "
                          "in --config)")
+    capture.add_argument("--zones", type=Path,
+                         help="zone file: store the image as the camera's reference there "
+                         "(written to its entry's reference path, or --out; the image must "
+                         "have the camera's size); the zone file's reference is the one the "
+                         "service uses (default: none)")
     capture.add_argument("--frames", type=int, default=15,
                          help="median of this many frames (default 15; 1 = a single frame)")
     capture.set_defaults(func=_capture)
@@ -98,9 +103,27 @@ def write_image_atomic(path: Path, image: np.ndarray) -> None:
         raise
 
 
+def _zone_camera_out(args: argparse.Namespace) -> tuple[str, Path | None]:
+    """With --zones: the zone file's camera (the one --camera rule) and the image to write:
+    --out, else the reference the camera's entry names (None: neither)."""
+    from monitor.camera_references import zone_file_reference
+    from monitor.zones import load_cell
+    from monitor.zones.cameras import choose_camera, zone_file_hint
+
+    cell = load_cell(args.zones)
+    camera = choose_camera(cell.cameras, args.camera, str(args.zones),
+                           zone_file_hint(args.zones, args.camera or "ID"))
+    return camera, args.out or zone_file_reference(cell, camera)
+
+
 def _camera_source_out(args: argparse.Namespace) -> tuple[str, str, Path]:
     """Camera id, source and output image, by the one --camera rule (monitor.zones.cameras)."""
     source, out, camera = args.source, args.out, args.camera
+    if args.zones is not None:
+        camera, out = _zone_camera_out(args)
+        if out is None:
+            raise InputError(f"{args.zones}: camera '{camera}' has no reference yet: say where "
+                             "to write it with --out")
     if args.config is not None:
         from monitor.config import load_config
         from monitor.zones.cameras import choose_camera
@@ -123,9 +146,31 @@ def _camera_source_out(args: argparse.Namespace) -> tuple[str, str, Path]:
     return camera or out.stem, source, out
 
 
+def _store_in_zone_file(zones: Path, camera: str, out: Path) -> str | None:
+    """Name ``out`` as the camera's reference in the zone file (an atomic zone edit, FILE.bak
+    kept); None when it names it already."""
+    from monitor.cli.zone_cameras import _camera, reference_entry
+    from monitor.cli.zones import _read, _write
+
+    data = _read(zones)
+    cam = _camera(data, camera, zones)
+    entry = reference_entry(zones, out, camera, cam["width"], cam["height"])
+    if cam.get("reference") == entry:
+        return None
+    cam["reference"] = entry
+    return _write(data, zones).config_hash
+
+
 def _capture(args: argparse.Namespace) -> int:
+    from monitor.camera_references import require_size
+
     camera, source, out = _camera_source_out(args)
     image, used = capture_reference(source, camera, args.frames)
+    if args.zones is not None:  # refuse a wrong size before anything is written
+        from monitor.zones import load_cell
+
+        cam = load_cell(args.zones).cameras[camera]
+        require_size(image, cam.width, cam.height, f"the image of {source}")
     try:
         write_image_atomic(out, image)
     except OSError as exc:
@@ -133,4 +178,8 @@ def _capture(args: argparse.Namespace) -> int:
     height, width = image.shape[:2]
     print(f"{out}: reference of camera {camera} ({width}x{height}, median of {used} "
           f"frame{'s' if used != 1 else ''} from {source})")
+    if args.zones is not None:
+        new_hash = _store_in_zone_file(args.zones, camera, out)
+        if new_hash is not None:
+            print(f"{args.zones}: camera {camera} reference set; config hash {new_hash}")
     return 0

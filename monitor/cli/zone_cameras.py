@@ -53,7 +53,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="also remove the camera's image polygons (refused without)")
     p.set_defaults(func=cmd_camera_remove)
 
-    p = actions.add_parser("set", help="change a camera's id, size or calibration")
+    p = actions.add_parser("set", help="change a camera's id, size, calibration or reference")
     p.add_argument("file", type=Path)
     p.add_argument("camera", nargs="?",
                    help="camera id (default: the file's only camera; required when it has "
@@ -68,6 +68,13 @@ def register(sub: argparse._SubParsersAction) -> None:
                      help="YAML file holding a calibration mapping (zones/README.md)")
     cal.add_argument("--no-calibration", action="store_true",
                      help="remove the camera's calibration")
+    ref = p.add_mutually_exclusive_group()
+    ref.add_argument("--reference", type=Path,
+                     help="the camera's reference image for the health checks ('monitor "
+                     "reference capture'), of the camera's size; stored relative to the zone "
+                     "file, and used instead of monitor.toml's [[camera]] reference")
+    ref.add_argument("--no-reference", action="store_true",
+                     help="remove the camera's reference from the zone file")
     p.set_defaults(func=cmd_camera_set)
 
     p = actions.add_parser("list", help="list the cameras")
@@ -251,6 +258,23 @@ def _rescale(cam: dict, polygons: list[dict], sx: float, sy: float) -> None:
                                 [k[1][0] * sy, k[1][1] * sy, k[1][2] * sy], list(k[2])]
 
 
+def reference_entry(zone_file: Path, image_path: Path, camera: str, width: int,
+                    height: int) -> str:
+    """The zone file's ``reference:`` value for an image: checked to be a readable image of
+    the camera's size, its path relative to the zone file. One-line ConfigError otherwise."""
+    from monitor.camera_references import require_size
+
+    if not image_path.is_file():
+        raise ConfigError(f"--reference {image_path}: no such file (make one with 'monitor "
+                          "reference capture')")
+    image = cv2.imread(str(image_path), cv2.IMREAD_COLOR)
+    if image is None:
+        raise ConfigError(f"--reference {image_path}: not a readable image")
+    require_size(image, width, height, f"camera '{camera}': --reference {image_path}")
+    rel = os.path.relpath(image_path.resolve(), zone_file.resolve().parent)
+    return Path(rel).as_posix()
+
+
 def cmd_camera_set(args: argparse.Namespace) -> int:
     data = _read(args.file)
     cam = _camera(data, args.camera, args.file)
@@ -265,9 +289,20 @@ def cmd_camera_set(args: argparse.Namespace) -> int:
                                   "calibration in pixels of "
                                   f"{cam.get('width')}x{cam.get('height')}: add --rescale (the "
                                   "same view, resized) or calibrate and draw them again")
+            if cam.get("reference") and args.reference is None and not args.no_reference:
+                raise ConfigError(f"{args.file}: camera '{camera}' has a reference image of "
+                                  f"{cam.get('width')}x{cam.get('height')}: give a new one "
+                                  "with --reference (or --no-reference)")
             _rescale(cam, polygons, width / cam["width"], height / cam["height"])
             cam["width"], cam["height"] = width, height
             changed.append(f"size {width}x{height}")
+    if args.reference is not None:
+        cam["reference"] = reference_entry(args.file, args.reference, camera, cam["width"],
+                                           cam["height"])
+        changed.append(f"reference {cam['reference']}")
+    if args.no_reference and "reference" in cam:
+        del cam["reference"]
+        changed.append("no reference")
     if args.calibration is not None:
         cam["calibration"] = _read_calibration(args.calibration)
         changed.append("calibration")
@@ -283,7 +318,7 @@ def cmd_camera_set(args: argparse.Namespace) -> int:
         changed.append(f"id {args.new_id}")
     if not changed:
         raise ConfigError("camera set: nothing to change (give --size, --calibration, "
-                          "--no-calibration or --new-id)")
+                          "--no-calibration, --reference, --no-reference or --new-id)")
     cell = _write(data, args.file)
     print(f"camera {camera}: {', '.join(changed)}; config hash {cell.config_hash}")
     return 0
@@ -291,11 +326,12 @@ def cmd_camera_set(args: argparse.Namespace) -> int:
 
 def cmd_camera_list(args: argparse.Namespace) -> int:
     cell = zn.load_cell(args.file)
-    rows = [("ID", "SIZE", "CALIBRATION", "IMAGE ZONES")]
+    rows = [("ID", "SIZE", "CALIBRATION", "IMAGE ZONES", "REFERENCE")]
     for cam in cell.cameras.values():
         n = sum(1 for z in cell.zones if z.shape == "polygon" and z.camera == cam.id)
         rows.append((cam.id, f"{cam.width}x{cam.height}",
-                     cam.calibration.type if cam.calibration is not None else "-", str(n)))
+                     cam.calibration.type if cam.calibration is not None else "-", str(n),
+                     cam.reference or "-"))
     widths = [max(len(r[c]) for r in rows) for c in range(len(rows[0]))]
     for r in rows:
         print("  ".join(v.ljust(w) for v, w in zip(r, widths, strict=True)).rstrip())

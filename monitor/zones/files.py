@@ -422,6 +422,13 @@ def write_cell_data(data: Any, path: str | os.PathLike) -> Cell:
     return cell
 
 
+def _camera_data(camera: CameraSpec) -> dict:
+    d = camera.model_dump(mode="json")
+    if d.get("reference") is None:  # only when given: older files keep their hash
+        d.pop("reference", None)
+    return d
+
+
 def config_hash(spec: CellSpec, meshes_sha: Mapping[str, str] | None = None) -> str:
     """Stable, order-independent name of the active configuration.
 
@@ -449,8 +456,7 @@ def config_hash(spec: CellSpec, meshes_sha: Mapping[str, str] | None = None) -> 
             tool["file_sha256"] = meshes_sha.get("tool", "")
     payload = {
         "version": spec.version,
-        "cameras": sorted((c.model_dump(mode="json") for c in spec.cameras),
-                          key=lambda c: c["id"]),
+        "cameras": sorted((_camera_data(c) for c in spec.cameras), key=lambda c: c["id"]),
         "zones": sorted(zones, key=lambda z: z["id"]),
         "person": spec.person.model_dump(mode="json"),
         "separation": spec.separation.model_dump(mode="json"),

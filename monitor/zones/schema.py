@@ -60,6 +60,9 @@ class CameraSpec(_Strict):
     width: int = Field(gt=0, le=32768)
     height: int = Field(gt=0, le=32768)
     calibration: Calibration | None = None
+    # the reference image of the health checks (monitor reference capture), relative to the
+    # zone file; it wins over monitor.toml's [[camera]] reference (monitor/camera_references.py)
+    reference: str | None = Field(default=None, min_length=1)
 
 
 class MuteSpec(_Strict):
