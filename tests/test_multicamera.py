@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import signal
 from pathlib import Path
 
@@ -113,6 +114,35 @@ def test_one_person_seen_by_two_cameras_has_one_id_in_reasons_and_annotations(pi
         assert d.persons[1 - near].split()[1] != who
     assert {r.message for r in reasons} == {f"person {who} in robot-protective",
                                             f"person {who} in cam0-protective"}
+
+
+def test_a_hold_of_a_person_one_camera_lost_names_the_cell_person(pipeline, caplog):
+    """cam0 loses the person inside the protective zone (hidden from it) while cam1 still sees
+    them: the hold, its log line and the reason name the person as cam1 does, not by cam0's
+    own track number."""
+    other, inside = (3.3, 2.0), (0.0, -0.6)
+    t = 0.0
+    with caplog.at_level(logging.INFO, logger="monitor.pipeline"):
+        for i in range(30):
+            t += 0.05
+            cam = ("cam0", "cam1")[i % 2]
+            if i < 6:
+                image = persons_at(other) if cam == "cam1" else empty_frame(i)
+            elif i < 16 or cam == "cam1":
+                image = persons_at(inside, other) if cam == "cam1" else persons_at(inside)
+            else:  # hidden from cam0 from now on
+                image = empty_frame(i)
+            result = step(pipeline, cam, i, t, image)
+    (cam0_track,) = [t.track_id for t in pipeline.cameras["cam0"].tracker.tracks]
+    who = 2  # cam1's person 1 was the other person
+    assert cam0_track == 1 and sorted(result.person_ids) == [1, who]
+    (hold,) = pipeline.holds["cam0"]
+    assert hold.track_id == cam0_track and hold.describe().startswith(
+        f"person {who} lost inside ")
+    assert f"cam0: person {who} lost inside " in caplog.text
+    lost = {r.message for r in result.command.reasons if r.code == "person_lost"}
+    assert lost == {f"person {who} lost inside cam0-protective",
+                    f"person {who} lost inside robot-protective"}
 
 
 def test_a_camera_that_falls_silent_stops_the_cell(pipeline):
