@@ -175,10 +175,11 @@ class CellPersons:
                 continue
             linked[row] = who
             used.add(who)
-            others = sorted({str(w) for dd, r, w in pairs if r == row and w != who})
+            others = [str(w) for w in sorted({w for _, r, w in pairs if r == row and w != who},
+                                             key=lambda w: (isinstance(w, str), str(w).zfill(9)))]
             if others:  # a guess: the nearest taken, said once (when the track is named)
                 tid = tracks[row].track_id
-                said.append(f"{camera_id} track {tid} seen again as person {who}? (persons "
+                said.append(f"track {tid} seen again as person {who}? (persons "
                             f"{', '.join([str(who), *others])} within {cfg.link_m} m of it on "
                             f"the floor; the nearest ({d:.2f} m) taken)")
         for row, t in enumerate(tracks):
