@@ -54,7 +54,7 @@ class FloorRange:
     projected into the image (empty when it cannot be projected); ``text`` what is written
     beside it."""
 
-    person: int  # the person id (as in the box label and the commands)
+    person: int | str  # the person id (as in the box label and the commands)
     near_m: tuple[float, float]
     far_m: tuple[float, float]
     located: bool
@@ -69,7 +69,7 @@ class Drawn:
 
     header: str
     persons: tuple[str, ...]  # one box label per person, in the rows of ``result.persons``
-    person_ids: tuple[int, ...]
+    person_ids: tuple[int | str, ...]
     events: tuple[str, ...]  # resets and alerts still on screen
     banner: str  # the command bar: state, speed, latch, tool separation
     reason: str
@@ -92,10 +92,13 @@ def describe(command) -> str:
     return line + (f": {causes[0]}" if causes else "")
 
 
-def person_ids(result: StepResult) -> tuple[int, ...]:
-    """The id of each person row: the tracker's id, as the commands' reasons name it
-    (``monitor.policy.causes``); the row index only where there is no tracker."""
+def person_ids(result: StepResult) -> tuple[int | str, ...]:
+    """The id of each person row as the commands' reasons name it (``monitor.policy.causes``):
+    the cell person's (one id for one person on every camera, ``monitor.cell_persons``), the
+    tracker's id without one, the row index only where there is no tracker."""
     n = len(result.persons) if result.persons is not None else 0
+    if len(result.person_ids) == n:
+        return tuple(result.person_ids)
     if len(result.track_ids) == n:
         return tuple(int(i) for i in result.track_ids)
     return tuple(range(n))
@@ -183,7 +186,7 @@ def _worst_kind(result: StepResult) -> dict[int, str]:
 
 
 def _draw_persons(out: np.ndarray, result: StepResult, cell: Cell | None, camera_id: str,
-                  ids: tuple[int, ...], foot_band_px: tuple[float, float]
+                  ids: tuple[int | str, ...], foot_band_px: tuple[float, float]
                   ) -> tuple[tuple[str, ...], tuple[FloorRange, ...]]:
     persons = result.persons
     if persons is None or not len(persons):
@@ -214,7 +217,7 @@ def _draw_persons(out: np.ndarray, result: StepResult, cell: Cell | None, camera
     return tuple(texts), ranges
 
 
-def floor_ranges(cell: Cell, camera_id: str, boxes_px: np.ndarray, ids: tuple[int, ...],
+def floor_ranges(cell: Cell, camera_id: str, boxes_px: np.ndarray, ids: tuple[int | str, ...],
                  rows: list[int], foot_band_px: tuple[float, float] = (0.0, 0.0),
                  samples: int = 16) -> tuple[FloorRange, ...]:
     """The floor range behind each zone hit of ``rows``: the placement the zone check used

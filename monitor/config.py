@@ -31,6 +31,7 @@ from pydantic import (
 
 from monitor.alerts import AlertLimits
 from monitor.bus import BusConfig
+from monitor.cell_persons import CellPersonsConfig
 from monitor.detector import DetectorConfig
 from monitor.errors import ConfigError
 from monitor.health import HealthConfig
@@ -121,6 +122,7 @@ class MonitorConfig:
     detector: DetectorConfig = field(default_factory=DetectorConfig)
     policy: PolicyConfig = field(default_factory=PolicyConfig)
     tracker_clock: TrackerClockConfig = field(default_factory=TrackerClockConfig)
+    tracking: CellPersonsConfig = field(default_factory=CellPersonsConfig)
     health: HealthConfig = field(default_factory=HealthConfig)
     bus: BusConfig = field(default_factory=lambda: BusConfig(listen=DEMO_LISTEN))
     alerts: AlertLimits = field(default_factory=AlertLimits)
@@ -143,11 +145,12 @@ class MonitorConfig:
         return self.cameras[0]
 
 
-SECTIONS = ("camera", "model", "zones", "detector", "policy", "tracker_clock", "health", "bus",
-            "alerts", "service", "recorder", "reaction")
+SECTIONS = ("camera", "model", "zones", "detector", "policy", "tracker_clock", "tracking",
+            "health", "bus", "alerts", "service", "recorder", "reaction")
 _CLASSES = {"camera": CameraConfig, "model": ModelConfig, "zones": ZonesConfig,
             "detector": DetectorConfig, "policy": PolicyConfig,
-            "tracker_clock": TrackerClockConfig, "health": HealthConfig,
+            "tracker_clock": TrackerClockConfig, "tracking": CellPersonsConfig,
+            "health": HealthConfig,
             "bus": BusConfig, "alerts": AlertLimits, "service": ServiceConfig,
             "recorder": RecorderConfig, "reaction": ReactionConfig}
 

@@ -23,6 +23,7 @@ import cv2
 import numpy as np
 
 from monitor.cases import sets as cases
+from monitor.cell_persons import CellPersons, CellPersonsConfig, Who
 from monitor.detector import Detector
 from monitor.health import CameraHealth, HealthReport
 from monitor.muting import Mute, MuteOutcome, MuteRequest, Mutes
@@ -92,6 +93,7 @@ class StepResult:
     # that hold at this decision (docs/muting.md)
     mute_outcomes: tuple[MuteOutcome, ...] = ()
     mutes: tuple[Mute, ...] = ()
+    person_ids: tuple[Who, ...] = ()  # the cell person of each row (monitor.cell_persons)
 
 
 @dataclass
@@ -159,8 +161,8 @@ class Pipeline:
     def __init__(self, detector: Detector, camera_id: str | Sequence[str], policy: PolicyConfig,
                  cell: Cell | None = None,
                  health: CameraHealth | Mapping[str, CameraHealth] | None = None,
-                 zone_error: str | None = None, tracking: TrackerConfig | None = None
-                 ) -> None:
+                 zone_error: str | None = None, tracking: TrackerConfig | None = None,
+                 linking: CellPersonsConfig | None = None) -> None:
         ids = (camera_id,) if isinstance(camera_id, str) else tuple(camera_id)
         if not ids:
             raise ValueError("a pipeline needs at least one camera")
@@ -174,6 +176,7 @@ class Pipeline:
             health = {ids[0]: health}
         self.cameras = {cid: _Camera((health or {}).get(cid), tracker=PersonTracker(
             tracking, self._to_floor(cid))) for cid in ids}
+        self.persons = CellPersons(ids, linking or CellPersonsConfig())  # one id per person
         self._mask_rules: dict[tuple[str, int, int], MaskRule] = {}
         self.zone_error = zone_error
         self._active_faults: dict[tuple[str, str], Fault] = {}  # (name, source) -> fault
@@ -305,8 +308,9 @@ class Pipeline:
 
     @property
     def holds(self) -> dict[str, tuple[Hold, ...]]:
-        """Per camera, the lost persons keeping zones occupied."""
-        return {cid: cam.tracker.holds for cid, cam in self.cameras.items() if cam.tracker}
+        """Per camera, the lost persons keeping zones occupied (named as cell persons)."""
+        return {cid: tuple(self.persons.hold(cid, h) for h in cam.tracker.holds)
+                for cid, cam in self.cameras.items() if cam.tracker}
 
     @property
     def health(self) -> CameraHealth | None:
@@ -417,19 +421,18 @@ class Pipeline:
         elif detector_error is None:
             report = ZoneReport()
         track_ids: tuple[int, ...] = ()
+        person_ids: tuple[Who, ...] = ()
         if detector_error is None and cam.tracker is not None:
             try:
                 update = cam.tracker.update(persons, report, frame.capture_time,
                                             (frame.width, frame.height),
                                             self._zones_of(frame, tool_pose, tool_speed_mps,
                                                            tool_state))
-                report, track_ids = update.report, update.track_ids
-                for hold in update.started:
-                    log.info("%s: %s", frame.camera_id, hold.describe())
-                for new, old in update.reidentified:  # a guess: said, the hold stays
-                    log.info("%s: person %d (was person %d?) seen near where person %d was "
-                             "lost; that hold stays until person %d is seen leaving or a "
-                             "confirm-clear reset", frame.camera_id, new, old, old, old)
+                named = self.persons.name(frame.camera_id, cam.tracker, update,
+                                          frame.capture_time)
+                report, track_ids, person_ids = named.report, update.track_ids, named.person_ids
+                for line in named.lines:  # holds begun, guesses (said once, holds stay)
+                    log.info("%s: %s", frame.camera_id, line)
             except Exception as exc:  # tracks unknown: a lost person may be missing, STOP
                 faults.append(Fault("tracking_error", _one_line(exc), True, frame.camera_id))
         t2 = time.perf_counter()
@@ -456,7 +459,7 @@ class Pipeline:
                      policy=(t4 - t3) * 1e3)
         return StepResult(now, command, self._changed(command), frame, persons, cam.report,
                           health, inputs.faults, alerts, stage, track_ids, tally.masked,
-                          outcomes, self.mute_desk.holding(now))
+                          outcomes, self.mute_desk.holding(now), person_ids)
 
     def tick(self, now: float, pose_time: float | None = None,
              reset: ResetRequest | None = None, extra_faults: tuple[Fault, ...] = ()) -> StepResult:
@@ -483,7 +486,7 @@ class Pipeline:
         for cid, cam in self.cameras.items():
             if cam.tracker is None:
                 continue
-            dropped.extend((cid, h) for h in cam.tracker.drop_holds())
+            dropped.extend((cid, self.persons.hold(cid, h)) for h in cam.tracker.drop_holds())
             if cam.report is not None:
                 cam.report = replace(cam.report, hits=tuple(h for h in cam.report.hits
                                                             if not h.lost))
@@ -492,7 +495,8 @@ class Pipeline:
         log.warning(message)
         return (Alert("confirm_clear", "warning", message, "pipeline", now, details={
             "operator": reset.operator, "request_id": reset.request_id, "note": reset.note,
-            "dropped": [{"camera": cid, "track_id": h.track_id, "lost_since": h.lost_since,
+            "dropped": [{"camera": cid, "person": h.who, "track_id": h.track_id,
+                         "lost_since": h.lost_since,
                          "zones": [z.zone_id for z in h.zones]} for cid, h in dropped]}),)
 
     def _fault_alerts(self, faults: tuple[Fault, ...], detector_error: str | None, now: float,

@@ -74,7 +74,8 @@ def build_pipeline(config: MonitorConfig):
     detector = Detector(model, config.detector)  # one model, shared by the cameras in turn
     test_model = require_real_model(detector.test_model, config.cameras,
                                     config.model.allow_test_model)
-    pipeline = Pipeline(detector, [c.id for c in config.cameras], config.policy, cell, health)
+    pipeline = Pipeline(detector, [c.id for c in config.cameras], config.policy, cell, health,
+                        linking=config.tracking)
     pipeline.prepared = prepared_zones(config, cell)
     return pipeline, cell, expected, test_model
 

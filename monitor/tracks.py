@@ -105,7 +105,8 @@ class Hold:
     zones: tuple[HeldZone, ...]
     lost_since: float
     box_px: tuple[float, float, float, float]
-    seen_as: int | None = None
+    seen_as: int | str | None = None
+    who: int | str | None = None  # the cell person (monitor.cell_persons); None: the track id
 
     def describe(self, when: TimeText | None = None) -> str:
         """``person 3 lost inside stop``, with ``at <when(lost_since)>`` when a clock is given
@@ -113,7 +114,8 @@ class Hold:
         names = ", ".join(z.zone_id for z in self.zones)
         at = "" if when is None else f" at {when(self.lost_since)}"
         maybe = "" if self.seen_as is None else f" (seen again as person {self.seen_as}?)"
-        return f"person {self.track_id} lost inside {names}{at}{maybe}"
+        who = self.track_id if self.who is None else self.who
+        return f"person {who} lost inside {names}{at}{maybe}"
 
 
 @dataclass(frozen=True)

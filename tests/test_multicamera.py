@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import signal
 from pathlib import Path
 
@@ -9,6 +10,7 @@ import numpy as np
 import pytest
 import yaml
 
+from monitor.annotate import Annotator
 from monitor.config import demo_cell_path, parse_config
 from monitor.errors import ConfigError
 from monitor.pipeline import Pipeline
@@ -38,9 +40,15 @@ def empty_frame(i: int) -> np.ndarray:
 
 
 def person_in_protective_zone() -> np.ndarray:
+    return persons_at((0.0, -0.6))
+
+
+def persons_at(*floor_m: tuple[float, float]) -> np.ndarray:
+    """The demo camera's view with a 1.75 m person standing at each floor point."""
     img = DemoScene().background()
-    feet, head = DemoScene().camera.project(np.array([[0.0, -0.6, 0.0], [0.0, -0.6, 1.75]]))
-    draw_figure(img, Figure((float(feet[0]), float(feet[1])), float(feet[1] - head[1])))
+    for x, y in floor_m:
+        feet, head = DemoScene().camera.project(np.array([[x, y, 0.0], [x, y, 1.75]]))
+        draw_figure(img, Figure((float(feet[0]), float(feet[1])), float(feet[1] - head[1])))
     return img
 
 
@@ -75,6 +83,66 @@ def test_a_person_only_one_camera_sees_keeps_the_stop(pipeline):
     first = states.index("STOP")
     assert set(states[first:]) == {"STOP"}  # no flapping on cam0's empty frames
     assert first <= 1
+
+
+def test_one_person_seen_by_two_cameras_has_one_id_in_reasons_and_annotations(pipeline):
+    """Both calibrations place the person in the protective zone at one floor point. cam1
+    has seen someone else first (its track 1, standing outside the zones, hidden from cam0),
+    so its own track of the person is 2 while cam0's is 1: the commands and both cameras'
+    annotated frames still name one person, with one id."""
+    annotators = {cam: Annotator(pipeline.cell, cam, []) for cam in ("cam0", "cam1")}
+    other, inside = (3.3, 2.0), (0.0, -0.6)
+    t, drawn, reasons = 0.0, {"cam0": [], "cam1": []}, []
+    for i in range(24):
+        t += 0.05
+        cam = ("cam0", "cam1")[i % 2]
+        if i < 6:  # cam1 sees the other person only
+            image = persons_at(other) if cam == "cam1" else empty_frame(i)
+        else:
+            image = persons_at(inside, other) if cam == "cam1" else persons_at(inside)
+        result = step(pipeline, cam, i, t, image)
+        if i >= 10:
+            drawn[cam].append((result, annotators[cam].step(result, image)[1]))
+            reasons += [r for r in result.command.reasons if r.code == "protective_zone"]
+    assert [t.track_id for t in pipeline.cameras["cam1"].tracker.tracks] == [1, 2]
+    cam0_labels = {label.split()[1] for _, d in drawn["cam0"] for label in d.persons}
+    (who,) = cam0_labels  # cam0 sees the one person
+    for result, d in drawn["cam1"]:
+        # cam1 calls that person (the lower box: nearer the camera) the same, the other not
+        near = int(np.argmax(result.persons.boxes_px[:, 3]))
+        assert len(d.persons) == 2 and d.persons[near].split()[1] == who
+        assert d.persons[1 - near].split()[1] != who
+    assert {r.message for r in reasons} == {f"person {who} in robot-protective",
+                                            f"person {who} in cam0-protective"}
+
+
+def test_a_hold_of_a_person_one_camera_lost_names_the_cell_person(pipeline, caplog):
+    """cam0 loses the person inside the protective zone (hidden from it) while cam1 still sees
+    them: the hold, its log line and the reason name the person as cam1 does, not by cam0's
+    own track number."""
+    other, inside = (3.3, 2.0), (0.0, -0.6)
+    t = 0.0
+    with caplog.at_level(logging.INFO, logger="monitor.pipeline"):
+        for i in range(30):
+            t += 0.05
+            cam = ("cam0", "cam1")[i % 2]
+            if i < 6:
+                image = persons_at(other) if cam == "cam1" else empty_frame(i)
+            elif i < 16 or cam == "cam1":
+                image = persons_at(inside, other) if cam == "cam1" else persons_at(inside)
+            else:  # hidden from cam0 from now on
+                image = empty_frame(i)
+            result = step(pipeline, cam, i, t, image)
+    (cam0_track,) = [t.track_id for t in pipeline.cameras["cam0"].tracker.tracks]
+    who = 2  # cam1's person 1 was the other person
+    assert cam0_track == 1 and sorted(result.person_ids) == [1, who]
+    (hold,) = pipeline.holds["cam0"]
+    assert hold.track_id == cam0_track and hold.describe().startswith(
+        f"person {who} lost inside ")
+    assert f"cam0: person {who} lost inside " in caplog.text
+    lost = {r.message for r in result.command.reasons if r.code == "person_lost"}
+    assert lost == {f"person {who} lost inside cam0-protective",
+                    f"person {who} lost inside robot-protective"}
 
 
 def test_a_camera_that_falls_silent_stops_the_cell(pipeline):

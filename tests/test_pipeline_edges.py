@@ -54,7 +54,8 @@ def test_confirm_clear_on_a_tick_drops_the_hold_and_its_reset_is_judged(detector
         ("warning", message, "pipeline", 0.45)
     assert alert.details == {
         "operator": "bob", "request_id": "c1", "note": "looked twice",
-        "dropped": [{"camera": "cam0", "track_id": tid, "lost_since": hold.lost_since,
+        "dropped": [{"camera": "cam0", "person": tid, "track_id": tid,
+                     "lost_since": hold.lost_since,
                      "zones": [z.zone_id for z in hold.zones]}]}
     assert message in caplog.text
     assert pipe.holds["cam0"] == ()

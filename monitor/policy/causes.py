@@ -26,9 +26,19 @@ class FrameCauses:
     scale: float = 1.0
 
 
-def _person(hit: ZoneHit) -> int:
-    """The tracked person's id when there is one (stable across frames), else the row."""
+def _person(hit: ZoneHit) -> int | str:
+    """The cell person's id (one per person on every camera: monitor.cell_persons), else the
+    tracked person's id (stable across frames), else the row."""
+    if hit.who is not None:
+        return hit.who
     return hit.track_id if hit.track_id is not None else hit.person
+
+
+def _order(hit: ZoneHit) -> tuple:
+    """A stable order (zone, person): the same causes in another order are no change to
+    announce. Numbers before camera-qualified ids ("cam1:4"), which never compare with them."""
+    who = _person(hit)
+    return (hit.zone_id, (0, who, "") if isinstance(who, int) else (1, 0, str(who)), hit.lost)
 
 
 def _hit_reason(hit: ZoneHit, stop: bool) -> Reason:
@@ -50,11 +60,14 @@ def frame_causes(report: ZoneReport | None) -> FrameCauses:
     stops: list[Reason] = []
     slows: list[Reason] = []
     scale = 1.0
-    # a stable order (zone, person): the same causes in another order are no change to announce
-    for hit in sorted(report.hits, key=lambda h: (h.zone_id, _person(h), h.lost)):
+    for hit in sorted(report.hits, key=_order):
         # a warning zone whose scale is 0 (or NaN) allows no motion: it is a STOP
         stop = hit.kind == "protective" or not hit.speed_scale > 0.0
-        (stops if stop else slows).append(_hit_reason(hit, stop))
+        reasons = stops if stop else slows
+        reason = _hit_reason(hit, stop)
+        # one person seen by two cameras in one zone is one cause (both hits still count)
+        if not any(r.key() == reason.key() for r in reasons):
+            reasons.append(reason)
         if not stop:
             scale = min(scale, hit.speed_scale)
     sep, req = report.tool_separation_m, report.required_separation_m

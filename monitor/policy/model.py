@@ -52,14 +52,15 @@ class Reason:
     (v_max(separation) below the programmed speed). Notes: ``muted`` (a zone muted by an
     operator, in every command while it holds; docs/muting.md). Bookkeeping: ``clearing``
     (cause gone, waiting ``clear_time``), ``latched`` (waiting for a reset), ``shutdown`` and
-    ``stalled`` (added by the bus). ``person`` is the track id when the person is tracked,
-    else the row.
+    ``stalled`` (added by the bus). ``person`` is the cell person's id when the person is
+    tracked (``monitor.cell_persons``: a number, or "cam1:4" on an uncalibrated camera of
+    several), else the row.
     """
 
     code: str
     message: str
     zone_id: str | None = None
-    person: int | None = None
+    person: int | str | None = None
     distance_m: float | None = None
     required_m: float | None = None
     fault: str | None = None
@@ -88,7 +89,7 @@ class Latch:
     message: str
     at: float
     zone_id: str | None = None
-    person: int | None = None
+    person: int | str | None = None
     nonce: str = ""
 
     def to_dict(self) -> dict:
