@@ -67,6 +67,7 @@ class ZoneHit:
     track_id: int | None = None  # persistent person id across frames (None: not tracked)
     lost: bool = False  # held by a track lost inside the zone: not seen in this frame
     lost_since: float | None = None  # when that track was last seen (s, same clock as frames)
+    note: str = ""  # a lost hit's own words (a hold handed over by another monitor)
 
 
 @dataclass(frozen=True)
