@@ -218,4 +218,8 @@ def start_handover(config, pipeline, bus) -> HoldsLink | None:
                      load_private_key(config.bus.signing_key))
     _log.info("hand-over: publishing holds on %s, taking those of %s", link.key,
               ", ".join(sorted(peers)))
+    models = pipeline.cell.camera_models if pipeline.cell is not None else {}
+    for cam in (c.id for c in config.cameras if c.id not in models):
+        _log.warning("hand-over: camera %s has no calibration: its persons have no floor point "
+                     "and are never handed over (docs/consumer.md)", cam)
     return link

@@ -110,7 +110,7 @@ def _run_cell(tmp: Path, model: Path, handover: bool, check) -> None:
 def test_a_person_leaving_one_cameras_view_into_the_others_zone_keeps_stop(
         tmp_path, synthetic_model):
     def check(consumer: CellConsumer, procs: list[Monitor]) -> None:
-        a, b = procs
+        _, b = procs
         v = consumer.wait(lambda v: "handed over" in v.reason, 60,
                           "monitor-b's handed-over hold", b)
         assert v.state == "STOP", v
@@ -136,7 +136,7 @@ def test_without_hand_over_the_same_cell_runs(tmp_path, synthetic_model):
         a, _ = procs
         consumer.wait(lambda v: v.state == "RUN", 60, "RUN without hand-over", a)
         time.sleep(6.5)  # a whole loop of A's video: the person walked out again
-        v = consumer.wait(lambda v: v.state == "RUN", 10, "RUN after the person left", a)
+        consumer.wait(lambda v: v.state == "RUN", 10, "RUN after the person left", a)
         assert "handed over" not in " ".join(r for _, r in consumer.seen), consumer.seen
 
     _run_cell(tmp_path, synthetic_model, handover=False, check=check)
