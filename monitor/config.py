@@ -34,6 +34,7 @@ from monitor.bus import BusConfig
 from monitor.cell_persons import CellPersonsConfig
 from monitor.detector import DetectorConfig
 from monitor.errors import ConfigError
+from monitor.handover import HandoverConfig
 from monitor.health import HealthConfig
 from monitor.incidents.settings import RecorderConfig
 from monitor.policy import PolicyConfig
@@ -129,6 +130,7 @@ class MonitorConfig:
     service: ServiceConfig = field(default_factory=ServiceConfig)
     recorder: RecorderConfig = field(default_factory=RecorderConfig)
     reaction: ReactionConfig = field(default_factory=ReactionConfig)
+    handover: HandoverConfig = field(default_factory=HandoverConfig)
     source_file: Text | None = None
 
     @model_validator(mode="after")
@@ -137,6 +139,10 @@ class MonitorConfig:
         dup = next((i for i in ids if ids.count(i) > 1), None)
         if dup is not None:
             raise ValueError(f"camera id {dup!r} is given twice")
+        peers = self.handover.peers
+        if peers and (not self.bus.role or not self.bus.signing_key or self.bus.role in peers):
+            raise ValueError("handover.peers: needs [bus] role and signing_key, and names the "
+                             "other monitors of the cell (not this one's role)")
         return self
 
     @property
@@ -146,13 +152,13 @@ class MonitorConfig:
 
 
 SECTIONS = ("camera", "model", "zones", "detector", "policy", "tracker_clock", "tracking",
-            "health", "bus", "alerts", "service", "recorder", "reaction")
+            "health", "bus", "alerts", "service", "recorder", "reaction", "handover")
 _CLASSES = {"camera": CameraConfig, "model": ModelConfig, "zones": ZonesConfig,
             "detector": DetectorConfig, "policy": PolicyConfig,
             "tracker_clock": TrackerClockConfig, "tracking": CellPersonsConfig,
             "health": HealthConfig,
             "bus": BusConfig, "alerts": AlertLimits, "service": ServiceConfig,
-            "recorder": RecorderConfig, "reaction": ReactionConfig}
+            "recorder": RecorderConfig, "reaction": ReactionConfig, "handover": HandoverConfig}
 
 
 def section_keys(name: str) -> list[str]:

@@ -25,6 +25,7 @@ import numpy as np
 from monitor.cases import sets as cases
 from monitor.cell_persons import CellPersons, CellPersonsConfig, Who
 from monitor.detector import Detector
+from monitor.handover import HandedHolds
 from monitor.health import CameraHealth, HealthReport
 from monitor.muting import Mute, MuteOutcome, MuteRequest, Mutes
 from monitor.pipeline_cases import ZoneSets
@@ -189,6 +190,7 @@ class Pipeline:
         # (monitor/cases/), None without ``sets`` in the zone file
         self.mute_desk = MuteDesk(cell)
         self.zone_sets = ZoneSets(cell)
+        self.handover: HandedHolds | None = None  # holds taken from the cell's other monitors
 
         # after a zone swap: cameras without a frame checked against the new zones yet, and
         # whether a decision has seen the swap's STOP (``swap_cell``)
@@ -490,7 +492,9 @@ class Pipeline:
             if cam.report is not None:
                 cam.report = replace(cam.report, hits=tuple(h for h in cam.report.hits
                                                             if not h.lost))
-        what = "; ".join(f"{cid}: {h.describe()}" for cid, h in dropped) or "no lost persons held"
+        handed = self.handover.drop() if self.handover is not None else ()
+        what = "; ".join([*(f"{cid}: {h.describe()}" for cid, h in dropped),
+                          *(h.describe() for h in handed)]) or "no lost persons held"
         message = f"operator {reset.operator} confirmed the cell clear: dropped {what}"
         log.warning(message)
         return (Alert("confirm_clear", "warning", message, "pipeline", now, details={
@@ -547,6 +551,9 @@ class Pipeline:
             times.append((cam.frame_time, cid))
             if cam.report is not None:
                 reports.append(cam.report)
+        handed = self.handover.decide(c.tracker for c in self.cameras.values() if c.tracker) \
+            if self.handover is not None else None
+        reports += [handed] if handed is not None and with_frame else []
         report = functools.reduce(merge_towards_danger, reports) if reports else None
         report = self.zone_sets.filter(report, now, faults)
         # muted zones as the zone file says (docs/muting.md): on the merged answer at this

@@ -187,6 +187,7 @@ def _serve(config: MonitorConfig, pipeline: Pipeline, bus: SafetyBus, expected: 
                         sink.alert, pipeline.prepared,
                         max_fps={c.id: c.max_fps for c in config.cameras})
         # signed zone applies: checked on the bus, swapped in by the loop between two steps
+        from monitor.bus_holds import start_handover
         from monitor.zone_swap import LiveZones, ZoneApplies
 
         applies = ZoneApplies(bus)
@@ -206,6 +207,10 @@ def _serve(config: MonitorConfig, pipeline: Pipeline, bus: SafetyBus, expected: 
         reaction = reaction_sink(config, pipeline, capacity, bus, metrics, sink.alert)
         # the safety sink first; the recorder (an optional extra) last
         sinks = [sink, reaction] if recorder is None else [sink, reaction, recorder[0]]
+        handover = start_handover(config, pipeline, bus)  # holds of the cell's other monitors
+        if handover is not None:
+            sinks.insert(1, handover)
+            closers.insert(0, handover.close)
         driver = Driver(pipeline, sinks, stall_after_s=config.policy.frame_timeout,
                         self_test_period_s=getattr(config.detector, "self_test_period_s", None))
         # cameras whose frames are ready together share one inference (dynamic-batch models)

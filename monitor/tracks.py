@@ -15,10 +15,11 @@ zone that person was last seen in, until
   ``PersonTracker.drop_holds``).
 
 A track lost *outside* every zone (it walked out of the zone first) or leaving the view (its
-box at the image edge, moving outwards) holds nothing. A person whose box merges with a
-neighbour's is not "seen outside": when a lost track's last box lies largely inside a seen box,
-the hold covers the zones of both persons before the merge (the tracker cannot tell which of the
-two the merged box follows).
+box at the image edge, moving outwards) holds nothing here; a track leaving the view is marked
+``left_view`` so that the cell's other monitors can take it over (``monitor.handover``). A
+person whose box merges with a neighbour's is not "seen outside": when a lost track's last box
+lies largely inside a seen box, the hold covers the zones of both persons before the merge (the
+tracker cannot tell which of the two the merged box follows).
 
 Everything here is deterministic: no wall clock, the frame's capture time is passed in.
 """
@@ -94,6 +95,7 @@ class Track:
     lost: bool = False
     held: tuple[HeldZone, ...] = ()  # zones this lost track keeps occupied
     was: int | None = None  # perhaps this lost person, re-identified by a guess
+    left_view: bool = False  # lost at an image edge moving outwards (handed over to peers)
 
 
 @dataclass(frozen=True)
@@ -145,6 +147,7 @@ class _Record:
     streak: int = 1  # frames seen in a row
     was: int | None = None  # the lost track this one perhaps is (a guess; see reidentified)
     seen_as: int | None = None  # a new track that perhaps is this lost one
+    left_view: bool = False
 
     def snapshot(self) -> Track:
         floor = None if self.floor is None else (float(self.floor[0]), float(self.floor[1]))
@@ -152,7 +155,7 @@ class _Record:
                                                         float(self.floor_velocity[1]))
         return Track(self.track_id, _box_tuple(self.box), self.last_seen,
                      (float(self.velocity[0]), float(self.velocity[1])), floor, fvel,
-                     self.zones, self.lost, self.held, self.was)
+                     self.zones, self.lost, self.held, self.was, self.left_view)
 
     def hold(self) -> Hold:
         return Hold(self.track_id, self.held, self.last_seen, _box_tuple(self.box),
@@ -300,7 +303,7 @@ class PersonTracker:
             rec.prev_zones = rec.zones
             if row_zones is not None:
                 rec.zones = row_zones[row]
-            rec.lost, rec.held, rec.seen_as = False, (), None
+            rec.lost, rec.held, rec.seen_as, rec.left_view = False, (), None, False
 
         started = []
         for rec in self._records.values():
@@ -308,6 +311,7 @@ class PersonTracker:
                 continue
             rec.lost = True
             rec.held = self._hold_zones(rec, boxes, rows_to_id, frame_size, zones_of)
+            rec.left_view = not rec.held and self._leaving_view(rec, frame_size)
             if rec.held:
                 started.append(rec.hold())
 

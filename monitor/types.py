@@ -70,6 +70,7 @@ class ZoneHit:
     # the person's id in the cell, as reasons name it (monitor.cell_persons): one id for one
     # person on every camera, "cam1:4" on an uncalibrated camera of several; None: track_id
     who: int | str | None = None
+    note: str = ""  # a lost hit's own words (a hold handed over by another monitor)
 
 
 @dataclass(frozen=True)

@@ -15,8 +15,12 @@ from pathlib import Path
 import cv2
 import zenoh
 
+from monitor.adapters.follower import Follower
 from monitor.bus import BusConfig, BusKeys, open_session
+from monitor.cell_consumer import CellWatchdog, subscribe_cell
 from monitor.config import demo_cell_path
+from monitor.consumer import Verdict
+from monitor.inbox import Inbox
 from monitor.scene import DemoScene
 from tests.helpers import free_port
 
@@ -230,3 +234,34 @@ class Monitor:
             self.proc.kill()
             self.proc.wait(10)
         self._log.close()
+
+
+class CellConsumer:
+    """The consumer rule for a cell of several monitors (CellWatchdog), in this process, over
+    the router at ``router``."""
+
+    def __init__(self, router: int, expected: dict, cell: str) -> None:
+        prefix = f"workcell/{cell}/"
+        self.session = open_session(BusConfig(cell=cell, instance="consumer",
+                                              connect=(f"tcp/127.0.0.1:{router}",)))
+        self.dog = CellWatchdog(expected, prefix, cell=cell)
+        self.inbox = Inbox(256)
+        self.entities = subscribe_cell(self.session, prefix, self.inbox)
+        self.follower = Follower(self.dog, self.inbox)
+        self.seen: list[tuple[str, str]] = []
+
+    def verdict(self) -> Verdict:
+        self.follower.drain(0.0)
+        v = self.dog.verdict(time.monotonic())
+        if not self.seen or self.seen[-1] != (v.state, v.reason):
+            self.seen.append((v.state, v.reason))
+        return v
+
+    def wait(self, pred, timeout: float, what: str, proc=None) -> Verdict:
+        try:
+            return wait_for(lambda: (v := self.verdict()) and pred(v) and v, timeout, what, proc)
+        except AssertionError as exc:
+            raise AssertionError(f"{exc}; verdicts seen: {self.seen[-8:]}") from None
+
+    def close(self) -> None:
+        self.session.close()

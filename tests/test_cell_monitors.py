@@ -15,15 +15,11 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from monitor.adapters.follower import Follower
-from monitor.bus import BusConfig, BusKeys, open_session
-from monitor.cell_consumer import CellWatchdog, subscribe_cell
-from monitor.consumer import Verdict
-from monitor.inbox import Inbox
+from monitor.bus import BusKeys
 from monitor.signing import load_public_key, new_key_pair
 from tests.cameras import MjpegCamera, demo_jpegs
 from tests.helpers import free_port
-from tests.processes import CAPACITY, Monitor, wait_for
+from tests.processes import CAPACITY, CellConsumer, Monitor, wait_for
 
 CELL = "tc"
 PREFIX = f"workcell/{CELL}/"
@@ -46,35 +42,6 @@ def _config(tmp: Path, role: str, camera: str, router: int, instance: str | None
         f'signing_key = "{key}"\noperators_file = "operators"\n'
         f'connect = ["tcp/127.0.0.1:{router}"]\n')
     return config
-
-
-class Consumer:
-    """The consumer rule for the cell, in this process, over the router."""
-
-    def __init__(self, router: int, expected: dict) -> None:
-        self.session = open_session(BusConfig(cell=CELL, instance="consumer",
-                                              connect=(f"tcp/127.0.0.1:{router}",)))
-        self.dog = CellWatchdog(expected, PREFIX, cell=CELL)
-        self.inbox = Inbox(256)
-        self.entities = subscribe_cell(self.session, PREFIX, self.inbox)
-        self.follower = Follower(self.dog, self.inbox)
-        self.seen: list[tuple[str, str]] = []
-
-    def verdict(self) -> Verdict:
-        self.follower.drain(0.0)
-        v = self.dog.verdict(time.monotonic())
-        if not self.seen or self.seen[-1] != (v.state, v.reason):
-            self.seen.append((v.state, v.reason))
-        return v
-
-    def wait(self, pred, timeout: float, what: str, proc=None) -> Verdict:
-        try:
-            return wait_for(lambda: (v := self.verdict()) and pred(v) and v, timeout, what, proc)
-        except AssertionError as exc:
-            raise AssertionError(f"{exc}; verdicts seen: {self.seen[-8:]}") from None
-
-    def close(self) -> None:
-        self.session.close()
 
 
 def _reset(tmp: Path, router: int) -> subprocess.CompletedProcess:
@@ -122,7 +89,7 @@ def test_two_monitors_one_cell_run_only_together_and_every_fault_is_named(
             b = start("monitor-b", cam_b.url)
             expected = {r: (load_public_key(tmp_path / f"{r}.key.pub"),)
                         for r in ("monitor-a", "monitor-b")}
-            consumer = Consumer(router_port, expected)
+            consumer = CellConsumer(router_port, expected, CELL)
             consumer.wait(lambda v: v.state == "RUN", 120, "RUN from both monitors", a)
 
             # --- an unknown third monitor with its own key on the cell: STOP, named -------

@@ -46,7 +46,7 @@ def _hit_reason(hit: ZoneHit, stop: bool) -> Reason:
     if hit.lost:
         # the time stays a number (``since``): the edges write it in the operator's clock
         return Reason("person_lost" if stop else "warning_zone",
-                      f"person {who} lost inside {hit.zone_id}",
+                      hit.note or f"person {who} lost inside {hit.zone_id}",
                       zone_id=hit.zone_id, person=who, distance_m=hit.distance_m,
                       since=hit.lost_since)
     return Reason("protective_zone" if stop else "warning_zone", f"person {who} in {hit.zone_id}",

@@ -1,0 +1,225 @@
+"""Hand-over of holds on the bus: the Zenoh edge of ``monitor.handover`` (docs/consumer.md).
+
+A monitor with ``[handover] peers`` publishes, at the bus's heartbeat rate, its holds of persons
+lost inside zones and its recent departures on ``<prefix>safety/<role>/holds``, signed with its
+command key (``monitor.signing``; the payload names cell, role, boot, seq and wall), and takes
+its peers' verified entries into ``Pipeline.handover`` (the loop's thread, as a driver sink).
+
+It listens on every role's holds key: a message on the key of a role it does not expect,
+unsigned, wrongly signed, malformed, for another cell, outside the clock window or replayed
+(``seq`` not growing within one boot) is refused and counted (``holds_refused`` in the status,
+one ``foreign_holds`` alert per burst), like forged commands (``monitor.foreign``). A message can
+only add holds, never end one; a peer that falls silent ends nothing either.
+"""
+
+from __future__ import annotations
+
+import collections
+import contextlib
+import json
+import logging
+import threading
+import time
+from collections.abc import Callable, Mapping
+
+import zenoh
+from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PublicKey
+
+from monitor.busconfig import BusKeys
+from monitor.handover import HANDOVER_SCHEMA, MAX_ENTRIES, Entry, HandedHolds, HandoverConfig
+from monitor.handover import entries_of as _entries_of
+from monitor.signing import SIGNATURE_BYTES, Signer, verify
+from monitor.types import Alert
+
+_log = logging.getLogger("monitor.handover")
+KINDS = ("unknown_role", "unsigned", "signature", "unchecked", "invalid", "stale", "replayed")
+MAX_BOOTS = 64  # remembered (role, boot) seq counters: a flood cannot grow memory
+
+
+class HoldsGate:
+    """Verifies peers' holds messages (thread-safe: Zenoh callbacks run anywhere)."""
+
+    def __init__(self, cell: str, prefix: str, own_role: str,
+                 peers: Mapping[str, Ed25519PublicKey], *, wall_window_s: float = 5.0,
+                 verify_per_s: float = 100.0) -> None:
+        self.cell, self.own_role = cell, own_role
+        self.keys = {role: BusKeys.of(prefix, role).holds for role in peers}
+        self.peers = dict(peers)
+        self.wall_window_s = wall_window_s
+        self.verify_per_s = verify_per_s
+        self._lock = threading.Lock()
+        self._counts: collections.Counter[str] = collections.Counter()
+        self._alerted: collections.Counter[str] = collections.Counter()
+        self._seq: dict[tuple[str, str], int] = {}
+        self._tokens, self._tokens_at = verify_per_s, None
+
+    def check(self, key_expr: str, payload: bytes, signature: bytes | None, now: float,
+              wall_now: float) -> tuple[str, str, tuple[Entry, ...]] | None:
+        """(role, boot, entries) of a verified message, or None (counted by kind)."""
+        kind, out = self._sort(key_expr, payload, signature, now, wall_now)
+        if kind:
+            with self._lock:
+                self._counts[kind] += 1
+            return None
+        return out
+
+    def _sort(self, key_expr: str, payload: bytes, signature: bytes | None, now: float,
+              wall_now: float):
+        role = next((r for r, k in self.keys.items() if k == key_expr), None)
+        if role is None:
+            return "unknown_role", None
+        if signature is None:
+            return "unsigned", None
+        if len(signature) != SIGNATURE_BYTES:
+            return "signature", None
+        if not self._take_token(now):
+            return "unchecked", None
+        if not verify(self.peers[role], key_expr, payload, signature):
+            return "signature", None
+        try:
+            body = json.loads(payload)
+            if body.get("schema") != HANDOVER_SCHEMA or body.get("cell") != self.cell \
+                    or body.get("role") != role:
+                return "invalid", None
+            boot, seq, wall = body["boot"], body["seq"], body["wall"]
+            if not isinstance(boot, str) or not isinstance(seq, int) or isinstance(seq, bool):
+                return "invalid", None
+            entries = tuple(Entry.from_dict(e) for e in body["entries"][:MAX_ENTRIES])
+        except (ValueError, KeyError, TypeError, AttributeError):
+            return "invalid", None
+        if not isinstance(wall, int | float) or abs(float(wall) - wall_now) > self.wall_window_s:
+            return "stale", None
+        with self._lock:
+            last = self._seq.get((role, boot))
+            if last is not None and seq <= last:
+                return "replayed", None
+            if last is None and len(self._seq) >= MAX_BOOTS:
+                self._seq.pop(next(iter(self._seq)))
+            self._seq[(role, boot)] = seq
+        return "", (role, boot, entries)
+
+    def _take_token(self, now: float) -> bool:
+        with self._lock:
+            if self._tokens_at is not None:
+                gained = max(0.0, now - self._tokens_at) * self.verify_per_s
+                self._tokens = min(self.verify_per_s, self._tokens + gained)
+            self._tokens_at = now
+            if self._tokens < 1.0:
+                return False
+            self._tokens -= 1.0
+            return True
+
+    def counts(self) -> dict[str, int]:
+        with self._lock:
+            return dict(self._counts)
+
+    def alert(self, now: float) -> Alert | None:
+        """One alert for the messages refused since the last call, or None."""
+        with self._lock:
+            new = self._counts - self._alerted
+            self._alerted = collections.Counter(self._counts)
+        if not new:
+            return None
+        what = ", ".join(f"{k} {new[k]}" for k in KINDS if new.get(k))
+        return Alert("foreign_holds", "warning",
+                     f"{sum(new.values())} holds messages refused ({what}): they add and end "
+                     "nothing; someone else publishes on the cell's holds keys", "handover",
+                     now, details={"new": dict(new)})
+
+
+def holds_payload(cell: str, role: str, boot: str, seq: int, wall: float,
+                  entries: tuple[Entry, ...]) -> bytes:
+    return json.dumps({"schema": HANDOVER_SCHEMA, "cell": cell, "role": role, "boot": boot,
+                       "seq": seq, "wall": wall, "mono": time.monotonic(),
+                       "entries": [e.to_dict() for e in entries]}).encode()
+
+
+class HoldsLink:
+    """The driver sink that publishes this monitor's holds and takes its peers' (use it while
+    the bus is open; ``close`` undeclares). ``pipeline.handover`` is set here."""
+
+    def __init__(self, bus, pipeline, config: HandoverConfig,
+                 peers: Mapping[str, Ed25519PublicKey], signer: Signer,
+                 wall: Callable[[], float] = time.time) -> None:
+        self.bus, self.pipeline, self.config = bus, pipeline, config
+        self.signer, self.wall = signer, wall
+        cfg = bus.config
+        self.key = BusKeys.of(cfg.key_prefix, cfg.role).holds
+        self.gate = HoldsGate(cfg.cell, cfg.key_prefix, cfg.role, peers)
+        tracker = next((c.tracker for c in pipeline.cameras.values() if c.tracker), None)
+        walk = tracker.config.walk_speed_mps if tracker is not None else 1.5
+        pipeline.handover = HandedHolds(walk, config.reach_s, when=pipeline.when)
+        self._inbox: collections.deque = collections.deque(maxlen=256)
+        self._seq = 0
+        self._last_put: float | None = None
+        self._period = 1.0 / cfg.heartbeat_hz
+        s = bus.session
+        self._pub = s.declare_publisher(self.key, encoding="application/json",
+                                        priority=zenoh.Priority.REAL_TIME, express=True)
+        self._sub = s.declare_subscriber(cfg.key_prefix + "safety/*/holds", self._on_sample,
+                                         allowed_origin=zenoh.Locality.REMOTE)
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        try:
+            key = str(sample.key_expr)
+            if key == self.key:
+                return  # our own key (another instance of our role is a duplicate_monitor)
+            signature = sample.attachment.to_bytes() if sample.attachment is not None else None
+            taken = self.gate.check(key, sample.payload.to_bytes(), signature,
+                                    time.monotonic(), self.wall())
+        except Exception:  # nothing a sender does may kill this callback
+            return
+        if taken is not None:
+            self._inbox.append(taken)
+
+    def on_step(self, step) -> None:
+        now = step.result.now
+        handed = self.pipeline.handover
+        while self._inbox:
+            role, boot, entries = self._inbox.popleft()
+            for hold in handed.take(role, boot, entries, self.pipeline.cell, now, self.wall()):
+                _log.warning("hand-over: %s: %s", role, hold.describe())
+        if self._last_put is not None and now - self._last_put < self._period:
+            return
+        self._last_put = now
+        self.publish(now)
+        alert = self.gate.alert(now)
+        if alert is not None:
+            self.bus.publish_alert(alert)
+        self.bus.update_status(holds_refused=self.gate.counts(),
+                               holds_taken=[h.describe() for h in handed.holds])
+
+    def publish(self, now: float) -> None:
+        """This monitor's holds and departures now, signed."""
+        tracks = {cid: cam.tracker.tracks for cid, cam in self.pipeline.cameras.items()
+                  if cam.tracker is not None}
+        entries = _entries_of(tracks, time.monotonic(), self.wall(), self.config.keep_s)
+        self._seq += 1
+        payload = holds_payload(self.bus.config.cell, self.bus.config.role, self.bus.boot,
+                                self._seq, self.wall(), entries)
+        with contextlib.suppress(Exception):  # a failed put: the peer sees silence, no RUN
+            self._pub.put(payload, attachment=self.signer.sign(self.key, payload))
+
+    def close(self) -> None:
+        for entity in (self._sub, self._pub):
+            with contextlib.suppress(Exception):
+                entity.undeclare()
+
+
+def start_handover(config, pipeline, bus) -> HoldsLink | None:
+    """The hand-over sink of ``monitor run`` (None without ``[handover] peers``)."""
+    from monitor.signing import load_private_key, load_public_key
+
+    peers = config.handover.peers
+    if not peers:
+        return None
+    keys = {role: load_public_key(path) for role, path in peers.items()}
+    link = HoldsLink(bus, pipeline, config.handover, keys,
+                     load_private_key(config.bus.signing_key))
+    _log.info("hand-over: publishing holds on %s, taking those of %s", link.key,
+              ", ".join(sorted(peers)))
+    models = pipeline.cell.camera_models if pipeline.cell is not None else {}
+    for cam in (c.id for c in config.cameras if c.id not in models):
+        _log.warning("hand-over: camera %s has no calibration: its persons have no floor point "
+                     "and are never handed over (docs/consumer.md)", cam)
+    return link
