@@ -26,10 +26,18 @@ import zenoh
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PublicKey
 
 from monitor.busconfig import BusKeys
-from monitor.handover import HANDOVER_SCHEMA, MAX_ENTRIES, Entry, HandedHolds, HandoverConfig
+from monitor.handover import (
+    HANDOVER_SCHEMA,
+    MAX_ENTRIES,
+    Entry,
+    HandedHolds,
+    HandoverConfig,
+    overflow_entry,
+    silent_peers,
+)
 from monitor.handover import entries_of as _entries_of
 from monitor.signing import SIGNATURE_BYTES, Signer, verify
-from monitor.types import Alert
+from monitor.types import Alert, Fault
 
 _log = logging.getLogger("monitor.handover")
 KINDS = ("unknown_role", "unsigned", "signature", "unchecked", "invalid", "stale", "replayed")
@@ -84,7 +92,12 @@ class HoldsGate:
             boot, seq, wall = body["boot"], body["seq"], body["wall"]
             if not isinstance(boot, str) or not isinstance(seq, int) or isinstance(seq, bool):
                 return "invalid", None
-            entries = tuple(Entry.from_dict(e) for e in body["entries"][:MAX_ENTRIES])
+            listed, more = body["entries"], body.get("overflow", 0)
+            if not isinstance(listed, list) or not isinstance(more, int) or isinstance(
+                    more, bool) or more < 0:
+                return "invalid", None
+            entries = tuple(Entry.from_dict(e) for e in listed[:MAX_ENTRIES])
+            more += max(0, len(listed) - MAX_ENTRIES)
         except (ValueError, KeyError, TypeError, AttributeError):
             return "invalid", None
         if not isinstance(wall, int | float) or abs(float(wall) - wall_now) > self.wall_window_s:
@@ -96,6 +109,8 @@ class HoldsGate:
             if last is None and len(self._seq) >= MAX_BOOTS:
                 self._seq.pop(next(iter(self._seq)))
             self._seq[(role, boot)] = seq
+        if more:  # the persons left off could be anywhere: never silently lost
+            entries += (overflow_entry(len(entries) + more, float(wall)),)
         return "", (role, boot, entries)
 
     def _take_token(self, now: float) -> bool:
@@ -129,9 +144,12 @@ class HoldsGate:
 
 def holds_payload(cell: str, role: str, boot: str, seq: int, wall: float,
                   entries: tuple[Entry, ...]) -> bytes:
+    """The signed message body: at most ``MAX_ENTRIES`` entries (holds first), and in
+    ``overflow`` how many more there were (a receiver then holds every protective zone)."""
     return json.dumps({"schema": HANDOVER_SCHEMA, "cell": cell, "role": role, "boot": boot,
                        "seq": seq, "wall": wall, "mono": time.monotonic(),
-                       "entries": [e.to_dict() for e in entries]}).encode()
+                       "entries": [e.to_dict() for e in entries[:MAX_ENTRIES]],
+                       "overflow": max(0, len(entries) - MAX_ENTRIES)}).encode()
 
 
 class HoldsLink:
@@ -152,6 +170,8 @@ class HoldsLink:
         self._inbox: collections.deque = collections.deque(maxlen=256)
         self._seq = 0
         self._last_put: float | None = None
+        self._started = time.monotonic()
+        self._heard: dict[str, float | None] = dict.fromkeys(peers)
         self._period = 1.0 / cfg.heartbeat_hz
         s = bus.session
         self._pub = s.declare_publisher(self.key, encoding="application/json",
@@ -170,7 +190,16 @@ class HoldsLink:
         except Exception:  # nothing a sender does may kill this callback
             return
         if taken is not None:
+            self._heard[taken[0]] = time.monotonic()
             self._inbox.append(taken)
+
+    def faults(self) -> tuple[Fault, ...]:
+        """``handover_silent`` STOPs of peers not heard for ``peer_timeout_s`` (the live
+        feed polls it every step, like the bus's ``duplicate_monitor``)."""
+        counts = self.gate.counts()
+        refused = ", ".join(f"{k} {counts[k]}" for k in KINDS if counts.get(k))
+        return silent_peers(dict(self._heard), self._started, time.monotonic(),
+                            self.config.peer_timeout_s, self.config.keep_s, refused)
 
     def on_step(self, step) -> None:
         now = step.result.now

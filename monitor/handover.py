@@ -1,15 +1,18 @@
 """Hand-over of holds between the monitors of one cell (issue 24; docs/consumer.md).
 
 A person tracked by monitor-a who walks out of its camera's view (a *departure*: the box at the
-image edge, moving outwards) or is lost inside one of its zones (a *hold*) may be where only
-monitor-b's zones are, unseen by monitor-b's cameras (hidden, missed). Each monitor with peers
-publishes the list of its holds and recent departures (``entries_of``; signed on its
+image edge, moving outwards), is lost anywhere else outside its zones ("lost": behind a
+fixture, at the far end of the view) or is lost inside one of its zones (a *hold*) may be where
+only monitor-b's zones are, unseen by monitor-b's cameras (hidden, missed). Each monitor with
+peers publishes the list of its holds and recent losses (``entries_of``; signed on its
 ``safety/<role>/holds`` key, ``monitor.bus_holds``); a receiving monitor turns each verified
 entry it has not taken before into a hold of its own (``HandedHolds``): a ``person_lost`` STOP
 on every protective zone of its own whose floor footprint lies within reach of the entry's floor
-point (walking speed x ``reach_s``), and on any of its zones with an id the entry held. It ends
-like its own lost holds: a person seen (by its own cameras) near that point -- whose own hits
-then count -- or an operator's confirm-clear reset. A peer that falls silent never ends one.
+point (walking speed x ``reach_s``), and on any of its protective zones with an id the entry
+held. A held zone ends when its own cameras see a person within reach of that point *inside
+that zone* (whose own hits then keep it occupied), or on an operator's confirm-clear reset. A
+peer that falls silent never ends one (``monitor.bus_holds`` makes the silence a STOP); a peer
+message with more persons than ``MAX_ENTRIES`` holds every protective zone.
 
 Pure: no clock, no I/O; the edges pass times in.
 """
@@ -18,7 +21,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Annotated, Any
 
 import numpy as np
@@ -26,10 +29,11 @@ from pydantic import Field
 
 from monitor.busconfig import Role
 from monitor.schema import ConfigPath, Float, section
-from monitor.types import ZoneHit, ZoneReport
+from monitor.types import Fault, ZoneHit, ZoneReport
 
 HANDOVER_SCHEMA = "workcell.safety.holds/1"
 MAX_ENTRIES = 64  # per message: a flood cannot grow a receiver's memory without bound
+KINDS = ("hold", "departure", "lost")  # entry kinds on the wire ("overflow": receiver only)
 MAX_TAKEN = 4096  # remembered (role, boot, person) keys: the oldest are forgotten first
 # handed-over hits: person indices far below any camera's lost-person index
 _PERSON_BASE = -1_000_000
@@ -46,13 +50,17 @@ class HandoverConfig:
     keep_s: Annotated[Float, Field(gt=0, le=60)] = 5.0
     # a handed-over point reaches the zones a person walks to in this many seconds
     reach_s: Annotated[Float, Field(gt=0, le=10)] = 1.0
+    # no valid holds message from a peer for this long: a STOP (``handover_silent``)
+    peer_timeout_s: Annotated[Float, Field(gt=0, le=10)] = 1.0
 
 
 @dataclass(frozen=True)
 class Entry:
-    """One person handed over: ``kind`` "hold" (lost inside ``zones``) or "departure" (left
-    the view at an image edge); ``floor_m`` the last floor point (cell metres); ``wall`` the
-    sender's Unix time of the last sighting."""
+    """One person handed over: ``kind`` "hold" (lost inside ``zones``), "departure" (left
+    the view at an image edge) or "lost" (lost anywhere else: behind a fixture, at the far end
+    of the view); ``floor_m`` the last floor point (cell metres); ``wall`` the sender's Unix
+    time of the last sighting; ``seen`` the same in the sender's own clock (it names one loss
+    of the person: a person lost again later is a new entry)."""
 
     person: int
     kind: str
@@ -60,11 +68,13 @@ class Entry:
     wall: float
     zones: tuple[str, ...] = ()
     camera: str = ""
+    seen: float | None = None
 
     def to_dict(self) -> dict:
         return {"person": self.person, "kind": self.kind,
                 "floor_m": [round(self.floor_m[0], 3), round(self.floor_m[1], 3)],
-                "wall": self.wall, "zones": list(self.zones), "camera": self.camera}
+                "wall": self.wall, "zones": list(self.zones), "camera": self.camera,
+                **({} if self.seen is None else {"seen": self.seen})}
 
     @classmethod
     def from_dict(cls, d: Any) -> Entry:
@@ -73,10 +83,12 @@ class Entry:
             raise ValueError("an entry must be an object")
         person, kind, floor, wall = d.get("person"), d.get("kind"), d.get("floor_m"), \
             d.get("wall")
-        zones, camera = d.get("zones", []), d.get("camera", "")
-        if not isinstance(person, int) or isinstance(person, bool) or kind not in (
-                "hold", "departure"):
-            raise ValueError("entry: person (integer) and kind (hold or departure)")
+        zones, camera, seen = d.get("zones", []), d.get("camera", ""), d.get("seen")
+        if not isinstance(person, int) or isinstance(person, bool) or kind not in KINDS:
+            raise ValueError("entry: person (integer) and kind (hold, departure or lost)")
+        if seen is not None and not (isinstance(seen, int | float) and not isinstance(
+                seen, bool) and math.isfinite(seen)):
+            raise ValueError("entry: seen is a time")
         if not (isinstance(floor, list) and len(floor) == 2 and all(
                 isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
                 for v in floor)):
@@ -88,30 +100,61 @@ class Entry:
                 or not isinstance(camera, str):
             raise ValueError("entry: zones is a list of zone ids, camera a string")
         return cls(person, kind, (float(floor[0]), float(floor[1])), float(wall),
-                   tuple(zones), camera)
+                   tuple(zones), camera, None if seen is None else float(seen))
 
 
 def entries_of(tracks: Mapping[str, Sequence[Any]], now: float, wall_now: float,
                keep_s: float) -> tuple[Entry, ...]:
     """What this monitor hands over now, from each camera's tracks (``monitor.tracks.Track``):
-    every lost person holding zones, and every person who left the view within ``keep_s``.
-    ``now`` is the tracks' clock, ``wall_now`` the Unix time at ``now``. A track without a
-    floor point (uncalibrated camera) cannot be handed over."""
+    every lost person holding zones, and every other person lost within ``keep_s`` -- one who
+    left the view at an image edge ("departure") or was lost anywhere else ("lost": behind a
+    fixture, at the far end of the view, where only a peer's zone may be). ``now`` is the
+    tracks' clock, ``wall_now`` the Unix time at ``now``. Holds first, then the most recent.
+    A track without a finite floor point (uncalibrated camera) cannot be handed over. All of
+    them: ``holds_payload`` says when there are more than a message carries."""
     out = []
     for cid, camera_tracks in sorted(tracks.items()):
         for t in camera_tracks:
-            if not t.lost or t.floor_m is None:
+            if not t.lost or t.floor_m is None or not all(map(math.isfinite, t.floor_m)):
                 continue
             age = max(0.0, now - t.last_seen)
             if t.held:
                 kind = "hold"
-            elif getattr(t, "left_view", False) and age <= keep_s:
-                kind = "departure"
+            elif age <= keep_s:
+                kind = "departure" if getattr(t, "left_view", False) else "lost"
             else:
                 continue
             out.append(Entry(t.track_id, kind, t.floor_m, wall_now - age,
-                             tuple(z.zone_id for z in t.held), cid))
-    return tuple(out[:MAX_ENTRIES])
+                             tuple(z.zone_id for z in t.held), cid, float(t.last_seen)))
+    out.sort(key=lambda e: (e.kind != "hold", -e.wall))
+    return tuple(out)
+
+
+def overflow_entry(count: int, wall: float) -> Entry:
+    """The receiver's stand-in for a peer message with more persons than ``MAX_ENTRIES``: the
+    ones left off could be anywhere, so it reaches every protective zone."""
+    return Entry(-1, "overflow", (0.0, 0.0), wall, (), f"{count} persons")
+
+
+def silent_peers(heard: Mapping[str, float | None], started: float, now: float,
+                 timeout_s: float, keep_s: float, refused: str = "") -> tuple[Fault, ...]:
+    """A ``handover_silent`` STOP per peer role with no valid holds message for over
+    ``timeout_s`` (``heard``: role -> my clock at its last accepted message, None: none since
+    ``started``). A peer whose clock is off by more than the window, whose messages are all
+    malformed, forged or never sent is silent: what it hands over would be lost, so the cell
+    may not RUN on it. Latched once a peer that was heard stays silent past ``keep_s``: its
+    entries of that time are gone, a person it lost then is nowhere held; a peer never heard
+    since start (a cell starting up) does not latch."""
+    out = []
+    for role in sorted(heard):
+        last = heard[role]
+        silent = now - (started if last is None else last)
+        if not silent <= timeout_s:  # NaN: silent
+            why = f" (refused: {refused})" if refused else ""
+            out.append(Fault("handover_silent", f"no valid holds message from {role} for "
+                             f"{silent:.1f} s{why}: persons it hands over would be lost",
+                             True, "handover", latch=last is not None and silent > keep_s))
+    return tuple(out)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -176,13 +219,24 @@ def zone_footprints(cell: Any) -> dict[str, np.ndarray]:
     return out
 
 
-def reached_zones(entry: Entry, footprints: Mapping[str, np.ndarray], reach_m: float
-                  ) -> tuple[str, ...]:
+def protective_ids(cell: Any) -> frozenset[str]:
+    """The ids of every enabled protective zone of ``cell``, with or without a footprint."""
+    return frozenset(z.id for z in getattr(cell, "zones", ())
+                     if z.enabled and z.kind == "protective")
+
+
+def reached_zones(entry: Entry, footprints: Mapping[str, np.ndarray], reach_m: float,
+                  protective: Iterable[str] = ()) -> tuple[str, ...]:
     """My protective zones the entry's person may be in: footprints within ``reach_m`` of its
-    floor point, and zones with an id it held (the same zone seen from both sides)."""
+    floor point, and zones with an id it held (the same zone seen from both sides), footprint
+    or not (``protective``: every protective zone id; a zone that follows the tool has none).
+    An overflow entry reaches every one of them."""
+    ids = set(footprints) | set(protective)
+    if entry.kind == "overflow":
+        return tuple(sorted(ids))
     near = {zid for zid, poly in footprints.items()
             if distance_to_polygon(entry.floor_m, poly) <= reach_m}
-    same = {zid for zid in entry.zones if zid in footprints}
+    same = {zid for zid in entry.zones if zid in ids}
     return tuple(sorted(near | same))
 
 
@@ -204,11 +258,14 @@ class HandedHold:
     def describe(self, when: Any = None, zones: Sequence[str] | None = None) -> str:
         """``person 3 of monitor-a left its view toward cam1-stop at 12:00:03 (handed
         over)``; ``when`` formats ``since`` (None: no time, a log line carries its own)."""
+        names = ", ".join(self.zones if zones is None else zones)
+        at = "" if when is None else f" at {when(self.since)}"
+        if self.entry.kind == "overflow":
+            return (f"{self.role} handed over more persons than a message carries "
+                    f"({self.entry.camera}): every protective zone held: {names}{at}")
         verb = "left its view toward" if self.entry.kind == "departure" else \
             "was lost near"
-        at = "" if when is None else f" at {when(self.since)}"
-        return (f"person {self.entry.person} of {self.role} {verb} "
-                f"{', '.join(self.zones if zones is None else zones)}{at} (handed over)")
+        return f"person {self.entry.person} of {self.role} {verb} {names}{at} (handed over)"
 
 
 @dataclass
@@ -220,7 +277,7 @@ class HandedHolds:
     reach_s: float = 1.0
     when: Any = None  # formats a time in reason texts (None: no time)
     _holds: list[HandedHold] = field(default_factory=list)
-    _taken: dict[tuple[str, str, int], None] = field(default_factory=dict)
+    _taken: dict[tuple[str, str, int, float | None], None] = field(default_factory=dict)
     _serial: int = 0
 
     @property
@@ -237,15 +294,22 @@ class HandedHolds:
         hold on the zones of ``cell`` it reaches (none reached: nothing held, remembered as
         taken). ``now``/``wall_now``: my clock and Unix time now. Returns the new holds."""
         footprints = zone_footprints(cell) if cell is not None else {}
+        protective = protective_ids(cell) if cell is not None else frozenset()
         new = []
         for entry in entries:
-            key = (role, boot, entry.person)
-            if key in self._taken:
-                continue
-            self._taken[key] = None
-            while len(self._taken) > MAX_TAKEN:
-                del self._taken[next(iter(self._taken))]
-            zones = reached_zones(entry, footprints, self.reach_m)
+            if entry.kind == "overflow":
+                # held while the peer overflows: taken again after a confirm-clear
+                if any(h.role == role and h.entry.kind == "overflow" for h in self._holds):
+                    continue
+            else:
+                # one loss of one person (``seen``): a person lost again later is new
+                key = (role, boot, entry.person, entry.seen)
+                if key in self._taken:
+                    continue
+                self._taken[key] = None
+                while len(self._taken) > MAX_TAKEN:
+                    del self._taken[next(iter(self._taken))]
+            zones = reached_zones(entry, footprints, self.reach_m, protective)
             if not zones:
                 continue
             self._serial += 1
@@ -255,16 +319,27 @@ class HandedHolds:
             new.append(hold)
         return tuple(new)
 
-    def release_seen(self, seen_floor_m: Iterable[tuple[float, float]]) -> tuple[HandedHold, ...]:
-        """Persons my cameras see now: a hold whose point has one within reach ends (the
-        person is seen again; their own hits count). Returns the holds ended."""
-        points = [p for p in seen_floor_m if p is not None]
-        if not points or not self._holds:
+    def release_seen(self, seen: Iterable[tuple[tuple[float, float] | None, Iterable[str]]]
+                     ) -> tuple[HandedHold, ...]:
+        """Persons my cameras see now, each (floor point, ids of the zones they are in): a
+        held zone ends when a person within reach of the hold's point is seen *inside it*
+        (their own hits keep it occupied from now on); the hold ends with its last zone. A
+        person seen near the point but outside the zone ends nothing: the handed-over person
+        may be the one my cameras do not see, inside it. Returns the holds ended."""
+        people = [(np.asarray(p, float), frozenset(z)) for p, z in seen if p is not None]
+        if not people or not self._holds:
             return ()
-        pts = np.asarray(points, float).reshape(-1, 2)
-        ended = [h for h in self._holds if float(np.min(np.linalg.norm(
-            pts - np.asarray(h.entry.floor_m), axis=1))) <= self.reach_m]
-        self._holds = [h for h in self._holds if h not in ended]
+        ended, kept = [], []
+        for h in self._holds:
+            point = np.asarray(h.entry.floor_m, float)
+            inside = set().union(*(z for p, z in people if h.entry.kind != "overflow"
+                                   and float(np.linalg.norm(p - point)) <= self.reach_m))
+            left = tuple(z for z in h.zones if z not in inside)
+            if not left:
+                ended.append(h)
+            else:
+                kept.append(h if left == h.zones else replace(h, zones=left))
+        self._holds = kept
         return tuple(ended)
 
     def drop(self) -> tuple[HandedHold, ...]:
@@ -284,6 +359,6 @@ class HandedHolds:
     def decide(self, trackers: Iterable[Any]) -> ZoneReport | None:
         """At a decision: holds whose point my cameras now see a person near end, then the
         lost hits of the rest (``trackers``: each camera's ``PersonTracker``)."""
-        self.release_seen(t.floor_m for tr in trackers for t in tr.tracks
-                          if not t.lost and t.floor_m is not None)
+        self.release_seen((t.floor_m, [z.zone_id for z in t.zones]) for tr in trackers
+                          for t in tr.tracks if not t.lost and t.floor_m is not None)
         return self.report()

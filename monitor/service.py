@@ -210,6 +210,7 @@ def _serve(config: MonitorConfig, pipeline: Pipeline, bus: SafetyBus, expected: 
         handover = start_handover(config, pipeline, bus)  # holds of the cell's other monitors
         if handover is not None:
             sinks.insert(1, handover)
+            feed.handover = handover
             closers.insert(0, handover.close)
         driver = Driver(pipeline, sinks, stall_after_s=config.policy.frame_timeout,
                         self_test_period_s=getattr(config.detector, "self_test_period_s", None))

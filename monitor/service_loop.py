@@ -48,6 +48,7 @@ class LiveFeed:
         self.end = time.monotonic() + duration if duration is not None else None
         self.turn = 0
         self.cases = None  # the zone set selections' receiver (None: no sets)
+        self.handover = None  # monitor.bus_holds.HoldsLink: a silent peer is a STOP fault
         # None: never connected yet (start-up is no loss); True / False after that
         self.was_connected: dict[str, bool | None] = {g.camera_id: None for g in grabbers}
 
@@ -107,6 +108,8 @@ class LiveFeed:
         case_events = self.cases.poll() if self.cases is not None else ()
         pose_time = tool_pose = tool_speed = None
         faults = list(self.camera_faults()) + list(self.bus.faults())  # e.g. duplicate_monitor
+        if self.handover is not None:
+            faults += self.handover.faults()
         if self.pose is not None:
             reading = self.pose.latest()
             if reading is not None:
