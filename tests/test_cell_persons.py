@@ -3,6 +3,8 @@ camera, with calibrations given as pixel -> floor functions."""
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import pytest
 
@@ -12,6 +14,7 @@ from monitor.errors import ConfigError
 from monitor.policy.causes import frame_causes
 from monitor.tracks import PersonTracker
 from monitor.types import FrameInfo, Persons, ZoneHit, ZoneReport
+from monitor.zones.check import merge_towards_danger
 
 SCALE = 100.0  # px per metre of both test calibrations
 
@@ -156,3 +159,36 @@ def test_link_settings_are_checked_with_the_config():
     with pytest.raises(ConfigError, match=r"tracking\.link_s"):
         CellPersonsConfig(link_s=60.0)
     assert parse_config({"tracking": {"link_m": 0.4}}, "monitor.toml").tracking.link_m == 0.4
+
+
+def test_two_persons_linked_by_mistake_never_clear_each_others_stop():
+    """Red-team probe (passes on the first version: names only): persons X and Y stand
+    0.4 m apart (closer than link_m), X inside protective zone P seen by cam0, Y beside it
+    seen by cam1, and cam1's track of Y is linked to X's cell person. Whatever Y does --
+    leave, stand in P too and then X leaves P, vanish -- the STOP stays while anyone is in P,
+    and X lost inside P keeps holding it while Y, bearing X's id, is seen outside."""
+    def causes(*named):
+        reports = [n.report for n in named if n.report is not None]
+        return [r.message for r in frame_causes(functools.reduce(
+            merge_towards_danger, reports)).stops]
+
+    cell = Cell()
+    x_in = cell.see("cam0", 0.0, (3.0, 5.0), hits=(ZoneHit("P", "protective", 0, 0.0),))
+    y_out = cell.see("cam1", 0.05, (3.4, 5.0))
+    assert x_in.person_ids == y_out.person_ids == (1,)  # the mistake
+    assert causes(x_in, y_out) == ["person 1 in P"]
+    y_gone = cell.see("cam1", 0.15)  # Y leaves cam1's view: X is still in P
+    assert causes(x_in, y_gone) == ["person 1 in P"]
+    # both in P (one cause, two hits); then X walks out of P: Y's hit keeps the STOP
+    x_in = cell.see("cam0", 0.2, (3.0, 5.0), hits=(ZoneHit("P", "protective", 0, 0.0),))
+    y_in = cell.see("cam1", 0.25, (3.4, 5.0), hits=(ZoneHit("P", "protective", 0, 0.0),))
+    assert causes(x_in, y_in) == ["person 1 in P"]
+    x_out = cell.see("cam0", 0.3, (3.0, 5.0))  # its zone check: outside P now
+    assert causes(x_out, y_in) == ["person 1 in P"]
+    # X back in P, then lost there (hidden); Y, named person 1 too, seen outside P by cam1
+    cell.see("cam0", 0.4, (3.0, 5.0), hits=(ZoneHit("P", "protective", 0, 0.0),))
+    cell.see("cam0", 0.5, (3.0, 5.0), hits=(ZoneHit("P", "protective", 0, 0.0),))
+    x_lost = cell.see("cam0", 0.6)
+    y_out = cell.see("cam1", 0.65, (3.4, 5.0))
+    assert causes(x_lost, y_out) == ["person 1 lost inside P"]
+    assert [h.who for h in x_lost.report.hits] == [1] and x_lost.report.hits[0].lost
