@@ -46,7 +46,7 @@ class HandoverConfig:
     # role -> the public key file of each peer monitor whose holds this monitor takes
     # (e.g. "monitor-b" = "keys/monitor-b.key.pub"); empty: no hand-over (nothing published)
     peers: dict[Role, ConfigPath] = field(default_factory=dict)
-    # a person who left this monitor's view is handed over for this long after the last sight
+    # a person this monitor lost outside its zones is handed over this long after the last sight
     keep_s: Annotated[Float, Field(gt=0, le=60)] = 5.0
     # a handed-over point reaches the zones a person walks to in this many seconds
     reach_s: Annotated[Float, Field(gt=0, le=10)] = 1.0
