@@ -34,6 +34,9 @@ CAM_B = Camera.look_at("camB", (640, 360), np.array([[450.0, 0, 320], [0, 450.0,
 WALK = Walker(((0.0, 1.0, -1.0), (4.5, 5.5, -1.0)))
 B_STOP = {"id": "b-stop", "kind": "protective", "shape": "box", "min_m": [3.8, -2.5, 0.0],
           "max_m": [6.5, 0.5, 2.2], "unobserved_ok": True}
+# a person walking the same line who vanishes mid-view at x = 2.7 m (behind a fixture, missed):
+# not at an image edge, outside every zone of monitor-a, 1.1 m from monitor-b's zone
+VANISH = Walker(((0.0, 1.0, -1.0), (1.7, 2.7, -1.0)), leave_s=1.8)
 A_STOP = {"id": "a-stop", "kind": "protective", "shape": "box", "min_m": [-4.0, 1.0, 0.0],
           "max_m": [-3.0, 2.0, 2.2], "unobserved_ok": True}
 
@@ -74,10 +77,10 @@ def _config(tmp: Path, role: str, camera: Camera, video: Path, zones: Path, rout
     return config
 
 
-def _run_cell(tmp: Path, model: Path, handover: bool, check) -> None:
+def _run_cell(tmp: Path, model: Path, handover: bool, check, walk: Walker = WALK) -> None:
     for role in ("monitor-a", "monitor-b"):
         new_key_pair(tmp / f"{role}.key")
-    video_a = _video(tmp / "a.mp4", CellScene((WALK,), camera=SCENE_CAMERA, duration_s=6.0))
+    video_a = _video(tmp / "a.mp4", CellScene((walk,), camera=SCENE_CAMERA, duration_s=6.0))
     video_b = _video(tmp / "b.mp4", CellScene((), camera=CAM_B, duration_s=6.0))
     port = free_port()
     router = subprocess.Popen([sys.executable, "-m", "monitor", "router", "--listen",
@@ -140,3 +143,17 @@ def test_without_hand_over_the_same_cell_runs(tmp_path, synthetic_model):
         assert "handed over" not in " ".join(r for _, r in consumer.seen), consumer.seen
 
     _run_cell(tmp_path, synthetic_model, handover=False, check=check)
+
+
+@pytest.mark.slow
+def test_a_person_vanishing_mid_view_near_the_others_zone_keeps_stop(tmp_path, synthetic_model):
+    """Lost not at an image edge but mid-view, outside monitor-a's zones, within reach of
+    monitor-b's zone: handed over as "lost" (the first version handed over only departures at
+    an edge, and the cell RUNs)."""
+    def check(consumer: CellConsumer, procs: list[Monitor]) -> None:
+        _, b = procs
+        v = consumer.wait(lambda v: "was lost near b-stop" in v.reason, 60,
+                          "monitor-b's hold of a person monitor-a lost mid-view", b)
+        assert v.state == "STOP" and "handed over" in v.reason, v
+
+    _run_cell(tmp_path, synthetic_model, handover=True, check=check, walk=VANISH)
