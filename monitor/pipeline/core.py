@@ -9,7 +9,6 @@ mutes (``mutes``) and zone sets (``zone_sets``); the policy itself is ``monitor.
 
 from __future__ import annotations
 
-import logging
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
@@ -17,7 +16,7 @@ from dataclasses import replace
 import numpy as np
 
 from monitor.cases import sets as cases
-from monitor.cell_persons import CellPersons, CellPersonsConfig, Who
+from monitor.cell_persons import CellPersons, CellPersonsConfig
 from monitor.detector import Detector
 from monitor.handover import HandedHolds
 from monitor.health import CameraHealth
@@ -26,6 +25,7 @@ from monitor.pipeline.data import CameraState, StepResult
 from monitor.pipeline.evidence import ZonesApplying, policy_inputs
 from monitor.pipeline.fault_alerts import FaultAlerts, one_line
 from monitor.pipeline.holds import confirm_clear, holds_of
+from monitor.pipeline.locate import locate
 from monitor.pipeline.masking import MaskRules, MaskTally, with_touching
 from monitor.pipeline.mutes import MuteDesk
 from monitor.pipeline.zone_sets import ZoneSets
@@ -41,12 +41,9 @@ from monitor.policy import (
 )
 from monitor.timetext import TimeText
 from monitor.tracks import Hold, PersonTracker, TrackerConfig
-from monitor.types import Alert, Fault, FrameInfo, Persons, ZoneReport
-from monitor.zones import Cell, check_persons
+from monitor.types import Alert, Fault, FrameInfo, Persons
+from monitor.zones import Cell
 from monitor.zones.masks import MaskRule
-from monitor.zones.moving import ToolState
-
-log = logging.getLogger("monitor.pipeline")  # the pipeline's log, as before the split
 
 
 class Pipeline:
@@ -179,27 +176,6 @@ class Pipeline:
         model = self.cell.camera_models.get(camera_id) if self.cell is not None else None
         return model.pixel_to_floor if model is not None else None
 
-    def _zones_of(self, frame: FrameInfo, tool_pose, tool_speed_mps,
-                  tool_state: ToolState | None = None):
-        """The zone check for other boxes of this frame's camera (a lost person's path)."""
-        if self.prepared is None:
-            return None
-        foot = self.detector.foot_uncertainty_px(frame.width, frame.height)
-
-        def zones_of(boxes_px: np.ndarray) -> ZoneReport:
-            return check_persons(self.prepared, frame.camera_id, boxes_px, tool_pose,
-                                 tool_speed_mps, foot, tool_state=tool_state)
-        return zones_of
-
-    def _tool(self, now: float, tool_pose, tool_speed_mps: float | None,
-              pose_time: float | None) -> tuple[object, ToolState]:
-        """The pose the separation uses (only with separation monitoring on: a pose fed for
-        zones that follow the tool must not switch it on) and the tool state the following
-        zones use (the pose with its age against ``policy.pose_timeout``)."""
-        state = ToolState.at(now, tool_pose, pose_time, self.policy.pose_timeout,
-                             tool_speed_mps)
-        return (tool_pose if self.policy.separation_monitoring else None), state
-
     def mask_rule(self, frame: FrameInfo) -> MaskRule | None:
         """The mask rule of the frame's camera at its size (None: no mask zones)."""
         return self.masks.rule(frame)
@@ -275,7 +251,8 @@ class Pipeline:
                 detector_error: str | None, tally: MaskTally, t0: float, tool_pose,
                 tool_speed_mps: float | None, pose_time: float | None,
                 reset: ResetRequest | None, extra_faults: tuple[Fault, ...]) -> StepResult:
-        """Everything after detection for one frame: zones, tracks, health, decision."""
+        """Everything after detection for one frame: zones and tracks (``locate``), health,
+        the decision."""
         cam = self._camera(frame)
         stage: dict[str, float] = {}
         faults: list[Fault] = []
@@ -289,33 +266,9 @@ class Pipeline:
                                     f"exceed top-k {self.detector.config.top_k}", True,
                                     "detector"))
         t1 = time.perf_counter()
-        report = None
-        tool_pose, tool_state = self._tool(now, tool_pose, tool_speed_mps, pose_time)
-        if self.prepared is not None and detector_error is None:
-            try:
-                report = check_persons(
-                    self.prepared, frame.camera_id, persons.boxes_px, tool_pose, tool_speed_mps,
-                    self.detector.foot_uncertainty_px(frame.width, frame.height),
-                    tool_state=tool_state)
-            except Exception as exc:  # the zone answer is unknown: fail towards STOP
-                faults.append(Fault("zone_check_error", one_line(exc), True, "zones"))
-        elif detector_error is None:
-            report = ZoneReport()
-        track_ids: tuple[int, ...] = ()
-        person_ids: tuple[Who, ...] = ()
-        if detector_error is None and cam.tracker is not None:
-            try:
-                update = cam.tracker.update(persons, report, frame.capture_time,
-                                            (frame.width, frame.height),
-                                            self._zones_of(frame, tool_pose, tool_speed_mps,
-                                                           tool_state))
-                named = self.persons.name(frame.camera_id, cam.tracker, update,
-                                          frame.capture_time)
-                report, track_ids, person_ids = named.report, update.track_ids, named.person_ids
-                for line in named.lines:  # holds begun, guesses (said once, holds stay)
-                    log.info("%s: %s", frame.camera_id, line)
-            except Exception as exc:  # tracks unknown: a lost person may be missing, STOP
-                faults.append(Fault("tracking_error", one_line(exc), True, frame.camera_id))
+        report, track_ids, person_ids = locate(
+            frame, persons, cam, self.prepared, self.detector, self.persons, detector_error,
+            now, tool_pose, tool_speed_mps, pose_time, self.policy, faults)
         t2 = time.perf_counter()
         health = None
         if cam.health is not None:
