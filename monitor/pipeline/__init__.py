@@ -12,13 +12,14 @@ deterministic. I/O (cameras, Zenoh, files) stays outside: the caller hands in fr
 tool pose and reset requests, and publishes what comes out.
 
 Modules: ``core`` (``Pipeline``: the step per frame and the decision handed on), ``data``
-(``StepResult``, per-camera state), ``masking``, ``evidence``, ``holds``, ``fault_alerts``,
-``mutes``, ``zone_sets``.
+(``StepResult``, per-camera state), ``masking`` (mask zones on raw boxes), ``locate`` (zones,
+tracks, cell persons of a frame), ``evidence`` (every camera's answer merged for the policy),
+``holds`` (lost persons, confirm-clear), ``fault_alerts``, ``mutes``, ``zone_sets``.
 """
 
 from monitor.pipeline.core import Pipeline
-from monitor.pipeline.data import CameraState, StepResult
+from monitor.pipeline.data import StepResult
 from monitor.pipeline.evidence import ZONES_APPLYING
 from monitor.pipeline.fault_alerts import QUIET_FAULTS
 
-__all__ = ["QUIET_FAULTS", "ZONES_APPLYING", "CameraState", "Pipeline", "StepResult"]
+__all__ = ["QUIET_FAULTS", "ZONES_APPLYING", "Pipeline", "StepResult"]
