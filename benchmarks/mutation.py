@@ -56,12 +56,16 @@ TARGETS = {
                       "monitor.zones.check.x__volume_hits*", "monitor.zones.check.x__overlaps*",
                       "monitor.zones.check.x_merge_towards_danger*",
                       "monitor.zones.check.x__worse*")),
-        Target("pipeline", ("monitor/pipeline.py",),
+        Target("pipeline", ("monitor/pipeline/core.py", "monitor/pipeline/evidence.py",
+                            "monitor/pipeline/holds.py"),
                ("tests/test_pipeline.py", "tests/test_pipeline_edges.py",
                 "tests/test_multicamera.py", "tests/test_safety_mutants.py", "-m", "not slow"),
-               names=("monitor.pipeline.xǁPipelineǁ_inputs*", "monitor.pipeline.xǁPipelineǁtick*",
-                      "monitor.pipeline.xǁPipelineǁ_decide*",
-                      "monitor.pipeline.xǁPipelineǁ_confirm_clear*")),
+               names=("monitor.pipeline.core.xǁPipelineǁ_inputs*",
+                      "monitor.pipeline.core.xǁPipelineǁtick*",
+                      "monitor.pipeline.core.xǁPipelineǁ_decide*",
+                      "monitor.pipeline.evidence.x_policy_inputs*",
+                      "monitor.pipeline.evidence.xǁZonesApplyingǁfault*",
+                      "monitor.pipeline.holds.x_confirm_clear*")),
         Target("detector_decode", ("monitor/boxes.py",),
                ("tests/test_boxes.py", "tests/test_boxes_edges.py",
                 "tests/test_safety_mutants.py", "-m", "not slow")),
@@ -144,14 +148,14 @@ EQUIVALENT: dict[str, str] = {
     **{f"monitor.zones.check.x__volume_hits__mutmut_{n}":
        "a miss of the per-person shape cache: the same shapes are built again"
        for n in (35, 36)},
-    # the pipeline's timer step and confirm-clear (monitor/pipeline.py; numbers as mutmut 3.8
-    # gives them for the current file: they shift when the named functions change)
-    "monitor.pipeline.xǁPipelineǁtick__mutmut_11":
+    # the pipeline's timer step, evidence and confirm-clear (monitor/pipeline/; numbers as
+    # mutmut 3.8 gives them for the current files: they shift when the named functions change)
+    "monitor.pipeline.core.xǁPipelineǁtick__mutmut_11":
         "with_frame=None vs False: it is only read for truth",
-    "monitor.pipeline.xǁPipelineǁ_inputs__mutmut_106":
+    "monitor.pipeline.evidence.x_policy_inputs__mutmut_98":
         "the zone report handed in on a tick too: the policy reads zone_report only when the "
         "step has a frame (frame_time set), and a tick has none",
-    "monitor.pipeline.xǁPipelineǁ_confirm_clear__mutmut_11":
+    "monitor.pipeline.holds.x_confirm_clear__mutmut_11":
         "break vs continue on a camera without a tracker: every camera gets one in __init__",
     "monitor.boxes.x_merge_boxes__mutmut_12":
         "reshape(None) of the empty 1-D score array is the same (0,) array",

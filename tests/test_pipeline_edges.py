@@ -1,6 +1,6 @@
 """The pipeline's timer steps (``tick``: no new frame) and the operator's confirm-clear, in
 detail: what a tick decides with, the alert it raises and its fields (found by mutation testing
-of monitor/pipeline.py)."""
+of the pipeline: monitor/pipeline/core.py, evidence.py, holds.py)."""
 
 from __future__ import annotations
 

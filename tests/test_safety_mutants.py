@@ -203,7 +203,7 @@ def test_watchdog_caps_the_ttl_a_command_claims():
     assert loose.verdict(1.3001).code == "ttl"  # the command's own ttl when below the cap
 
 
-# --- the pipeline (monitor/pipeline.py) -----------------------------------------------------------
+# --- the pipeline (monitor/pipeline/) -------------------------------------------------------------
 
 PIPE_POLICY = PolicyConfig(clear_time=0.5, restart_interlock="auto")
 

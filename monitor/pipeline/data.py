@@ -1,0 +1,48 @@
+"""The data of the pipeline's parts: what one step hands on (``StepResult``) and what the
+pipeline remembers of each camera between steps (``CameraState``)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from monitor.cell_persons import Who
+from monitor.health import CameraHealth, HealthReport
+from monitor.muting import Mute, MuteOutcome
+from monitor.policy import Command
+from monitor.tracks import PersonTracker
+from monitor.types import Alert, Fault, FrameInfo, Persons, ZoneReport
+
+
+@dataclass(frozen=True)
+class StepResult:
+    """What one processed frame (or one timer tick) produced."""
+
+    now: float
+    command: Command
+    changed: bool  # the command differs from the previous step's (state, latch or reasons)
+    frame: FrameInfo | None = None
+    persons: Persons | None = None
+    zone_report: ZoneReport | None = None
+    health: HealthReport | None = None
+    faults: tuple[Fault, ...] = ()
+    alerts: tuple[Alert, ...] = ()
+    stage_ms: dict[str, float] = field(default_factory=dict)  # stage -> wall ms (not replayed)
+    track_ids: tuple[int, ...] = ()  # persistent person id per row of ``persons``
+    masked_boxes: int = 0  # raw detector boxes suppressed by mask zones in this frame
+    # mute requests judged since the previous step (the bus answers them), and the mutes
+    # that hold at this decision (docs/muting.md)
+    mute_outcomes: tuple[MuteOutcome, ...] = ()
+    mutes: tuple[Mute, ...] = ()
+    person_ids: tuple[Who, ...] = ()  # the cell person of each row (monitor.cell_persons)
+
+
+@dataclass
+class CameraState:
+    """What the pipeline remembers of one camera between steps."""
+
+    health: CameraHealth | None = None
+    frame_time: float | None = None  # capture time of its newest processed frame
+    report: ZoneReport | None = None  # zone answer of that frame (None: unknown)
+    faults: tuple[Fault, ...] = ()  # faults of that frame (health, detector, zones)
+    detector_error: str | None = None
+    tracker: PersonTracker | None = None

@@ -1,0 +1,82 @@
+"""Where one frame's persons are: the zone check of their boxes (with the tool's pose and the
+zones that follow it), then the camera's tracks (holds of persons lost inside zones) and the
+cell persons' names. A stage that fails adds a STOP fault naming it; its answer is then
+unknown, never "no persons"."""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+
+import numpy as np
+
+from monitor.cell_persons import CellPersons, Who
+from monitor.detector import Detector
+from monitor.pipeline.data import CameraState
+from monitor.pipeline.fault_alerts import one_line
+from monitor.policy import PolicyConfig
+from monitor.types import Fault, FrameInfo, Persons, ZoneReport
+from monitor.zones import check_persons
+from monitor.zones.moving import ToolState
+
+log = logging.getLogger("monitor.pipeline")  # the pipeline's log, as before the split
+
+
+def tool_for(now: float, tool_pose, tool_speed_mps: float | None, pose_time: float | None,
+             policy: PolicyConfig) -> tuple[object, ToolState]:
+    """The pose the separation uses (only with separation monitoring on: a pose fed for
+    zones that follow the tool must not switch it on) and the tool state the following
+    zones use (the pose with its age against ``policy.pose_timeout``)."""
+    state = ToolState.at(now, tool_pose, pose_time, policy.pose_timeout, tool_speed_mps)
+    return (tool_pose if policy.separation_monitoring else None), state
+
+
+def zones_of(prepared, detector: Detector, frame: FrameInfo, tool_pose, tool_speed_mps,
+             tool_state: ToolState | None = None
+             ) -> Callable[[np.ndarray], ZoneReport] | None:
+    """The zone check for other boxes of this frame's camera (a lost person's path)."""
+    if prepared is None:
+        return None
+    foot = detector.foot_uncertainty_px(frame.width, frame.height)
+
+    def check(boxes_px: np.ndarray) -> ZoneReport:
+        return check_persons(prepared, frame.camera_id, boxes_px, tool_pose,
+                             tool_speed_mps, foot, tool_state=tool_state)
+    return check
+
+
+def locate(frame: FrameInfo, persons: Persons, cam: CameraState, prepared, detector: Detector,
+           cell_persons: CellPersons, detector_error: str | None, now: float, tool_pose,
+           tool_speed_mps: float | None, pose_time: float | None, policy: PolicyConfig,
+           faults: list[Fault]
+           ) -> tuple[ZoneReport | None, tuple[int, ...], tuple[Who, ...]]:
+    """The frame's zone answer (None: unknown), each row's track id and cell person; the
+    faults of a failed stage are added to ``faults``. Nothing is checked after a detector
+    error (the answer is unknown); no zones (``prepared`` None) is an empty answer."""
+    report = None
+    tool_pose, tool_state = tool_for(now, tool_pose, tool_speed_mps, pose_time, policy)
+    if prepared is not None and detector_error is None:
+        try:
+            report = check_persons(
+                prepared, frame.camera_id, persons.boxes_px, tool_pose, tool_speed_mps,
+                detector.foot_uncertainty_px(frame.width, frame.height),
+                tool_state=tool_state)
+        except Exception as exc:  # the zone answer is unknown: fail towards STOP
+            faults.append(Fault("zone_check_error", one_line(exc), True, "zones"))
+    elif detector_error is None:
+        report = ZoneReport()
+    track_ids: tuple[int, ...] = ()
+    person_ids: tuple[Who, ...] = ()
+    if detector_error is None and cam.tracker is not None:
+        try:
+            update = cam.tracker.update(persons, report, frame.capture_time,
+                                        (frame.width, frame.height),
+                                        zones_of(prepared, detector, frame, tool_pose,
+                                                 tool_speed_mps, tool_state))
+            named = cell_persons.name(frame.camera_id, cam.tracker, update, frame.capture_time)
+            report, track_ids, person_ids = named.report, update.track_ids, named.person_ids
+            for line in named.lines:  # holds begun, guesses (said once, holds stay)
+                log.info("%s: %s", frame.camera_id, line)
+        except Exception as exc:  # tracks unknown: a lost person may be missing, STOP
+            faults.append(Fault("tracking_error", one_line(exc), True, frame.camera_id))
+    return report, track_ids, person_ids
