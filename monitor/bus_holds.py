@@ -64,6 +64,12 @@ class HoldsGate:
     def check(self, key_expr: str, payload: bytes, signature: bytes | None, now: float,
               wall_now: float) -> tuple[str, str, tuple[Entry, ...]] | None:
         """(role, boot, entries) of a verified message, or None (counted by kind)."""
+        out = self.check_timed(key_expr, payload, signature, now, wall_now)
+        return None if out is None else out[:3]
+
+    def check_timed(self, key_expr: str, payload: bytes, signature: bytes | None, now: float,
+                    wall_now: float) -> tuple[str, str, tuple[Entry, ...], float] | None:
+        """(role, boot, entries, the sender's wall time) of a verified message, or None."""
         kind, out = self._sort(key_expr, payload, signature, now, wall_now)
         if kind:
             with self._lock:
@@ -100,7 +106,9 @@ class HoldsGate:
             more += max(0, len(listed) - MAX_ENTRIES)
         except (ValueError, KeyError, TypeError, AttributeError):
             return "invalid", None
-        if not isinstance(wall, int | float) or abs(float(wall) - wall_now) > self.wall_window_s:
+        # "not <=": a NaN wall (json reads NaN) is outside every window
+        if not isinstance(wall, int | float) or isinstance(wall, bool) \
+                or not abs(float(wall) - wall_now) <= self.wall_window_s:
             return "stale", None
         with self._lock:
             last = self._seq.get((role, boot))
@@ -111,7 +119,7 @@ class HoldsGate:
             self._seq[(role, boot)] = seq
         if more:  # the persons left off could be anywhere: never silently lost
             entries += (overflow_entry(len(entries) + more, float(wall)),)
-        return "", (role, boot, entries)
+        return "", (role, boot, entries, float(wall))
 
     def _take_token(self, now: float) -> bool:
         with self._lock:
@@ -185,13 +193,19 @@ class HoldsLink:
             if key == self.key:
                 return  # our own key (another instance of our role is a duplicate_monitor)
             signature = sample.attachment.to_bytes() if sample.attachment is not None else None
-            taken = self.gate.check(key, sample.payload.to_bytes(), signature,
-                                    time.monotonic(), self.wall())
+            received, wall_now = time.monotonic(), self.wall()
+            taken = self.gate.check_timed(key, sample.payload.to_bytes(), signature, received,
+                                          wall_now)
         except Exception:  # nothing a sender does may kill this callback
             return
         if taken is not None:
-            self._heard[taken[0]] = time.monotonic()
-            self._inbox.append(taken)
+            role, boot, entries, wall = taken
+            # heard as of when the peer *sent* it: a stream held back on the path (each message
+            # signed and in sequence, but seconds late) is as silent as its age says
+            sent = received - max(0.0, wall_now - wall)
+            last = self._heard.get(role)
+            self._heard[role] = sent if last is None else max(last, sent)
+            self._inbox.append((role, boot, entries))
 
     def faults(self) -> tuple[Fault, ...]:
         """``handover_silent`` STOPs of peers not heard for ``peer_timeout_s`` (the live

@@ -1,0 +1,78 @@
+"""Hand-over holds on a real Zenoh bus (tcp/127.0.0.1): attacks on the *timing* of a peer's
+genuine, signed holds messages (monitor/bus_holds.py, docs/consumer.md "Trust")."""
+
+from __future__ import annotations
+
+import json
+import time
+
+import pytest
+from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
+
+from monitor.bus import BusConfig, SafetyBus, open_session
+from monitor.bus_holds import HoldsGate, HoldsLink, holds_payload
+from monitor.busconfig import BusKeys
+from monitor.config import demo_cell_path
+from monitor.handover import Entry, HandoverConfig
+from monitor.pipeline import Pipeline
+from monitor.policy import PolicyConfig
+from monitor.signing import Signer
+from monitor.zones import load_cell
+from tests.helpers import free_port
+
+KEY_A, KEY_B = Ed25519PrivateKey.generate(), Ed25519PrivateKey.generate()
+
+
+def _feed(port: int, late_s: float, seconds: float = 1.6) -> None:
+    """Monitor-a's genuine holds messages (its key, growing seq, 20 Hz), each ``late_s``
+    behind the wall clock: what a man in the middle who holds the stream back delivers."""
+    cfg = BusConfig(cell="ho", connect=(f"tcp/127.0.0.1:{port}",), instance="mitm")
+    key = BusKeys.of("workcell/ho/", "monitor-a").holds
+    signer = Signer(KEY_A)
+    with open_session(cfg) as session:
+        time.sleep(0.3)  # let the sessions meet
+        end, seq = time.monotonic() + seconds, 0
+        while time.monotonic() < end:
+            seq += 1
+            payload = holds_payload("ho", "monitor-a", "boot-a", seq, time.time() - late_s, ())
+            session.put(key, payload, attachment=signer.sign(key, payload))
+            time.sleep(0.05)
+
+
+@pytest.mark.parametrize(("late_s", "silent"), [(0.0, False), (3.0, True)],
+                         ids=["on-time", "held-back-3s"])
+def test_a_peer_stream_held_back_seconds_is_silent_not_all_clear(detector, late_s, silent):
+    """The attack: someone on the path holds monitor-a's signed holds messages back 3 s and
+    hands them on in order. Each is genuine, in sequence and inside the 5 s clock window, so
+    the first version counted the peer as heard: a person who left A's view toward B's zone
+    reached B's monitor 3 s late while it said RUN. A message is now heard as of when it was
+    sent: a stream 3 s late is a ``handover_silent`` STOP."""
+    port = free_port()
+    cfg = BusConfig(cell="ho", role="monitor-b", instance="mon-b",
+                    listen=(f"tcp/127.0.0.1:{port}",), heartbeat_hz=20.0)
+    pipe = Pipeline(detector, "cam0", PolicyConfig(), load_cell(demo_cell_path()))
+    with SafetyBus(cfg) as bus:
+        link = HoldsLink(bus, pipe, HandoverConfig(peer_timeout_s=1.0),
+                         {"monitor-a": KEY_A.public_key()}, Signer(KEY_B))
+        try:
+            _feed(port, late_s)
+            assert link.gate.counts() == {}  # every message verified and taken
+            faults = [f for f in link.faults() if f.name == "handover_silent"]
+        finally:
+            link.close()
+    assert bool(faults) == silent, faults
+    if silent:
+        assert faults[0].stop and "monitor-a" in faults[0].reason
+
+
+def test_a_signed_message_with_a_nan_wall_time_is_outside_the_window():
+    """json reads NaN: ``abs(NaN - now) > window`` is False, so the first version took a
+    message with ``"wall": NaN`` as inside any clock window (and as heard now)."""
+    gate = HoldsGate("ho", "workcell/ho/", "monitor-b", {"monitor-a": KEY_A.public_key()})
+    key = BusKeys.of("workcell/ho/", "monitor-a").holds
+    body = json.loads(holds_payload("ho", "monitor-a", "b", 1, 1000.0,
+                                    (Entry(3, "departure", (4.0, 0.0), 1000.0),)))
+    body["wall"] = float("nan")
+    payload = json.dumps(body).encode()
+    assert gate.check(key, payload, Signer(KEY_A).sign(key, payload), 0.0, 1000.0) is None
+    assert gate.counts() == {"stale": 1}
