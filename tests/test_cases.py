@@ -274,3 +274,29 @@ def test_a_file_without_sets_is_written_without_set_keys_and_one_with_them_round
     cell = parse_cell(_station_cell())
     again = parse_cell(cell_to_data(cell))
     assert again.config_hash == cell.config_hash and again.spec.default_set == "A"
+
+
+def test_selections_held_back_on_the_path_are_a_silent_selector_not_a_heartbeat():
+    """The attack: someone on the path holds the robot program's signed heartbeats back 3 s
+    and hands them on in order. Each is genuine, in sequence and inside the 5 s window, so the
+    first version took each as a fresh heartbeat: the monitor kept applying the set of 3 s ago
+    (a switch to another station's zones 3 s late) without a fault. A selection is now heard
+    as of when it was sent: 3 s late with ``selector_ttl_s`` 2 s is ``case_selector_silent``."""
+    gate, signer = _gate()
+    key = gate.policy.key_expr
+    state = cs.initial_case(PLAN, 0.0)
+    for i in range(1, 40):  # 4 s of heartbeats at 10 Hz, each sent 3 s before it arrives
+        now = i / 10
+        body = case_payload("robot", "A", i, cell="cell1", wall=1000.0 + now - 3.0)
+        event = gate.check(body, signer.sign(key, body), 1000.0 + now)
+        state = cs.apply_event(PLAN, state, event, now)
+    assert [f.name for f in cs.in_force(PLAN, state, 3.9).faults] == ["case_selector_silent"]
+    # on time, the same stream is a heartbeat
+    gate, signer = _gate()
+    state = cs.initial_case(PLAN, 0.0)
+    for i in range(1, 40):
+        now = i / 10
+        body = case_payload("robot", "A", i, cell="cell1", wall=1000.0 + now - 0.05)
+        state = cs.apply_event(PLAN, state, gate.check(body, signer.sign(key, body),
+                                                       1000.0 + now), now)
+    assert cs.in_force(PLAN, state, 3.9).faults == ()

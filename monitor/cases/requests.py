@@ -84,7 +84,7 @@ class CaseGate:
             raise CaseRefused(f"seq {body['seq']} of {who!r} is not above its last {last} "
                               "(replayed)")
         self._last_seq[who] = body["seq"]
-        return Selection(body["set"], who, body["seq"])
+        return Selection(body["set"], who, body["seq"], max(0.0, wall_now - body["wall"]))
 
     def judge(self, payload: bytes, signature: bytes | None,
               wall_now: float | None = None) -> Selection | Refusal:

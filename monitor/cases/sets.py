@@ -15,7 +15,7 @@ No clocks, no I/O: ``apply_event`` and ``advance`` take the time they are given
 from __future__ import annotations
 
 from collections.abc import Iterable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 from monitor.types import Fault, ZoneHit, ZoneReport
 
@@ -65,11 +65,13 @@ def plan_of(spec) -> CasePlan | None:
 
 @dataclass(frozen=True)
 class Selection:
-    """A verified request: the selector names ``set_id`` (at ``seq``)."""
+    """A verified request: the selector names ``set_id`` (at ``seq``); ``age_s``: how far its
+    signed wall time lay behind the monitor's clock when it arrived (0 when ahead)."""
 
     set_id: str
     selector: str = ""
     seq: int = 0
+    age_s: float = field(default=0.0, compare=False)  # how it arrived, not what it says
 
 
 @dataclass(frozen=True)
@@ -126,13 +128,16 @@ def apply_event(plan: CasePlan, state: CaseState, event: Selection | Refusal,
             "case_disallowed", f"{event.selector or 'selector'} selected zone set "
             f"{event.set_id!r} from {state.selected!r}: not an allowed transition; "
             f"{state.selected!r} stays", True, SOURCE))
+    # heard as of when the selector *sent* it: selections held back on the path (signed, in
+    # sequence, inside the window) are as silent as their age says, never a fresh heartbeat
+    heard = max(state.heard, now - max(0.0, event.age_s))
     if event.set_id == state.selected:
-        return replace(state, heard=now, fault=None)
+        return replace(state, heard=heard, fault=None)
     applied = tuple(dict.fromkeys((*state.applied, event.set_id)))
     until = now + plan.switch_over_s
     if plan.switch_over_s <= 0.0:
         applied, until = (event.set_id,), None
-    return CaseState(event.set_id, applied, until, now, None)
+    return CaseState(event.set_id, applied, until, heard, None)
 
 
 @dataclass(frozen=True)
