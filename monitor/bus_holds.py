@@ -180,6 +180,8 @@ class HoldsLink:
         self._last_put: float | None = None
         self._started = time.monotonic()
         self._heard: dict[str, float | None] = dict.fromkeys(peers)
+        self._boots: dict[str, str] = {}  # role -> the boot of its newest accepted message
+        self._restarted: dict[str, tuple[str, float]] = {}  # role -> (why, my clock then)
         self._period = 1.0 / cfg.heartbeat_hz
         s = bus.session
         self._pub = s.declare_publisher(self.key, encoding="application/json",
@@ -205,6 +207,11 @@ class HoldsLink:
             sent = received - max(0.0, wall_now - wall)
             last = self._heard.get(role)
             self._heard[role] = sent if last is None else max(last, sent)
+            known = self._boots.setdefault(role, boot)
+            if known != boot:  # the peer restarted: what its old run had lost is gone
+                self._boots[role] = boot
+                self._restarted[role] = (f"{role} restarted (boot {known[:8]} -> "
+                                         f"{boot[:8]})", received)
             self._inbox.append((role, boot, entries))
 
     def faults(self) -> tuple[Fault, ...]:
@@ -212,8 +219,15 @@ class HoldsLink:
         feed polls it every step, like the bus's ``duplicate_monitor``)."""
         counts = self.gate.counts()
         refused = ", ".join(f"{k} {counts[k]}" for k in KINDS if counts.get(k))
-        return silent_peers(dict(self._heard), self._started, time.monotonic(),
-                            self.config.peer_timeout_s, self.config.keep_s, refused)
+        now = time.monotonic()
+        restarted = tuple(
+            Fault("handover_restarted", f"{why}: persons its old run had lost, or that left "
+                  "its view while it was down, are in no list; an operator must look", True,
+                  "handover", latch=True)
+            for why, at in self._restarted.values() if now - at <= self.config.peer_timeout_s)
+        return restarted + silent_peers(dict(self._heard), self._started, now,
+                                        self.config.peer_timeout_s, self.config.keep_s,
+                                        refused)
 
     def on_step(self, step) -> None:
         now = step.result.now

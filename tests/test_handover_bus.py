@@ -76,3 +76,40 @@ def test_a_signed_message_with_a_nan_wall_time_is_outside_the_window():
     payload = json.dumps(body).encode()
     assert gate.check(key, payload, Signer(KEY_A).sign(key, payload), 0.0, 1000.0) is None
     assert gate.counts() == {"stale": 1}
+
+
+def _feed_boots(port: int, boots: list[str], each_s: float = 0.5) -> None:
+    """Monitor-a's genuine holds messages, on time, first of one run then of the next."""
+    cfg = BusConfig(cell="ho", connect=(f"tcp/127.0.0.1:{port}",), instance="peer")
+    key = BusKeys.of("workcell/ho/", "monitor-a").holds
+    with open_session(cfg) as session:
+        time.sleep(0.3)
+        for boot in boots:
+            for seq in range(1, int(each_s / 0.05) + 1):
+                payload = holds_payload("ho", "monitor-a", boot, seq, time.time(), ())
+                session.put(key, payload, attachment=Signer(KEY_A).sign(key, payload))
+                time.sleep(0.05)
+
+
+def test_a_peer_restarted_within_the_silence_timeout_latches(detector):
+    """The attack: monitor-a restarts (a new boot) faster than ``peer_timeout_s``. No silence
+    is seen, and the new run knows nothing of the persons its old run had lost or that left its
+    view while it was down; with ``restart_interlock = "auto"`` the first version went back to
+    RUN. A peer's new boot is a latched ``handover_restarted`` STOP: an operator must look."""
+    port = free_port()
+    cfg = BusConfig(cell="ho", role="monitor-b", instance="mon-b",
+                    listen=(f"tcp/127.0.0.1:{port}",), heartbeat_hz=20.0)
+    pipe = Pipeline(detector, "cam0", PolicyConfig(), load_cell(demo_cell_path()))
+    with SafetyBus(cfg) as bus:
+        link = HoldsLink(bus, pipe, HandoverConfig(peer_timeout_s=1.0),
+                         {"monitor-a": KEY_A.public_key()}, Signer(KEY_B))
+        try:
+            _feed_boots(port, ["boot-one"])
+            assert link.faults() == ()  # one run, heard on time
+            _feed_boots(port, ["boot-two"], each_s=0.3)
+            faults = link.faults()
+        finally:
+            link.close()
+    (fault,) = faults
+    assert fault.name == "handover_restarted" and fault.stop and fault.latch
+    assert "monitor-a restarted" in fault.reason
