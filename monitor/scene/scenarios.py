@@ -178,7 +178,22 @@ def scenarios(fps: float = 10.0) -> list[Scenario]:
                       "center_m": [1.9, -1.9], "radius_m": 0.35, "z_min_m": 0.0,
                       "z_max_m": 2.0},)))
     out += masked_cutout_scenarios(fps)
+    out += low_rate_scenarios()
     return out
+
+
+def low_rate_scenarios() -> list[Scenario]:
+    """Scenes at a camera's lowest rates (their own fps, whatever the suite's): a person who
+    stands still in the warning zone, 0.8 m from the protective zone, and steps behind a 2 m
+    cabinet inside it between two frames (seen standing, then never again: docs/tracking.md,
+    "Within reach")."""
+    cabinet = Block("cabinet", (0.0, -0.6, 0.0), (0.9, -0.3, 2.0), (60, 80, 150))
+    return [Scenario(
+        "cabinet-step-1fps", "at 1 fps, stands 0.8 m outside the protective zone, then steps "
+        "behind a 2 m cabinet inside it between two frames",
+        CellScene((_walk((0.0, 2.4, -2.4), (2.0, 1.8, 0.3), (4.1, 1.8, 0.3), (5.0, 0.45, 0.3)),),
+                  (cabinet,), fps=1.0, duration_s=8.0),
+        needs=("tracker",), unobserved_ok=True)]  # the cabinet hides zone floor
 
 
 def cutout_box_px(scene: CellScene, cutout: CutOut) -> tuple[int, int, int, int]:
