@@ -188,12 +188,23 @@ def low_rate_scenarios() -> list[Scenario]:
     cabinet inside it between two frames (seen standing, then never again: docs/tracking.md,
     "Within reach")."""
     cabinet = Block("cabinet", (0.0, -0.6, 0.0), (0.9, -0.3, 2.0), (60, 80, 150))
-    return [Scenario(
+    out = [Scenario(
         "cabinet-step-1fps", "at 1 fps, stands 0.8 m outside the protective zone, then steps "
         "behind a 2 m cabinet inside it between two frames",
         CellScene((_walk((0.0, 2.4, -2.4), (2.0, 1.8, 0.3), (4.1, 1.8, 0.3), (5.0, 0.45, 0.3)),),
                   (cabinet,), fps=1.0, duration_s=8.0),
         needs=("tracker",), unobserved_ok=True)]  # the cabinet hides zone floor
+    # the same step in front of a cut-out inside the protective zone, masked tight: the mask
+    # suppresses the person and the cut-out as one group (the extent hardly changes)
+    cutout = CutOut((0.0, 0.5))
+    scene = CellScene((_walk((0.0, 2.6, 0.35), (2.0, 1.8, 0.35), (4.05, 1.8, 0.35),
+                             (4.95, 0.0, 0.35)),), cutouts=(cutout,), fps=1.0, duration_s=8.0)
+    out.append(Scenario(
+        "mask-step-1fps", "at 1 fps, stands 0.8 m outside the protective zone, then steps "
+        "right in front of a tight-masked cut-out inside it between two frames", scene,
+        needs=("masks", "tracker"), extra_zones=(_box_mask(scene, cutout, 0),),
+        check_false_stops=False))
+    return out
 
 
 def cutout_box_px(scene: CellScene, cutout: CutOut) -> tuple[int, int, int, int]:
