@@ -92,6 +92,14 @@ def test_a_person_stepping_out_of_sight_into_the_zone_between_two_frames_at_1_fp
     assert inside and set(inside) == {"STOP"}, sc.format_table([r])
 
 
+@pytest.mark.parametrize("name", ["edge-right-cut", "edge-head-cut"])
+def test_a_person_cut_by_the_image_border_inside_the_zone(detector, name):
+    # held before this was a test: SLOW while outside, STOP from the entry on
+    r = sc.run_scenario(_by_name(name), detector)
+    _assert_safe(r)
+    assert r.entry_s is not None and "SLOW" in {s.state for s in r.scores if not s.inside}
+
+
 def test_scoring_counts_a_missed_stop_and_an_accepted_reset():
     frames = (sc.FrameScore(0.0, "RUN", True, False, True),
               sc.FrameScore(0.1, "STOP", True, False, False),

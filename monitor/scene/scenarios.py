@@ -179,7 +179,31 @@ def scenarios(fps: float = 10.0) -> list[Scenario]:
                       "z_max_m": 2.0},)))
     out += masked_cutout_scenarios(fps)
     out += low_rate_scenarios()
+    out += edge_scenarios(fps)
     return out
+
+
+def edge_scenarios(fps: float = 10.0) -> list[Scenario]:
+    """Persons cut by the image border inside the protective zone: a camera 3.6 m to the
+    left sees the zone's right edge leave the image (the person's right side cut off), one
+    pitched down sees the zone's far side with heads above the image. Zone floor out of view
+    is ``unobserved_ok``."""
+    import numpy as np
+
+    from monitor.scene import Camera
+
+    k = np.array([[450.0, 0, 320], [0, 450.0, 180], [0, 0, 1]])
+    right = Camera.look_at("cam0", (640, 360), k, (-3.6, -6.0, 3.2), (-3.6, 0.0, 0.8))
+    top = Camera.look_at("cam0", (640, 360), k, (0.0, -4.5, 3.6), (0.0, -0.6, 0.0))
+    return [
+        Scenario("edge-right-cut", "walks in and stands in the protective zone, cut by the "
+                 "right image border",
+                 CellScene((_walk((0.0, -2.0, -2.2), (2.0, -2.0, -2.2), (4.0, 0.95, -0.3)),),
+                           camera=right, fps=fps, duration_s=6.0), unobserved_ok=True),
+        Scenario("edge-head-cut", "walks into the far side of the protective zone, head "
+                 "above the image",
+                 CellScene((_walk((0.0, 2.8, 0.6), (2.0, 2.8, 0.6), (4.0, 0.0, 0.8)),),
+                           camera=top, fps=fps, duration_s=6.0), unobserved_ok=True)]
 
 
 def low_rate_scenarios() -> list[Scenario]:
