@@ -72,6 +72,11 @@ class TrackerConfig:
     velocity_smoothing: float = 0.5  # weight of the newest velocity sample (0..1]
     predict_s: float = 1.0  # a lost person's path is extrapolated this far (0: not at all)
     predict_steps: int = 4  # points checked along that path
+    # a person lost in mid-view may have walked anywhere within walk_speed_mps times the time
+    # since their last sighting (at 1-2 fps a standing person can step behind a fixture inside
+    # a zone between two frames): zones that close are held too (checked at this many rings of
+    # 8 points around the last box; 0: not at all)
+    reach_rings: int = 3
 
 
 @dataclass(frozen=True)
@@ -310,7 +315,7 @@ class PersonTracker:
             if rec.track_id in seen_now or rec.lost:
                 continue
             rec.lost = True
-            rec.held = self._hold_zones(rec, boxes, rows_to_id, frame_size, zones_of)
+            rec.held = self._hold_zones(rec, boxes, rows_to_id, frame_size, zones_of, now)
             rec.left_view = not rec.held and self._leaving_view(rec, frame_size)
             if rec.held:
                 started.append(rec.hold())
@@ -417,8 +422,8 @@ class PersonTracker:
         rec.last_seen = now
 
     def _hold_zones(self, rec: _Record, boxes: np.ndarray, ids: list[int],
-                    frame_size: tuple[int, int], zones_of: ZonesOf | None = None
-                    ) -> tuple[HeldZone, ...]:
+                    frame_size: tuple[int, int], zones_of: ZonesOf | None = None,
+                    now: float | None = None) -> tuple[HeldZone, ...]:
         """The zones a track lost in this frame keeps occupied (empty: none)."""
         merged_into: tuple[HeldZone, ...] = ()
         merged = False
@@ -437,7 +442,8 @@ class PersonTracker:
         # a track seen for a single frame (re-found by a box that may be a flicker near a
         # lost person) keeps the zones of its sighting before that
         flicker = rec.prev_zones if rec.streak <= 1 else ()
-        return _union(rec.zones, merged_into, flicker, self._zones_ahead(rec, zones_of))
+        return _union(rec.zones, merged_into, flicker, self._zones_ahead(rec, zones_of),
+                      self._zones_in_reach(rec, zones_of, now))
 
     def _zones_ahead(self, rec: _Record, zones_of: ZonesOf | None) -> tuple[HeldZone, ...]:
         """Zones on the lost person's extrapolated path (image velocity, ``predict_s``)."""
@@ -451,6 +457,26 @@ class PersonTracker:
         ahead = rec.box[None, :] + np.concatenate([shift, shift], axis=1)
         report = zones_of(ahead)
         rows = self._row_zones(report, len(ahead))
+        return _union(*rows) if rows else ()
+
+    def _zones_in_reach(self, rec: _Record, zones_of: ZonesOf | None, now: float | None
+                        ) -> tuple[HeldZone, ...]:
+        """Zones the lost person may have walked into since the last sighting: the last box
+        moved by up to ``walk_speed_mps`` times the gap (at most ``reach_max_s``), measured in
+        box heights of a ``height_m`` person, on ``reach_rings`` rings of 8 directions."""
+        cfg = self.config
+        if zones_of is None or now is None or cfg.reach_rings < 1:
+            return ()
+        dt = min(max(now - rec.last_seen, 0.0), cfg.reach_max_s)
+        reach = cfg.walk_speed_mps / cfg.height_m * float(rec.box[3] - rec.box[1]) * dt
+        if not math.isfinite(reach) or reach <= 0:
+            return ()
+        angles = np.arange(8) * (math.pi / 4)
+        radii = np.arange(1, cfg.reach_rings + 1) * (reach / cfg.reach_rings)
+        shift = (radii[:, None, None] * np.stack([np.cos(angles), np.sin(angles)], axis=1)
+                 [None]).reshape(-1, 2)
+        moved = rec.box[None, :] + np.concatenate([shift, shift], axis=1)
+        rows = self._row_zones(zones_of(moved), len(moved))
         return _union(*rows) if rows else ()
 
     def _leaving_view(self, rec: _Record, frame_size: tuple[int, int]) -> bool:

@@ -178,6 +178,56 @@ def scenarios(fps: float = 10.0) -> list[Scenario]:
                       "center_m": [1.9, -1.9], "radius_m": 0.35, "z_min_m": 0.0,
                       "z_max_m": 2.0},)))
     out += masked_cutout_scenarios(fps)
+    out += low_rate_scenarios()
+    out += edge_scenarios(fps)
+    return out
+
+
+def edge_scenarios(fps: float = 10.0) -> list[Scenario]:
+    """Persons cut by the image border inside the protective zone: a camera 3.6 m to the
+    left sees the zone's right edge leave the image (the person's right side cut off), one
+    pitched down sees the zone's far side with heads above the image. Zone floor out of view
+    is ``unobserved_ok``."""
+    import numpy as np
+
+    from monitor.scene import Camera
+
+    k = np.array([[450.0, 0, 320], [0, 450.0, 180], [0, 0, 1]])
+    right = Camera.look_at("cam0", (640, 360), k, (-3.6, -6.0, 3.2), (-3.6, 0.0, 0.8))
+    top = Camera.look_at("cam0", (640, 360), k, (0.0, -4.5, 3.6), (0.0, -0.6, 0.0))
+    return [
+        Scenario("edge-right-cut", "walks in and stands in the protective zone, cut by the "
+                 "right image border",
+                 CellScene((_walk((0.0, -2.0, -2.2), (2.0, -2.0, -2.2), (4.0, 0.95, -0.3)),),
+                           camera=right, fps=fps, duration_s=6.0), unobserved_ok=True),
+        Scenario("edge-head-cut", "walks into the far side of the protective zone, head "
+                 "above the image",
+                 CellScene((_walk((0.0, 2.8, 0.6), (2.0, 2.8, 0.6), (4.0, 0.0, 0.8)),),
+                           camera=top, fps=fps, duration_s=6.0), unobserved_ok=True)]
+
+
+def low_rate_scenarios() -> list[Scenario]:
+    """Scenes at a camera's lowest rates (their own fps, whatever the suite's): a person who
+    stands still in the warning zone, 0.8 m from the protective zone, and steps behind a 2 m
+    cabinet inside it between two frames (seen standing, then never again: docs/tracking.md,
+    "Within reach")."""
+    cabinet = Block("cabinet", (0.0, -0.6, 0.0), (0.9, -0.3, 2.0), (60, 80, 150))
+    out = [Scenario(
+        "cabinet-step-1fps", "at 1 fps, stands 0.8 m outside the protective zone, then steps "
+        "behind a 2 m cabinet inside it between two frames",
+        CellScene((_walk((0.0, 2.4, -2.4), (2.0, 1.8, 0.3), (4.1, 1.8, 0.3), (5.0, 0.45, 0.3)),),
+                  (cabinet,), fps=1.0, duration_s=8.0),
+        needs=("tracker",), unobserved_ok=True)]  # the cabinet hides zone floor
+    # the same step in front of a cut-out inside the protective zone, masked tight: the mask
+    # suppresses the person and the cut-out as one group (the extent hardly changes)
+    cutout = CutOut((0.0, 0.5))
+    scene = CellScene((_walk((0.0, 2.6, 0.35), (2.0, 1.8, 0.35), (4.05, 1.8, 0.35),
+                             (4.95, 0.0, 0.35)),), cutouts=(cutout,), fps=1.0, duration_s=8.0)
+    out.append(Scenario(
+        "mask-step-1fps", "at 1 fps, stands 0.8 m outside the protective zone, then steps "
+        "right in front of a tight-masked cut-out inside it between two frames", scene,
+        needs=("masks", "tracker"), extra_zones=(_box_mask(scene, cutout, 0),),
+        check_false_stops=False))
     return out
 
 
