@@ -83,7 +83,7 @@ class MuteGate:
         wall = body["wall"]
         check_window(MUTE, wall, wall_now, self.window_s)
         rid = body["request_id"]
-        self._ids.use(MUTE, rid, wall_now)
+        self._ids.use(MUTE, rid, wall_now, body["wall"])
         return MuteRequest(body["zone"], operator, body["duration_s"], rid, received,
                            end=body["end"], wall=wall)
 

@@ -149,7 +149,7 @@ class ResetGate:
                                f"{latch!r} (a reset made for an earlier latch)")
         check_window(RESET, body["wall"], wall_now, p.window_s)
         rid = body["request_id"]
-        self._ids.use(RESET, rid, wall_now)
+        self._ids.use(RESET, rid, wall_now, body["wall"])
         return ResetRequest(operator=operator, time=received, request_id=rid,
                             note=body["note"], confirm_clear=body["confirm_clear"],
                             latch=nonce)

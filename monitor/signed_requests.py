@@ -15,6 +15,7 @@ told to the sender), so callers keep their exception types and the wording their
 from __future__ import annotations
 
 import collections
+import math
 from dataclasses import dataclass
 
 from monitor.signing import verify
@@ -71,19 +72,31 @@ def check_window(kind: RequestKind, wall: float, wall_now: float, window_s: floa
 
 
 class RequestIds:
-    """Request ids seen in the last ``2 x window_s`` seconds (and at most ``MAX_REMEMBERED``):
-    older ones are refused by the clock window anyway. Not thread-safe."""
+    """Request ids seen in the last ``2 x window_s`` seconds of request time (and at most
+    ``MAX_REMEMBERED``): older ones are refused by the clock window anyway -- unless the
+    monitor's clock steps back (NTP) and that window comes round again. So the newest request
+    time ever forgotten is kept, and a request from at or before it is refused: after a step
+    back, requests are refused until the clock has passed it again (a nuisance, never a replay).
+    Not thread-safe."""
 
     def __init__(self, window_s: float) -> None:
         self.window_s = window_s
         self._seen: collections.OrderedDict[str, float] = collections.OrderedDict()
+        self.forgotten = -math.inf  # the newest request wall time no longer remembered
 
-    def use(self, kind: RequestKind, request_id: str, wall_now: float) -> None:
-        """Remember ``request_id``, or refuse it as replayed when it was used before."""
+    def use(self, kind: RequestKind, request_id: str, wall_now: float,
+            wall: float | None = None) -> None:
+        """Remember ``request_id`` (sent at ``wall``, default ``wall_now``), or refuse it as
+        replayed when it was used before or is not newer than what was forgotten."""
+        wall = wall_now if wall is None else wall
         horizon = 2 * self.window_s
         while self._seen and (wall_now - next(iter(self._seen.values())) > horizon
                               or len(self._seen) > MAX_REMEMBERED):
-            self._seen.popitem(last=False)
+            self.forgotten = max(self.forgotten, self._seen.popitem(last=False)[1])
         if request_id in self._seen:
             raise kind.refused(f"request id {request_id!r} was already used (replayed)")
-        self._seen[request_id] = wall_now
+        if not wall > self.forgotten:
+            raise kind.refused(f"request time is {self.forgotten - wall:.1f} s before requests "
+                               "this monitor no longer remembers (its clock stepped back?): "
+                               "refused as a possible replay")
+        self._seen[request_id] = wall

@@ -93,7 +93,7 @@ class ApplyGate:
                                f"boot {boot!r} (a request from before a restart)")
         check_window(APPLY, body["wall"], wall_now, self.window_s)
         rid = body["request_id"]
-        self._ids.use(APPLY, rid, wall_now)
+        self._ids.use(APPLY, rid, wall_now, body["wall"])
         return ApplyRequest(operator, rid, body["zones_hash"], body["note"], received)
 
 

@@ -57,6 +57,7 @@ from monitor.detector.preprocess import Letterbox, Letterboxer, letterbox
 from monitor.detector.selftest import SelfTestCase, builtin_case, load_case
 from monitor.detector.selftest import check as check_self_test
 from monitor.detector.session import open_session
+from monitor.detector.shapes import OutputShapes
 from monitor.detector.test_model import TEST_MODEL_NOTE
 from monitor.errors import DetectorError, InputError
 from monitor.types import Fault, FrameInfo, Persons
@@ -104,6 +105,7 @@ class Detector:
         self.self_test_case = self._self_test_case()
         self._self_test_letterbox: Letterboxer | None = None
         self._batch_letterbox: list[Letterboxer] = []  # detect_batch: one canvas per slot
+        self.output_shapes: OutputShapes | None = None  # found by the warm-up run
         # Warm-up: the first run allocates; do it now, not on the first real frame.
         self.detect(np.full((self.layout.input_height, self.layout.input_width, 3), 114, np.uint8))
 
@@ -155,7 +157,15 @@ class Detector:
         feeds = {self.layout.input_name: tensor}
         if self.layout.kind == "zoo":
             feeds["image_shape"] = np.array([frame_hw], np.float32)
-        return self.session.run(self.output_names, feeds)
+        outputs = self.session.run(self.output_names, feeds)
+        self._check_shapes(outputs, 1)
+        return outputs
+
+    def _check_shapes(self, outputs: list[np.ndarray], batch: int) -> None:
+        """Every run's outputs in the shapes of the warm-up run (monitor.detector.shapes)."""
+        if self.output_shapes is None:
+            self.output_shapes = OutputShapes.found(self.layout, self.output_names, outputs)
+        self.output_shapes.check(outputs, batch)
 
     def detect_timed(self, image_bgr: np.ndarray, frame: FrameInfo | None = None,
                      pre_merge: PreMerge | None = None) -> Detection:
@@ -208,6 +218,7 @@ class Detector:
         tensor = np.concatenate([t for t, _ in prepared])
         t1 = time.perf_counter()
         outputs = self.session.run(self.output_names, {self.layout.input_name: tensor})
+        self._check_shapes(outputs, len(images))
         t2 = time.perf_counter()
         share = (t2 - t1) * 1e3 / len(images)
         pre = (t1 - t0) * 1e3 / len(images)
