@@ -72,6 +72,8 @@ def test_request_ids_refuse_a_replay_and_stay_bounded() -> None:
     with pytest.raises(Refused, match="'a' was already used"):
         ids.use(KIND, "a", 1059.0)  # within 2 x window: still remembered
     ids.use(KIND, "a", 1000.0 + 61.0 + 59.0)  # forgotten after 2 x window (then refused by it)
-    for i in range(MAX_REMEMBERED + 50):
-        ids.use(KIND, f"r{i}", 2000.0)
+    for i in range(MAX_REMEMBERED + 50):  # each newer than the ones forgotten for room
+        ids.use(KIND, f"r{i}", 2000.0 + i * 1e-3)
+    with pytest.raises(Refused, match="no longer remembers"):  # older than the forgotten
+        ids.use(KIND, "late", 2000.0)
     assert len(ids._seen) <= MAX_REMEMBERED + 1
