@@ -404,7 +404,7 @@ def test_writes_garbage_and_a_read_flood_get_status_errors_never_run(keys):
                              b"HELF\x20\x00\x00\x00" + os.urandom(28), b"MSGF" + os.urandom(64)):
                     with socket.create_connection((host, port), timeout=5) as s:
                         s.sendall(junk)
-                        s.settimeout(2)
+                        s.settimeout(0.5)  # the server answers an error or closes at once
                         with contextlib.suppress(OSError):
                             s.recv(1024)
                 # 3. a flood of reads from 4 clients, and more clients than allowed
