@@ -70,6 +70,28 @@ def const_model(path: Path, outputs: dict[str, np.ndarray],
     return path
 
 
+def shapeless_model(path: Path, name: str, value: np.ndarray) -> Path:
+    """A model whose one output ``name`` is ``value`` reshaped by a shape computed from the
+    input and declared without any shape: onnxruntime then reports its shape as ()."""
+    zero = [helper.make_node("ReduceSum", ["images"], ["sum"], keepdims=0),
+            helper.make_node("Mul", ["sum", "zero"], ["z"]),
+            helper.make_node("Cast", ["z"], ["zi"], to=TensorProto.INT64),
+            helper.make_node("Add", ["value", "z"], ["value_z"]),
+            helper.make_node("Add", ["shape", "zi"], ["shape_z"]),
+            helper.make_node("Reshape", ["value_z", "shape_z"], [name])]
+    inits = [numpy_helper.from_array(np.array(0, np.float32), "zero"),
+             numpy_helper.from_array(value, "value"),
+             numpy_helper.from_array(np.array(value.shape, np.int64), "shape")]
+    graph = helper.make_graph(
+        zero, "shapeless",
+        [helper.make_tensor_value_info("images", TensorProto.FLOAT, [1, 3, INPUT, INPUT])],
+        [helper.make_tensor_value_info(name, TensorProto.FLOAT, None)], inits)
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 13)])
+    model.ir_version = 8
+    onnx.save(model, path)
+    return path
+
+
 def logit(p: float) -> float:
     return math.log(p / (1 - p))
 
