@@ -36,6 +36,7 @@ from monitor.policy import ResetRequest
 from monitor.types import Fault
 
 STALL_FAULT = "monitor_stalled"
+LATE_FAULT = "frame_late"  # a step so slow that its frame was too old once decided
 
 
 @dataclass(frozen=True)
@@ -194,7 +195,10 @@ class Driver:
         steps = []
         for frame, result in zip(frames, results, strict=True):
             self._index = frame.info.seq
-            steps.append(self._emit(result, frame))
+            late = self._late_fault(frame, done, start) if self.stall_after_s is not None \
+                else None
+            steps.append(self._redecided(late, inputs, result, frame) if late
+                         else self._emit(result, frame))
         return steps
 
     def step(self, frame: Frame | None, now: float, inputs: StepInputs = StepInputs()
@@ -224,6 +228,9 @@ class Driver:
             done = self.clock()
             if self._stall_gap(done, start) is not None:  # frozen while deciding: stale result
                 return self._stalled(done - start, inputs, result if frame else None, frame)
+            if frame is not None and (late := self._late_fault(frame, done, start)):
+                self._armed = True
+                return self._redecided(late, inputs, result, frame)
         if frame is not None:
             self._armed = True
         return self._emit(result, frame)
@@ -242,6 +249,33 @@ class Driver:
         gap = now - before
         return gap if gap > self.stall_after_s else None
 
+    def _late_fault(self, frame: Frame, done: float, start: float) -> Fault | None:
+        """The policy judged the frame's age at the step's start; a step that took long (a
+        model slow on some frames only) would hand on a decision about a cell older than
+        ``max_frame_age``. Such a step is decided anew, now, as a STOP that clears slowly."""
+        limit = self.pipeline.policy.max_frame_age
+        age = done - frame.info.capture_time
+        if not age > limit:  # NaN capture times are the policy's (frame_stale)
+            return None
+        return Fault(LATE_FAULT, f"frame {age:.2f} s old when its step ended (> max_frame_age "
+                     f"{limit:g} s): the step took {done - start:.2f} s", True,
+                     frame.info.camera_id)
+
+    def _redecided(self, fault: Fault, inputs: StepInputs, processed: StepResult,
+                   frame: Frame) -> Step:
+        """A late step's command decided anew, now, with ``fault`` (its detections kept)."""
+        result = self.pipeline.tick(self.clock(), pose_time=inputs.pose_time,
+                                    extra_faults=(*inputs.extra_faults, fault))
+        return self._emit(self._with_detections(result, processed), frame)
+
+    @staticmethod
+    def _with_detections(result: StepResult, processed: StepResult) -> StepResult:
+        return dataclasses.replace(
+            result, frame=processed.frame, persons=processed.persons,
+            zone_report=processed.zone_report, health=processed.health,
+            alerts=(*processed.alerts, *result.alerts), stage_ms=processed.stage_ms,
+            mute_outcomes=(*processed.mute_outcomes, *result.mute_outcomes))
+
     def _stalled(self, gap: float, inputs: StepInputs, processed: StepResult | None = None,
                  frame: Frame | None = None) -> Step:
         """The command of a stalled step is decided anew, now, with the stall fault. A frame
@@ -258,11 +292,7 @@ class Driver:
         result = self.pipeline.tick(now, pose_time=inputs.pose_time, reset=reset,
                                     extra_faults=(*inputs.extra_faults, fault))
         if processed is not None:
-            result = dataclasses.replace(
-                result, frame=processed.frame, persons=processed.persons,
-                zone_report=processed.zone_report, health=processed.health,
-                alerts=(*processed.alerts, *result.alerts), stage_ms=processed.stage_ms,
-                mute_outcomes=(*processed.mute_outcomes, *result.mute_outcomes))
+            result = self._with_detections(result, processed)
         return self._emit(result, frame if processed is not None else None, stalled_s=gap)
 
     def _run_self_test(self, now: float) -> tuple[Fault, ...]:

@@ -70,6 +70,28 @@ def const_model(path: Path, outputs: dict[str, np.ndarray],
     return path
 
 
+def shapeless_model(path: Path, name: str, value: np.ndarray) -> Path:
+    """A model whose one output ``name`` is ``value`` reshaped by a shape computed from the
+    input and declared without any shape: onnxruntime then reports its shape as ()."""
+    zero = [helper.make_node("ReduceSum", ["images"], ["sum"], keepdims=0),
+            helper.make_node("Mul", ["sum", "zero"], ["z"]),
+            helper.make_node("Cast", ["z"], ["zi"], to=TensorProto.INT64),
+            helper.make_node("Add", ["value", "z"], ["value_z"]),
+            helper.make_node("Add", ["shape", "zi"], ["shape_z"]),
+            helper.make_node("Reshape", ["value_z", "shape_z"], [name])]
+    inits = [numpy_helper.from_array(np.array(0, np.float32), "zero"),
+             numpy_helper.from_array(value, "value"),
+             numpy_helper.from_array(np.array(value.shape, np.int64), "shape")]
+    graph = helper.make_graph(
+        zero, "shapeless",
+        [helper.make_tensor_value_info("images", TensorProto.FLOAT, [1, 3, INPUT, INPUT])],
+        [helper.make_tensor_value_info(name, TensorProto.FLOAT, None)], inits)
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 13)])
+    model.ir_version = 8
+    onnx.save(model, path)
+    return path
+
+
 def logit(p: float) -> float:
     return math.log(p / (1 - p))
 
@@ -187,3 +209,65 @@ def bright_squares(n: int, seed: int, size: int = 512) -> list[np.ndarray]:
             img[y:y + s, x:x + s] = 235
         frames.append(img)
     return frames
+
+
+def slow_on_marker(base: Path, path: Path, iterations: int, size: int = 512) -> Path:
+    """``base`` (the synthetic model) made slow on some frames only: when the centre of its
+    input is pure green (a marker square in the frame) an ``If`` branch runs ``iterations``
+    chained MatMuls in a ``Loop`` before the outputs; any other frame costs nothing extra.
+    The detections are the base model's either way (the marker adds exactly 0)."""
+    model = onnx.load(base)
+    g = model.graph
+    side = g.input[0].type.tensor_type.shape.dim[2].dim_value
+    lo, hi = side // 2 - 30, side // 2 + 30
+
+    def const(name: str, value) -> onnx.TensorProto:
+        return numpy_helper.from_array(np.asarray(value), name)
+
+    rng = np.random.default_rng(0)
+    g.initializer.extend([
+        const("mk.starts", np.array([lo, lo], np.int64)),
+        const("mk.ends", np.array([hi, hi], np.int64)),
+        const("mk.axes", np.array([2, 3], np.int64)),
+        const("mk.weights", np.array([[[[-1.0]], [[1.0]], [[-1.0]]]], np.float32)),
+        const("mk.threshold", np.array(0.8, np.float32)),
+        const("mk.trips", np.array(iterations, np.int64)),
+        const("mk.true", np.array(True)),
+        const("mk.m0", (rng.standard_normal((size, size)) / math.sqrt(size)).astype(np.float32)),
+        const("mk.w", (rng.standard_normal((size, size)) / math.sqrt(size)).astype(np.float32)),
+        const("mk.zero", np.array(0.0, np.float32)),
+    ])
+    body = helper.make_graph(
+        [helper.make_node("MatMul", ["m_in", "mk.w"], ["m_mul"]),
+         helper.make_node("Tanh", ["m_mul"], ["m_out"]),
+         helper.make_node("Identity", ["c_in"], ["c_out"])],
+        "slow_body",
+        [helper.make_tensor_value_info("i", TensorProto.INT64, []),
+         helper.make_tensor_value_info("c_in", TensorProto.BOOL, []),
+         helper.make_tensor_value_info("m_in", TensorProto.FLOAT, [size, size])],
+        [helper.make_tensor_value_info("c_out", TensorProto.BOOL, []),
+         helper.make_tensor_value_info("m_out", TensorProto.FLOAT, [size, size])])
+    slow = helper.make_graph(
+        [helper.make_node("Loop", ["mk.trips", "mk.true", "mk.m0"], ["mk.m_end"], body=body),
+         helper.make_node("ReduceSum", ["mk.m_end"], ["mk.sum"], keepdims=0),
+         helper.make_node("Mul", ["mk.sum", "mk.zero"], ["mk.slow_zero"])],
+        "slow", [], [helper.make_tensor_value_info("mk.slow_zero", TensorProto.FLOAT, [])])
+    fast = helper.make_graph(
+        [helper.make_node("Identity", ["mk.zero"], ["mk.fast_zero"])],
+        "fast", [], [helper.make_tensor_value_info("mk.fast_zero", TensorProto.FLOAT, [])])
+    # green minus red minus blue, averaged over the centre: 1 for pure green, <= 0 otherwise
+    g.node.extend([
+        helper.make_node("Slice", ["images", "mk.starts", "mk.ends", "mk.axes"], ["mk.patch"]),
+        helper.make_node("Conv", ["mk.patch", "mk.weights"], ["mk.green"]),
+        helper.make_node("ReduceMean", ["mk.green"], ["mk.mean"], keepdims=0),
+        helper.make_node("Greater", ["mk.mean", "mk.threshold"], ["mk.marked"]),
+        helper.make_node("If", ["mk.marked"], ["mk.extra"], then_branch=slow, else_branch=fast),
+    ])
+    out13 = next(n for n in g.node if n.output[0] == "output_13")
+    head13 = out13.input[0]
+    g.node.remove(out13)  # re-added last, after the marker's 0: the nodes stay in order
+    g.node.extend([helper.make_node("Add", [head13, "mk.extra"], ["mk.head13"]),
+                   helper.make_node("Identity", ["mk.head13"], ["output_13"])])
+    onnx.checker.check_model(model)
+    onnx.save(model, path)
+    return path

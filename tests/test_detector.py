@@ -26,6 +26,7 @@ from tests.onnx_models import (
     cxcywh,
     darknet_heads,
     logit,
+    shapeless_model,
     to_input,
     two_class_model,
 )
@@ -210,6 +211,21 @@ def test_dynamic_axes_yolov8_is_probed(tmp_path):
     assert detector.layout.kind == "yolov8"
     assert (detector.layout.input_width, detector.layout.input_height) == (INPUT, INPUT)
     np.testing.assert_allclose(_found(detector), PERSONS, atol=1.0)
+
+
+def test_an_output_declared_without_a_shape_is_probed(tmp_path):
+    # no shape at all in the file: onnxruntime reports (), which once read as a known scalar
+    cols = np.ascontiguousarray(np.delete(rows_v5(), 4, axis=2).transpose(0, 2, 1))
+    path = shapeless_model(tmp_path / "m.onnx", "output0", cols)
+    detector = _detector(path)
+    assert detector.layout.kind == "yolov8"
+    np.testing.assert_allclose(_found(detector), PERSONS, atol=1.0)
+
+
+def test_a_scalar_output_is_named_in_the_error(tmp_path):
+    path = shapeless_model(tmp_path / "m.onnx", "output0", np.array(0.5, np.float32))
+    with pytest.raises(ModelError, match=r"output 'output0' is a scalar"):
+        _detector(path)
 
 
 def test_darknet_with_a_non_square_input(tmp_path):

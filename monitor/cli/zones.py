@@ -83,6 +83,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
     p = sub.add_parser("validate", help="check a zone file; print every fault")
     p.add_argument("file", type=Path)
+    p.add_argument("--config", type=Path, default=None,
+                   help="a monitor.toml: also warn about what its [handover] peers cannot "
+                        "take from this file (default: none)")
     p.set_defaults(func=cmd_validate)
 
     from monitor.cli import zone_calibrate  # needs this module's helpers: import late
@@ -443,6 +446,11 @@ def cmd_validate(args: argparse.Namespace) -> int:
         print(f"{args.file}: {grade}: {line}", file=sys.stdout if grade == "ok" else sys.stderr)
     for cam_id, model in cell.camera_models.items():
         print(f"{args.file}: camera '{cam_id}': {_horizon_text(model)}")
+    if args.config is not None:
+        from monitor.zones.handover_check import config_lines
+
+        for line in config_lines(cell, args.config):
+            print(f"{args.file}: warning: {line}", file=sys.stderr)
     _print_coverage(cell, args.file)
     active = sum(1 for z in cell.zones if z.enabled)
     print(f"{args.file}: ok: {_count(len(cell.zones), 'zone')} ({active} enabled), "

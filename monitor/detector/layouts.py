@@ -212,9 +212,15 @@ def inspect_model(session, config: DetectorConfig) -> tuple[ModelLayout, str | N
     if imgsz and not _static(shp[1:3] if nhwc else shp[2:4]):
         with contextlib.suppress(ValueError):
             ih, iw = (list(_parse_list(imgsz)) * 2)[:2]
-    if not all(_static(s) for s in shapes):
+    # an output declared without any shape reads as () here, like a scalar: no detector
+    # output is a scalar, so it is probed like a symbolic one
+    if not all(_static(s) and s for s in shapes):
         shapes = probe_output_shapes(session, image.name, ih, iw, nhwc)
         found += f" (at {iw}x{ih}: {shapes})"
+        for out, shape in zip(outputs, shapes, strict=True):
+            if not shape:
+                raise ModelError(f"model output {out.name!r} is a scalar (no shape declared, "
+                                 f"none in a probe run): no known output layout: {found}")
     base = dict(input_name=image.name, input_width=iw, input_height=ih, input_nhwc=nhwc,
                 names=names)
 

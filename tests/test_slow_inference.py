@@ -1,0 +1,146 @@
+"""A model that is slow only on some frames, through the real service (`monitor run` as a
+subprocess, real onnxruntime, a real Zenoh peer on 127.0.0.1): frames with a green marker take
+seconds to infer, the others are fast. While that one inference blocks the loop, the bus
+heartbeat must say STOP ("stalled") within ``bus.stall_timeout`` plus a heartbeat, never keep
+repeating RUN; an inference longer than ``policy.frame_timeout`` is a latched
+``monitor_stalled`` STOP; one shorter recovers by itself."""
+
+from __future__ import annotations
+
+import time
+from itertools import pairwise
+from pathlib import Path
+
+import cv2
+import numpy as np
+import onnxruntime as ort
+import pytest
+
+from monitor.config import demo_cell_path
+from monitor.scene import DemoScene
+from tests.onnx_models import slow_on_marker
+from tests.processes import Service, codes, summary_of, wait_for
+
+FPS = 15
+LOOP_FRAMES = 60  # 4 s of the empty cell, looped
+MARKED = range(36, 44)  # 0.5 s of marker: a loaded loop cannot skip it; one slow step
+STALL_TIMEOUT = 0.5  # bus.stall_timeout (default)
+PERIOD = 0.1  # 1 / bus.heartbeat_hz (default)
+SLACK = PERIOD  # the heartbeat thread's own scheduling on a loaded machine
+ZONES = f'[zones]\nfile = "{demo_cell_path()}"\n'
+
+
+def marker_video(path: Path) -> Path:
+    """The empty cell (the demo scene's first second, repeated) with a pure green square in
+    the centre of ``MARKED`` frames."""
+    empty = [image for _, (image, _) in zip(range(15), DemoScene().frames(), strict=False)]
+    h, w = empty[0].shape[:2]
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), FPS, (w, h))
+    for i in range(LOOP_FRAMES):
+        image = empty[i % len(empty)].copy()
+        if i in MARKED:
+            image[h // 2 - 90:h // 2 + 90, w // 2 - 90:w // 2 + 90] = (0, 255, 0)  # BGR
+        writer.write(image)
+    writer.release()
+    return path
+
+
+def slow_model(tmp: Path, base: Path, seconds: float) -> Path:
+    """The synthetic model, slow by about ``seconds`` on marked frames on this machine."""
+    probe = slow_on_marker(base, tmp / "probe.onnx", 100)
+    session = ort.InferenceSession(str(probe), providers=["CPUExecutionProvider"])
+    side = session.get_inputs()[0].shape[2]
+    plain = np.full((1, 3, side, side), 0.45, np.float32)
+    marked = plain.copy()
+    marked[:, :, side // 2 - 40:side // 2 + 40, side // 2 - 40:side // 2 + 40] = \
+        np.array([0.0, 1.0, 0.0], np.float32)[:, None, None]
+    times = {}
+    for name, x in (("plain", plain), ("marked", marked)) * 2:  # the first pair warms up
+        start = time.monotonic()
+        session.run(None, {"images": x})
+        times[name] = time.monotonic() - start
+    per_iteration = max(times["marked"] - times["plain"], 0.01) / 100
+    return slow_on_marker(base, tmp / "slow.onnx", int(seconds / per_iteration))
+
+
+def slow_windows(svc: Service, gap_s: float) -> list[tuple[float, float]]:
+    """(start, end) on the monotonic clock of each step that spent over ``gap_s`` on a single
+    frame: the frame was captured before the previous step's detections went out and its own
+    detections came over ``gap_s`` later (no other step ran in between: one loop)."""
+    out = []
+    dets = list(svc.detections)
+    for prev, cur in pairwise(dets):
+        frame = cur.get("frame")
+        if frame and cur["mono"] - prev["mono"] > gap_s \
+                and frame["capture_time"] <= prev["mono"] + PERIOD:
+            out.append((prev["mono"], cur["mono"]))
+    return out
+
+
+def assert_stop_during(svc: Service, window: tuple[float, float]) -> list[dict]:
+    """Strict: within ``stall_timeout`` + one heartbeat (+ slack) of the last decision a STOP
+    is out, and nothing but STOP until the blocked step is over."""
+    start, end = window
+    limit = start + STALL_TIMEOUT + PERIOD + SLACK
+    inside = [c for c in list(svc.commands) if start < c["mono"] < end]
+    late_run = [(round(c["mono"] - start, 3), c["state"]) for c in inside
+                if c["mono"] > limit and c["state"] != "STOP"]
+    assert late_run == [], f"not STOP while one inference blocked: {late_run}; {svc.log()}"
+    stops = [c for c in inside if c["state"] == "STOP" and c["mono"] <= limit]
+    assert stops, (f"no STOP within {limit - start:.2f} s of the blocked step's start: "
+                   f"{[(round(c['mono'] - start, 3), c['state']) for c in inside]}")
+    return inside
+
+
+def _wait_slow_step(svc: Service, gap_s: float, timeout: float) -> tuple[float, float]:
+    def gaps():
+        dets = list(svc.detections)
+        return sorted(round(b["mono"] - a["mono"], 2) for a, b in pairwise(dets))[-5:]
+    try:
+        return wait_for(lambda: next(iter(slow_windows(svc, gap_s)), None), timeout,
+                        f"a step over {gap_s} s on a marked frame", svc)
+    except AssertionError as exc:
+        raise AssertionError(f"longest detection gaps {gaps()}: {exc}") from None
+
+
+@pytest.mark.slow
+def test_slow_inference_between_stall_timeout_and_frame_timeout_stops_then_recovers(
+        tmp_path, synthetic_model):
+    model = slow_model(tmp_path, synthetic_model, 1.2)
+    video = marker_video(tmp_path / "marked.mp4")
+    with Service(tmp_path, model, str(video), ZONES + "[policy]\nframe_timeout = 3.0\n"
+                 'restart_interlock = "auto"\n',
+                 camera_lines="loop = true\nrealtime = true\n") as svc:
+        start = svc.next_command(0, lambda c: c["state"] == "RUN", 60, "RUN")[0]
+        window = _wait_slow_step(svc, STALL_TIMEOUT + 0.3, 15)
+        inside = assert_stop_during(svc, window)
+        assert any("stalled" in codes(c) for c in inside), summary_of(inside)
+        # the decision on the late frame itself is a STOP (it was a RUN: the frame's age was
+        # judged when the step began)
+        assert any(r.get("fault") == "frame_late" for c in svc.commands for r in c["reasons"]
+                   if c["mono"] > window[0]), summary_of(svc.commands)
+        # loosely: RUN again after the blocked step without a reset (more STOPs allowed)
+        svc.next_command(start, lambda c: c["state"] == "RUN" and c["mono"] > window[1], 10,
+                         "RUN again after the slow inference, without a reset")
+
+
+@pytest.mark.slow
+def test_slow_inference_past_frame_timeout_is_a_latched_stall(tmp_path, synthetic_model):
+    model = slow_model(tmp_path, synthetic_model, 1.8)
+    video = marker_video(tmp_path / "marked.mp4")
+    with Service(tmp_path, model, str(video),
+                 ZONES + "[policy]\nframe_timeout = 1.0\nmax_frame_age = 1.0\n",
+                 camera_lines="loop = true\nrealtime = true\n") as svc:
+        start = svc.next_command(0, lambda c: c["state"] == "RUN", 60, "RUN")[0]
+        window = _wait_slow_step(svc, 1.0, 15)
+        assert_stop_during(svc, window)
+        _, stalled = svc.next_command(
+            start, lambda c: any(r.get("fault") == "monitor_stalled" for r in c["reasons"]),
+            5, "the monitor_stalled STOP")
+        assert stalled["state"] == "STOP" and stalled["latched"], stalled
+        # latched: no RUN well past clear_time (1 s) after the stall, until a reset
+        wait_for(lambda: any(c["mono"] > window[1] + 2.5 for c in svc.commands), 10,
+                 "commands 2.5 s after the slow step", svc)
+        after = [c for c in svc.commands if c["mono"] > window[1]]
+        assert [c["state"] for c in after if c["mono"] < window[1] + 2.5
+                and c["state"] != "STOP"] == [], summary_of(after)
