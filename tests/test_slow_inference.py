@@ -2,8 +2,9 @@
 subprocess, real onnxruntime, a real Zenoh peer on 127.0.0.1): frames with a green marker take
 seconds to infer, the others are fast. While that one inference blocks the loop, the bus
 heartbeat must say STOP ("stalled") within ``bus.stall_timeout`` plus a heartbeat, never keep
-repeating RUN; an inference longer than ``policy.frame_timeout`` is a latched
-``monitor_stalled`` STOP; one shorter recovers by itself."""
+repeating RUN, and the decision on the late frame is a STOP (``frame_late``); one shorter than
+``policy.frame_timeout`` recovers by itself. (An inference longer than ``frame_timeout`` is a
+latched ``monitor_stalled`` STOP: tests/test_stall.py freezes the whole process for that.)"""
 
 from __future__ import annotations
 
@@ -109,7 +110,7 @@ def test_slow_inference_between_stall_timeout_and_frame_timeout_stops_then_recov
     model = slow_model(tmp_path, synthetic_model, 1.2)
     video = marker_video(tmp_path / "marked.mp4")
     with Service(tmp_path, model, str(video), ZONES + "[policy]\nframe_timeout = 3.0\n"
-                 'restart_interlock = "auto"\n',
+                 'restart_interlock = "auto"\nmax_frame_age = 0.3\n',
                  camera_lines="loop = true\nrealtime = true\n") as svc:
         start = svc.next_command(0, lambda c: c["state"] == "RUN", 60, "RUN")[0]
         window = _wait_slow_step(svc, STALL_TIMEOUT + 0.3, 15)
@@ -122,25 +123,3 @@ def test_slow_inference_between_stall_timeout_and_frame_timeout_stops_then_recov
         # loosely: RUN again after the blocked step without a reset (more STOPs allowed)
         svc.next_command(start, lambda c: c["state"] == "RUN" and c["mono"] > window[1], 10,
                          "RUN again after the slow inference, without a reset")
-
-
-@pytest.mark.slow
-def test_slow_inference_past_frame_timeout_is_a_latched_stall(tmp_path, synthetic_model):
-    model = slow_model(tmp_path, synthetic_model, 1.8)
-    video = marker_video(tmp_path / "marked.mp4")
-    with Service(tmp_path, model, str(video),
-                 ZONES + "[policy]\nframe_timeout = 1.0\nmax_frame_age = 1.0\n",
-                 camera_lines="loop = true\nrealtime = true\n") as svc:
-        start = svc.next_command(0, lambda c: c["state"] == "RUN", 60, "RUN")[0]
-        window = _wait_slow_step(svc, 1.0, 15)
-        assert_stop_during(svc, window)
-        _, stalled = svc.next_command(
-            start, lambda c: any(r.get("fault") == "monitor_stalled" for r in c["reasons"]),
-            5, "the monitor_stalled STOP")
-        assert stalled["state"] == "STOP" and stalled["latched"], stalled
-        # latched: no RUN well past clear_time (1 s) after the stall, until a reset
-        wait_for(lambda: any(c["mono"] > window[1] + 2.5 for c in svc.commands), 10,
-                 "commands 2.5 s after the slow step", svc)
-        after = [c for c in svc.commands if c["mono"] > window[1]]
-        assert [c["state"] for c in after if c["mono"] < window[1] + 2.5
-                and c["state"] != "STOP"] == [], summary_of(after)
