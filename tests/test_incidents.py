@@ -334,7 +334,8 @@ def test_the_service_records_the_demo_stop_and_answers_the_incidents_query(
 
     from tests.processes import Service, codes, wait_for
 
-    extra = '[recorder]\nenabled = true\ndata_dir = "incidents"\npre_s = 3.0\npost_s = 1.0\n'
+    # a short clip: the recorder runs at low priority and a loaded machine starves it
+    extra = '[recorder]\nenabled = true\ndata_dir = "incidents"\npre_s = 1.0\npost_s = 0.5\n'
     with Service(tmp_path, synthetic_model, "synthetic:demo", extra) as svc:
         svc.next_command(0, lambda c: "protective_zone" in codes(c), 60, "the demo's STOP")
 
@@ -346,7 +347,7 @@ def test_the_service_records_the_demo_stop_and_answers_the_incidents_query(
             return [r for r in body["incidents"] if r["complete"]]
 
         # the recorder works at low priority: on a loaded machine its clip takes a while
-        rows = wait_for(incidents, 90, "a complete STOP incident", svc)
+        rows = wait_for(incidents, 120, "a complete STOP incident", svc)
         url = f"http://127.0.0.1:{svc.metrics_port}/metrics"
         def metrics() -> str | None:
             text = urllib.request.urlopen(url, timeout=3).read().decode()
