@@ -38,6 +38,7 @@ from monitor.handover import (
 from monitor.handover import entries_of as _entries_of
 from monitor.signing import SIGNATURE_BYTES, Signer, verify
 from monitor.types import Alert, Fault
+from monitor.verify_budget import VerifyBudget
 
 _log = logging.getLogger("monitor.handover")
 KINDS = ("unknown_role", "unsigned", "signature", "unchecked", "invalid", "stale", "replayed")
@@ -59,7 +60,7 @@ class HoldsGate:
         self._counts: collections.Counter[str] = collections.Counter()
         self._alerted: collections.Counter[str] = collections.Counter()
         self._seq: dict[tuple[str, str], int] = {}
-        self._tokens, self._tokens_at = verify_per_s, None
+        self._budget = VerifyBudget(verify_per_s)
 
     def check(self, key_expr: str, payload: bytes, signature: bytes | None, now: float,
               wall_now: float) -> tuple[str, str, tuple[Entry, ...]] | None:
@@ -86,7 +87,7 @@ class HoldsGate:
             return "unsigned", None
         if len(signature) != SIGNATURE_BYTES:
             return "signature", None
-        if not self._take_token(now):
+        if not self._budget.take(now):
             return "unchecked", None
         if not verify(self.peers[role], key_expr, payload, signature):
             return "signature", None
@@ -120,17 +121,6 @@ class HoldsGate:
         if more:  # the persons left off could be anywhere: never silently lost
             entries += (overflow_entry(len(entries) + more, float(wall)),)
         return "", (role, boot, entries, float(wall))
-
-    def _take_token(self, now: float) -> bool:
-        with self._lock:
-            if self._tokens_at is not None:
-                gained = max(0.0, now - self._tokens_at) * self.verify_per_s
-                self._tokens = min(self.verify_per_s, self._tokens + gained)
-            self._tokens_at = now
-            if self._tokens < 1.0:
-                return False
-            self._tokens -= 1.0
-            return True
 
     def counts(self) -> dict[str, int]:
         with self._lock:

@@ -28,6 +28,7 @@ from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PublicKey
 from monitor.consumer import parse_command
 from monitor.signing import SIGNATURE_BYTES, verify
 from monitor.types import Alert
+from monitor.verify_budget import VerifyBudget
 
 KINDS = ("unsigned", "signature", "unchecked", "invalid", "replayed", "stale")
 
@@ -44,8 +45,7 @@ class ForeignCommands:
         self._lock = threading.Lock()
         self._counts: collections.Counter[str] = collections.Counter()
         self._alerted: collections.Counter[str] = collections.Counter()
-        self._tokens = verify_per_s
-        self._tokens_at: float | None = None
+        self._budget = VerifyBudget(verify_per_s)
 
     def classify(self, payload: bytes, signature: bytes | None, own_boot: str, now: float,
                  wall_now: float) -> str | None:
@@ -65,7 +65,7 @@ class ForeignCommands:
                 return "unsigned", None
             if len(signature) != SIGNATURE_BYTES:
                 return "signature", None
-            if not self._take_token(now):
+            if not self._budget.take(now):
                 return "unchecked", None
             if not verify(self.public_key, self.key_expr, payload, signature):
                 return "signature", None
@@ -81,17 +81,6 @@ class ForeignCommands:
             if wall is None or abs(float(wall) - wall_now) > self.wall_window_s:
                 return "stale", None
         return "", body["boot"]
-
-    def _take_token(self, now: float) -> bool:
-        with self._lock:
-            if self._tokens_at is not None:
-                elapsed = max(0.0, now - self._tokens_at)
-                self._tokens = min(self.verify_per_s, self._tokens + elapsed * self.verify_per_s)
-            self._tokens_at = now
-            if self._tokens < 1.0:
-                return False
-            self._tokens -= 1.0
-            return True
 
     def counts(self) -> dict[str, int]:
         """Messages ignored per kind since start (status ``commands_foreign``)."""

@@ -77,3 +77,13 @@ def test_request_ids_refuse_a_replay_and_stay_bounded() -> None:
     with pytest.raises(Refused, match="no longer remembers"):  # older than the forgotten
         ids.use(KIND, "late", 2000.0)
     assert len(ids._seen) <= MAX_REMEMBERED + 1
+
+
+def test_the_verify_budget_allows_a_burst_then_its_rate() -> None:
+    from monitor.verify_budget import VerifyBudget
+
+    budget = VerifyBudget(per_s=4.0)
+    assert sum(budget.take(100.0) for _ in range(50)) == 4  # the burst, then nothing
+    assert not budget.take(100.125)  # half a token
+    assert budget.take(100.25) and not budget.take(100.25)  # one token a 0.25 s
+    assert sum(budget.take(200.0) for _ in range(50)) == 4  # refilled to the burst, no more
