@@ -3,8 +3,10 @@ genuine, signed holds messages (monitor/bus_holds.py, docs/consumer.md "Trust").
 
 from __future__ import annotations
 
+import contextlib
 import json
 import time
+from collections.abc import Iterator
 
 import pytest
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
@@ -21,6 +23,22 @@ from monitor.zones import load_cell
 from tests.helpers import free_port
 
 KEY_A, KEY_B = Ed25519PrivateKey.generate(), Ed25519PrivateKey.generate()
+
+
+@contextlib.contextmanager
+def _monitor_b(detector) -> Iterator[tuple[int, HoldsLink]]:
+    """monitor-b's bus on a free loopback port and its holds link expecting monitor-a."""
+    port = free_port()
+    cfg = BusConfig(cell="ho", role="monitor-b", instance="mon-b",
+                    listen=(f"tcp/127.0.0.1:{port}",), heartbeat_hz=20.0)
+    pipe = Pipeline(detector, "cam0", PolicyConfig(), load_cell(demo_cell_path()))
+    with SafetyBus(cfg) as bus:
+        link = HoldsLink(bus, pipe, HandoverConfig(peer_timeout_s=1.0),
+                         {"monitor-a": KEY_A.public_key()}, Signer(KEY_B))
+        try:
+            yield port, link
+        finally:
+            link.close()
 
 
 def _feed(port: int, late_s: float, seconds: float = 1.6) -> None:
@@ -47,19 +65,10 @@ def test_a_peer_stream_held_back_seconds_is_silent_not_all_clear(detector, late_
     the first version counted the peer as heard: a person who left A's view toward B's zone
     reached B's monitor 3 s late while it said RUN. A message is now heard as of when it was
     sent: a stream 3 s late is a ``handover_silent`` STOP."""
-    port = free_port()
-    cfg = BusConfig(cell="ho", role="monitor-b", instance="mon-b",
-                    listen=(f"tcp/127.0.0.1:{port}",), heartbeat_hz=20.0)
-    pipe = Pipeline(detector, "cam0", PolicyConfig(), load_cell(demo_cell_path()))
-    with SafetyBus(cfg) as bus:
-        link = HoldsLink(bus, pipe, HandoverConfig(peer_timeout_s=1.0),
-                         {"monitor-a": KEY_A.public_key()}, Signer(KEY_B))
-        try:
-            _feed(port, late_s)
-            assert link.gate.counts() == {}  # every message verified and taken
-            faults = [f for f in link.faults() if f.name == "handover_silent"]
-        finally:
-            link.close()
+    with _monitor_b(detector) as (port, link):
+        _feed(port, late_s)
+        assert link.gate.counts() == {}  # every message verified and taken
+        faults = [f for f in link.faults() if f.name == "handover_silent"]
     assert bool(faults) == silent, faults
     if silent:
         assert faults[0].stop and "monitor-a" in faults[0].reason
@@ -96,20 +105,11 @@ def test_a_peer_restarted_within_the_silence_timeout_latches(detector):
     is seen, and the new run knows nothing of the persons its old run had lost or that left its
     view while it was down; with ``restart_interlock = "auto"`` the first version went back to
     RUN. A peer's new boot is a latched ``handover_restarted`` STOP: an operator must look."""
-    port = free_port()
-    cfg = BusConfig(cell="ho", role="monitor-b", instance="mon-b",
-                    listen=(f"tcp/127.0.0.1:{port}",), heartbeat_hz=20.0)
-    pipe = Pipeline(detector, "cam0", PolicyConfig(), load_cell(demo_cell_path()))
-    with SafetyBus(cfg) as bus:
-        link = HoldsLink(bus, pipe, HandoverConfig(peer_timeout_s=1.0),
-                         {"monitor-a": KEY_A.public_key()}, Signer(KEY_B))
-        try:
-            _feed_boots(port, ["boot-one"])
-            assert link.faults() == ()  # one run, heard on time
-            _feed_boots(port, ["boot-two"], each_s=0.3)
-            faults = link.faults()
-        finally:
-            link.close()
+    with _monitor_b(detector) as (port, link):
+        _feed_boots(port, ["boot-one"])
+        assert link.faults() == ()  # one run, heard on time
+        _feed_boots(port, ["boot-two"], each_s=0.3)
+        faults = link.faults()
     (fault,) = faults
     assert fault.name == "handover_restarted" and fault.stop and fault.latch
     assert "monitor-a restarted" in fault.reason
