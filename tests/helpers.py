@@ -56,3 +56,19 @@ def assert_one_line_error(proc: subprocess.CompletedProcess, *needles: str) -> s
     for needle in needles:
         assert needle in errors[0], f"{needle!r} not in {errors[0]!r}"
     return errors[0]
+
+
+def zones_cli(*args: object) -> int:
+    """``monitor zones ARGS`` in this process (its exit code)."""
+    from monitor import cli
+
+    return cli.main(["zones", *map(str, args)])
+
+
+def one_error_line(capsys) -> str:
+    """The one error line a command in this process wrote (warnings of earlier, successful
+    edits may come before it)."""
+    lines = capsys.readouterr().err.strip().splitlines()
+    errors = [ln for ln in lines if not ln.startswith("monitor: warning: ")]
+    assert len(errors) == 1 and errors[0].startswith("monitor: error: "), lines
+    return errors[0]

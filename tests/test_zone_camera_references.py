@@ -22,6 +22,8 @@ from monitor.camera_references import (
 from monitor.config import parse_config
 from monitor.errors import ConfigError
 from monitor.scene import write_video
+from tests.helpers import one_error_line as one_line_error
+from tests.helpers import zones_cli as zones
 
 FOUR = """\
 # a cell indented by four
@@ -46,15 +48,6 @@ zones:
 """
 
 
-def zones(*args: object) -> int:
-    return cli.main(["zones", *map(str, args)])
-
-
-def one_line_error(capsys) -> str:
-    lines = capsys.readouterr().err.strip().splitlines()
-    errors = [ln for ln in lines if not ln.startswith("monitor: warning: ")]
-    assert len(errors) == 1 and errors[0].startswith("monitor: error: "), lines
-    return errors[0]
 
 
 def image(path: Path, width: int = 64, height: int = 48, level: int = 90) -> Path:

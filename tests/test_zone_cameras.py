@@ -13,20 +13,12 @@ import pytest
 
 from monitor import cli
 from monitor import zones as zn
+from tests.helpers import one_error_line as one_line_error
+from tests.helpers import zones_cli as zones
 
 POLY = "100,100 300,100 300,300 100,300"
 
 
-def zones(*args: object) -> int:
-    return cli.main(["zones", *map(str, args)])
-
-
-def one_line_error(capsys) -> str:
-    """The one error line (warnings of earlier, successful edits may come before it)."""
-    lines = capsys.readouterr().err.strip().splitlines()
-    errors = [ln for ln in lines if not ln.startswith("monitor: warning: ")]
-    assert len(errors) == 1 and errors[0].startswith("monitor: error: "), lines
-    return errors[0]
 
 
 @pytest.fixture
