@@ -63,13 +63,7 @@ class HoldsGate:
         self._budget = VerifyBudget(verify_per_s)
 
     def check(self, key_expr: str, payload: bytes, signature: bytes | None, now: float,
-              wall_now: float) -> tuple[str, str, tuple[Entry, ...]] | None:
-        """(role, boot, entries) of a verified message, or None (counted by kind)."""
-        out = self.check_timed(key_expr, payload, signature, now, wall_now)
-        return None if out is None else out[:3]
-
-    def check_timed(self, key_expr: str, payload: bytes, signature: bytes | None, now: float,
-                    wall_now: float) -> tuple[str, str, tuple[Entry, ...], float] | None:
+              wall_now: float) -> tuple[str, str, tuple[Entry, ...], float] | None:
         """(role, boot, entries, the sender's wall time) of a verified message, or None."""
         kind, out = self._sort(key_expr, payload, signature, now, wall_now)
         if kind:
@@ -186,8 +180,8 @@ class HoldsLink:
                 return  # our own key (another instance of our role is a duplicate_monitor)
             signature = sample.attachment.to_bytes() if sample.attachment is not None else None
             received, wall_now = time.monotonic(), self.wall()
-            taken = self.gate.check_timed(key, sample.payload.to_bytes(), signature, received,
-                                          wall_now)
+            taken = self.gate.check(key, sample.payload.to_bytes(), signature, received,
+                                    wall_now)
         except Exception:  # nothing a sender does may kill this callback
             return
         if taken is not None:

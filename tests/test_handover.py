@@ -156,7 +156,7 @@ def message(role: str = "monitor-a", seq: int = 1, wall: float = 1000.0, cell: s
 
 def test_the_gate_takes_a_peers_signed_message():
     g = gate()
-    role, boot, entries = g.check(*message(), now=0.0, wall_now=1000.5)
+    role, boot, entries, _ = g.check(*message(), now=0.0, wall_now=1000.5)
     assert (role, boot, entries) == ("monitor-a", "boot1", (departure(wall=1000.0),))
     assert g.counts() == {}
 
@@ -222,7 +222,7 @@ def test_a_person_lost_behind_a_fixture_outside_my_zones_is_handed_over():
     g = gate()
     key_expr = BusKeys.of(PREFIX, "monitor-a").holds
     payload = holds_payload("th", "monitor-a", "boot1", 1, 1000.0, (entry,))
-    _, _, got = g.check(key_expr, payload, Signer(KEY_A).sign(key_expr, payload), 0.0, 1000.0)
+    _, _, got, _ = g.check(key_expr, payload, Signer(KEY_A).sign(key_expr, payload), 0.0, 1000.0)
     assert got == (entry,)
 
 
@@ -265,7 +265,7 @@ def test_a_peer_with_more_persons_than_a_message_carries_holds_every_protective_
     for body in (payload, json.dumps({**json.loads(payload), "overflow": 0, "entries": [
             e.to_dict() for e in entries]}).encode()):  # a sender that lists them all
         g, desk = gate(), HandedHolds()
-        _, _, got = g.check(key_expr, body, Signer(KEY_A).sign(key_expr, body), 0.0, 1000.0)
+        _, _, got, _ = g.check(key_expr, body, Signer(KEY_A).sign(key_expr, body), 0.0, 1000.0)
         assert len(got) == MAX_ENTRIES + 1 and got[-1].kind == "overflow"
         desk.take("monitor-a", "boot1", got, cell_b(), 1.0, 1000.0)
         assert [h.zones for h in desk.holds] == [("b-far", "b-near")]
