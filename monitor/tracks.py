@@ -1,25 +1,22 @@
-"""Tracked persons and object permanence: a person lost inside a zone keeps that zone occupied.
+"""Tracked persons and object permanence: a person lost near a zone keeps that zone occupied.
 
 Detectors miss people: behind the robot base for a frame, merged into a neighbour's box, hidden
-by a part carried past the camera. A per-frame zone answer would then read "clear" exactly when
-a reset or a RUN is most dangerous. So persons are tracked across frames (ByteTrack from
-``supervision``: association by box overlap with a Kalman motion model), and a track that is
-lost **while inside or touching a protective or warning zone** becomes a *hold*: every frame,
-the camera's zone report carries ``ZoneHit(..., track_id=k, lost=True, lost_since=t)`` for each
-zone that person was last seen in, until
+by a part carried past the camera, between two frames at 1 fps. A per-frame zone answer would
+then read "clear" exactly when a reset or a RUN is most dangerous. So persons are tracked
+across frames (ByteTrack from ``supervision``: association by box overlap with a Kalman motion
+model) for their names, and every track that is lost leaves an *area* where the person could be
+(``monitor.whereabouts``): it grows at walking speed through whatever the camera does not see
+free and shrinks where a working camera sees it free for ``clear_time``. While the area touches
+a protective or warning zone it is a *hold*: every frame, the camera's zone report carries
+``ZoneHit(..., track_id=k, lost=True, lost_since=t)`` for each zone it touches, until
 
-* the person is seen again (the tracker re-associates the track, or a new person appears near
-  where the lost one was last seen: generous on purpose, it is the same person or someone
-  standing where they stood, and the seen person's own hits now count), or
+* the area no longer touches the zone (the camera has seen it free), or
 * an operator confirms the cell clear (``ResetRequest(confirm_clear=True)``; see
   ``PersonTracker.drop_holds``).
 
-A track lost *outside* every zone (it walked out of the zone first) or leaving the view (its
-box at the image edge, moving outwards) holds nothing here; a track leaving the view is marked
-``left_view`` so that the cell's other monitors can take it over (``monitor.handover``). A
-person whose box merges with a neighbour's is not "seen outside": when a lost track's last box
-lies largely inside a seen box, the hold covers the zones of both persons before the merge (the
-tracker cannot tell which of the two the merged box follows).
+Ids are names only: a person re-found, or a new person near where a lost one was, never ends a
+hold. A track lost at an image edge moving outwards is marked ``left_view`` so that the cell's
+other monitors can take it over (``monitor.handover``).
 
 Everything here is deterministic: no wall clock, the frame's capture time is passed in.
 """
@@ -33,20 +30,26 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from monitor.boxes import ios_matrix
 from monitor.timetext import TimeText
 from monitor.types import Persons, ZoneHit, ZoneReport
+from monitor.whereabouts import (
+    HOLD_KINDS,
+    FootGrid,
+    HeldZone,
+    Whereabouts,
+    WhereaboutsConfig,
+    ZonesOf,
+    union_zones,
+)
 
 with warnings.catch_warnings():  # ByteTrack announces its move to the `trackers` package
     warnings.simplefilter("ignore", FutureWarning)
     import supervision as sv
 
-HOLD_KINDS = frozenset({"protective", "warning"})
-
 # pixels (N, 2) -> (floor xy metres (N, 2), located (N,) bool): a camera's calibration
 ToFloor = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
-# boxes (N, 4) px -> the zone check's answer for them (for extrapolated positions)
-ZonesOf = Callable[[np.ndarray], ZoneReport]
+# the camera's hidden foot cells (monitor.zones.visibility) for a grid of its image
+HiddenCells = Callable[[FootGrid], np.ndarray]
 
 
 @dataclass(frozen=True)
@@ -61,29 +64,27 @@ class TrackerConfig:
     # a person walks this fast at most (m/s): a track unseen for dt seconds is re-found within
     # walk_speed_mps * dt of its last box (measured in box heights of a height_m person), so
     # ids survive low frame rates; a track that holds a zone is never re-found this way (the
-    # new person is said as "person 6 (was person 1?)" and the hold stays)
+    # new person is said as "person 6 (was person 1?)"); the lost persons' areas grow at this
+    # speed too
     walk_speed_mps: float = 1.5
     height_m: float = 1.75
-    reach_max_s: float = 2.0  # no further than this many seconds of walking
-    merge_ios: float = 0.3  # a lost box this much inside a seen box: merged into it
+    reach_max_s: float = 2.0  # ids: no further than this many seconds of walking
     edge_margin_px: float = 8.0  # a box this close to the image border is "at the edge"
     exit_speed_pxps: float = 5.0  # outward speed at the edge that counts as leaving the view
-    forget_after_s: float = 60.0  # lost tracks without a hold are forgotten after this long
+    forget_after_s: float = 60.0  # lost tracks without an area are forgotten after this long
     velocity_smoothing: float = 0.5  # weight of the newest velocity sample (0..1]
-    predict_s: float = 1.0  # a lost person's path is extrapolated this far (0: not at all)
-    predict_steps: int = 4  # points checked along that path
-    # a person lost in mid-view may have walked anywhere within walk_speed_mps times the time
-    # since their last sighting (at 1-2 fps a standing person can step behind a fixture inside
-    # a zone between two frames): zones that close are held too (checked at this many rings of
-    # 8 points around the last box; 0: not at all)
-    reach_rings: int = 3
+    # a track whose box grows this much while leaving a zone was merged with a neighbour:
+    # where it stood is kept as a lost person's area (someone may be hidden in the merged box)
+    merge_grow: float = 1.3
+    # where a lost person could be (monitor.whereabouts): grid columns over the image, the
+    # reach's perspective margin, the share of a box under it where hidden feet may be
+    cells_across: int = 48
+    reach_margin: float = 1.5
+    below: float = 0.25
 
-
-@dataclass(frozen=True)
-class HeldZone:
-    zone_id: str
-    kind: str
-    speed_scale: float
+    def areas(self) -> WhereaboutsConfig:
+        return WhereaboutsConfig(self.cells_across, self.walk_speed_mps, self.height_m,
+                                 self.reach_margin, self.below)
 
 
 @dataclass(frozen=True)
@@ -105,8 +106,9 @@ class Track:
 
 @dataclass(frozen=True)
 class Hold:
-    """A lost person keeping zones occupied. ``seen_as``: a person seen since near where this
-    one was lost, perhaps the same (a guess: the hold stays until that is seen or confirmed)."""
+    """A lost person whose area (where they could be) touches zones. ``seen_as``: a person
+    seen since near where this one was lost, perhaps the same (a guess: the hold stays until
+    the zones are seen free or an operator confirms the cell clear)."""
 
     track_id: int
     zones: tuple[HeldZone, ...]
@@ -132,7 +134,7 @@ class TrackUpdate:
     track_ids: tuple[int, ...]  # per row of the frame's Persons
     report: ZoneReport | None  # the zone report with track ids and the holds' lost hits
     started: tuple[Hold, ...] = ()  # holds that began in this frame
-    ended: tuple[Hold, ...] = ()  # holds ended because the person was seen again
+    ended: tuple[Hold, ...] = ()  # holds ended in this frame (their zones were seen free)
     # (new id, lost id): a new person near a lost one that holds a zone, perhaps the same
     reidentified: tuple[tuple[int, int], ...] = ()
 
@@ -146,25 +148,18 @@ class _Record:
     floor: np.ndarray | None = None
     floor_velocity: np.ndarray | None = None
     zones: tuple[HeldZone, ...] = ()
-    prev_zones: tuple[HeldZone, ...] = ()  # zones of the sighting before the last one
     lost: bool = False
-    held: tuple[HeldZone, ...] = ()
-    streak: int = 1  # frames seen in a row
     was: int | None = None  # the lost track this one perhaps is (a guess; see reidentified)
     seen_as: int | None = None  # a new track that perhaps is this lost one
     left_view: bool = False
 
-    def snapshot(self) -> Track:
+    def snapshot(self, held: tuple[HeldZone, ...]) -> Track:
         floor = None if self.floor is None else (float(self.floor[0]), float(self.floor[1]))
         fvel = None if self.floor_velocity is None else (float(self.floor_velocity[0]),
                                                         float(self.floor_velocity[1]))
         return Track(self.track_id, _box_tuple(self.box), self.last_seen,
                      (float(self.velocity[0]), float(self.velocity[1])), floor, fvel,
-                     self.zones, self.lost, self.held, self.was, self.left_view)
-
-    def hold(self) -> Hold:
-        return Hold(self.track_id, self.held, self.last_seen, _box_tuple(self.box),
-                    self.seen_as)
+                     self.zones, self.lost, held, self.was, self.left_view)
 
     def label(self) -> str:
         """``person 6``, or ``person 6 (was person 1?)`` when re-identified by a guess."""
@@ -180,14 +175,14 @@ def _bottom_centre(boxes: np.ndarray) -> np.ndarray:
     return np.stack([(boxes[:, 0] + boxes[:, 2]) * 0.5, boxes[:, 3]], axis=1)
 
 
-def _union(*groups: tuple[HeldZone, ...]) -> tuple[HeldZone, ...]:
-    out: dict[str, HeldZone] = {}
-    for group in groups:
-        for z in group:
-            old = out.get(z.zone_id)
-            if old is None or z.speed_scale < old.speed_scale:
-                out[z.zone_id] = z
-    return tuple(sorted(out.values(), key=lambda z: z.zone_id))
+def _swallowed(old: np.ndarray, new: np.ndarray, grow: float) -> bool:
+    """The new box is ``grow`` times the old one's area or more and covers at least half of
+    it: two persons' boxes merged (not one person walking on)."""
+    area_old = max((old[2] - old[0]) * (old[3] - old[1]), 1e-9)
+    area_new = (new[2] - new[0]) * (new[3] - new[1])
+    w = min(old[2], new[2]) - max(old[0], new[0])
+    h = min(old[3], new[3]) - max(old[1], new[1])
+    return bool(area_new >= grow * area_old and max(w, 0.0) * max(h, 0.0) >= 0.5 * area_old)
 
 
 def lost_person_index(track_id: int) -> int:
@@ -197,7 +192,8 @@ def lost_person_index(track_id: int) -> int:
 
 
 class PersonTracker:
-    """Persistent person ids for one camera, and the holds of persons lost inside zones.
+    """Persistent person ids for one camera, and where its lost persons could be (their
+    areas, ``monitor.whereabouts``; an area touching a zone is a hold).
 
     ``to_floor`` (a camera calibration's ``pixel_to_floor``) adds floor positions and
     velocities to the tracks; without it tracks are image-only.
@@ -221,6 +217,7 @@ class PersonTracker:
         self._last_time: float | None = None
         self._intervals: list[float] = []  # the last frame intervals (s), for the frame rate
         self._reidentified: list[tuple[int, int]] = []
+        self.where = Whereabouts(self.config.areas())
 
     def _buffer_frames(self, fps: float) -> int:
         return max(1, math.ceil(self.config.lost_track_s * fps))
@@ -242,13 +239,23 @@ class PersonTracker:
     # ---------------------------------------------------------------------------------------
     @property
     def tracks(self) -> tuple[Track, ...]:
-        return tuple(r.snapshot() for r in sorted(self._records.values(),
-                                                  key=lambda r: r.track_id))
+        return tuple(r.snapshot(self._held(r.track_id) if r.lost else ())
+                     for r in sorted(self._records.values(), key=lambda r: r.track_id))
+
+    def _held(self, track_id: int) -> tuple[HeldZone, ...]:
+        area = self.where.areas.get(track_id)
+        return area.zones if area is not None else ()
 
     @property
     def holds(self) -> tuple[Hold, ...]:
-        return tuple(r.hold() for r in sorted(self._records.values(), key=lambda r: r.track_id)
-                     if r.lost and r.held)
+        """Every lost person whose area touches a protective or warning zone."""
+        out = []
+        for tid, area in sorted(self.where.areas.items()):
+            if area.zones:
+                rec = self._records.get(tid)
+                out.append(Hold(tid, area.zones, area.lost_since, area.box_px,
+                                rec.seen_as if rec is not None else None))
+        return tuple(out)
 
     def held_hits(self) -> tuple[ZoneHit, ...]:
         """One ``lost=True`` hit per held zone of every lost person."""
@@ -257,30 +264,41 @@ class PersonTracker:
                      for h in self.holds for z in h.zones)
 
     def drop_holds(self) -> tuple[Hold, ...]:
-        """An operator confirmed the cell clear: every lost person stops holding zones (seen
-        persons are untouched). Returns the holds dropped."""
+        """An operator confirmed the cell clear: every lost person's area ends (seen persons
+        are untouched). Returns the holds dropped."""
         dropped = self.holds
-        for r in self._records.values():
-            if r.lost:
-                r.held = ()
+        self.where.drop()
         return dropped
+
+    def blind(self) -> None:
+        """A frame this camera could not judge (a detector error): nothing was seen free, so
+        every seen-free streak starts again."""
+        self.where.blind()
 
     # ---------------------------------------------------------------------------------------
     def update(self, persons: Persons, report: ZoneReport | None, now: float,
-               frame_size: tuple[int, int], zones_of: ZonesOf | None = None) -> TrackUpdate:
+               frame_size: tuple[int, int], zones_of: ZonesOf | None = None, *,
+               working: bool = True, hidden: HiddenCells | None = None,
+               hidden_key: object = None, clear_time: float = 1.0,
+               zones_key: object = None) -> TrackUpdate:
         """Associate this frame's persons with the tracks; return their ids and the report
         with track ids on the seen hits plus one lost hit per held zone.
 
-        ``report`` is the zone answer for ``persons`` (None: unknown; each track then keeps
-        the zones of its previous sighting). ``now`` is the frame's capture time;
-        ``frame_size`` its (width, height). ``zones_of`` (the zone check for other boxes) lets
-        a track lost while walking towards a zone hold the zones on its path for the next
-        ``predict_s`` (hidden behind the robot base on the way in).
+        ``report`` is the zone answer for ``persons`` (None: unknown). ``now`` is the frame's
+        capture time; ``frame_size`` its (width, height). Every track lost in this frame
+        leaves an area where the person could be; ``zones_of`` (the zone check for other
+        boxes; None: no zones) says which zones an area touches (its answers kept while
+        ``zones_key`` is the same; None: this frame only). ``working`` False: the camera's
+        view cannot be trusted in this frame (a STOP fault of the camera or detector), nothing
+        is seen free. ``hidden(grid)``: the cells no person could be seen in (recomputed
+        when ``hidden_key`` changes). A cell is free once seen free for ``clear_time``.
         """
         boxes = np.asarray(persons.boxes_px, np.float64).reshape(-1, 4)
         n = len(boxes)
         self._measure_rate(now)
         self._reidentified = []
+        self.where.view(int(frame_size[0]), int(frame_size[1]), hidden, hidden_key)
+        before = {h.track_id: h for h in self.holds}
         rows_to_id = self._associate(boxes, np.asarray(persons.scores, np.float64), now)
         row_zones = self._row_zones(report, n)
         floors: list[np.ndarray | None] = [None] * n
@@ -289,7 +307,6 @@ class PersonTracker:
             floors = [np.asarray(xy[i], np.float64) if located[i] else None for i in range(n)]
 
         seen_now = set(rows_to_id)
-        ended = []
         for row, tid in enumerate(rows_to_id):
             rec = self._records.get(tid)
             if rec is None:
@@ -301,36 +318,39 @@ class PersonTracker:
                         rec.was = old
                         self._records[old].seen_as = tid
                 continue
-            if rec.lost and rec.held:
-                ended.append(rec.hold())
-            rec.streak = 1 if rec.lost else rec.streak + 1
+            # seen again: a name, never the end of its area (the camera must see it free)
+            old_box, old_seen = rec.box.copy(), rec.last_seen
             self._place(rec, boxes[row], floors[row], now, first=False)
-            rec.prev_zones = rec.zones
             if row_zones is not None:
+                left = {z.zone_id for z in rec.zones} - {z.zone_id for z in row_zones[row]}
+                if left and _swallowed(old_box, boxes[row], self.config.merge_grow):
+                    # merged with a neighbour into a box placed outside the zone: a person may
+                    # still stand where it was, hidden in the merged box
+                    self.where.lose(tid, old_box, old_seen)
                 rec.zones = row_zones[row]
-            rec.lost, rec.held, rec.seen_as, rec.left_view = False, (), None, False
+            rec.lost, rec.seen_as, rec.left_view = False, None, False
 
-        started = []
         for rec in self._records.values():
             if rec.track_id in seen_now or rec.lost:
                 continue
             rec.lost = True
-            rec.held = self._hold_zones(rec, boxes, rows_to_id, frame_size, zones_of, now)
-            rec.left_view = not rec.held and self._leaving_view(rec, frame_size)
-            if rec.held:
-                started.append(rec.hold())
+            rec.left_view = self._leaving_view(rec, frame_size)
+            self.where.lose(rec.track_id, rec.box, rec.last_seen)
+        self.where.update(now, boxes, working, clear_time, zones_of, zones_key)
 
-        for tid in [t for t, r in self._records.items() if r.lost and not r.held
+        for tid in [t for t, r in self._records.items() if r.lost and t not in self.where.areas
                     and now - r.last_seen > self.config.forget_after_s]:
             del self._records[tid]
 
+        after = {h.track_id: h for h in self.holds}
+        started = tuple(h for t, h in after.items() if t not in before)
+        ended = tuple(h for t, h in before.items() if t not in after)
         out = None
         if report is not None:
             seen_hits = tuple(replace(h, track_id=rows_to_id[h.person])
                               if 0 <= h.person < n else h for h in report.hits)
             out = replace(report, hits=seen_hits + self.held_hits())
-        return TrackUpdate(tuple(rows_to_id), out, tuple(started), tuple(ended),
-                           tuple(self._reidentified))
+        return TrackUpdate(tuple(rows_to_id), out, started, ended, tuple(self._reidentified))
 
     # ---------------------------------------------------------------------------------------
     def _associate(self, boxes: np.ndarray, scores: np.ndarray, now: float) -> list[int]:
@@ -367,7 +387,7 @@ class PersonTracker:
                                np.array([r.box[2] - r.box[0] for r in free])[None, :])
             near = dist <= self.config.near_factor * np.maximum(width, 1.0)
             reach = dist <= self._walk_reach(boxes[rows], free, now)
-            holding = np.array([r.lost and bool(r.held) for r in free])[None, :]
+            holding = np.array([bool(self._held(r.track_id)) for r in free])[None, :]
             guess = reach & ~near & holding  # never ends a hold: said, not merged
             near |= reach & ~holding
             for flat in np.argsort(dist, axis=None, kind="stable"):
@@ -400,7 +420,7 @@ class PersonTracker:
         for h in report.hits:
             if 0 <= h.person < n and not h.lost and h.kind in HOLD_KINDS:
                 per_row[h.person].append(HeldZone(h.zone_id, h.kind, float(h.speed_scale)))
-        return [_union(tuple(z)) for z in per_row]
+        return [union_zones(z) for z in per_row]
 
     def _place(self, rec: _Record, box: np.ndarray, floor: np.ndarray | None, now: float,
                first: bool) -> None:
@@ -420,64 +440,6 @@ class PersonTracker:
         rec.floor = floor
         rec.box = box.copy()
         rec.last_seen = now
-
-    def _hold_zones(self, rec: _Record, boxes: np.ndarray, ids: list[int],
-                    frame_size: tuple[int, int], zones_of: ZonesOf | None = None,
-                    now: float | None = None) -> tuple[HeldZone, ...]:
-        """The zones a track lost in this frame keeps occupied (empty: none)."""
-        merged_into: tuple[HeldZone, ...] = ()
-        merged = False
-        if len(boxes):
-            inside = ios_matrix(rec.box[None], boxes)[0]
-            # share of the lost box covered by each seen box (ios uses the smaller box)
-            lost_area = max((rec.box[2] - rec.box[0]) * (rec.box[3] - rec.box[1]), 1e-9)
-            seen_area = (boxes[:, 2] - boxes[:, 0]) * (boxes[:, 3] - boxes[:, 1])
-            cover = inside * np.minimum(lost_area, seen_area) / lost_area
-            for row in np.flatnonzero(cover >= self.config.merge_ios).tolist():
-                merged = True
-                other = self._records[ids[row]]
-                merged_into = _union(merged_into, other.prev_zones)
-        if not merged and self._leaving_view(rec, frame_size):
-            return ()
-        # a track seen for a single frame (re-found by a box that may be a flicker near a
-        # lost person) keeps the zones of its sighting before that
-        flicker = rec.prev_zones if rec.streak <= 1 else ()
-        return _union(rec.zones, merged_into, flicker, self._zones_ahead(rec, zones_of),
-                      self._zones_in_reach(rec, zones_of, now))
-
-    def _zones_ahead(self, rec: _Record, zones_of: ZonesOf | None) -> tuple[HeldZone, ...]:
-        """Zones on the lost person's extrapolated path (image velocity, ``predict_s``)."""
-        cfg = self.config
-        if zones_of is None or cfg.predict_s <= 0 or cfg.predict_steps < 1:
-            return ()
-        if not np.all(np.isfinite(rec.velocity)) or not np.any(rec.velocity):
-            return ()
-        steps = np.arange(1, cfg.predict_steps + 1) * (cfg.predict_s / cfg.predict_steps)
-        shift = steps[:, None] * rec.velocity[None, :]
-        ahead = rec.box[None, :] + np.concatenate([shift, shift], axis=1)
-        report = zones_of(ahead)
-        rows = self._row_zones(report, len(ahead))
-        return _union(*rows) if rows else ()
-
-    def _zones_in_reach(self, rec: _Record, zones_of: ZonesOf | None, now: float | None
-                        ) -> tuple[HeldZone, ...]:
-        """Zones the lost person may have walked into since the last sighting: the last box
-        moved by up to ``walk_speed_mps`` times the gap (at most ``reach_max_s``), measured in
-        box heights of a ``height_m`` person, on ``reach_rings`` rings of 8 directions."""
-        cfg = self.config
-        if zones_of is None or now is None or cfg.reach_rings < 1:
-            return ()
-        dt = min(max(now - rec.last_seen, 0.0), cfg.reach_max_s)
-        reach = cfg.walk_speed_mps / cfg.height_m * float(rec.box[3] - rec.box[1]) * dt
-        if not math.isfinite(reach) or reach <= 0:
-            return ()
-        angles = np.arange(8) * (math.pi / 4)
-        radii = np.arange(1, cfg.reach_rings + 1) * (reach / cfg.reach_rings)
-        shift = (radii[:, None, None] * np.stack([np.cos(angles), np.sin(angles)], axis=1)
-                 [None]).reshape(-1, 2)
-        moved = rec.box[None, :] + np.concatenate([shift, shift], axis=1)
-        rows = self._row_zones(zones_of(moved), len(moved))
-        return _union(*rows) if rows else ()
 
     def _leaving_view(self, rec: _Record, frame_size: tuple[int, int]) -> bool:
         """Box at the left, right or bottom image border and moving outwards across it. Not

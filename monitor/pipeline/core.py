@@ -25,7 +25,7 @@ from monitor.pipeline.data import CameraState, StepResult
 from monitor.pipeline.evidence import ZonesApplying, policy_inputs
 from monitor.pipeline.fault_alerts import FaultAlerts, one_line
 from monitor.pipeline.holds import confirm_clear, holds_of
-from monitor.pipeline.locate import locate
+from monitor.pipeline.locate import camera_working, hidden_of, locate
 from monitor.pipeline.masking import MaskRules, MaskTally, with_touching
 from monitor.pipeline.mutes import MuteDesk
 from monitor.pipeline.zone_sets import ZoneSets
@@ -266,10 +266,7 @@ class Pipeline:
                                     f"exceed top-k {self.detector.config.top_k}", True,
                                     "detector"))
         t1 = time.perf_counter()
-        report, track_ids, person_ids = locate(
-            frame, persons, cam, self.prepared, self.detector, self.persons, detector_error,
-            now, tool_pose, tool_speed_mps, pose_time, self.policy, faults)
-        t2 = time.perf_counter()
+        # health first: a camera in fault sees nothing free for its lost persons' areas
         health = None
         if cam.health is not None:
             try:
@@ -278,6 +275,12 @@ class Pipeline:
             except Exception as exc:  # health unknown: fail towards STOP
                 faults.append(Fault("health_check_error", one_line(exc), True,
                                     frame.camera_id))
+        t2 = time.perf_counter()
+        working = camera_working(frame.camera_id, [*faults, *extra_faults])
+        report, track_ids, person_ids = locate(
+            frame, persons, cam, self.prepared, self.detector, self.persons, detector_error,
+            now, tool_pose, tool_speed_mps, pose_time, self.policy, faults, working=working,
+            hidden=hidden_of(self.cell, frame.camera_id, self.masks.rule(frame)))
         t3 = time.perf_counter()
         self.applying.waiting.discard(frame.camera_id)  # this frame was checked on the new zones
         cam.frame_time, cam.report, cam.faults = frame.capture_time, report, tuple(faults)
@@ -289,7 +292,7 @@ class Pipeline:
         alerts = (*cleared, *mute_alerts, *(health.alerts if health else ()),
                   *self._fault_alerts(inputs.faults, detector_error, now, image))
         t4 = time.perf_counter()
-        stage.update(detect=(t1 - t0) * 1e3, zones=(t2 - t1) * 1e3, health=(t3 - t2) * 1e3,
+        stage.update(detect=(t1 - t0) * 1e3, health=(t2 - t1) * 1e3, zones=(t3 - t2) * 1e3,
                      policy=(t4 - t3) * 1e3)
         return StepResult(now, command, self._changed(command), frame, persons, cam.report,
                           health, inputs.faults, alerts, stage, track_ids, tally.masked,

@@ -1,7 +1,7 @@
 """Where one frame's persons are: the zone check of their boxes (with the tool's pose and the
-zones that follow it), then the camera's tracks (holds of persons lost inside zones) and the
-cell persons' names. A stage that fails adds a STOP fault naming it; its answer is then
-unknown, never "no persons"."""
+zones that follow it), then the camera's tracks (where its lost persons could be, and the
+zones that holds) and the cell persons' names. A stage that fails adds a STOP fault naming
+it; its answer is then unknown, never "no persons"."""
 
 from __future__ import annotations
 
@@ -16,8 +16,11 @@ from monitor.pipeline.data import CameraState
 from monitor.pipeline.fault_alerts import one_line
 from monitor.policy import PolicyConfig
 from monitor.types import Fault, FrameInfo, Persons, ZoneReport
-from monitor.zones import check_persons
+from monitor.whereabouts import FootGrid
+from monitor.zones import Cell, check_persons
+from monitor.zones.masks import MaskRule
 from monitor.zones.moving import ToolState
+from monitor.zones.visibility import hidden_feet
 
 log = logging.getLogger("monitor.pipeline")  # the pipeline's log, as before the split
 
@@ -45,14 +48,39 @@ def zones_of(prepared, detector: Detector, frame: FrameInfo, tool_pose, tool_spe
     return check
 
 
+def hidden_of(cell: Cell | None, camera_id: str, rule: MaskRule | None
+              ) -> tuple[Callable[[FootGrid], np.ndarray] | None, object]:
+    """The camera's hidden foot cells for a grid of its image (``zones.visibility``), and
+    the key under which they stay valid (the zone set and the mask rule)."""
+    if cell is None:
+        return None, None
+    model = cell.camera_models.get(camera_id)
+    masks = rule.polygons if rule is not None else ()
+    margin = rule.margin_px if rule is not None else 0.0
+
+    def hidden(grid: FootGrid) -> np.ndarray:
+        return hidden_feet(grid.centres(), (grid.width, grid.height), model, cell.spec,
+                           cell.meshes, masks, margin).reshape(grid.shape)
+    return hidden, (id(cell), id(rule))
+
+
+def camera_working(camera_id: str, faults: list[Fault] | tuple[Fault, ...]) -> bool:
+    """False when a STOP fault of the camera or the detector says its view cannot be trusted
+    in this frame: nothing it shows counts as seen free."""
+    return not any(f.stop and f.source in (camera_id, "detector") for f in faults)
+
+
 def locate(frame: FrameInfo, persons: Persons, cam: CameraState, prepared, detector: Detector,
            cell_persons: CellPersons, detector_error: str | None, now: float, tool_pose,
            tool_speed_mps: float | None, pose_time: float | None, policy: PolicyConfig,
-           faults: list[Fault]
+           faults: list[Fault], *, working: bool = True,
+           hidden: tuple[Callable[[FootGrid], np.ndarray] | None, object] = (None, None)
            ) -> tuple[ZoneReport | None, tuple[int, ...], tuple[Who, ...]]:
     """The frame's zone answer (None: unknown), each row's track id and cell person; the
     faults of a failed stage are added to ``faults``. Nothing is checked after a detector
-    error (the answer is unknown); no zones (``prepared`` None) is an empty answer."""
+    error (the answer is unknown, nothing is seen free); no zones (``prepared`` None) is an
+    empty answer. ``working``: the camera's view can be trusted in this frame (its lost
+    persons' areas shrink where it sees no person); ``hidden``: ``hidden_of``'s answer."""
     report = None
     tool_pose, tool_state = tool_for(now, tool_pose, tool_speed_mps, pose_time, policy)
     if prepared is not None and detector_error is None:
@@ -67,12 +95,19 @@ def locate(frame: FrameInfo, persons: Persons, cam: CameraState, prepared, detec
         report = ZoneReport()
     track_ids: tuple[int, ...] = ()
     person_ids: tuple[Who, ...] = ()
+    if detector_error is not None and cam.tracker is not None:
+        cam.tracker.blind()
     if detector_error is None and cam.tracker is not None:
+        # the zone answers of hypothetical persons stay valid while the zone set does,
+        # unless zones follow the tool or the separation uses its pose (then: this frame)
+        static = prepared is not None and not prepared.moving and tool_pose is None
         try:
-            update = cam.tracker.update(persons, report, frame.capture_time,
-                                        (frame.width, frame.height),
-                                        zones_of(prepared, detector, frame, tool_pose,
-                                                 tool_speed_mps, tool_state))
+            update = cam.tracker.update(
+                persons, report, frame.capture_time, (frame.width, frame.height),
+                zones_of(prepared, detector, frame, tool_pose, tool_speed_mps, tool_state),
+                working=working and report is not None, hidden=hidden[0],
+                hidden_key=hidden[1], clear_time=policy.clear_time,
+                zones_key=id(prepared) if static else None)
             named = cell_persons.name(frame.camera_id, cam.tracker, update, frame.capture_time)
             report, track_ids, person_ids = named.report, update.track_ids, named.person_ids
             for line in named.lines:  # holds begun, guesses (said once, holds stay)

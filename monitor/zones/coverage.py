@@ -81,7 +81,7 @@ class ZoneCoverage:
 # What one camera sees
 
 
-def _contain(occluders: Sequence, meshes: Mapping[str, tuple[np.ndarray, np.ndarray]]
+def occluders_contain(occluders: Sequence, meshes: Mapping[str, tuple[np.ndarray, np.ndarray]]
              ) -> Contain:
     def contain(points: np.ndarray) -> np.ndarray:
         out = np.zeros(len(points), dtype=bool)
@@ -172,7 +172,7 @@ def zone_coverage(zone, spec: CellSpec, models: Mapping[str, geo.CameraModel],
     """Sample a volume zone's floor and its volume up to head height; see the module
     docstring for what counts as observed."""
     occluders = spec.occluder_zones()
-    contain = _contain(occluders, meshes)
+    contain = occluders_contain(occluders, meshes)
     h_min, h_max = spec.person.height_range_m
     radius = spec.person.radius_m
     lo, hi = (np.asarray(v, float) for v in _zone_floor_bounds(zone, meshes))

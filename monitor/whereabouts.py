@@ -1,0 +1,311 @@
+"""Where a lost person could be: kept until a working camera has seen it free.
+
+The rule 3-D safety systems use: **space no working camera sees is occupied; space a working
+camera sees empty is free.** A person the tracker loses (behind a fixture, merged with a
+neighbour, missed by a flickering detector, between two frames at 1 fps) is not gone: from the
+moment of the loss the monitor keeps the *area* of the image they could be standing in,
+
+* starting from their last box (the feet may be anywhere under it, or just below it when
+  hidden),
+* growing every frame by what a person walks in the time since the previous frame
+  (``walk_speed_mps`` in box heights of a ``height_m`` person, times ``reach_margin`` for
+  perspective): between two frames nothing is observed, so at 1 fps a person crosses open
+  floor unseen and may be behind a cabinet 1.5 m away in the next frame,
+* and losing every cell the camera, working (a fresh frame, no STOP fault of the camera or the
+  detector), has seen with no person box there for ``clear_time`` without a break. So the
+  area follows a hidden person at walking speed through everything the camera does not see
+  free (behind fixtures, behind other persons, through a camera fault) and nowhere else.
+
+A zone is held while a lost person's area touches it; the hold ends when the area no longer
+does (the area itself ends when it is empty). Nothing else ends it: a new person appearing
+where the lost one was is a name (``monitor.tracks``), never evidence that the lost one is
+gone; a camera in fault sees nothing free, so the area grows while the fault lasts.
+
+Cells are foot positions on a grid over the image (``FootGrid``: ``cells_across`` columns of
+square cells). A cell is *hidden* when no person standing there could be seen by the camera
+(``monitor.zones.visibility``: behind a declared occluder or the robot base, or inside a mask
+zone): a hidden cell is never seen free, so an area that reaches behind a cabinet stays there
+until an operator confirms the cell clear.
+
+Pure numpy on small grids (48 x 27 cells at 16:9): a few microseconds a step per area, plus one
+zone check of the hypothetical persons on the area's cells (cached per zone set).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from monitor.types import ZoneReport
+
+HOLD_KINDS = frozenset({"protective", "warning"})
+ZonesOf = Callable[[np.ndarray], ZoneReport]
+
+
+@dataclass(frozen=True)
+class HeldZone:
+    zone_id: str
+    kind: str
+    speed_scale: float
+
+
+def union_zones(*groups: Iterable[HeldZone]) -> tuple[HeldZone, ...]:
+    """Every zone of the groups once (the lowest speed scale of each), sorted by id."""
+    out: dict[str, HeldZone] = {}
+    for group in groups:
+        for z in group:
+            old = out.get(z.zone_id)
+            if old is None or z.speed_scale < old.speed_scale:
+                out[z.zone_id] = z
+    return tuple(sorted(out.values(), key=lambda z: z.zone_id))
+
+
+@dataclass(frozen=True)
+class WhereaboutsConfig:
+    """Settings of the lost persons' areas (defaults: a brisk walk, a 1.75 m person)."""
+
+    cells_across: int = 48  # grid columns over the image width (square cells)
+    walk_speed_mps: float = 1.5  # a hidden person walks at most this fast
+    height_m: float = 1.75  # box height of a person, to turn metres into pixels
+    # a person walking towards the camera grows in the image: the reach in pixels of the last
+    # box's height is stretched by this much (costs nothing in open view, where cells seen
+    # free stop the growth anyway)
+    reach_margin: float = 1.5
+    below: float = 0.25  # feet hidden by a low fixture: up to this share of the box below it
+    max_areas: int = 32  # more lost persons than this on one camera: the newest are merged
+
+
+@dataclass(frozen=True)
+class FootGrid:
+    """Square cells over a ``width`` x ``height`` image; a cell stands for feet at its centre."""
+
+    width: int
+    height: int
+    cell_px: float
+    nx: int
+    ny: int
+
+    @classmethod
+    def of(cls, width: int, height: int, across: int) -> FootGrid:
+        cell = max(float(width) / max(int(across), 1), 1.0)
+        return cls(int(width), int(height), cell, max(1, math.ceil(width / cell)),
+                   max(1, math.ceil(height / cell)))
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.ny, self.nx
+
+    def centres(self) -> np.ndarray:
+        """(ny * nx, 2) pixel centres, row by row."""
+        xs = (np.arange(self.nx) + 0.5) * self.cell_px
+        ys = (np.arange(self.ny) + 0.5) * self.cell_px
+        gx, gy = np.meshgrid(xs, ys)
+        return np.c_[gx.ravel(), gy.ravel()]
+
+    def cells_under(self, boxes_px: np.ndarray, below: float) -> np.ndarray:
+        """(ny, nx) bool: cells where the feet of a person with one of these boxes, or of one
+        hidden behind them, may be: the box itself, half a cell wider, and ``below`` of its
+        height under its bottom edge."""
+        out = np.zeros(self.shape, dtype=bool)
+        c = self.cell_px
+        for x1, y1, x2, y2 in np.asarray(boxes_px, np.float64).reshape(-1, 4):
+            if not all(map(math.isfinite, (x1, y1, x2, y2))):
+                return np.ones(self.shape, dtype=bool)  # a box that says nothing: anywhere
+            h = max(y2 - y1, 0.0)
+            i0, i1 = _span(x1 - 0.5 * c, x2 + 0.5 * c, c, self.nx)
+            j0, j1 = _span(y1, y2 + below * h + 0.5 * c, c, self.ny)
+            out[j0:j1, i0:i1] = True
+        return out
+
+
+def _span(lo: float, hi: float, cell: float, n: int) -> tuple[int, int]:
+    """Cells whose centre lies in [lo, hi] (at least the cell containing lo..hi's middle)."""
+    a = max(0, math.ceil(lo / cell - 0.5))
+    b = min(n, math.floor(hi / cell - 0.5) + 1)
+    if b <= a:  # narrower than a cell: the cell under the middle
+        mid = min(max(int((lo + hi) * 0.5 / cell), 0), n - 1)
+        return mid, mid + 1
+    return a, b
+
+
+_KERNEL = np.ones((3, 3), np.uint8)
+
+
+def grow(cells: np.ndarray, steps: int) -> np.ndarray:
+    """``cells`` grown by ``steps`` cells in every direction (8 neighbours a step: a square,
+    more than a walk of that many cells in any direction, never less)."""
+    if steps <= 0 or not cells.any():
+        return cells.copy()
+    return cv2.dilate(cells.astype(np.uint8), _KERNEL, iterations=int(steps)).astype(bool)
+
+
+@dataclass
+class LostArea:
+    """Where one lost person could be (cells of the camera's ``FootGrid``)."""
+
+    track_id: int
+    lost_since: float  # capture time of the last frame the person was seen in
+    box_px: tuple[float, float, float, float]  # the last box
+    cells: np.ndarray  # (ny, nx) bool
+    updated: float  # time of the last growth
+    budget: float = 0.0  # growth owed in cells (fractions carried to the next frame)
+    zones: tuple[HeldZone, ...] = ()
+    merged: tuple[int, ...] = field(default=())  # other lost tracks folded into this one
+
+    @property
+    def box_height_px(self) -> float:
+        return max(self.box_px[3] - self.box_px[1], 1.0)
+
+
+class Whereabouts:
+    """The areas of one camera's lost persons, and how long each cell has been seen free."""
+
+    def __init__(self, config: WhereaboutsConfig | None = None) -> None:
+        self.config = config or WhereaboutsConfig()
+        self.grid: FootGrid | None = None
+        self.hidden: np.ndarray | None = None  # (ny, nx) bool: never seen free
+        self._hidden_key: object = None
+        self.free_since: np.ndarray | None = None  # (ny, nx) time, nan: not seen free now
+        self.areas: dict[int, LostArea] = {}
+        self._zone_cache: dict[tuple[int, int], tuple[HeldZone, ...]] = {}
+        self._zone_key: object = None
+
+    # ---------------------------------------------------------------------------------------
+    def view(self, width: int, height: int,
+             hidden: Callable[[FootGrid], np.ndarray] | None = None, key: object = None) -> None:
+        """The camera's image size and (when ``key`` changes) its hidden cells, given by
+        ``hidden(grid) -> (ny, nx) bool`` (``monitor.zones.visibility``)."""
+        if self.grid is None or (self.grid.width, self.grid.height) != (width, height):
+            self.grid = FootGrid.of(width, height, self.config.cells_across)
+            self.free_since = np.full(self.grid.shape, np.nan)
+            self.areas.clear()  # another image: cells mean other places (never seen here)
+            self._hidden_key = object()
+            self._zone_cache.clear()
+        if key != self._hidden_key or self.hidden is None:
+            self.hidden = (np.zeros(self.grid.shape, bool) if hidden is None
+                           else np.asarray(hidden(self.grid), bool).reshape(self.grid.shape))
+            self._hidden_key = key
+
+    def blind(self) -> None:
+        """A frame the camera could not judge (detector error): nothing has been seen free."""
+        if self.free_since is not None:
+            self.free_since[:] = np.nan
+
+    def lose(self, track_id: int, box_px: np.ndarray, last_seen: float) -> None:
+        """A person lost: their area starts under their last box (joined to an area the same
+        track left before)."""
+        if self.grid is None:
+            raise RuntimeError("Whereabouts.lose before view(): the image size is unknown")
+        seed = self.grid.cells_under(box_px, self.config.below)
+        box = tuple(float(v) for v in np.asarray(box_px, np.float64).reshape(4))
+        old = self.areas.get(track_id)
+        if old is not None:
+            old.cells |= seed
+            old.box_px = box  # type: ignore[assignment]
+            return
+        self.areas[track_id] = LostArea(track_id, float(last_seen), box,  # type: ignore[arg-type]
+                                        seed, float(last_seen))
+
+    def drop(self) -> list[LostArea]:
+        """An operator confirmed the cell clear: every area ends."""
+        dropped = list(self.areas.values())
+        self.areas.clear()
+        return dropped
+
+    # ---------------------------------------------------------------------------------------
+    def update(self, now: float, boxes_px: np.ndarray, working: bool, clear_time: float,
+               zones_of: ZonesOf | None, zones_key: object = None) -> None:
+        """One frame at ``now``: ``boxes_px`` are the persons seen in it; ``working`` is False
+        when the camera's view cannot be trusted (a STOP fault of the camera or detector).
+        Then every area grows, loses the cells seen free for ``clear_time``, and learns the
+        zones it touches (``zones_of``: the zone check of hypothetical boxes; its answers are
+        kept while ``zones_key`` stays the same, None: this frame only)."""
+        if self.grid is None or self.free_since is None or self.hidden is None:
+            raise RuntimeError("Whereabouts.update before view(): the image size is unknown")
+        grid, cfg = self.grid, self.config
+        seen_free = ~self.hidden & ~grid.cells_under(boxes_px, cfg.below) if working \
+            else np.zeros(grid.shape, bool)
+        start = np.isnan(self.free_since)
+        self.free_since[seen_free & start] = now
+        self.free_since[~seen_free] = np.nan
+        with np.errstate(invalid="ignore"):
+            free = seen_free & (now - self.free_since >= clear_time - 1e-9)
+        for area in self.areas.values():
+            dt = max(0.0, now - area.updated)
+            reach_px = cfg.walk_speed_mps / cfg.height_m * area.box_height_px \
+                * cfg.reach_margin * dt
+            area.budget += reach_px / grid.cell_px if math.isfinite(reach_px) else grid.nx
+            steps = min(int(area.budget), grid.nx + grid.ny)
+            area.budget -= int(area.budget)
+            area.cells = grow(area.cells, steps) & ~free
+            area.updated = now
+        for tid in [t for t, a in self.areas.items() if not a.cells.any()]:
+            del self.areas[tid]
+        self._merge_alike()
+        if zones_key is None or zones_key != self._zone_key:
+            self._zone_cache.clear()
+        self._zone_key = zones_key
+        self._zones(zones_of)
+
+    def _merge_alike(self) -> None:
+        """An area within another (ghosts of one person following them) joins it, named by
+        the longest lost; past ``max_areas`` the newest join the oldest. The union keeps
+        every cell either could be on."""
+        order = sorted(self.areas.values(), key=lambda a: (a.lost_since, a.track_id))
+        kept: list[LostArea] = []
+        for area in order:
+            same = next((k for k in kept if _nested(k.cells, area.cells)), None)
+            if same is None and len(kept) < self.config.max_areas:
+                kept.append(area)
+                continue
+            into = same if same is not None else kept[0]
+            into.cells |= area.cells
+            into.budget = max(into.budget, area.budget)
+            into.merged = (*into.merged, area.track_id, *area.merged)
+        self.areas = {a.track_id: a for a in kept}
+
+    def _zones(self, zones_of: ZonesOf | None) -> None:
+        """Each area's zones: those a person standing on one of its cells would be in."""
+        if zones_of is None or self.grid is None:
+            for area in self.areas.values():
+                area.zones = ()
+            return
+        centres = self.grid.centres()
+        wanted: dict[tuple[int, int], np.ndarray] = {}
+        per_area: dict[int, list[tuple[int, int]]] = {}
+        for area in self.areas.values():
+            hq = _height_bucket(area.box_height_px)
+            keys = [(int(i), hq) for i in np.flatnonzero(area.cells.ravel())]
+            per_area[area.track_id] = keys
+            for key in keys:
+                if key not in self._zone_cache and key not in wanted:
+                    cx, cy = centres[key[0]]
+                    h = float(key[1])
+                    wanted[key] = np.array([cx - 0.2 * h, cy - h, cx + 0.2 * h, cy])
+        if wanted:
+            keys = list(wanted)
+            report = zones_of(np.stack([wanted[k] for k in keys]))
+            found: dict[int, list[HeldZone]] = {}
+            for hit in report.hits:
+                if 0 <= hit.person < len(keys) and not hit.lost and hit.kind in HOLD_KINDS:
+                    found.setdefault(hit.person, []).append(
+                        HeldZone(hit.zone_id, hit.kind, float(hit.speed_scale)))
+            for row, key in enumerate(keys):
+                self._zone_cache[key] = union_zones(found.get(row, ()))
+        for area in self.areas.values():
+            area.zones = union_zones(*(self._zone_cache[k] for k in per_area[area.track_id]))
+
+
+def _nested(a: np.ndarray, b: np.ndarray) -> bool:
+    """One set of cells lies within the other."""
+    both = a & b
+    return bool(np.array_equal(both, a) or np.array_equal(both, b))
+
+
+def _height_bucket(h: float) -> int:
+    """Box heights in steps of 8 px (the zone answers of hypothetical persons are cached)."""
+    return max(8, round(h / 8.0) * 8)

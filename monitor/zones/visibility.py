@@ -1,0 +1,52 @@
+"""Where a camera can see a person: the foot positions of its image in which a person standing
+(or crouching) would show to it, so that "no box there" means "nobody there".
+
+A foot position is *hidden* from a camera when
+
+* the camera is calibrated and a person of the minimum height (``person.height_range_m[0]``,
+  the same person ``zones validate``'s coverage check uses) standing on the floor point under
+  it does not show their head to it: the head is outside the image, or the sight line to it
+  passes through a declared occluder or the robot base (``coverage.heads_observed``); or
+* it lies in a mask zone's image region, grown by the detector's box error (a person there is
+  suppressed with the masked object: ``monitor.zones.masks``).
+
+Floor points the camera cannot place (at or above its horizon) are not hidden: nobody stands
+there. An uncalibrated camera knows no occluders: only its masks hide. The lost persons' areas
+(``monitor.whereabouts``) never count a hidden foot position as seen free.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+import cv2
+import numpy as np
+
+from monitor import geometry as geo
+from monitor.zones.coverage import heads_observed, occluders_contain
+from monitor.zones.schema import CellSpec
+
+
+def hidden_feet(centres_px: np.ndarray, image_size: tuple[int, int],
+                model: geo.CameraModel | None, spec: CellSpec | None,
+                meshes: Mapping[str, tuple[np.ndarray, np.ndarray]],
+                masks: Sequence[np.ndarray] = (), mask_margin_px: float = 0.0) -> np.ndarray:
+    """(N,) bool: the foot positions ``centres_px`` (pixels of an image of ``image_size``)
+    at which no person could be seen by the camera (module docstring)."""
+    pts = np.asarray(centres_px, np.float64).reshape(-1, 2)
+    hidden = np.zeros(len(pts), dtype=bool)
+    if model is not None and spec is not None and len(pts):
+        scale = np.array([model.width / image_size[0], model.height / image_size[1]])
+        xy, located = model.pixel_to_floor(pts * scale)
+        if located.any():
+            contain = occluders_contain(spec.occluder_zones(), meshes)
+            seen = heads_observed(model, xy[located], float(spec.person.height_range_m[0]),
+                                  float(spec.person.radius_m), contain)
+            hidden[located] = ~seen
+    for poly in masks:
+        p = np.asarray(poly, np.float32).reshape(-1, 1, 2)
+        for i, (x, y) in enumerate(pts):
+            if not hidden[i] and cv2.pointPolygonTest(p, (float(x), float(y)), True) \
+                    >= -mask_margin_px:
+                hidden[i] = True
+    return hidden
