@@ -318,12 +318,16 @@ class PersonTracker:
                         rec.was = old
                         self._records[old].seen_as = tid
                 continue
-            # seen again: a name, never the end of its area (the camera must see it free)
+            # seen again: its area ends only while all of it is in view (a flicker); an area
+            # that reached behind a fixture stays (someone else may have stepped out)
+            if rec.lost:
+                self.where.found(tid)
             old_box, old_seen = rec.box.copy(), rec.last_seen
             self._place(rec, boxes[row], floors[row], now, first=False)
             if row_zones is not None:
                 left = {z.zone_id for z in rec.zones} - {z.zone_id for z in row_zones[row]}
-                if left and _swallowed(old_box, boxes[row], self.config.merge_grow):
+                if left and _swallowed(old_box, boxes[row], self.config.merge_grow) \
+                        and not self._at_edge(old_box, frame_size):
                     # merged with a neighbour into a box placed outside the zone: a person may
                     # still stand where it was, hidden in the merged box
                     self.where.lose(tid, old_box, old_seen)
@@ -440,6 +444,13 @@ class PersonTracker:
         rec.floor = floor
         rec.box = box.copy()
         rec.last_seen = now
+
+    def _at_edge(self, box: np.ndarray, frame_size: tuple[int, int]) -> bool:
+        """A box at the left, right or bottom image border grows as the person steps into
+        the view: that is no merge."""
+        w, h = frame_size
+        m = self.config.edge_margin_px
+        return bool(box[0] <= m or box[2] >= w - m or box[3] >= h - m)
 
     def _leaving_view(self, rec: _Record, frame_size: tuple[int, int]) -> bool:
         """Box at the left, right or bottom image border and moving outwards across it. Not

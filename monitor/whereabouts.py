@@ -43,6 +43,9 @@ import numpy as np
 from monitor.types import ZoneReport
 
 HOLD_KINDS = frozenset({"protective", "warning"})
+# the lowest share of a person's box where the feet of a person hidden right behind them may
+# be (two persons whose boxes merge stand within about half a metre of each other)
+FEET_BAND = 0.35
 ZonesOf = Callable[[np.ndarray], ZoneReport]
 
 
@@ -106,10 +109,12 @@ class FootGrid:
         gx, gy = np.meshgrid(xs, ys)
         return np.c_[gx.ravel(), gy.ravel()]
 
-    def cells_under(self, boxes_px: np.ndarray, below: float) -> np.ndarray:
+    def cells_under(self, boxes_px: np.ndarray, below: float, band: float = FEET_BAND
+                    ) -> np.ndarray:
         """(ny, nx) bool: cells where the feet of a person with one of these boxes, or of one
-        hidden behind them, may be: the box itself, half a cell wider, and ``below`` of its
-        height under its bottom edge."""
+        hidden right behind them, may be: the lowest ``band`` of the box (a person further
+        behind shows their head above it to a camera mounted above head height), half a
+        cell wider, and ``below`` of its height under its bottom edge."""
         out = np.zeros(self.shape, dtype=bool)
         c = self.cell_px
         for x1, y1, x2, y2 in np.asarray(boxes_px, np.float64).reshape(-1, 4):
@@ -117,7 +122,7 @@ class FootGrid:
                 return np.ones(self.shape, dtype=bool)  # a box that says nothing: anywhere
             h = max(y2 - y1, 0.0)
             i0, i1 = _span(x1 - 0.5 * c, x2 + 0.5 * c, c, self.nx)
-            j0, j1 = _span(y1, y2 + below * h + 0.5 * c, c, self.ny)
+            j0, j1 = _span(y2 - band * h, y2 + below * h + 0.5 * c, c, self.ny)
             out[j0:j1, i0:i1] = True
         return out
 
@@ -210,6 +215,17 @@ class Whereabouts:
         self.areas[track_id] = LostArea(track_id, float(last_seen), box,  # type: ignore[arg-type]
                                         seed, float(last_seen))
 
+    def found(self, track_id: int) -> bool:
+        """The lost person's own track is seen again: the sighting explains the loss while
+        everything the area covers is in view (a flicker, a short miss); an area that has
+        reached cells the camera cannot see (behind a cabinet) stays: someone else may have
+        come out. True when the area ended."""
+        area = self.areas.get(track_id)
+        if area is None or self.hidden is None or (area.cells & self.hidden).any():
+            return False
+        del self.areas[track_id]
+        return True
+
     def drop(self) -> list[LostArea]:
         """An operator confirmed the cell clear: every area ends."""
         dropped = list(self.areas.values())
@@ -227,7 +243,7 @@ class Whereabouts:
         if self.grid is None or self.free_since is None or self.hidden is None:
             raise RuntimeError("Whereabouts.update before view(): the image size is unknown")
         grid, cfg = self.grid, self.config
-        seen_free = ~self.hidden & ~grid.cells_under(boxes_px, cfg.below) if working \
+        seen_free = ~self.hidden & ~grid.cells_under(boxes_px, 0.0) if working \
             else np.zeros(grid.shape, bool)
         start = np.isnan(self.free_since)
         self.free_since[seen_free & start] = now

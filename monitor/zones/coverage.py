@@ -99,7 +99,7 @@ def _in_image(model: geo.CameraModel, px: np.ndarray, front: np.ndarray,
         & (px[:, 1] >= 0) & (px[:, 1] < model.height)
 
 
-def _sight_free(model: geo.CameraModel, points_m: np.ndarray, contain: Contain) -> np.ndarray:
+def sight_free(model: geo.CameraModel, points_m: np.ndarray, contain: Contain) -> np.ndarray:
     """(N,) bool: the sight lines from the camera to the points pass through no occluder (the
     ends excluded); True for every point of a camera that cannot project heights."""
     centre = camera_centre_m(model)
@@ -135,7 +135,7 @@ def heads_observed(model: geo.CameraModel, floor_xy_m: np.ndarray, head_m: float
         & _in_image(model, spx[n:], sfront[n:])
     out = inside.copy()
     if inside.any():
-        out[inside] = _sight_free(model, heads[inside], contain)
+        out[inside] = sight_free(model, heads[inside], contain)
     return out
 
 
@@ -146,7 +146,7 @@ def points_observed(model: geo.CameraModel, points_m: np.ndarray, contain: Conta
     px, front = model.project(p)
     out = _in_image(model, px, front)
     if out.any():
-        out[out] = _sight_free(model, p[out], contain)
+        out[out] = sight_free(model, p[out], contain)
     return out
 
 

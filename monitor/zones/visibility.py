@@ -5,8 +5,10 @@ A foot position is *hidden* from a camera when
 
 * the camera is calibrated and a person of the minimum height (``person.height_range_m[0]``,
   the same person ``zones validate``'s coverage check uses) standing on the floor point under
-  it does not show their head to it: the head is outside the image, or the sight line to it
-  passes through a declared occluder or the robot base (``coverage.heads_observed``); or
+  it shows neither their head nor their waist (half that height) to it: both sight lines pass
+  through a declared occluder or the robot base (``coverage.sight_free``). A person whose feet
+  are in the image but whose head is cut by its border counts as seen (the detector finds cut
+  persons; one moving out of the view has left it); or
 * it lies in a mask zone's image region, grown by the detector's box error (a person there is
   suppressed with the masked object: ``monitor.zones.masks``).
 
@@ -23,7 +25,7 @@ import cv2
 import numpy as np
 
 from monitor import geometry as geo
-from monitor.zones.coverage import heads_observed, occluders_contain
+from monitor.zones.coverage import occluders_contain, sight_free
 from monitor.zones.schema import CellSpec
 
 
@@ -40,8 +42,12 @@ def hidden_feet(centres_px: np.ndarray, image_size: tuple[int, int],
         xy, located = model.pixel_to_floor(pts * scale)
         if located.any():
             contain = occluders_contain(spec.occluder_zones(), meshes)
-            seen = heads_observed(model, xy[located], float(spec.person.height_range_m[0]),
-                                  float(spec.person.radius_m), contain)
+            h = float(spec.person.height_range_m[0])
+            feet = xy[located]
+            seen = sight_free(model, np.c_[feet, np.full(len(feet), h)], contain)
+            if not seen.all():
+                waist = np.c_[feet[~seen], np.full(int((~seen).sum()), 0.5 * h)]
+                seen[~seen] = sight_free(model, waist, contain)
             hidden[located] = ~seen
     for poly in masks:
         p = np.asarray(poly, np.float32).reshape(-1, 1, 2)
