@@ -123,6 +123,30 @@ def stop_values(values: dict[str, Any], code: str, reason: str) -> dict[str, Any
     return out
 
 
+def stale(snap: SafetySnapshot, now: float, stale_s: float) -> bool:
+    """``snap`` is older than ``stale_s`` at ``now`` (the adapter's monotonic clock): the
+    follower is stuck and the server shows STOP itself. An age that is not a number is stale."""
+    return not now - snap.mono <= stale_s
+
+
+def next_values(snap: SafetySnapshot | None, now: float, stale_s: float,
+                shown: dict[str, Any], last_counter: int | None,
+                camera_ids: tuple[str, ...]) -> dict[str, Any] | None:
+    """What the variables must show at ``now``, or None when nothing is to be written: no
+    snapshot yet (the initial STOP stands), the tick already shown, or a stale spell already
+    shown as STOP. A snapshot older than ``stale_s`` is STOP, ``adapter_stale``."""
+    if snap is None:
+        return None
+    if stale(snap, now, stale_s):
+        if shown["ReasonCode"] == "adapter_stale":
+            return None
+        return stop_values(shown, "adapter_stale", "the adapter's loop handed over no "
+                           f"snapshot for {stale_s * 1000:.0f} ms")
+    if snap.counter == last_counter:
+        return None
+    return values_of(snap, camera_ids)
+
+
 def initial_values(camera_ids: tuple[str, ...]) -> dict[str, Any]:
     """What a client reads before the first snapshot: STOP, no command."""
     base = {"Latched": False, "Seq": -1, "Heartbeat": 0, "CommandAgeMs": -1.0,
@@ -381,19 +405,15 @@ class OpcUaOutput:
                 self._pending = False
                 snap = self._latest
                 now = time.monotonic()
-                if snap is None or now - snap.mono > stale_s:
-                    if snap is not None and shown["ReasonCode"] != "adapter_stale":
-                        self.stale_stops += 1
-                        log.error("OPC UA: no snapshot for %.0f ms: showing STOP",
-                                  (now - snap.mono) * 1000)
-                        new = stop_values(shown, "adapter_stale", "the adapter's loop handed "
-                                          f"over no snapshot for {stale_s * 1000:.0f} ms")
-                    else:
-                        continue
-                elif snap.counter == last_counter:
+                new = next_values(snap, now, stale_s, shown, last_counter, self.camera_ids)
+                if new is None or snap is None:
                     continue
+                if new["ReasonCode"] == "adapter_stale":
+                    self.stale_stops += 1
+                    log.error("OPC UA: no snapshot for %.0f ms: showing STOP",
+                              (now - snap.mono) * 1000)
                 else:
-                    new, last_counter = values_of(snap, self.camera_ids), snap.counter
+                    last_counter = snap.counter
                 shown = await self._write(server, nodes, shown, new, ua, snap)
         finally:
             self._loop = None
