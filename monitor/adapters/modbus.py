@@ -343,6 +343,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="s to wait for the monitor's answer to a selection (default 3)")
 
 
+def check_arguments(args: argparse.Namespace) -> None:
+    """Called by `monitor bridge` before Zenoh opens: a missing ``[plc]`` extra fails at once."""
+    _pymodbus()
+
+
 def make_outputs(args: argparse.Namespace, session, keys) -> list:
     from monitor.pose import parse_host_port
 
