@@ -50,6 +50,7 @@ def _pymodbus():
         from monitor.adapters import modbus_server
     except ImportError:
         raise ConfigError(MISSING_EXTRA) from None
+    modbus_server.quiet_pymodbus()
     return modbus_server, DataType, SimData, SimDevice
 
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import asyncio
 import contextvars
+import logging
 from collections import deque
 
 from pymodbus.constants import ExcCodes
@@ -31,6 +32,29 @@ MAX_PENDING = 256  # requests queued on one connection before reading pauses
 # asyncio reads at most 256 KiB at a time; pymodbus drops a buffer above its limit (516 bytes)
 # silently, so the limit is one read plus one split frame (a Modbus TCP frame is <= 260 bytes)
 MAX_BUFFER = 256 * 1024 + 260
+
+
+class OneLine(logging.Filter):
+    """pymodbus's records as their first line: it appends its last raw frames to an error
+    ("\n>>>>> recv: 0x0 0x1 ...") and a datastore error carries a whole traceback."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        text = record.getMessage()
+        if "\n" in text:
+            first = text.split("\n", 1)[0].removesuffix("Traceback (most recent call last):")
+            record.msg, record.args = first.rstrip("; "), ()
+        return True
+
+
+def quiet_pymodbus() -> None:
+    """pymodbus's own logger at warnings, one line each: its debug frame dumps and the dumps
+    appended to its errors do not belong in the bridge's log."""
+    logger = logging.getLogger("pymodbus.logging")
+    logger.setLevel(logging.WARNING)
+    if not any(isinstance(f, OneLine) for f in logger.filters):
+        logger.addFilter(OneLine())
+
+
 class PipelinedHandler(ServerRequestHandler):
     """One client connection: every complete frame decoded at once, answered in order."""
 
