@@ -20,9 +20,10 @@ import contextlib
 
 from monitor.adapters import modbus_map as mm
 from monitor.adapters.modbus import ModbusOutput
-from monitor.adapters.snapshot import snapshot_of
+from monitor.adapters.snapshot import NOTE_CODES, snapshot_of
 from monitor.bus import BusConfig, BusKeys, SafetyBus, open_session
 from monitor.consumer import COMMAND_SCHEMA, Verdict
+from monitor.detector.test_model import TEST_MODEL_NOTE, TEST_MODEL_REASON
 from monitor.policy import Command, Latch, Reason
 from monitor.policy.model import ResetOutcome
 from monitor.signing import load_private_key, new_key_pair
@@ -241,6 +242,26 @@ def test_bad_writes_garbage_and_a_flood_get_exception_codes_and_never_run(cell):
     assert proc.poll() is None, "the adapter died"
     assert states and set(states) == {STOP} and after[STATE] == STOP
     assert after[mm.ADDRESS["write_errors"]] >= 600
+
+
+def test_notes_every_command_carries_never_hide_a_clean_run(cell):
+    """The test model's notice (and a muted zone) ride in every command after its causes: a
+    RUN with them reads reason 0 and zone 0 (it read 999, "any other code"); a STOP still
+    reads its cause."""
+    bus, plc, _, _ = cell
+    assert TEST_MODEL_REASON in NOTE_CODES
+    note = Reason(TEST_MODEL_REASON, TEST_MODEL_NOTE)
+    muted = Reason("muted", "zone W muted by anna until 10:00", zone_id="W")
+    bus.publish_command(Command("RUN", 1.0, (note,)))
+    run = plc.wait(lambda r: r[STATE] == RUN, 20.0)
+    assert run and run[REASON] == 0 and run[ZONE] == 0, run
+    bus.publish_command(Command("RUN", 1.0, (muted, note)))
+    run_muted = plc.wait(lambda r: r[STATE] == RUN and r[mm.ADDRESS["seq"]] != run[6], 20.0)
+    assert run_muted and run_muted[REASON] == 0 and run_muted[ZONE] == 0, run_muted
+    bus.publish_command(Command("STOP", 0.0, (Reason("protective_zone", "person 1 in P",
+                                                     zone_id="P"), muted, note)))
+    stop = plc.wait(lambda r: r[STATE] == STOP, 20.0)
+    assert stop and stop[REASON] == mm.REASON_CODES["protective_zone"] and stop[ZONE] == 1
 
 
 def test_the_plc_watchdog_stopping_raises_an_alert_on_the_bus(cell):

@@ -16,6 +16,7 @@ import pytest
 from monitor.config import demo_cell_path
 from monitor.detector import Detector
 from monitor.driver import (
+    LATE_FAULT,
     STALL_FAULT,
     Driver,
     Step,
@@ -179,6 +180,35 @@ def test_a_freeze_inside_a_step_never_publishes_the_command_decided_before_it(
     assert step.result.now == pytest.approx(t + 2.0)  # decided after the freeze
     assert step.result.command.state == STOP
     assert STALL_FAULT in {f.name for f in step.result.faults}
+
+
+def test_a_frame_already_old_at_the_step_start_and_a_short_step_is_frame_late(
+        detector, empty_cell_image):
+    """frame_late judges the frame's age when its step ends, not the step's duration: a frame
+    just under max_frame_age at the start (the policy's own frame_stale check passes) and a
+    step of 0.1 s (far from any stall) hands on a decision about a cell older than
+    max_frame_age."""
+    cell = load_cell(demo_cell_path())
+    clock, rec = FreezingClock(at=5, by=0.1), Recorder()  # the 2nd step's "done" reading
+    policy = PolicyConfig(restart_interlock="auto")
+    driver = Driver(Pipeline(detector, "cam0", policy, cell), [rec],
+                    stall_after_s=0.5, clock=clock)
+    first = driver.step(frame_at(empty_cell_image, 0, clock.t), clock.t)  # readings 1-3
+    assert LATE_FAULT not in codes_of_faults(first)
+    clock.t += 0.05
+    age_at_start = policy.max_frame_age - 0.05
+    step = driver.step(frame_at(empty_cell_image, 1, clock.t - age_at_start), clock.t)
+    assert step.stalled_s is None  # 0.1 s is no stall
+    assert "frame_stale" not in {r.code for r in step.result.command.reasons}
+    late = [f for f in step.result.faults if f.name == LATE_FAULT]
+    assert late, f"no {LATE_FAULT} fault: {step.result.faults}"
+    assert late[0].stop and "when its step ended" in late[0].reason, late
+    assert step.result.command.state == STOP
+    assert step.frame is not None and step.result.persons is not None  # detections kept
+
+
+def codes_of_faults(step: Step) -> set[str]:
+    return {f.name for f in step.result.faults}
 
 
 class FreezingSink(Recorder):

@@ -17,7 +17,6 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
-import contextvars
 import ipaddress
 import json
 import logging
@@ -38,19 +37,21 @@ DEFAULT_LISTEN = "127.0.0.1:5020"  # 502 needs root; a PLC can be told any port
 WRITE_CODES = frozenset({5, 6, 15, 16, 22, 23})
 REGISTER_WRITES = frozenset({6, 16, 23})  # coil writes and mask write are refused
 
-_PEER: contextvars.ContextVar[str] = contextvars.ContextVar("modbus_peer", default="")
+MISSING_EXTRA = ("monitor bridge plc needs pymodbus, which is not installed: pip install "
+                 "'workcell-monitor[plc]'")
 
 
 def _pymodbus():
+    """The pymodbus parts the server needs; a one-line ConfigError naming the ``[plc]`` extra
+    when it is missing (checked before any thread or Zenoh session starts)."""
     try:
-        import pymodbus  # noqa: F401
-        from pymodbus.server import ModbusTcpServer
-        from pymodbus.server.requesthandler import ServerRequestHandler
         from pymodbus.simulator import DataType, SimData, SimDevice
+
+        from monitor.adapters import modbus_server
     except ImportError:
-        raise ConfigError("monitor bridge plc needs pymodbus: pip install "
-                          "'workcell-monitor[plc]'") from None
-    return ModbusTcpServer, ServerRequestHandler, DataType, SimData, SimDevice
+        raise ConfigError(MISSING_EXTRA) from None
+    modbus_server.quiet_pymodbus()
+    return modbus_server, DataType, SimData, SimDevice
 
 
 def is_loopback(host: str) -> bool:
@@ -95,6 +96,8 @@ class ModbusOutput:
         self._watchdog_task: asyncio.Task | None = None
         self._ready = threading.Event()
         self._error: BaseException | None = None
+        self._parts: tuple | None = None  # pymodbus, imported by start()
+        self._peer: Callable[[], str] = lambda: ""  # the client of the request answered
         self._thread = threading.Thread(target=self._serve, name="plc-modbus", daemon=True)
         self._worker = threading.Thread(target=self._work, name="plc-events", daemon=True)
 
@@ -104,6 +107,7 @@ class ModbusOutput:
         self.latest = snapshot  # one reference store: never blocks, rendered on read
 
     def start(self) -> ModbusOutput:
+        self._parts = _pymodbus()  # a missing extra: one line, before the server thread
         self._thread.start()
         self._ready.wait(10.0)
         if self._error is not None or not self._ready.is_set():
@@ -132,25 +136,17 @@ class ModbusOutput:
             await self._server.shutdown()
 
     def _serve(self) -> None:
-        ModbusTcpServer, Handler, DataType, SimData, SimDevice = _pymodbus()
+        server_module, DataType, SimData, SimDevice = self._parts
+        self._peer = server_module.PEER.get
         loop = asyncio.new_event_loop()
         asyncio.set_event_loop(loop)
         self._loop = loop
 
-        class PeerHandler(Handler):
-            async def handle_request(self) -> None:  # each request runs as its own task
-                peer = self.transport.get_extra_info("peername") if self.transport else None
-                _PEER.set(str(peer[0]) if peer else "")
-                await super().handle_request()
-
-        class Server(ModbusTcpServer):
-            def callback_new_connection(self):
-                return PeerHandler(self, self.trace_packet, self.trace_pdu, self.trace_connect)
-
         async def start() -> None:
             device = SimDevice(self.device_id, simdata=[SimData(
                 0, count=mm.SIZE, values=0, datatype=DataType.REGISTERS)], action=self._action)
-            self._server = Server(context=[device], address=(self.host, self.port))
+            self._server = server_module.PipelinedServer(context=[device],
+                                                         address=(self.host, self.port))
             await self._server.serve_forever(background=True)
             self._watchdog_task = loop.create_task(self._check_watchdog())
 
@@ -181,13 +177,13 @@ class ModbusOutput:
                 if self.st.write_errors in (1, 10, 100) or self.st.write_errors % 1000 == 0:
                     log.warning("plc: write of %d value(s) at %d (function %d) from %s refused "
                                 "with exception %d (%d refused so far)", len(values), address,
-                                function_code, _PEER.get() or "?", code, self.st.write_errors)
+                                function_code, self._peer() or "?", code, self.st.write_errors)
                 return ExcCodes(code)
         registers[:mm.SIZE] = mm.render(self.latest, now, self.st)
         return None
 
     def _write(self, function_code: int, address: int, values: list[int], now: float):
-        peer = _PEER.get()
+        peer = self._peer()
         if function_code not in REGISTER_WRITES:
             return mm.ILLEGAL_FUNCTION
         listed = self.allow is not None and peer in self.allow
@@ -346,6 +342,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "selection)")
     g.add_argument("--case-timeout", type=float, default=3.0,
                    help="s to wait for the monitor's answer to a selection (default 3)")
+
+
+def check_arguments(args: argparse.Namespace) -> None:
+    """Called by `monitor bridge` before Zenoh opens: a missing ``[plc]`` extra fails at once."""
+    _pymodbus()
 
 
 def make_outputs(args: argparse.Namespace, session, keys) -> list:

@@ -36,6 +36,7 @@ NAMESPACE = "urn:workcell-monitor:opcua"  # clients resolve the index from this 
 APPLICATION_URI = "urn:workcell-monitor:opcua:server"  # the server certificate's SAN URI
 DEFAULT_ENDPOINT = "opc.tcp://127.0.0.1:4840/workcell-monitor"
 DEFAULT_STALE_MS = 250.0
+DEFAULT_HANDSHAKE_S = 3.0  # a connection without an activated session is closed after this
 OBJECT = "WorkcellMonitor"
 SSM = "SafetyStateManagement"  # the OPC 40100-1 SafetyStateManagementType's instance name
 # the consumer rule's own verdicts (monitor.consumer): nothing is known about cameras then
@@ -122,6 +123,30 @@ def stop_values(values: dict[str, Any], code: str, reason: str) -> dict[str, Any
     return out
 
 
+def stale(snap: SafetySnapshot, now: float, stale_s: float) -> bool:
+    """``snap`` is older than ``stale_s`` at ``now`` (the adapter's monotonic clock): the
+    follower is stuck and the server shows STOP itself. An age that is not a number is stale."""
+    return not now - snap.mono <= stale_s
+
+
+def next_values(snap: SafetySnapshot | None, now: float, stale_s: float,
+                shown: dict[str, Any], last_counter: int | None,
+                camera_ids: tuple[str, ...]) -> dict[str, Any] | None:
+    """What the variables must show at ``now``, or None when nothing is to be written: no
+    snapshot yet (the initial STOP stands), the tick already shown, or a stale spell already
+    shown as STOP. A snapshot older than ``stale_s`` is STOP, ``adapter_stale``."""
+    if snap is None:
+        return None
+    if stale(snap, now, stale_s):
+        if shown["ReasonCode"] == "adapter_stale":
+            return None
+        return stop_values(shown, "adapter_stale", "the adapter's loop handed over no "
+                           f"snapshot for {stale_s * 1000:.0f} ms")
+    if snap.counter == last_counter:
+        return None
+    return values_of(snap, camera_ids)
+
+
 def initial_values(camera_ids: tuple[str, ...]) -> dict[str, Any]:
     """What a client reads before the first snapshot: STOP, no command."""
     base = {"Latched": False, "Seq": -1, "Heartbeat": 0, "CommandAgeMs": -1.0,
@@ -153,6 +178,7 @@ class OpcUaSettings:
     client_certs: tuple[bytes, ...] | None = None  # DER of trusted client certificates
     max_clients: int = 16
     stale_ms: float = DEFAULT_STALE_MS
+    handshake_s: float = DEFAULT_HANDSHAKE_S
 
     @property
     def secure(self) -> bool:
@@ -180,7 +206,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="only clients whose application certificate (.der/.pem) is in DIR "
                    "may open a session (needs --cert; default: any client certificate)")
     g.add_argument("--max-clients", type=int, default=16,
-                   help="simultaneous client connections (default 16)")
+                   help="simultaneous client connections (default 16); a connection without "
+                   "an activated session gives its slot to a new one when all are taken")
+    g.add_argument("--handshake-s", type=float, default=DEFAULT_HANDSHAKE_S,
+                   help="a connection that has not activated a session within this is closed "
+                   f"(idle or half-open sockets; default {DEFAULT_HANDSHAKE_S:g})")
     g.add_argument("--stale-ms", type=float, default=DEFAULT_STALE_MS,
                    help="the server writes STOP itself when the adapter's loop handed it no "
                    f"snapshot for this long (default {DEFAULT_STALE_MS:g})")
@@ -243,6 +273,8 @@ def settings_of(args: argparse.Namespace) -> OpcUaSettings:
                           "could connect)")
     if args.max_clients < 1:
         raise ConfigError("monitor bridge opcua: --max-clients must be at least 1")
+    if not 0.1 <= args.handshake_s <= 60:
+        raise ConfigError("monitor bridge opcua: --handshake-s must be in [0.1, 60] s")
     if not args.stale_ms >= 2 * args.tick * 1000.0:
         raise ConfigError(f"monitor bridge opcua: --stale-ms {args.stale_ms:g} must be at "
                           f"least two ticks ({2 * args.tick * 1000.0:g} ms)")
@@ -263,7 +295,8 @@ def settings_of(args: argparse.Namespace) -> OpcUaSettings:
     users = load_users(args.users) if args.users is not None else {}
     return OpcUaSettings(endpoint=args.endpoint, cert=args.cert, key=args.key, users=users,
                          anonymous=not args.no_anonymous, client_certs=trusted,
-                         max_clients=args.max_clients, stale_ms=args.stale_ms)
+                         max_clients=args.max_clients, stale_ms=args.stale_ms,
+                         handshake_s=args.handshake_s)
 
 
 def _loopback(host: str) -> bool:
@@ -372,19 +405,15 @@ class OpcUaOutput:
                 self._pending = False
                 snap = self._latest
                 now = time.monotonic()
-                if snap is None or now - snap.mono > stale_s:
-                    if snap is not None and shown["ReasonCode"] != "adapter_stale":
-                        self.stale_stops += 1
-                        log.error("OPC UA: no snapshot for %.0f ms: showing STOP",
-                                  (now - snap.mono) * 1000)
-                        new = stop_values(shown, "adapter_stale", "the adapter's loop handed "
-                                          f"over no snapshot for {stale_s * 1000:.0f} ms")
-                    else:
-                        continue
-                elif snap.counter == last_counter:
+                new = next_values(snap, now, stale_s, shown, last_counter, self.camera_ids)
+                if new is None or snap is None:
                     continue
+                if new["ReasonCode"] == "adapter_stale":
+                    self.stale_stops += 1
+                    log.error("OPC UA: no snapshot for %.0f ms: showing STOP",
+                              (now - snap.mono) * 1000)
                 else:
-                    new, last_counter = values_of(snap, self.camera_ids), snap.counter
+                    last_counter = snap.counter
                 shown = await self._write(server, nodes, shown, new, ua, snap)
         finally:
             self._loop = None
@@ -411,13 +440,16 @@ class OpcUaOutput:
         return written
 
     async def _build(self):
-        from asyncua import Server, ua
+        from asyncua import ua
+
+        from monitor.adapters.opcua_guard import GuardedServer
 
         # a refused request is answered with its status code; logging each one at ERROR would
         # let any client flood our log with writes
         logging.getLogger("asyncua.server.uaprocessor").setLevel(logging.CRITICAL)
         s = self.settings
-        server = Server(user_manager=_Users(s.users, s.anonymous))
+        server = GuardedServer(user_manager=_Users(s.users, s.anonymous),
+                               handshake_s=s.handshake_s)
         await server.init()
         server.set_endpoint(s.endpoint)
         server.set_server_name("workcell-monitor safety status (non-safety)")

@@ -9,6 +9,12 @@ from typing import Protocol
 from monitor.consumer import Verdict
 
 STATE_CODE = {"STOP": 0, "SLOW": 1, "RUN": 2}  # register / variable values of the state
+# notes a command carries in its reasons while they hold, after the causes: never the cause of
+# its state, so never its reason code or zone (a clean RUN with a muted zone, or watched by the
+# test model, reads reason "" / 0, not "any other code")
+# ("test_model" is monitor.detector.test_model.TEST_MODEL_REASON, spelled here: importing it
+# loads the detector package, 0.5 s, into every adapter; tests check the two agree)
+NOTE_CODES = frozenset({"muted", "test_model"})
 
 
 @dataclass(frozen=True)
@@ -20,7 +26,7 @@ class SafetySnapshot:
     sees the adapter alive (the heartbeat); ``age_ms`` is the age of the last verified command
     (None: none yet). ``reason_code`` is the verdict's code when the adapter overrides the
     command ("no_command", "ttl", "sequence", "liveliness", "duplicate_monitor"), else the
-    command's first reason code ("" for a clean RUN).
+    code of the command's first reason that is not a note (``NOTE_CODES``; "" for a clean RUN).
     """
 
     state: str
@@ -71,7 +77,7 @@ def snapshot_of(verdict: Verdict, now: float, wall: float, counter: int,
     the verdict is an override: then nothing is known)."""
     cmd = verdict.command if not verdict.code else None
     reasons = _reasons(cmd)
-    first = reasons[0] if reasons else {}
+    first = next((r for r in reasons if r.get("code") not in NOTE_CODES), {})
     overridden = bool(verdict.code)
     scale = float(verdict.speed_scale)
     if verdict.state not in STATE_CODE or not math.isfinite(scale) or not 0.0 <= scale <= 1.0:
