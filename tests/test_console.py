@@ -135,7 +135,7 @@ def test_a_move_keeps_comments_and_refuses_a_stale_page(tmp_path):
 def test_off_loopback_needs_tls_and_passwords():
     for host in ("127.0.0.1", "::1", "localhost"):
         require_safe_listen(host, tls=False, operators=False)
-    for host, tls, ops, needle in (("0.0.0.0", False, True, "TLS"),
+    for host, tls, ops, needle in (("0.0.0.0", False, True, "--https-cert and --https-key"),
                                    ("10.0.0.5", True, False, "operator passwords"),
                                    ("192.168.1.2", False, False, "TLS")):
         with pytest.raises(ConfigError) as exc:
@@ -149,7 +149,9 @@ def test_the_console_refuses_to_start_on_a_network_address_without_tls(tmp_path)
     proc = run_monitor("console", "--zones", cell, "--unauthenticated",
                        "--listen", "0.0.0.0:18099", timeout=60)
     assert proc.returncode == 2
-    assert_one_line_error(proc, "not loopback", "TLS", "operator passwords")
+    assert_one_line_error(proc, "not loopback", "TLS (--https-cert and --https-key)",
+                          "operator passwords")
+    assert "--tls-" not in proc.stderr  # the Zenoh link's options, not the console's
     proc = run_monitor("console", "--zones", cell, "--unauthenticated", "--passwords",
                        passwords(tmp_path), "--listen", "10.1.2.3:18099", timeout=60)
     assert proc.returncode == 2

@@ -155,7 +155,8 @@ def require_safe_listen(host: str, tls: bool, operators: bool) -> None:
     """Off loopback the console needs TLS and operator passwords; refused otherwise."""
     if is_loopback(host):
         return
-    missing = [what for what, ok in (("TLS (--tls-cert and --tls-key)", tls),
+    # --https-*, not --tls-*: the console's --tls-cert/--tls-key are its Zenoh link's
+    missing = [what for what, ok in (("TLS (--https-cert and --https-key)", tls),
                                       ("operator passwords (--passwords)", operators)) if not ok]
     if missing:
         raise ConfigError(f"monitor console: listening on {host} (not loopback) needs "
