@@ -27,7 +27,8 @@ from starlette.responses import FileResponse, JSONResponse, Response
 from starlette.routing import Mount, Route
 from starlette.staticfiles import StaticFiles
 
-from monitor.console.auth import AuditLog, Operators
+from monitor.console.audit import AuditLog
+from monitor.console.auth import Operators, basic_credentials
 from monitor.console.edits import ZoneEditIncidents
 from monitor.console.incidents import IncidentFilters, IncidentSource
 from monitor.console.live import LiveRenderer, LiveState, reference_image
@@ -143,15 +144,21 @@ def build_app(console: Console) -> Starlette:
 
     async def save_zone(request: Request) -> Response:
         zone_id = request.path_params["id"]
-        operator = console.operators.check(request.headers.get("authorization"))
+        credentials = basic_credentials(request.headers.get("authorization"))
         client = request.client.host if request.client else ""
+        operator = None
+        if credentials is not None and console.operators.enabled \
+                and await run_in_threadpool(console.operators.verify, *credentials):
+            operator = credentials[0]
         if operator is None:
             why = ("editing is off: the console was started without --passwords"
                    if not console.operators.enabled else
                    "operator name or password not accepted")
-            entry = console.audit.record(zone=zone_id, operator=None, client=client,
-                                         result="refused", error=why)
-            await run_in_threadpool(edit_incident, entry)
+            # whoever reaches the port: one bounded, rate-limited audit line, never an
+            # incident (a flood of them must not push real STOPs out of retention)
+            await run_in_threadpool(console.audit.refused, zone=zone_id, operator=None,
+                                    tried=credentials[0] if credentials else None,
+                                    client=client, result="refused", error=why)
             return _json({"error": why}, 403 if not console.operators.enabled else 401)
         raw = await request.body()
         if len(raw) > MAX_BODY or "json" not in request.headers.get("content-type", ""):

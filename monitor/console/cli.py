@@ -85,7 +85,8 @@ def _references(items: list[str]) -> dict[str, Path]:
 
 
 def cmd_console(args: argparse.Namespace) -> int:
-    from monitor.console.auth import AuditLog, Operators, require_safe_listen
+    from monitor.console.audit import AuditLog
+    from monitor.console.auth import Operators, require_safe_listen
     from monitor.pose import parse_host_port
 
     if args.zones is None:
