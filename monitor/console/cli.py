@@ -143,6 +143,12 @@ def _serve(args, host: str, port: int, tls: bool, operators, references, audit) 
                       references=references,
                       edits=ZoneEditIncidents(args.incidents, bus.cell) if args.incidents
                       else None)
+    def on_alert(alert) -> None:  # a lock-out: on the live page and in the console's log
+        live.add_alert(alert)
+        print(f"monitor console: alert {alert.kind}: {alert.message}", file=sys.stderr,
+              flush=True)
+
+    console.on_alert = on_alert
     app = build_app(console)
     session = open_session(bus)
     stop = threading.Event()
