@@ -75,3 +75,33 @@ def passwords(tmp: Path) -> Path:
     path = tmp / "console.passwords"
     set_password(path, OPERATOR, PASSWORD)
     return path
+
+
+def basic(name: str, password: str) -> dict:
+    """The header the zone editor's script sends."""
+    import base64
+
+    token = base64.b64encode(f"{name}:{password}".encode()).decode()
+    return {"authorization": "Basic " + token}
+
+
+def make_console(tmp: Path, with_passwords: bool = True, **options):
+    """The real app's ``Console`` over a zone file, a real recorder data dir (zone edits are
+    incidents there) and a passwords file; ``options``: other ``Console`` fields."""
+    from monitor.console.app import Console
+    from monitor.console.audit import AuditLog
+    from monitor.console.auth import Operators
+    from monitor.console.edits import ZoneEditIncidents
+    from monitor.console.incidents import RecorderIncidents
+    from monitor.console.live import LiveRenderer, LiveState
+    from monitor.console.zones_api import ZoneEditor
+
+    cell = zone_file(tmp)
+    editor = ZoneEditor(cell)
+    live = LiveState()
+    incidents = incident_dir(tmp)
+    fields = {"audit": AuditLog(tmp / "audit.jsonl"),
+              "operators": Operators(passwords(tmp) if with_passwords else None), **options}
+    return Console("c", live, LiveRenderer(live, editor.cell, {}), editor,
+                   RecorderIncidents(incidents), references={},
+                   edits=ZoneEditIncidents(incidents, "c"), **fields)

@@ -9,8 +9,8 @@ import pytest
 from starlette.testclient import TestClient
 
 from monitor.console.app import Console, build_app
+from monitor.console.audit import AuditLog
 from monitor.console.auth import (
-    AuditLog,
     Operators,
     read_passwords,
     require_safe_listen,
@@ -135,7 +135,7 @@ def test_a_move_keeps_comments_and_refuses_a_stale_page(tmp_path):
 def test_off_loopback_needs_tls_and_passwords():
     for host in ("127.0.0.1", "::1", "localhost"):
         require_safe_listen(host, tls=False, operators=False)
-    for host, tls, ops, needle in (("0.0.0.0", False, True, "TLS"),
+    for host, tls, ops, needle in (("0.0.0.0", False, True, "--https-cert and --https-key"),
                                    ("10.0.0.5", True, False, "operator passwords"),
                                    ("192.168.1.2", False, False, "TLS")):
         with pytest.raises(ConfigError) as exc:
@@ -149,7 +149,9 @@ def test_the_console_refuses_to_start_on_a_network_address_without_tls(tmp_path)
     proc = run_monitor("console", "--zones", cell, "--unauthenticated",
                        "--listen", "0.0.0.0:18099", timeout=60)
     assert proc.returncode == 2
-    assert_one_line_error(proc, "not loopback", "TLS", "operator passwords")
+    assert_one_line_error(proc, "not loopback", "TLS (--https-cert and --https-key)",
+                          "operator passwords")
+    assert "--tls-" not in proc.stderr  # the Zenoh link's options, not the console's
     proc = run_monitor("console", "--zones", cell, "--unauthenticated", "--passwords",
                        passwords(tmp_path), "--listen", "10.1.2.3:18099", timeout=60)
     assert proc.returncode == 2
@@ -249,17 +251,17 @@ def test_every_zone_edit_is_an_incident_of_the_recorder_and_a_locked_index_only_
     assert ok.status_code == 200 and ok.json()["incident"]
     after = load_cell(cell).config_hash
     edits = list(reversed(IncidentIndex(d).list(cause="zone_edit")))
+    # the refused credential is audited only (tests/test_console_refusals.py)
     assert [(e.operator, e.record["zone_edit"]["result"], e.record["zone_edit"]["accepted"])
-            for e in edits] == [(None, "refused", False), (OPERATOR, "invalid", False),
-                                (OPERATOR, "saved", True)]
-    assert "self-intersecting polygon" in edits[1].record["zone_edit"]["message"]
-    assert (edits[2].record["zone_edit"]["old_hash"],
-            edits[2].record["zone_edit"]["new_hash"]) == (before, after)
-    assert edits[2].id == ok.json()["incident"] and not any(e.clip_paths() for e in edits)
+            for e in edits] == [(OPERATOR, "invalid", False), (OPERATOR, "saved", True)]
+    assert "self-intersecting polygon" in edits[0].record["zone_edit"]["message"]
+    assert (edits[1].record["zone_edit"]["old_hash"],
+            edits[1].record["zone_edit"]["new_hash"]) == (before, after)
+    assert edits[1].id == ok.json()["incident"] and not any(e.clip_paths() for e in edits)
     assert all(e.complete and e.causes == ("zone_edit",) for e in edits)
     # the console lists them beside the recorder's own incidents
     listed = client.get("/api/incidents?cause=zone_edit").json()["incidents"]
-    assert len(listed) == 3 and not any(i["has_clip"] for i in listed)
+    assert len(listed) == 2 and not any(i["has_clip"] for i in listed)
     # another process holds the index's write lock past the console's busy timeout: the edit
     # is still saved and audited, the audit says the incident could not be written
     lock = sqlite3.connect(str(d / "index.sqlite3"), isolation_level=None)

@@ -25,7 +25,7 @@ from monitor.errors import ConfigError
 from monitor.frames import Frame
 from monitor.incidents import IncidentIndex, RecorderConfig
 from monitor.incidents.recorder import MAX_QUEUED_FRAMES, IncidentRecorder
-from monitor.incidents.retention import GB, DiskFloor, enforce
+from monitor.incidents.retention import GB, DiskFloor, Retention, enforce
 from monitor.incidents.ring import FrameRing, RingFrame
 from monitor.incidents.store import IncidentStore
 from monitor.incidents.triggers import Triggers
@@ -293,24 +293,26 @@ def test_ring_keeps_the_window_and_the_byte_budget():
     assert ring.bytes <= 10_000 and len(ring) == 10 and ring.evicted_for_budget > 0
 
 
-def _record(incident_id: str, wall: float) -> dict:
-    return {"id": incident_id, "wall": wall, "time_s": 0.0, "cell": "c", "causes": ["stop"],
-            "state": "STOP", "latched": True, "describe": "STOP", "reset": None,
-            "zones_hash": "z", "config_hash": "c"}
+def _record(incident_id: str, wall: float, causes: tuple[str, ...] = ("alert",)) -> dict:
+    return {"id": incident_id, "wall": wall, "time_s": 0.0, "cell": "c",
+            "causes": list(causes), "state": "STOP", "latched": True, "describe": "STOP",
+            "reset": None, "zones_hash": "z", "config_hash": "c"}
 
 
 def test_retention_by_age_size_and_free_space_oldest_first(tmp_path):
+    """Non-safety incidents (alerts here): tests/test_incident_retention.py has the rest."""
     store = IncidentStore(tmp_path)
     now = time.time()
     for k, age_days in enumerate((40, 20, 10, 5, 1)):
         (tmp_path / f"i{k}").mkdir()
         store.put(_record(f"i{k}", now - age_days * 86400), size=GB // 2, complete=True)
-    assert enforce(store, 30, 1e6, 0, now) == 1  # 40 days old
-    assert enforce(store, 30, 1.2, 0, now) == 2  # 2 GB left > 1.2 GB: the two oldest
+    assert enforce(store, 30, 1e6, 0, now).deleted == 1  # 40 days old
+    # 2 GB left > 1.2 GB: the two oldest
+    assert enforce(store, 30, 1.2, 0, now) == Retention(deleted=2)
     assert [i.id for i in IncidentIndex(tmp_path).list()] == ["i4", "i3"]
     assert not (tmp_path / "i0").exists() and (tmp_path / "i4").is_dir()
     free = iter([0, 0, 10 * GB])  # below the floor until the two left are gone
-    assert enforce(store, 30, 1e6, 1, now, free=lambda _: next(free)) == 2
+    assert enforce(store, 30, 1e6, 1, now, free=lambda _: next(free)).deleted == 2
     with pytest.raises(DiskFloor, match="below the floor"):
         enforce(store, 30, 1e6, 1, now, free=lambda _: 0)
     store.close()

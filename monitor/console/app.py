@@ -16,9 +16,13 @@ from __future__ import annotations
 
 import json
 import sqlite3
-from dataclasses import dataclass
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 
+import anyio
+import anyio.to_thread
 import cv2
 from starlette.applications import Starlette
 from starlette.concurrency import run_in_threadpool
@@ -27,15 +31,23 @@ from starlette.responses import FileResponse, JSONResponse, Response
 from starlette.routing import Mount, Route
 from starlette.staticfiles import StaticFiles
 
-from monitor.console.auth import AuditLog, Operators
+from monitor.alerts import AlertLimiter
+from monitor.console.audit import AuditLog
+from monitor.console.auth import Operators, basic_credentials
 from monitor.console.edits import ZoneEditIncidents
 from monitor.console.incidents import IncidentFilters, IncidentSource
 from monitor.console.live import LiveRenderer, LiveState, reference_image
+from monitor.console.logins import Lockout, LoginGuard
 from monitor.console.zones_api import ZoneEditor
 from monitor.errors import ConfigError
+from monitor.types import Alert
 
 STATIC = Path(__file__).parent / "static"
 MAX_BODY = 256_000
+CHECK_THREADS = 1  # scrypt checks at once (16 MB, ~0.1 s of a core each): a flood of
+# guesses takes at most one core from the host the monitor runs on
+MAX_WAITING_CHECKS = 32  # more are refused at once (503), never queued without bound
+LOCKOUT_ALERT = "console_login_lockout"
 _SECURITY_HEADERS = {
     "cache-control": "no-store",
     "x-content-type-options": "nosniff",
@@ -59,6 +71,23 @@ class Console:
     audit: AuditLog
     references: dict[str, Path]
     edits: ZoneEditIncidents | None = None  # --incidents DIR: each edit is an incident too
+    logins: LoginGuard = field(default_factory=LoginGuard)
+    on_alert: Callable[[Alert], None] | None = None  # the console's own alerts (lock-outs)
+
+
+class LoginChecks:
+    """Password checks in flight: at most ``CHECK_THREADS`` hashing, ``MAX_WAITING_CHECKS``
+    waiting (more are refused at once); the lock-out alerts' rate limit."""
+
+    def __init__(self) -> None:
+        self.waiting = 0  # touched on the event loop only
+        self._limiter: anyio.CapacityLimiter | None = None
+        self.alerts = AlertLimiter()
+
+    def limiter(self) -> anyio.CapacityLimiter:
+        if self._limiter is None:  # made inside the running event loop
+            self._limiter = anyio.CapacityLimiter(CHECK_THREADS)
+        return self._limiter
 
 
 def _json(body: object, status: int = 200) -> JSONResponse:
@@ -141,18 +170,69 @@ def build_app(console: Console) -> Starlette:
                                  type(exc).__name__)
             return None
 
+    checks = LoginChecks()
+
+    def lockout_alert(lockout: Lockout, client: str, tried: str) -> None:
+        alert = Alert(LOCKOUT_ALERT, "warning", f"console: {lockout.message()}", "console",
+                      time.time(), details={"client": client, "tried": tried[:64]})
+        repeat = checks.alerts.admit(alert, time.monotonic())
+        if repeat is None:
+            return  # held back (a flood of lock-outs): counted in the next one's repeat
+        alert.details["repeat"] = repeat
+        console.audit.record(event="login_lockout", client=client, tried=tried[:64],
+                             message=alert.message, repeat=repeat)
+        if console.on_alert is not None:
+            console.on_alert(alert)
+
+    async def login(client: str, credentials: tuple[str, str] | None
+                    ) -> tuple[str | None, int, str]:
+        """(operator, 200, "") for a right password not locked out, else (None, status,
+        why)."""
+        if not console.operators.enabled:
+            return None, 403, "editing is off: the console was started without --passwords"
+        if credentials is None:
+            return None, 401, "operator name or password not accepted"
+        name, password = credentials
+        locked = console.logins.locked(client, name)
+        if locked is not None:
+            return None, 429, locked.message()
+        if checks.waiting >= MAX_WAITING_CHECKS:
+            return None, 503, "too many password checks at once: try again in a moment"
+        checks.waiting += 1
+        try:
+            # scrypt (~0.1 s of CPU) off the event loop, at most CHECK_THREADS at once, so
+            # guessing never slows /api/state
+            ok = await anyio.to_thread.run_sync(console.operators.verify, name, password,
+                                                limiter=checks.limiter())
+        finally:
+            checks.waiting -= 1
+        locked = console.logins.locked(client, name)  # locked while this one was checked
+        if locked is not None:
+            return None, 429, locked.message()
+        if ok:
+            console.logins.succeeded(client, name)
+            return name, 200, ""
+        started = console.logins.failed(client, name)
+        for lockout in started:
+            lockout_alert(lockout, client, name)
+        if started:
+            return None, 429, started[0].message()
+        return None, 401, "operator name or password not accepted"
+
     async def save_zone(request: Request) -> Response:
         zone_id = request.path_params["id"]
-        operator = console.operators.check(request.headers.get("authorization"))
+        credentials = basic_credentials(request.headers.get("authorization"))
         client = request.client.host if request.client else ""
+        operator, status, why = await login(client, credentials)
         if operator is None:
-            why = ("editing is off: the console was started without --passwords"
-                   if not console.operators.enabled else
-                   "operator name or password not accepted")
-            entry = console.audit.record(zone=zone_id, operator=None, client=client,
-                                         result="refused", error=why)
-            await run_in_threadpool(edit_incident, entry)
-            return _json({"error": why}, 403 if not console.operators.enabled else 401)
+            # whoever reaches the port: one bounded, rate-limited audit line, never an
+            # incident (a flood of them must not push real STOPs out of retention)
+            await run_in_threadpool(console.audit.refused, zone=zone_id, operator=None,
+                                    tried=credentials[0] if credentials else None,
+                                    client=client, result="refused", error=why)
+            headers = {"retry-after": "60"} if status in (429, 503) else {}
+            return JSONResponse({"error": why}, status_code=status,
+                                headers={**_SECURITY_HEADERS, **headers})
         raw = await request.body()
         if len(raw) > MAX_BODY or "json" not in request.headers.get("content-type", ""):
             return _json({"error": "a JSON body of at most 256 kB"}, 400)

@@ -16,16 +16,14 @@ from __future__ import annotations
 
 import base64
 import binascii
+import functools
 import hashlib
 import hmac
 import ipaddress
-import json
 import os
 import re
 import secrets
 import threading
-import time
-from dataclasses import dataclass
 from pathlib import Path
 
 from monitor.errors import ConfigError
@@ -124,22 +122,43 @@ class Operators:
                     self._cache = (mtime, {})  # broken: nobody may edit
             return self._cache[1]
 
-    def check(self, authorization: str | None) -> str | None:
-        """The operator named by a valid ``Basic`` header, else None."""
-        if self.path is None or not authorization:
-            return None
-        scheme, _, blob = authorization.partition(" ")
-        if scheme.lower() != "basic":
-            return None
-        try:
-            name, sep, password = base64.b64decode(blob.strip(), validate=True).decode(
-                "utf-8").partition(":")
-        except (binascii.Error, UnicodeDecodeError):
-            return None
-        stored = self._entries().get(name) if sep else None
+    def verify(self, name: str, password: str) -> bool:
+        """Whether ``password`` is ``name``'s. Blocking (scrypt, ~0.1 s): call it off the
+        event loop."""
+        if self.path is None or not _NAME.match(name):
+            return False  # not a name an operator can have: no hash to compare with
+        stored = self._entries().get(name)
         # an unknown name costs the same scrypt as a known one (no probing of names)
-        ok = _verify(password, stored or hash_password("", salt=b"\0" * 16))
-        return name if ok and stored else None
+        ok = _verify(password, stored or _dummy_hash())
+        return ok and stored is not None
+
+    def check(self, authorization: str | None) -> str | None:
+        """The operator named by a valid ``Basic`` header, else None (blocking, as
+        ``verify``)."""
+        credentials = basic_credentials(authorization) if self.path is not None else None
+        if credentials is None:
+            return None
+        return credentials[0] if self.verify(*credentials) else None
+
+
+def basic_credentials(authorization: str | None) -> tuple[str, str] | None:
+    """(name, password) of a ``Basic`` header, None when there is none or it is malformed."""
+    if not authorization:
+        return None
+    scheme, _, blob = authorization.partition(" ")
+    if scheme.lower() != "basic":
+        return None
+    try:
+        name, sep, password = base64.b64decode(blob.strip(), validate=True).decode(
+            "utf-8").partition(":")
+    except (binascii.Error, UnicodeDecodeError):
+        return None
+    return (name, password) if sep else None
+
+
+@functools.cache
+def _dummy_hash() -> str:
+    return hash_password("", salt=b"\0" * 16)
 
 
 def is_loopback(host: str) -> bool:
@@ -155,27 +174,9 @@ def require_safe_listen(host: str, tls: bool, operators: bool) -> None:
     """Off loopback the console needs TLS and operator passwords; refused otherwise."""
     if is_loopback(host):
         return
-    missing = [what for what, ok in (("TLS (--tls-cert and --tls-key)", tls),
+    # --https-*, not --tls-*: the console's --tls-cert/--tls-key are its Zenoh link's
+    missing = [what for what, ok in (("TLS (--https-cert and --https-key)", tls),
                                       ("operator passwords (--passwords)", operators)) if not ok]
     if missing:
         raise ConfigError(f"monitor console: listening on {host} (not loopback) needs "
                           f"{' and '.join(missing)}; or listen on 127.0.0.1")
-
-
-@dataclass
-class AuditLog:
-    """Every edit attempt through the console, accepted or refused, one JSON line each
-    (append-only; fsynced, so an audited edit survives a crash right after it)."""
-
-    path: Path
-
-    def record(self, **fields) -> dict:
-        entry = {"time": round(time.time(), 3), "event": "zone_edit", **fields}
-        line = json.dumps(entry, sort_keys=True) + "\n"
-        fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o640)
-        try:
-            os.write(fd, line.encode())
-            os.fsync(fd)
-        finally:
-            os.close(fd)
-        return entry

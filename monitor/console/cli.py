@@ -85,7 +85,8 @@ def _references(items: list[str]) -> dict[str, Path]:
 
 
 def cmd_console(args: argparse.Namespace) -> int:
-    from monitor.console.auth import AuditLog, Operators, require_safe_listen
+    from monitor.console.audit import AuditLog
+    from monitor.console.auth import Operators, require_safe_listen
     from monitor.pose import parse_host_port
 
     if args.zones is None:
@@ -142,6 +143,12 @@ def _serve(args, host: str, port: int, tls: bool, operators, references, audit) 
                       references=references,
                       edits=ZoneEditIncidents(args.incidents, bus.cell) if args.incidents
                       else None)
+    def on_alert(alert) -> None:  # a lock-out: on the live page and in the console's log
+        live.add_alert(alert)
+        print(f"monitor console: alert {alert.kind}: {alert.message}", file=sys.stderr,
+              flush=True)
+
+    console.on_alert = on_alert
     app = build_app(console)
     session = open_session(bus)
     stop = threading.Event()

@@ -28,6 +28,7 @@ import cv2
 import numpy as np
 
 from monitor.adapters.snapshot import SafetySnapshot
+from monitor.types import Alert
 from monitor.zones.draw import draw_zones
 from monitor.zones.files import Cell
 
@@ -75,6 +76,13 @@ class LiveState:
             self.alerts.appendleft(entry)
             if attachment and attachment[:2] == b"\xff\xd8":  # a JPEG, by its magic
                 self.alert_images[str(body.get("source", ""))] = (attachment, self.clock())
+
+    def add_alert(self, alert: Alert) -> None:
+        """One of the console's own alerts (a login lock-out), shown with the monitor's."""
+        entry = {"kind": alert.kind, "severity": alert.severity, "message": alert.message,
+                 "source": alert.source, "wall": alert.time, "received": time.time()}
+        with self._lock:
+            self.alerts.appendleft(entry)
 
     # --- readers (web requests) ------------------------------------------------------------
     def state(self) -> dict:

@@ -42,6 +42,7 @@ from monitor.types import Alert
 MAX_QUEUED_FRAMES = 16  # ~45 MB of 720p frames waiting for the worker at most
 MAX_QUEUED_STEPS = 4096
 STOPPED_ALERT = "recorder_stopped"
+BLOCKED_ALERT = "retention_blocked"  # over max_gb with only safety incidents left: kept
 SCHEMA = "workcell.incident/1"
 
 
@@ -110,6 +111,7 @@ class IncidentRecorder:
         self._seq = 0
         self._run_id = secrets.token_hex(2)
         self._last_retention = -math.inf
+        self._retention_blocked = False
         self._now = 0.0
         self._thread = threading.Thread(target=self._run, name="incident-recorder", daemon=True)
         self._thread.start()
@@ -229,9 +231,12 @@ class IncidentRecorder:
                     writer.close()
         self._open.clear()
         self.rings = {c: FrameRing(r.window_s, r.budget_bytes) for c, r in self.rings.items()}
-        alert = Alert(STOPPED_ALERT, "warning",
-                      f"incident recording stopped: {text}; the monitor goes on commanding",
-                      "recorder", self._now, details={"data_dir": str(self.data_dir)})
+        self._raise(Alert(STOPPED_ALERT, "warning",
+                          f"incident recording stopped: {text}; the monitor goes on commanding",
+                          "recorder", self._now, details={"data_dir": str(self.data_dir)}))
+
+    def _raise(self, alert: Alert) -> None:
+        """An alert of the recorder's own, handed to ``on_alert`` from the next ``on_step``."""
         self.alerts_raised.append(alert)
         self._alerts.append(alert)
 
@@ -372,4 +377,10 @@ class IncidentRecorder:
             return
         self._last_retention = now
         c = self.config
-        enforce(self._store, c.retention_days, c.max_gb, c.min_free_gb, self.wall())
+        done = enforce(self._store, c.retention_days, c.max_gb, c.min_free_gb, self.wall())
+        if done.blocked is not None and not self._retention_blocked:
+            # said once when it starts (and again after it had cleared), not every second
+            self._raise(Alert(BLOCKED_ALERT, "warning", f"incident retention: {done.blocked}",
+                              "recorder", self._now,
+                              details={"data_dir": str(self.data_dir)}))
+        self._retention_blocked = done.blocked is not None

@@ -14,7 +14,7 @@ import contextlib
 import json
 import shutil
 import sqlite3
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -173,13 +173,27 @@ class IncidentStore:
         self.con.execute(f"INSERT OR REPLACE INTO incidents ({','.join(COLUMNS)}, record) "
                          f"VALUES ({marks})", row_values(record, size, complete))
 
-    def oldest(self, before_wall: float | None = None) -> str | None:
+    def oldest(self, before_wall: float | None = None,
+               keep: Iterable[str] = ()) -> str | None:
+        """The oldest complete incident (recorded before ``before_wall``), skipping those with
+        any cause in ``keep``."""
         sql = "SELECT id FROM incidents WHERE complete = 1"
         args: tuple = ()
         if before_wall is not None:
             sql, args = sql + " AND wall < ?", (before_wall,)
+        for cause in sorted(keep):
+            sql, args = sql + " AND instr(',' || causes || ',', ?) = 0", (*args, f",{cause},")
         row = self.con.execute(sql + " ORDER BY wall, id LIMIT 1", args).fetchone()
         return row[0] if row else None
+
+    def count(self, causes: Iterable[str]) -> int:
+        """Incidents with any of ``causes``."""
+        marks = [f",{c}," for c in sorted(causes)]
+        if not marks:
+            return 0
+        sql = " OR ".join(["instr(',' || causes || ',', ?) > 0"] * len(marks))
+        return int(self.con.execute(f"SELECT COUNT(*) FROM incidents WHERE {sql}", marks)
+                   .fetchone()[0])
 
     def total_bytes(self) -> int:
         return int(self.con.execute("SELECT COALESCE(SUM(bytes), 0) FROM incidents")
