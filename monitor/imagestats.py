@@ -27,7 +27,8 @@ def noise_sigma(grey: np.ndarray) -> float:
     if grey.shape[0] < 3 or grey.shape[1] < 3:
         return 0.0
     out = cv2.filter2D(grey.astype(np.float32), cv2.CV_32F, _NOISE_KERNEL)[1:-1, 1:-1]
-    return float(np.median(np.abs(out))) / (6.0 * _HALF_NORMAL_MEDIAN)
+    # every other row and column: the median of a quarter of the pixels is as good, 4x cheaper
+    return float(np.median(np.abs(out[::2, ::2]))) / (6.0 * _HALF_NORMAL_MEDIAN)
 
 
 def sharpness(grey: np.ndarray) -> float:

@@ -70,4 +70,6 @@ class HealthConfig:
     envelope_min_recall: Annotated[Float, _within(0.5, 1.0)] = 0.9
     # ... and a warning when an image measure comes within this fraction of a limit
     envelope_margin: Annotated[Float, _within(0.0, 1.0)] = 0.15
+    # the in-place check (monitor/detector/inplace.py) runs this often per camera
+    inplace_period_s: Annotated[Float, _within(0.5, 60.0)] = 3.0
 
