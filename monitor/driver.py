@@ -131,7 +131,7 @@ class Driver:
     def __init__(self, pipeline: Pipeline, sinks: Sequence[Sink] = (), *,
                  stall_after_s: float | None = None,
                  clock: Callable[[], float] = time.monotonic,
-                 self_test_period_s: float | None = None) -> None:
+                 self_test_period_s: float | None = None, inplace=None) -> None:
         self.pipeline = pipeline
         self.sinks = list(sinks)
         self.stall_after_s = stall_after_s
@@ -139,6 +139,9 @@ class Driver:
         self.self_test = getattr(pipeline.detector, "self_test", None)
         self.self_test_period_s = self_test_period_s
         self._next_self_test: float | None = None
+        # the in-place check (monitor/detector/inplace.py): on timer ticks, on the newest frame
+        self.inplace = inplace
+        self._newest: dict[str, Frame] = {}
         self._self_test_fault: Fault | None = None
         self._last_end: float | None = None  # clock at the end of the previous step
         self._armed = False  # stall detection starts after the first frame (warm-up excluded)
@@ -178,7 +181,9 @@ class Driver:
             frames = [f for f in frames if f.info.capture_time >= self._discard_before]
         if len(frames) <= 1:
             return [self.step(frames[0] if frames else None, now, inputs)]
-        faults = inputs.extra_faults + self._run_self_test(now)
+        for f in frames[1:]:
+            self._newest[f.info.camera_id] = f
+        faults = inputs.extra_faults + self._run_self_test(now) + self._run_inplace(frames[0], now)
         results = self.pipeline.process_batch(
             [(f.image, f.info) for f in frames], now, tool_pose=inputs.tool_pose,
             tool_speed_mps=inputs.tool_speed_mps, pose_time=inputs.pose_time,
@@ -214,7 +219,7 @@ class Driver:
         if frame is not None and self._discard_before is not None \
                 and frame.info.capture_time < self._discard_before:
             frame = None  # grabbed before the monitor froze: it shows a past cell
-        faults = inputs.extra_faults + self._run_self_test(now)
+        faults = inputs.extra_faults + self._run_self_test(now) + self._run_inplace(frame, now)
         if frame is not None:
             result = self.pipeline.process(
                 frame.image, frame.info, now, tool_pose=inputs.tool_pose,
@@ -307,6 +312,20 @@ class Driver:
             period = self.self_test_period_s
             self._next_self_test = now + period if period and period > 0 else float("inf")
         return (self._self_test_fault,) if self._self_test_fault is not None else ()
+
+    def _run_inplace(self, frame: Frame | None, now: float) -> tuple[Fault, ...]:
+        """The in-place check runs on a timer tick (no frame waiting), on each camera's newest
+        frame; on a frame step only when a whole period overdue (a feed that never ticks)."""
+        check = self.inplace
+        if check is None:
+            return ()
+        if frame is not None:
+            self._newest[frame.info.camera_id] = frame
+        for cid, newest in self._newest.items():
+            overdue = check.due(cid, now - check.period_s)
+            if check.due(cid, now) and (frame is None or overdue):
+                check.check(cid, newest.image, now)
+        return tuple(check.faults.values())
 
     def _emit(self, result: StepResult, frame: Frame | None,
               stalled_s: float | None = None) -> Step:

@@ -39,6 +39,24 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     help="evaluate the synthetic model's int8 build (made when absent)")
     ev.set_defaults(func=cmd_eval)
 
+    en = sub.add_parser(
+        "envelope", help="measure the model's operating envelope (light, contrast, noise, "
+        "blur) on its self-test figure and store it beside the model",
+        description="Degrades the model's self-test image (the synthetic figure for the "
+                    "synthetic model, detector.self_test_image for yours) in graded steps of "
+                    "brightness, contrast, noise and blur, and stores the limits within which "
+                    "the model still finds the person (MODEL.onnx.envelope.json); monitor run "
+                    "STOPs when a camera's image leaves them (docs/health.md).")
+    en.add_argument("--model", type=Path, help="ONNX file (default: the synthetic model)")
+    en.add_argument("--config", type=Path,
+                    help="monitor.toml: its model, detector self-test image and "
+                         "health.envelope_min_recall")
+    en.add_argument("--min-recall", type=float,
+                    help="recall the envelope keeps (default: health.envelope_min_recall, 0.9)")
+    en.add_argument("--print-only", action="store_true",
+                    help="measure and print; do not store the sidecar file")
+    en.set_defaults(func=cmd_envelope)
+
     q = sub.add_parser(
         "quantize", help="static int8 model calibrated on your frames, checked against fp32",
         description="Static int8 quantization (QDQ, per-channel weights) calibrated on frames "
@@ -172,6 +190,40 @@ def cmd_eval(args: argparse.Namespace) -> int:
         "mean_iou": round(acc.mean_iou, 3), "one_box_per_person": round(acc.one_box_share, 4),
         "distractor_hits": acc.distractor_hits, "tolerance_px": round(tolerance, 1),
         "seconds": round(time.perf_counter() - start, 1)}))
+    return 0
+
+
+def cmd_envelope(args: argparse.Namespace) -> int:
+    from monitor.detector import Detector, DetectorConfig
+    from monitor.detector import envelope as env
+    from monitor.health import HealthConfig
+
+    detector_config, health = DetectorConfig(), HealthConfig()
+    model = args.model
+    if args.config is not None:
+        from monitor.config import load_config
+
+        config = load_config(args.config)
+        detector_config, health = config.detector, config.health
+        model = model or (Path(config.model.path) if config.model.path else None)
+    min_recall = health.envelope_min_recall if args.min_recall is None else args.min_recall
+    if not 0.5 <= min_recall <= 1.0:
+        raise MonitorError(f"--min-recall {min_recall} is not in 0.5 .. 1")
+    if model is None:
+        from monitor.cli.run import ensure_model
+
+        model = ensure_model()
+    detector = Detector(model, detector_config)
+    if detector.self_test_case is None:
+        raise MonitorError(f"{model}: no self-test image to measure on: set "
+                           "detector.self_test_image and self_test_box in the --config "
+                           "(docs/models.md)")
+    envelope = env.for_detector(detector, min_recall, store=not args.print_only,
+                                progress=lambda axis: print(f"measuring {axis} ...",
+                                                            file=sys.stderr))
+    print(envelope.table())
+    if not args.print_only:
+        print(f"wrote {env.sidecar_path(model)}")
     return 0
 
 

@@ -12,7 +12,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from monitor.detector.envelope import Envelope
 from monitor.errors import InputError
+from monitor.health.conditions import EnvelopeWatch, zone_regions
 from monitor.health.config import (
     BLINDED,
     CHECKS,
@@ -26,6 +28,7 @@ from monitor.health.config import (
 from monitor.health.draw import encode_jpeg
 from monitor.health.report import HealthReport, ZoneStatus
 from monitor.health.scene import WatchZones
+from monitor.imagestats import sharpness
 from monitor.types import Alert, Fault
 
 
@@ -60,28 +63,29 @@ def load_reference(path: str | Path) -> np.ndarray:
     return image
 
 
-def _sharpness(grey: np.ndarray) -> float:
-    """Variance of the Laplacian divided by the image's variance: high for sharp images and
-    independent of exposure gain (a dimmer image is not a blurrier one)."""
-    lap = cv2.Laplacian(grey, cv2.CV_16S)
-    lap_std = float(cv2.meanStdDev(lap)[1][0, 0])
-    grey_std = float(cv2.meanStdDev(grey)[1][0, 0])
-    return lap_std * lap_std / (grey_std * grey_std + 1.0)
-
-
 class CameraHealth:
     """Health and watch-zone checks of one camera; feed it every frame in order.
 
     ``reference_bgr`` is the commissioning image of this camera (any size with the frame's aspect
     ratio) or None. ``watch_zones`` are ``(zone_id, polygon_px)`` pairs, polygons (K, 2) in
     full-resolution pixels of this camera.
+
+    ``envelope`` (the model's operating envelope, monitor/detector/envelope.py) adds the image
+    conditions check (monitor/health/conditions.py): a STOP fault ``detector_envelope`` for
+    every frame outside it, for the whole view and for each of ``protective_zones`` (``(zone_id,
+    polygon_px)`` like ``watch_zones``) on its own.
     """
 
     def __init__(self, config: HealthConfig, camera_id: str,
                  reference_bgr: np.ndarray | None = None,
-                 watch_zones: Sequence[tuple[str, np.ndarray]] = ()):
+                 watch_zones: Sequence[tuple[str, np.ndarray]] = (),
+                 envelope: Envelope | None = None,
+                 protective_zones: Sequence[tuple[str, np.ndarray]] = ()):
         self.config = config
         self.camera_id = camera_id
+        self._envelope = None if envelope is None else EnvelopeWatch(
+            envelope, camera_id, config.envelope_margin, config.clear_time_s)
+        self._protective = list(protective_zones)
         self._watch = WatchZones(config, camera_id, watch_zones)
         self._reference = reference_bgr
         self._frame_size: tuple[int, int] | None = None  # (width, height) of full frames
@@ -97,6 +101,7 @@ class CameraHealth:
         self._prev_small: np.ndarray | None = None
         self._ref_small: np.ndarray | None = None  # float32 grey, analysis size
         self._ref_small_bgr: np.ndarray | None = None  # float32 BGR, analysis size
+        self._ref_small_bgr_u8: np.ndarray | None = None  # the same as taken (uint8)
         self._ref_sharpness: float | None = None
         self._sharp_samples: list[float] = []
         self._window: np.ndarray | None = None
@@ -131,9 +136,13 @@ class CameraHealth:
             reference = (cv2.resize(self._reference, (width, height), interpolation=cv2.INTER_AREA)
                          if (rw, rh) != (width, height) else self._reference)
             ref_bgr, ref_grey = self._small_images(reference)
+            self._ref_small_bgr_u8 = ref_bgr
             self._ref_small = ref_grey.astype(np.float32)
             self._ref_small_bgr = ref_bgr.astype(np.float32)
-            self._ref_sharpness = _sharpness(ref_grey)
+            self._ref_sharpness = sharpness(ref_grey)
+        if self._envelope is not None:
+            self._envelope.prepare(self._ref_small_bgr_u8, (width, height), sw,
+                                   zone_regions(self._protective, self._scale, (sw, sh)))
         self._watch.prepare(width, height, (sw, sh), self._scale, self._ref_small_bgr)
 
     def _small_images(self, frame_bgr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -192,6 +201,14 @@ class CameraHealth:
         if blinded is not None:
             faults.append(blinded)
         raw_bad = self._timers[BLINDED].since is not None
+
+        if self._envelope is not None:
+            t = time.perf_counter()
+            outside, near, values = self._envelope.check(small, now)
+            self._measures.update(values)
+            faults.extend([outside] if outside else [])
+            alerts.extend([near] if near else [])
+            timings["envelope"] = _ms(t)
 
         t = time.perf_counter()
         frozen = None if raw_bad else self._check_frozen(small, now)
@@ -273,13 +290,13 @@ class CameraHealth:
     def _check_defocus(self, small: np.ndarray, frame_bgr: np.ndarray,
                        now: float) -> list[Alert]:
         cfg = self.config
-        sharpness = _sharpness(small)
+        sharp = sharpness(small)
         if self._ref_sharpness is None:  # no reference: the median of the first sound frames
-            self._sharp_samples.append(sharpness)
+            self._sharp_samples.append(sharp)
             if len(self._sharp_samples) >= cfg.baseline_frames:
                 self._ref_sharpness = float(np.median(self._sharp_samples))
             return []
-        ratio = sharpness / max(self._ref_sharpness, 1e-6)
+        ratio = sharp / max(self._ref_sharpness, 1e-6)
         self._measures["sharpness_ratio"] = ratio
         low_for = self._timers[DEFOCUSED].update(ratio < cfg.defocus_ratio, now)
         ok_for = self._timers["focus_ok"].update(ratio >= cfg.defocus_ratio, now)

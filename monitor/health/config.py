@@ -14,7 +14,8 @@ LOST, FROZEN, BLINDED, MOVED, DEFOCUSED = (
     "camera_lost", "camera_frozen", "camera_blinded", "camera_moved", "camera_defocused")
 SCENE_CHANGE, SCENE_CHANGE_CLEARED = "scene_change", "scene_change_cleared"
 DEFOCUSED_CLEARED = "camera_defocused_cleared"
-CHECKS = ("prepare", "blinded", "frozen", "defocus", "moved", "scene")  # keys of timings_ms
+# keys of timings_ms
+CHECKS = ("prepare", "blinded", "envelope", "frozen", "defocus", "moved", "scene")
 
 
 def _within(lo: float, hi: float) -> Any:
@@ -64,4 +65,11 @@ class HealthConfig:
     # px; snapshots are scaled down to at most this width
     snapshot_max_width: Annotated[Int, _within(64, 8192)] = 1280
     snapshot_quality: Annotated[Int, _within(1, 100)] = 85  # JPEG quality 1..100
+    # the detector's operating envelope (docs/health.md): measured at start on the self-test
+    # figure, the limits within which its recall is at least this ...
+    envelope_min_recall: Annotated[Float, _within(0.5, 1.0)] = 0.9
+    # ... and a warning when an image measure comes within this fraction of a limit
+    envelope_margin: Annotated[Float, _within(0.0, 1.0)] = 0.15
+    # the in-place check (monitor/detector/inplace.py) runs this often per camera
+    inplace_period_s: Annotated[Float, _within(0.5, 60.0)] = 3.0
 

@@ -1,0 +1,331 @@
+"""The model's operating envelope: the image conditions within which it still finds a person.
+
+The self-test says the model finds one person in one fixed image; it says nothing about
+tonight's lighting. ``measure`` degrades the self-test image (the synthetic figure for the
+synthetic model, the user's self-test image for theirs) in graded steps along four axes and
+runs the detector on each grade:
+
+==========  ====================================================  ==========================
+axis        degradation                                           limit kept
+==========  ====================================================  ==========================
+brightness  every pixel times a gain (exposure, light off)        ``min_gain``, ``max_gain``
+contrast    pixels pulled towards the image mean (haze, glare)    ``min_contrast``
+noise       Gaussian noise per pixel and channel (grey levels)    ``max_noise``
+blur        Gaussian blur (sigma in detector-input pixels)        ``max_blur``
+==========  ====================================================  ==========================
+
+Each grade is ``TRIALS`` trials (the image shifted by fractions of the model's finest grid
+cell, each with its own noise): recall = trials in which a person box covers the known one.
+A limit is the last grade with recall >= ``min_recall`` before the first grade without,
+found by bisection (recall falls as a condition worsens); an axis that passes every grade
+ends at the last grade (beyond it nothing was measured, so it counts as outside).
+
+Units are *degradations relative to an undegraded image*, not absolute pixel statistics:
+``monitor.health.conditions`` turns them into each camera's own thresholds by degrading that
+camera's reference image by the limits and measuring it (docs/health.md).
+
+The envelope is stored beside the model (``MODEL.onnx.envelope.json``) with the model's and
+the self-test image's sha256: a changed model, test image or minimum recall measures anew.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from monitor import boxes as box_ops
+from monitor import imagestats
+from monitor.detector.selftest import SelfTestCase
+from monitor.errors import ModelError
+from monitor.types import Persons
+
+log = logging.getLogger(__name__)
+
+FORMAT = 1
+TRIALS = 4
+# Grades per axis, mildest first (the first is the undegraded value).
+GRADES: dict[str, tuple[float, ...]] = {
+    "gain_low": (1.0, 0.9, 0.85, 0.8, 0.75, 0.7, 0.65, 0.6, 0.55, 0.5, 0.45, 0.4, 0.35, 0.3,
+                 0.25, 0.2),
+    "gain_high": (1.0, 1.25, 1.5, 1.75, 2.0, 2.5, 3.0, 4.0),
+    "contrast": (1.0, 0.9, 0.8, 0.7, 0.6, 0.5, 0.4, 0.3, 0.2),
+    "noise": (0.0, 4.0, 8.0, 12.0, 16.0, 20.0, 24.0, 32.0, 40.0),
+    "blur": (0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 4.0, 5.0, 6.0),
+}
+
+
+@dataclass(frozen=True)
+class Envelope:
+    """The conditions within which the model's recall on its test figure >= ``min_recall``.
+
+    Gains and contrast are factors of the undegraded image; noise is a standard deviation in
+    grey levels and blur a Gaussian sigma, both in pixels of the detector's input
+    (``input_width`` px wide)."""
+
+    min_gain: float
+    max_gain: float
+    min_contrast: float
+    max_noise: float
+    max_blur: float
+    min_recall: float
+    input_width: int
+    input_height: int
+    source: str  # the self-test image: "built-in" or its file
+    model_sha256: str = ""
+    case_sha256: str = ""
+    # the limits as measures of the test image itself (``monitor.imagestats.conditions``):
+    # a camera without a reference image is judged by these (docs/health.md)
+    absolute: dict[str, float] = field(default_factory=dict)
+    # axis -> ((grade, recall), ...) as measured, for the table and the docs
+    recall: dict[str, tuple[tuple[float, float], ...]] = field(default_factory=dict)
+
+    def table(self) -> str:
+        """A plain-text table of the limits and the measured recall per grade."""
+        lines = [f"envelope of recall >= {self.min_recall:g} on the {self.source} self-test "
+                 f"figure ({TRIALS} trials per grade):",
+                 f"  brightness gain  {self.min_gain:g} .. {self.max_gain:g}",
+                 f"  contrast         >= {self.min_contrast:g} of the original",
+                 f"  noise            sigma <= {self.max_noise:g} grey levels",
+                 f"  blur             sigma <= {self.max_blur:g} px at the "
+                 f"{self.input_width} px model input"]
+        for axis, rows in self.recall.items():
+            cells = "  ".join(f"{g:g}:{r:.2f}" for g, r in rows)
+            lines.append(f"  {axis:<10} {cells}")
+        return "\n".join(lines)
+
+
+def degrade(image_bgr: np.ndarray, gain: float = 1.0, contrast: float = 1.0,
+            noise: float = 0.0, blur: float = 0.0,
+            rng: np.random.Generator | None = None) -> np.ndarray:
+    """One image condition applied in the order light takes: optics (blur), the scene's
+    contrast (haze pulls every pixel towards the mean), exposure (gain), sensor noise."""
+    img = image_bgr.astype(np.float32)
+    if blur > 0:
+        img = cv2.GaussianBlur(img, (0, 0), blur)
+    if contrast != 1.0:
+        mean = float(img.mean())
+        img = mean + contrast * (img - mean)
+    if gain != 1.0:
+        img *= gain
+    if noise > 0:
+        rng = rng if rng is not None else np.random.default_rng(0)
+        img += rng.normal(0.0, noise, img.shape).astype(np.float32)
+    return np.clip(np.rint(img), 0, 255).astype(np.uint8)
+
+
+def _at_input_scale(case: SelfTestCase, input_size: tuple[int, int]
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """The case image resized to fit the detector's input, and its box in those pixels: the
+    degradations' units are then the detector's own pixels."""
+    h, w = case.image.shape[:2]
+    scale = min(input_size[0] / w, input_size[1] / h)
+    size = (max(1, round(w * scale)), max(1, round(h * scale)))
+    image = cv2.resize(case.image, size, interpolation=cv2.INTER_AREA)
+    return image, np.asarray(case.box_px, np.float32) * scale
+
+
+def _shifted(image: np.ndarray, box: np.ndarray, dx: float, dy: float
+             ) -> tuple[np.ndarray, np.ndarray]:
+    m = np.float32([[1, 0, dx], [0, 1, dy]])
+    out = cv2.warpAffine(image, m, (image.shape[1], image.shape[0]),
+                         flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return out, box + np.float32([dx, dy, dx, dy])
+
+
+def recall_at(detect: Callable[[np.ndarray], Persons], image: np.ndarray, box: np.ndarray,
+              stride_px: float, min_iou: float, seed: int, **condition: float) -> float:
+    """Share of ``TRIALS`` trials (shifts of a half and a quarter grid cell, own noise) in
+    which a person box overlaps the known one by ``min_iou``."""
+    hits = 0
+    shifts = ((0.0, 0.0), (0.5, 0.0), (0.0, 0.5), (0.25, 0.75))[:TRIALS]
+    for k, (fx, fy) in enumerate(shifts):
+        shifted, want = _shifted(image, box, fx * stride_px, fy * stride_px)
+        rng = np.random.default_rng(seed * 101 + k)
+        persons = detect(degrade(shifted, rng=rng, **condition))
+        if len(persons) and float(box_ops.iou_matrix(want[None], persons.boxes_px).max()) \
+                >= min_iou:
+            hits += 1
+    return hits / TRIALS
+
+
+_PARAM = {"gain_low": "gain", "gain_high": "gain", "contrast": "contrast", "noise": "noise",
+          "blur": "blur"}
+
+
+def measure(detect: Callable[[np.ndarray], Persons], case: SelfTestCase,
+            input_size: tuple[int, int], stride_px: float, min_recall: float,
+            min_iou: float = 0.5, grades: dict[str, tuple[float, ...]] | None = None,
+            progress: Callable[[str], None] | None = None) -> Envelope:
+    """Measure the envelope of ``detect`` on ``case`` (see the module doc). ModelError when the
+    model misses the undegraded figure itself (no envelope at all)."""
+    grades = grades or GRADES
+    image, box = _at_input_scale(case, input_size)
+    limits: dict[str, float] = {}
+    table: dict[str, tuple[tuple[float, float], ...]] = {}
+    base = recall_at(detect, image, box, stride_px, min_iou, seed=0)
+    if base < min_recall:
+        raise ModelError(f"the model finds the {case.source} self-test figure in only "
+                         f"{100 * base:.0f} % of {TRIALS} shifted copies (needs "
+                         f"{100 * min_recall:.0f} %): no operating envelope")
+    for n, (axis, steps) in enumerate(grades.items()):
+        if progress is not None:
+            progress(axis)
+        tested = {0: base}
+
+        def passes(g: int, n: int = n, axis: str = axis, steps=steps, tested=tested) -> bool:
+            if g not in tested:
+                tested[g] = recall_at(detect, image, box, stride_px, min_iou,
+                                      seed=n * 1000 + g, **{_PARAM[axis]: steps[g]})
+            return tested[g] >= min_recall
+
+        # bisection over the grades (recall falls as a condition worsens): the last passing
+        # grade with the next one failing, in about log2(grades) + 1 runs of TRIALS images
+        lo, hi = 0, len(steps)  # grade lo passes; grade hi (if any) fails
+        if passes(len(steps) - 1):
+            lo = hi = len(steps) - 1
+        while hi - lo > 1:
+            mid = (lo + hi) // 2
+            lo, hi = (mid, hi) if passes(mid) else (lo, mid)
+        limits[axis] = steps[lo]
+        table[axis] = tuple((steps[g], tested[g]) for g in sorted(tested))
+    return Envelope(min_gain=limits["gain_low"], max_gain=limits["gain_high"],
+                    min_contrast=limits["contrast"], max_noise=limits["noise"],
+                    max_blur=limits["blur"], min_recall=min_recall,
+                    input_width=input_size[0], input_height=input_size[1], source=case.source,
+                    absolute=absolute_limits(image, limits),
+                    case_sha256=case_digest(case), recall=table)
+
+
+def limit_measures(image_bgr: np.ndarray, envelope_limits: dict[str, float],
+                   blur_scale: float = 1.0) -> dict[str, float]:
+    """An image's measures at the envelope's edges: its mean luminance at the lowest and
+    highest gain, its spread at the lowest contrast, its noise with the largest noise added and
+    its sharpness at the largest blur (``blur_scale``: the image's pixels per detector-input
+    pixel). These are the thresholds a camera whose normal view is this image is judged by."""
+    def grey(**condition: float) -> np.ndarray:
+        rng = np.random.default_rng(7)
+        return cv2.cvtColor(degrade(image_bgr, rng=rng, **condition), cv2.COLOR_BGR2GRAY)
+
+    return {
+        "min_mean": imagestats.luminance(grey(gain=envelope_limits["gain_low"]))[0],
+        "max_mean": imagestats.luminance(grey(gain=envelope_limits["gain_high"]))[0],
+        "min_spread": imagestats.conditions(grey(contrast=envelope_limits["contrast"]))["spread"],
+        "max_noise": imagestats.noise_sigma(grey(noise=envelope_limits["noise"])),
+        "min_sharpness": imagestats.sharpness(grey(blur=envelope_limits["blur"] * blur_scale)),
+    }
+
+
+def absolute_limits(image_bgr: np.ndarray, limits: dict[str, float]) -> dict[str, float]:
+    """The limits as measures of the test image at the detector's input scale. Sharpness is
+    left out: it depends on what the image shows, so only a camera's own reference gives it."""
+    out = limit_measures(image_bgr, limits)
+    out.pop("min_sharpness")
+    return {k: round(v, 3) for k, v in out.items()}
+
+
+def limits_of(envelope: Envelope) -> dict[str, float]:
+    return {"gain_low": envelope.min_gain, "gain_high": envelope.max_gain,
+            "contrast": envelope.min_contrast, "noise": envelope.max_noise,
+            "blur": envelope.max_blur}
+
+
+def case_digest(case: SelfTestCase) -> str:
+    """sha256 of the test image's pixels and box: a changed test image measures anew."""
+    digest = hashlib.sha256(np.ascontiguousarray(case.image).tobytes())
+    digest.update(json.dumps([round(v, 3) for v in case.box_px]).encode())
+    return digest.hexdigest()
+
+
+def file_sha256(path: Path) -> str:
+    digest = hashlib.sha256()
+    with Path(path).open("rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def sidecar_path(model_path: str | Path) -> Path:
+    """Where a model's envelope is stored: ``MODEL.onnx.envelope.json`` beside it."""
+    model_path = Path(model_path)
+    return model_path.with_name(model_path.name + ".envelope.json")
+
+
+def to_json(envelope: Envelope) -> str:
+    data = asdict(envelope)
+    data["recall"] = {k: [list(r) for r in v] for k, v in envelope.recall.items()}
+    return json.dumps({"format": FORMAT, **data}, indent=1, sort_keys=True)
+
+
+def from_json(text: str, where: str) -> Envelope:
+    """An envelope from its sidecar text; ModelError naming ``where`` when it is malformed."""
+    try:
+        data = json.loads(text)
+        if data.pop("format", None) != FORMAT:
+            raise ValueError("unknown format")
+        data["recall"] = {k: tuple((float(g), float(r)) for g, r in v)
+                          for k, v in data.get("recall", {}).items()}
+        env = Envelope(**data)
+        values = (env.min_gain, env.max_gain, env.min_contrast, env.max_noise, env.max_blur)
+        if not all(isinstance(v, (int, float)) and np.isfinite(v) and v >= 0 for v in values):
+            raise ValueError("a limit is not a finite number >= 0")
+        return env
+    except (ValueError, TypeError, AttributeError) as exc:
+        raise ModelError(f"{where}: not a model envelope ({exc}); remove it or run "
+                         "'monitor model envelope'") from None
+
+
+def write(envelope: Envelope, path: Path) -> Path:
+    """Write the sidecar atomically (a half-written envelope never reads as one)."""
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(to_json(envelope) + "\n")
+    os.replace(tmp, path)
+    return path
+
+
+def stored(model_path: Path, model_sha256: str, case: SelfTestCase,
+           min_recall: float) -> Envelope | None:
+    """The stored envelope when it was measured on this model, test image and minimum recall
+    (None: absent or stale)."""
+    path = sidecar_path(model_path)
+    if not path.is_file():
+        return None
+    env = from_json(path.read_text(), str(path))
+    if env.model_sha256 != model_sha256 or env.case_sha256 != case_digest(case) \
+            or env.min_recall != min_recall:
+        return None
+    return env
+
+
+def for_detector(detector, min_recall: float, store: bool = True,
+                 progress: Callable[[str], None] | None = None) -> Envelope | None:
+    """The envelope of a loaded ``monitor.detector.Detector``: the stored one when it is
+    current, else measured (a few seconds) and stored beside the model when ``store`` (a
+    read-only model directory only logs). None when the model has no self-test image: then
+    there is nothing to measure on (docs/models.md)."""
+    case = detector.self_test_case
+    if case is None:
+        return None
+    sha = file_sha256(detector.model_path)
+    env = stored(detector.model_path, sha, case, min_recall)
+    if env is not None:
+        return env
+    layout = detector.layout
+    env = measure(detector.detect, case, (layout.input_width, layout.input_height),
+                  detector.finest_stride_px(), min_recall, detector.config.self_test_min_iou,
+                  progress=progress)
+    env = Envelope(**{**asdict(env), "model_sha256": sha, "recall": env.recall})
+    if store:
+        try:
+            write(env, sidecar_path(detector.model_path))
+        except OSError as exc:
+            log.warning("%s: envelope not stored (%s); measured again at the next start",
+                        sidecar_path(detector.model_path), exc)
+    return env
