@@ -217,6 +217,7 @@ class PersonTracker:
         self._last_time: float | None = None
         self._intervals: list[float] = []  # the last frame intervals (s), for the frame rate
         self._reidentified: list[tuple[int, int]] = []
+        self._guessed: set[int] = set()  # rows given a lost track's id by nearness, not ByteTrack
         self.where = Whereabouts(self.config.areas())
 
     def _buffer_frames(self, fps: float) -> int:
@@ -320,7 +321,7 @@ class PersonTracker:
                 continue
             # seen again: its area ends only while all of it is in view (a flicker); an area
             # that reached behind a fixture stays (someone else may have stepped out)
-            if rec.lost:
+            if rec.lost and row not in self._guessed:
                 self.where.found(tid)
             old_box, old_seen = rec.box.copy(), rec.last_seen
             self._place(rec, boxes[row], floors[row], now, first=False)
@@ -365,6 +366,7 @@ class PersonTracker:
         the time since it was seen; a new person that far from a track holding a zone gets a
         new id, noted as perhaps that person (``reidentified``), and the hold stays."""
         n = len(boxes)
+        self._guessed = set()
         byte_ids = np.full(n, -1, np.int64)
         if n:
             dets = sv.Detections(xyxy=boxes.astype(np.float32), confidence=scores.astype(
@@ -398,6 +400,7 @@ class PersonTracker:
                 i, j = divmod(int(flat), len(free))
                 if near[i, j] and ids[rows[i]] is None and free[j].track_id not in ids:
                     ids[rows[i]] = free[j].track_id
+                    self._guessed.add(rows[i])
             guesses = [(i, j) for i, j in zip(*np.nonzero(guess), strict=True)]
         else:
             guesses = []
