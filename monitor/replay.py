@@ -28,10 +28,12 @@ import numpy as np
 
 from monitor.annotate import Annotator, describe
 from monitor.detector import Detector
+from monitor.detector.envelope import for_detector
 from monitor.driver import Driver, Step, StepInputs, require_protective_zone
 from monitor.errors import InputError
 from monitor.frames import Frame, VideoFileReader
-from monitor.health import CameraHealth, HealthConfig
+from monitor.health import HealthConfig
+from monitor.health.build import camera_health, inplace_check
 from monitor.pipeline import Pipeline, StepResult
 from monitor.policy import RUN, SLOW, STOP, PolicyConfig, ResetRequest
 from monitor.progress import bar
@@ -452,7 +454,10 @@ def replay(video: str | Path, detector: Detector, cell: Cell | None, settings: R
     _clear_previous(out)
     (out / "snapshots").mkdir(exist_ok=True)
     watch = watch_regions(cell, camera_id) if cell is not None else []
-    health = CameraHealth(settings.health, camera_id, settings.reference, watch) \
+    # the model's envelope and the in-place check, as `monitor run` has them (docs/health.md)
+    envelope = for_detector(detector, settings.health.envelope_min_recall) \
+        if settings.health is not None else None
+    health = camera_health(settings.health, camera_id, settings.reference, cell, envelope) \
         if settings.health is not None else None
     pipeline = Pipeline(detector, camera_id, settings.policy, cell, health)
     summary = ReplaySummary(str(video), zones=cell.label if cell is not None else None)
@@ -473,7 +478,10 @@ def replay(video: str | Path, detector: Detector, cell: Cell | None, settings: R
                          lambda a: events._write(alert_event(a, counts.last_index, None)))
     if recorder is not None:
         sinks.append(recorder)
-    driver = Driver(pipeline, sinks, self_test_period_s=settings.self_test_period_s)
+    inplace = inplace_check(detector, cell, [camera_id], settings.health.inplace_period_s) \
+        if settings.health is not None else None
+    driver = Driver(pipeline, sinks, self_test_period_s=settings.self_test_period_s,
+                    inplace=inplace)
     stop = stop or threading.Event()
     feed = VideoFeed(reader, settings.tick_s, settings.reset_at, settings.realtime, stop)
     start = time.perf_counter()

@@ -26,6 +26,7 @@ from monitor.cases.receiver import CaseReceiver
 from monitor.config import MonitorConfig, load_config
 from monitor.driver import Driver, protective_warning
 from monitor.geometry import describe_separation
+from monitor.health.build import inplace_check, protective_regions
 from monitor.metrics import Metrics
 from monitor.pipeline import Pipeline
 from monitor.policy import STOP, Command, Reason
@@ -196,6 +197,8 @@ def _serve(config: MonitorConfig, pipeline: Pipeline, bus: SafetyBus, expected: 
 
         def applied(cell) -> None:
             feed.use_zones(pipeline.prepared)
+            if inplace is not None:  # the new protective zones are the check's targets
+                inplace.zones = protective_regions(cell, [c.id for c in config.cameras])
             if rec is not None:
                 rec.zones_changed(cell)
 
@@ -212,8 +215,11 @@ def _serve(config: MonitorConfig, pipeline: Pipeline, bus: SafetyBus, expected: 
             sinks.insert(1, handover)
             feed.handover = handover
             closers.insert(0, handover.close)
+        inplace = inplace_check(pipeline.detector, pipeline.cell,
+                                [c.id for c in config.cameras], config.health.inplace_period_s)
         driver = Driver(pipeline, sinks, stall_after_s=config.policy.frame_timeout,
-                        self_test_period_s=getattr(config.detector, "self_test_period_s", None))
+                        self_test_period_s=getattr(config.detector, "self_test_period_s", None),
+                        inplace=inplace)
         # cameras whose frames are ready together share one inference (dynamic-batch models)
         batch = config.detector.batch_cameras and len(grabbers) > 1 \
             and pipeline.detector.batchable

@@ -55,23 +55,26 @@ def build_pipeline(config: MonitorConfig):
     also the warning to carry when the synthetic test model is allowed on a live camera."""
     from monitor.camera_references import choose_references, load_chosen_reference
     from monitor.detector import Detector
-    from monitor.health import CameraHealth
+    from monitor.detector.envelope import for_detector
+    from monitor.health.build import camera_health
     from monitor.models import synthetic
-    from monitor.zones import load_cell, watch_regions
+    from monitor.zones import load_cell
 
     zones_file = zones_file_of(config)
     cell = load_cell(zones_file) if zones_file else None
     zone_checks(config, cell, zones_file)
+    model = Path(config.model.path) if config.model.path else synthetic.ensure_model()
+    detector = Detector(model, config.detector)  # one model, shared by the cameras in turn
+    # the light, contrast, noise and blur the model still finds a person in (measured once
+    # and stored beside the model): a camera outside it is a fault, not an empty cell
+    envelope = for_detector(detector, config.health.envelope_min_recall)
     health, expected = {}, {}
     references = choose_references(config, cell)  # the zone file's wins over monitor.toml's
     for cam in config.cameras:
         reference = load_chosen_reference(references[cam.id], cell)
-        watch = watch_regions(cell, cam.id) if cell is not None else []
-        health[cam.id] = CameraHealth(config.health, cam.id, reference, watch)
+        health[cam.id] = camera_health(config.health, cam.id, reference, cell, envelope)
         expected[cam.id] = (cell.cameras[cam.id].width, cell.cameras[cam.id].height) \
             if cell else None
-    model = Path(config.model.path) if config.model.path else synthetic.ensure_model()
-    detector = Detector(model, config.detector)  # one model, shared by the cameras in turn
     test_model = require_real_model(detector.test_model, config.cameras,
                                     config.model.allow_test_model)
     pipeline = Pipeline(detector, [c.id for c in config.cameras], config.policy, cell, health,

@@ -169,7 +169,7 @@ class LiveZones:
     def apply(self, req: ApplyRequest) -> str:
         """Swap the zones when everything holds; ApplyRefused (nothing changed) otherwise."""
         from monitor.camera_references import choose_reference, load_chosen_reference
-        from monitor.health import CameraHealth
+        from monitor.health.build import camera_health, protective_regions
         from monitor.service_setup import prepared_zones, zone_checks
         from monitor.zones import load_cell, watch_regions
 
@@ -203,12 +203,16 @@ class LiveZones:
                 watch = watch_regions(cell, cam.id)
                 choice = choose_reference(cam.id, cam.reference, cell)
                 if old_cell is not None and _same_watch(watch, watch_regions(old_cell, cam.id)) \
+                        and _same_watch(protective_regions(cell, [cam.id])[cam.id],
+                                        protective_regions(old_cell, [cam.id])[cam.id]) \
                         and choice == choose_reference(cam.id, cam.reference, old_cell):
                     continue  # the health checker keeps what it learned
                 if self.pipeline.cameras[cam.id].health is None:
                     continue
                 reference = load_chosen_reference(choice, cell)
-                health[cam.id] = CameraHealth(self.config.health, cam.id, reference, watch)
+                envelope = self.pipeline.cameras[cam.id].health.envelope
+                health[cam.id] = camera_health(self.config.health, cam.id, reference, cell,
+                                               envelope)
             prepared = prepared_zones(self.config, cell)
         except (ConfigError, InputError) as exc:  # InputError: a reference image missing
             raise ApplyRefused(f"the zone file is refused: {_line(exc)}") from None

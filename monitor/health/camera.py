@@ -83,6 +83,7 @@ class CameraHealth:
                  protective_zones: Sequence[tuple[str, np.ndarray]] = ()):
         self.config = config
         self.camera_id = camera_id
+        self.envelope = envelope  # the model's measured envelope (kept for a zone apply)
         self._envelope = None if envelope is None else EnvelopeWatch(
             envelope, camera_id, config.envelope_margin, config.clear_time_s)
         self._protective = list(protective_zones)
