@@ -32,7 +32,8 @@ from cameras import make_inputs, run_one  # noqa: E402
 from monitor.capacity import CameraDemand, Limits, assess, measure_detect_s  # noqa: E402
 from monitor.detector import Detector, DetectorConfig  # noqa: E402
 
-DEFAULT_LIMITS = Limits(frame_timeout=0.5, max_frame_age=0.3, stall_timeout=0.5)
+DEFAULT_LIMITS = Limits(frame_timeout=0.5, max_frame_age=0.3, stall_timeout=0.5,
+                        lost_after_s=1.0)
 
 
 def decode_ms(video: Path, frames: int = 20) -> float:

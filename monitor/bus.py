@@ -245,14 +245,15 @@ class SafetyBus:
         """The ``ed25519:<base64>`` key consumers pin, or None when commands are unsigned."""
         return self._signer.public_text if self._signer else None
 
-    def pose_subscriber(self, limits=None, on_reject=None, tracker_clock=None):
+    def pose_subscriber(self, limits=None, on_reject=None, tracker_clock=None, tracker=None):
         """A ``monitor.pose.PoseSubscriber`` on ``<prefix>tracker/pose`` of this session
         (use it as a context manager inside the bus's ``with``); ``tracker_clock``: the
-        ``[tracker_clock]`` settings its tracker times are checked with."""
+        ``[tracker_clock]`` settings its tracker times are checked with; ``tracker``: the
+        ``[tracker]`` precision its pose checks allow for."""
         from monitor.pose import PoseSubscriber
 
         return PoseSubscriber(self.session, self.keys.pose, limits, self._clock, on_reject,
-                              tracker_clock=tracker_clock)
+                              tracker_clock=tracker_clock, tracker=tracker)
 
     # --- one monitor per cell (monitor.bus_peers) ------------------------------------------
 

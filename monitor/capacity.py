@@ -17,9 +17,14 @@ threads, and this module's pure ``assess`` compares that with the config:
   onnxruntime threads waking): ``TAIL_S + decode + n x step x (1 + CONTENTION x (n - 1))``;
 - a camera's newest processed frame is at most ``max(cycle, 1 / max_fps) + latency`` old when
   the policy decides (a whole interval until the next one is decided on): that must stay
-  under ``policy.max_frame_age``;
-- the gap between two decisions (one frame) must stay under ``bus.stall_timeout``, or the bus
-  publishes "stalled" STOPs between them, and a cycle under ``policy.frame_timeout``;
+  under ``policy.max_frame_age`` (``frame_stale``; ``frame_late`` judges less, the latency)
+  and under ``health.lost_after_s`` (``camera_lost``: issue 29, at ~1 fps a camera was "lost"
+  between every two of its frames);
+- one step at p99 (``TAIL_S + decode + step x (1 + CONTENTION x (n - 1))``) is the gap between
+  two decisions: it must stay under ``bus.stall_timeout``, or the bus publishes "stalled"
+  STOPs between them; the gap between two decisions on a frame (the shortest camera interval
+  + latency - one frame) under ``policy.frame_timeout`` (``frame_timeout``; the loop's stall
+  timer, a latched ``monitor_stalled``, uses the same limit on the shorter gap of a step);
 - cameras with ``max_fps`` ask for ``sum(max_fps)`` frames a second: more than the host
   processes is refused.
 
@@ -81,11 +86,14 @@ class CameraDemand:
 
 @dataclass(frozen=True)
 class Limits:
-    """The limits a step must stay within (seconds), from ``[policy]`` and ``[bus]``."""
+    """The timers that STOP when frames come too rarely (seconds), from ``[policy]``,
+    ``[bus]`` and ``[health]``. ``frame_timeout`` is also the loop's stall timer
+    (``monitor_stalled``, latched); ``max_frame_age`` also ``frame_late``."""
 
     frame_timeout: float
     max_frame_age: float
     stall_timeout: float
+    lost_after_s: float
 
 
 @dataclass(frozen=True)
@@ -100,6 +108,8 @@ class Capacity:
     refusal: str | None
     warnings: tuple[str, ...]
     latency_s: float = 0.0  # p99 capture to decision of a frame, cameras in turn
+    step_s: float = 0.0  # p99 of one step (the gap between two decisions)
+    frame_gap_s: float = 0.0  # p99 gap between two decisions on a frame
 
     def describe(self) -> str:
         """One log line with the figures."""
@@ -120,7 +130,10 @@ class Capacity:
 
 
 def assess(detect_s: float, cameras: Sequence[CameraDemand], limits: Limits) -> Capacity:
-    """The verdict for a measured bare detection time ``detect_s`` (seconds). Pure."""
+    """The verdict for a measured bare detection time ``detect_s`` (seconds). Pure.
+
+    Every timer that STOPs (or latches) when frames come too rarely is compared with the
+    predicted figure at its p99, and a refusal names the timer and the STOP it would cause."""
     if not (detect_s > 0 and np.isfinite(detect_s)):
         raise ConfigError(f"capacity: the detector's time per frame could not be measured "
                           f"({detect_s!r} s)")
@@ -131,26 +144,47 @@ def assess(detect_s: float, cameras: Sequence[CameraDemand], limits: Limits) -> 
     cycle = n * frame_s
     capacity_fps = 1.0 / frame_s
     latency = TAIL_S + decode_s + n * step_s * (1.0 + CONTENTION * (n - 1))
-    fps, age = {}, {}
+    # one step at p99: its decoding, its step slowed by the other grabbers, the tail
+    step_p99 = TAIL_S + decode_s + step_s * (1.0 + CONTENTION * (n - 1))
+    fps, age, interval = {}, {}, {}
     for cam in cameras:
-        interval = cycle if cam.max_fps is None else max(cycle, 1.0 / cam.max_fps)
-        fps[cam.camera_id] = 1.0 / interval
-        age[cam.camera_id] = interval + latency
+        interval[cam.camera_id] = cycle if cam.max_fps is None else max(cycle, 1.0 / cam.max_fps)
+        fps[cam.camera_id] = 1.0 / interval[cam.camera_id]
+        age[cam.camera_id] = interval[cam.camera_id] + latency
+    # between two decisions on a frame: the shortest interval (cameras may be in step), one
+    # decided as early as possible and the next as late as the p99 latency
+    frame_gap = min(interval.values()) + latency - frame_s
     hints = ["fewer cameras", "a smaller [detector] input_size", "an int8 model",
              "a faster host"]
     problems, warnings = [], []
 
-    def check(value: float, limit: float, what: str, name: str) -> None:
+    def check(value: float, limit: float, text: str, name: str, effect: str) -> None:
+        """``text`` says what ``value`` is, with the value; ``name`` the timer, ``effect``
+        what it does when the value reaches it."""
         if not value < limit:
-            problems.append(f"{what} {value * 1e3:.0f} ms >= {name} {limit * 1e3:.0f} ms")
+            problems.append(f"{text} exceeds {name} {_duration(limit)} ({effect})")
         elif value > THIN_MARGIN * limit:
-            warnings.append(f"thin margin: {what} {value * 1e3:.0f} ms of {name} "
-                            f"{limit * 1e3:.0f} ms")
+            warnings.append(f"thin margin: {text} of {name} {_duration(limit)}")
 
-    check(frame_s, limits.stall_timeout, "one frame's step", "bus.stall_timeout")
-    check(cycle, limits.frame_timeout, f"a cycle of {n} camera(s)", "policy.frame_timeout")
-    worst = max(age, key=age.get)
-    check(age[worst], limits.max_frame_age, f"{worst}'s frame age", "policy.max_frame_age")
+    def check_cameras(limit: float, name: str, effect: str) -> None:
+        """A per-camera timer on the age of the camera's newest processed frame."""
+        over = [c for c in age if not age[c] < limit]
+        thin = [c for c in age if THIN_MARGIN * limit < age[c] < limit]
+        if over or thin:
+            cams = over or thin
+            worst = max(cams, key=age.get)
+            what = (f"{_named(cams, fps)}: a frame up to {_duration(age[worst])} old (a frame "
+                    f"every {_duration(interval[worst])} + {_duration(latency)} p99 latency)")
+            check(age[worst], limit, what, name, effect)
+
+    check(step_p99, limits.stall_timeout, f"one step (p99) of {_duration(step_p99)}",
+          "bus.stall_timeout", "the bus would publish \"stalled\" STOPs")
+    check(frame_gap, limits.frame_timeout, f"a gap of {_duration(frame_gap)} between two "
+          f"frames' decisions (p99, {n} camera(s))",
+          "policy.frame_timeout",
+          "frame_timeout would STOP; a step that long latches monitor_stalled")
+    check_cameras(limits.max_frame_age, "policy.max_frame_age", "frame_stale would STOP")
+    check_cameras(limits.lost_after_s, "health.lost_after_s", "camera_lost would STOP")
     if problems and any(c.max_fps is not None and 1.0 / c.max_fps > cycle for c in cameras):
         hints.insert(0, "a higher max_fps")  # a camera waits for its rate, not for the host
     asked = sum(c.max_fps for c in cameras if c.max_fps is not None)
@@ -166,7 +200,22 @@ def assess(detect_s: float, cameras: Sequence[CameraDemand], limits: Limits) -> 
         refusal = (f"this host cannot watch the cell in time ({frame_s * 1e3:.1f} ms a frame "
                    f"measured): {'; '.join(problems)}; use {', '.join(hints)}, or raise the "
                    f"limit if that is safe for the cell")
-    return Capacity(frame_s, cycle, age, fps, capacity_fps, refusal, tuple(warnings), latency)
+    return Capacity(frame_s, cycle, age, fps, capacity_fps, refusal, tuple(warnings), latency,
+                    step_p99, frame_gap)
+
+
+def _duration(seconds: float) -> str:
+    return f"{seconds * 1e3:.0f} ms" if seconds < 1.0 else f"{seconds:.2f} s"
+
+
+def _named(cams: list[str], fps: dict[str, float]) -> str:
+    """"cam0 and cam1 at a predicted 0.9 fps per camera" (each its rate when they differ)."""
+    names = cams[0] if len(cams) == 1 else f"{', '.join(cams[:-1])} and {cams[-1]}"
+    rates = {f"{fps[c]:.2g}" for c in cams}
+    if len(rates) == 1:
+        return f"{names} at a predicted {rates.pop()} fps" + (" per camera" if len(cams) > 1
+                                                             else "")
+    return "predicted " + ", ".join(f"{c} {fps[c]:.2g} fps" for c in cams)
 
 
 def decode_time_s(width: int, height: int) -> float:

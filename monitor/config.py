@@ -3,9 +3,9 @@
 One schema (monitor/schema.py): ``MonitorConfig`` is the root, and each section is the frozen
 pydantic dataclass of its stage (``[policy]`` -> PolicyConfig, ``[health]`` -> HealthConfig,
 ``[bus]`` -> BusConfig, ``[detector]`` -> DetectorConfig, ``[alerts]`` -> AlertLimits,
-``[tracker_clock]`` -> TrackerClockConfig, ``[recorder]`` -> RecorderConfig, ``[reaction]`` ->
-ReactionConfig, and the camera,
-model, zones and service sections here). Unknown sections and keys are refused, types
+``[tracker_clock]`` -> TrackerClockConfig, ``[tracker]`` -> TrackerConfig, ``[recorder]`` ->
+RecorderConfig, ``[reaction]`` -> ReactionConfig, and the camera, model, zones and service
+sections here). Unknown sections and keys are refused, types
 and bounds are in the fields' annotations, cross-field rules are validators, and path fields
 resolve against the config file's folder. Validation has no side effects: nothing is opened,
 downloaded or built.
@@ -41,6 +41,7 @@ from monitor.policy import PolicyConfig
 from monitor.pose_time import TrackerClockConfig
 from monitor.reaction import ReactionConfig
 from monitor.schema import Bool, ConfigPath, Float, Int, Text, describe, section
+from monitor.tracker_noise import TrackerConfig
 
 DEMO_SOURCE = "synthetic:demo"
 DEMO_LISTEN = ("tcp/127.0.0.1:7447",)
@@ -123,6 +124,7 @@ class MonitorConfig:
     detector: DetectorConfig = field(default_factory=DetectorConfig)
     policy: PolicyConfig = field(default_factory=PolicyConfig)
     tracker_clock: TrackerClockConfig = field(default_factory=TrackerClockConfig)
+    tracker: TrackerConfig = field(default_factory=TrackerConfig)
     tracking: CellPersonsConfig = field(default_factory=CellPersonsConfig)
     health: HealthConfig = field(default_factory=HealthConfig)
     bus: BusConfig = field(default_factory=lambda: BusConfig(listen=DEMO_LISTEN))
@@ -151,11 +153,13 @@ class MonitorConfig:
         return self.cameras[0]
 
 
-SECTIONS = ("camera", "model", "zones", "detector", "policy", "tracker_clock", "tracking",
+SECTIONS = ("camera", "model", "zones", "detector", "policy", "tracker_clock", "tracker",
+            "tracking",
             "health", "bus", "alerts", "service", "recorder", "reaction", "handover")
 _CLASSES = {"camera": CameraConfig, "model": ModelConfig, "zones": ZonesConfig,
             "detector": DetectorConfig, "policy": PolicyConfig,
-            "tracker_clock": TrackerClockConfig, "tracking": CellPersonsConfig,
+            "tracker_clock": TrackerClockConfig, "tracker": TrackerConfig,
+            "tracking": CellPersonsConfig,
             "health": HealthConfig,
             "bus": BusConfig, "alerts": AlertLimits, "service": ServiceConfig,
             "recorder": RecorderConfig, "reaction": ReactionConfig, "handover": HandoverConfig}

@@ -41,6 +41,7 @@ from dataclasses import dataclass, field
 from monitor.errors import ConfigError, InputError
 from monitor.pose_time import TrackerClock, TrackerClockConfig
 from monitor.tool_motion import MotionLimits, ToolMotion, ToolSpeed, estimate_tool_speed
+from monitor.tracker_noise import TrackerConfig
 
 OTUS_FORMAT = "<23d"
 OTUS_SIZE = struct.calcsize(OTUS_FORMAT)  # 184
@@ -121,7 +122,9 @@ class PoseLimits:
     """Plausibility limits for a hand-guided tool. Metres, seconds, radians.
 
     The tolerances absorb the tracker's measured errors (the tracker report: up to ~25 mm and ~3° in
-    dynamic motion, ~40 mm/s velocity error) so that jitter at 400 Hz does not read as a jump.
+    dynamic motion, ~40 mm/s velocity error) so that jitter at 400 Hz does not read as a jump;
+    ``noise`` (the declared precision) raises them to what two noisy readings of a tool at rest
+    may differ by (``position_allowance_m``, ``angle_allowance_rad``).
     """
 
     quaternion_tolerance: float = 0.02  # allowed | |q| - 1 |
@@ -134,6 +137,15 @@ class PoseLimits:
     bounds_min_m: Vec3 | None = None  # tracking volume, e.g. (-2.5, -2.5, 0.0)
     bounds_max_m: Vec3 | None = None
     resync_samples: int = 5  # consistent samples in a row after a jump that are accepted again
+    noise: TrackerConfig = field(default_factory=TrackerConfig)
+
+    @property
+    def position_allowance_m(self) -> float:
+        return max(self.position_jitter_m, self.noise.span_m)
+
+    @property
+    def angle_allowance_rad(self) -> float:
+        return max(self.angle_jitter_rad, self.noise.span_rad)
 
     def __post_init__(self) -> None:
         for name in ("quaternion_tolerance", "max_speed_m_s", "max_accel_m_s2",
@@ -196,9 +208,10 @@ def check_step(prev: OtusSample, sample: OtusSample, limits: PoseLimits) -> Reje
                          f"{prev.timestamp}")
     if dt == 0:
         return Rejection("timestamp_repeat", f"timestamp {sample.timestamp} repeats")
-    jump = max(0.0, _norm(_sub(sample.position_m, prev.position_m)) - limits.position_jitter_m)
+    jitter = limits.position_allowance_m
+    jump = max(0.0, _norm(_sub(sample.position_m, prev.position_m)) - jitter)
     if jump / dt > limits.max_speed_m_s:
-        return Rejection("speed", f"position jumped {jump + limits.position_jitter_m:.3f} m in "
+        return Rejection("speed", f"position jumped {jump + jitter:.3f} m in "
                          f"{dt * 1000:.1f} ms (> {limits.max_speed_m_s} m/s)")
     dv = max(0.0, _norm(_sub(sample.velocity_m_s, prev.velocity_m_s)) - limits.velocity_jitter_m_s)
     if dv / dt > limits.max_accel_m_s2:
@@ -207,9 +220,9 @@ def check_step(prev: OtusSample, sample: OtusSample, limits: PoseLimits) -> Reje
     q0 = _unit(prev.quaternion_xyzw)
     q1 = _unit(sample.quaternion_xyzw)
     dot = min(1.0, abs(sum(a * b for a, b in zip(q0, q1, strict=True))))
-    angle = max(0.0, 2.0 * math.acos(dot) - limits.angle_jitter_rad)
-    if angle / dt > limits.max_angular_speed_rad_s:
-        return Rejection("angular_speed", f"orientation jumped {math.degrees(angle):.1f}° in "
+    turn = 2.0 * math.acos(dot)
+    if max(0.0, turn - limits.angle_allowance_rad) / dt > limits.max_angular_speed_rad_s:
+        return Rejection("angular_speed", f"orientation jumped {math.degrees(turn):.1f}° in "
                          f"{dt * 1000:.1f} ms")
     return None
 
@@ -388,13 +401,16 @@ class PoseSubscriber:
                  clock: Callable[[], float] = time.monotonic,
                  on_reject: Callable[[Rejection], None] | None = None,
                  motion: MotionLimits | None = None,
-                 tracker_clock: TrackerClockConfig | None = None) -> None:
+                 tracker_clock: TrackerClockConfig | None = None,
+                 tracker: TrackerConfig | None = None) -> None:
+        # ``tracker``: the declared precision the default limits allow for (``[tracker]``)
+        noise = tracker or TrackerConfig()
         self._session = session
-        self._motion = ToolMotion(motion)
+        self._motion = ToolMotion(motion or MotionLimits(noise=noise))
         self._tracker_clock = TrackerClock(tracker_clock or TrackerClockConfig())
         self._key = key
         self._clock = clock
-        self._validator = PoseValidator(limits or PoseLimits())
+        self._validator = PoseValidator(limits or PoseLimits(noise=noise))
         self._lock = threading.Lock()
         self._latest: tuple[OtusSample, float] | None = None
         self._rejections: list[Rejection] = []

@@ -148,7 +148,8 @@ def _serve(config: MonitorConfig, pipeline: Pipeline, bus: SafetyBus, expected: 
            closers: list | None = None, cases=None) -> None:
     # zones that follow the tool need the pose too (without it they stay at their maximum)
     following = pipeline.prepared is not None and bool(pipeline.prepared.moving)
-    pose = (bus.pose_subscriber(tracker_clock=config.tracker_clock)
+    pose = (bus.pose_subscriber(tracker_clock=config.tracker_clock,
+                                tracker=config.tracker)
             if config.policy.separation_monitoring or following else None)
     if pose is not None:
         pose.__enter__()

@@ -127,7 +127,7 @@ def check_capacity(config: MonitorConfig, detector, expected: dict, mode: str,
     demands = [CameraDemand(c.id, *(expected.get(c.id) or (1920, 1080)), c.max_fps)
                for c in config.cameras]
     limits = Limits(config.policy.frame_timeout, config.policy.max_frame_age,
-                    config.bus.stall_timeout)
+                    config.bus.stall_timeout, config.health.lost_after_s)
     return capacity_check(detector.detect, demands, limits, mode, stopped)
 
 

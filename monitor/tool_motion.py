@@ -11,10 +11,11 @@ from __future__ import annotations
 import itertools
 import math
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 from monitor.errors import ConfigError
+from monitor.tracker_noise import TrackerConfig
 
 if TYPE_CHECKING:
     from monitor.pose import OtusSample
@@ -47,7 +48,10 @@ class MotionLimits:
     wins, so no single window length can alias with the motion. ``max_samples`` bounds the
     history in samples whatever the timestamps say. ``speed_tolerance_m_s`` and
     ``relative_tolerance``: how far the reported mean velocity over the window may differ from
-    the displacement over it; ``angular_tolerance_rad_s`` the same for the rotation.
+    the displacement over it; ``angular_tolerance_rad_s`` the same for the rotation (both are
+    the error of the reported rates). ``noise``: the tracker's declared precision; the two
+    poses at a window's ends may differ by its span (``TrackerConfig.span_m``, ``span_rad``)
+    from noise alone, so the tolerances over a window of ``dt`` grow by ``span / dt``.
     """
 
     window_s: float = 0.05
@@ -57,6 +61,7 @@ class MotionLimits:
     relative_tolerance: float = 0.2
     max_samples: int = 1000  # 0.5 s at 2 kHz
     windows: int = 32
+    noise: TrackerConfig = field(default_factory=TrackerConfig)
 
     def __post_init__(self) -> None:
         for name in ("window_s", "history_s", "speed_tolerance_m_s", "angular_tolerance_rad_s"):
@@ -183,11 +188,41 @@ def estimate_tool_speed(history: tuple[OtusSample, ...] | list[OtusSample],
         # vector over a long window wraps at pi and is no mean of the angular velocity)
         fault = _plausibility_fault(history, best, new, new.timestamp - best.timestamp, lim,
                                     Fault, angular=False)
+    calm = _calm_start(history, new, lim)
+    if fault is None and calm is not old:
+        # over window_s the tracker's noise allows a lot (1 degree: 3.5 rad/s over 50 ms), a
+        # jump shows there; a steady lie about the rotation shows over a window long enough
+        # for the noise to fall under angular_tolerance_rad_s
+        fault = _plausibility_fault(history, calm, new, new.timestamp - calm.timestamp, lim,
+                                    Fault, linear=False)
     return ToolSpeed(max(measured, reported), measured, reported, fault)
 
 
+def _calm_start(history, new: OtusSample, lim: MotionLimits) -> OtusSample:
+    """The newest sample old enough that the orientation noise over the window to ``new``
+    stays under ``angular_tolerance_rad_s`` (the oldest one while the history is shorter)."""
+    need = max(lim.window_s, lim.noise.span_rad / lim.angular_tolerance_rad_s)
+    for s in reversed(history):
+        if new.timestamp - s.timestamp >= need:
+            return s
+    return history[0]
+
+
+def _turned(span: list[OtusSample]) -> Vec3:
+    """The rotation over ``span`` as the sum of the rotation vectors between its samples:
+    unlike the rotation vector between its ends it does not wrap at pi over a long window,
+    and their noise cancels pairwise as the ends' would."""
+    total = [0.0, 0.0, 0.0]
+    for a, b in itertools.pairwise(span):
+        step = _rotation_vector(a.quaternion_xyzw, b.quaternion_xyzw)
+        for k in range(3):
+            total[k] += step[k]
+    return (total[0], total[1], total[2])
+
+
 def _plausibility_fault(history, old: OtusSample, new: OtusSample, dt: float,
-                        lim: MotionLimits, fault_type, angular: bool = True) -> object | None:
+                        lim: MotionLimits, fault_type, angular: bool = True,
+                        linear: bool = True) -> object | None:
     """Mean reported velocity and angular velocity over [old, new] (trapezoid rule) against
     the displacement and rotation over the same span."""
     span = [s for s in history if old.timestamp <= s.timestamp <= new.timestamp]
@@ -199,14 +234,16 @@ def _plausibility_fault(history, old: OtusSample, new: OtusSample, dt: float,
             v_mean[k] += h * (a.velocity_m_s[k] + b.velocity_m_s[k])
             w_mean[k] += h * (a.angular_velocity_rad_s[k] + b.angular_velocity_rad_s[k])
     v_meas = tuple(x / dt for x in _sub(new.position_m, old.position_m))
-    w_meas = tuple(x / dt for x in _rotation_vector(old.quaternion_xyzw, new.quaternion_xyzw))
+    w_meas = tuple(x / dt for x in _turned(span))
     dv = _norm(_sub(tuple(v_mean), v_meas))
     dw = _norm(_sub(tuple(w_mean), w_meas))
-    v_tol = lim.speed_tolerance_m_s + lim.relative_tolerance * max(_norm(v_meas),
-                                                                   _norm(tuple(v_mean)))
-    w_tol = lim.angular_tolerance_rad_s + lim.relative_tolerance * max(_norm(w_meas),
-                                                                       _norm(tuple(w_mean)))
-    if dv > v_tol:
+    # the poses at both ends carry the tracker's noise: a tool at rest "moves" by up to the
+    # noise span over the window (issue 29: 1 degree of noise read as 0.8 rad/s over 50 ms)
+    v_tol = (lim.speed_tolerance_m_s + lim.noise.span_m / dt
+             + lim.relative_tolerance * max(_norm(v_meas), _norm(tuple(v_mean))))
+    w_tol = (lim.angular_tolerance_rad_s + lim.noise.span_rad / dt
+             + lim.relative_tolerance * max(_norm(w_meas), _norm(tuple(w_mean))))
+    if linear and dv > v_tol:
         return fault_type("pose_implausible",
                           f"tracker reports {_norm(tuple(v_mean)):.2f} m/s but its positions "
                           f"moved at {_norm(v_meas):.2f} m/s over {dt * 1000:.0f} ms", True,

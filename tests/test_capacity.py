@@ -3,7 +3,9 @@ left to STOP (or flip RUN/STOP on a consumer) all day without saying why."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
+import tomllib
 
 import pytest
 import yaml
@@ -19,11 +21,12 @@ from monitor.capacity import (
     decode_time_s,
     measure_detect_s,
 )
-from monitor.config import demo_cell_path
+from monitor.config import demo_cell_path, parse_config
 from monitor.errors import ConfigError
+from monitor.service_setup import check_capacity
 from tests.helpers import assert_one_line_error, free_port, run_monitor
 
-DEFAULTS = Limits(frame_timeout=0.5, max_frame_age=0.3, stall_timeout=0.5)
+DEFAULTS = Limits(frame_timeout=0.5, max_frame_age=0.3, stall_timeout=0.5, lost_after_s=1.0)
 
 
 def cams(n: int, max_fps: float | None = None) -> list[CameraDemand]:
@@ -50,7 +53,9 @@ def test_four_cameras_at_30_fps_on_a_20_ms_model_are_refused_and_lower_rates_sta
     # the 20 ms model at 5 fps: frames wait 0.2 s for the next one, plus 4 steps slowed by
     # the other cameras' decoding: older than max_frame_age at p99
     slow = assess(0.020, cams(4, 5.0), DEFAULTS)
-    assert slow.refusal and "frame age" in slow.refusal and "a higher max_fps" in slow.refusal
+    assert slow.refusal and "policy.max_frame_age 300 ms (frame_stale would STOP)" in slow.refusal
+    assert "cam0, cam1, cam2 and cam3 at a predicted 5 fps per camera" in slow.refusal
+    assert "a higher max_fps" in slow.refusal
 
 
 # benchmarks/capacity.py on a quiet 2-core host, 1080p cameras at 10 fps, 2 threads: the
@@ -87,10 +92,10 @@ def test_four_cameras_whose_p99_frames_are_too_old_are_never_ok():
     at a decision. With max_frame_age 0.2 s that is a frame_stale STOP now and then: the
     former model said 117 ms, "ok"."""
     detect_s, p99 = MEASURED["int8"]
-    tight = Limits(frame_timeout=0.5, max_frame_age=0.2, stall_timeout=0.5)
+    tight = Limits(frame_timeout=0.5, max_frame_age=0.2, stall_timeout=0.5, lost_after_s=1.0)
     assert 0.1 + p99[4] > tight.max_frame_age
     verdict = assess(detect_s, cams(4, 10.0), tight)
-    assert verdict.refusal and "frame age" in verdict.refusal
+    assert verdict.refusal and "policy.max_frame_age" in verdict.refusal
     # fp32 at 4 cameras does not keep 10 fps (9.0 measured): refused at the defaults
     assert assess(MEASURED["fp32"][0], cams(4, 10.0), DEFAULTS).refusal is not None
 
@@ -105,16 +110,19 @@ def test_the_decode_allowance_grows_with_the_pixels():
 
 def test_a_cycle_longer_than_frame_timeout_is_refused():
     verdict = assess(0.120, cams(4), DEFAULTS)  # 4 x 0.166 s = 0.66 s > 0.5 s
-    assert verdict.refusal and "a cycle of 4 camera(s)" in verdict.refusal
-    assert "policy.frame_timeout 500 ms" in verdict.refusal
+    assert verdict.refusal and "between two frames' decisions (p99, 4 camera(s))" in \
+        verdict.refusal
+    assert "policy.frame_timeout 500 ms (frame_timeout would STOP" in verdict.refusal
 
 
 def test_a_max_fps_too_low_for_max_frame_age_is_refused():
     """One camera processed 2 times a second: its newest frame is 0.5 s old before the next
     one, which is a frame_stale STOP every time with max_frame_age 0.3 s."""
     verdict = assess(0.010, cams(1, 2.0), DEFAULTS)
-    assert verdict.refusal and "cam0's frame age" in verdict.refusal
-    assert "policy.max_frame_age 300 ms" in verdict.refusal
+    assert verdict.refusal and "cam0 at a predicted 2 fps: a frame up to 5" in verdict.refusal
+    assert "policy.max_frame_age 300 ms (frame_stale would STOP)" in verdict.refusal
+    # no frame decided on for 0.5 s and more between two: frame_timeout too
+    assert "policy.frame_timeout" in verdict.refusal
     assert "a higher max_fps" in verdict.refusal
     assert assess(0.010, cams(1, 5.0), DEFAULTS).refusal is None  # 0.2 s + one frame
 
@@ -122,7 +130,7 @@ def test_a_max_fps_too_low_for_max_frame_age_is_refused():
 def test_a_step_longer_than_the_bus_stall_timeout_is_refused():
     """Else the bus publishes a "stalled" STOP between two decisions: a consumer flips
     RUN/STOP on every frame (what an integrator saw at 1-2 fps)."""
-    limits = Limits(frame_timeout=5.0, max_frame_age=5.0, stall_timeout=0.5)
+    limits = Limits(frame_timeout=5.0, max_frame_age=5.0, stall_timeout=0.5, lost_after_s=5.0)
     verdict = assess(0.450, cams(1), limits)
     assert verdict.refusal and "bus.stall_timeout" in verdict.refusal
 
@@ -132,6 +140,63 @@ def test_a_thin_margin_is_a_warning_not_a_refusal():
     assert verdict.refusal is None
     assert any("thin margin" in w and "max_frame_age" in w for w in verdict.warnings)
     assert assess(0.010, cams(1), DEFAULTS).warnings == ()
+
+
+# the policy and bus limits an integrator loosened for ~1 fps; health.lost_after_s left at 1 s
+LOOSE = Limits(frame_timeout=3.0, max_frame_age=3.0, stall_timeout=2.0, lost_after_s=1.0)
+
+
+def test_two_cameras_at_about_1_fps_are_refused_naming_health_lost_after_s():
+    """Issue 29: a host that processes two cameras at ~0.9 fps each passed the check, and
+    camera_lost (no frame for lost_after_s 1 s) latched STOP again and again. The refusal
+    names the cameras, the predicted rate and the timer."""
+    slow_host = assess(0.40, cams(2), LOOSE)  # 0.54 s a frame: each camera every 1.09 s
+    assert slow_host.refusal is not None and "\n" not in slow_host.refusal
+    assert "cam0 and cam1 at a predicted 0.92 fps per camera" in slow_host.refusal
+    assert "a frame every 1.09 s" in slow_host.refusal
+    assert "exceeds health.lost_after_s 1.00 s (camera_lost would STOP)" in slow_host.refusal
+    # the same with max_fps 0.9 on a fast host: the cameras' rate, not the host, is too low
+    capped = assess(0.010, cams(2, 0.9), LOOSE)
+    assert "cam0 and cam1 at a predicted 0.9 fps per camera" in capped.refusal
+    assert "health.lost_after_s" in capped.refusal and "a higher max_fps" in capped.refusal
+    # a lost_after_s that leaves room for the p99 frame age: both start
+    fits = dataclasses.replace(LOOSE, lost_after_s=4.0)
+    assert assess(0.40, cams(2), fits).refusal is None
+    assert assess(0.010, cams(2, 0.9), fits).refusal is None
+    near = assess(0.010, cams(2, 0.9), dataclasses.replace(LOOSE, lost_after_s=1.5))
+    assert near.refusal is None
+    assert any("thin margin" in w and "health.lost_after_s" in w for w in near.warnings)
+
+
+def test_every_frame_timer_is_checked_at_its_p99_figure():
+    """One camera at 2 fps: no frame decided on for 0.5 s and more between two decisions is a
+    frame_timeout STOP at 0.5 s (the former check compared the cycle, 18 ms); one step's p99
+    (with the tail) against the bus's stall timeout."""
+    verdict = assess(0.010, cams(1, 2.0), Limits(frame_timeout=0.5, max_frame_age=5.0,
+                                                 stall_timeout=0.5, lost_after_s=5.0))
+    assert verdict.frame_gap_s > 0.5
+    assert "exceeds policy.frame_timeout 500 ms (frame_timeout would STOP" in verdict.refusal
+    step = assess(0.35, cams(1), Limits(5.0, 5.0, 0.5, 5.0))  # 0.48 s a frame, 0.50 s p99
+    assert step.frame_s < 0.5 <= step.step_s
+    assert "one step (p99) of" in step.refusal and "exceeds bus.stall_timeout 500 ms" in \
+        step.refusal
+
+
+def test_the_start_up_check_of_a_config_refuses_a_lost_after_s_the_rate_cannot_meet(detector):
+    """service_setup.check_capacity (what monitor run calls) with a parsed config and the
+    real detector: two cameras at max_fps 0.9 are refused naming health.lost_after_s; with
+    lost_after_s 4 s the same config passes."""
+    text = ('[[camera]]\nid = "cam0"\nmax_fps = 0.9\n[[camera]]\nid = "cam1"\nmax_fps = 0.9\n'
+            '[policy]\nframe_timeout = 3.0\nmax_frame_age = 3.0\n[bus]\nstall_timeout = 2.0\n')
+    config = parse_config(tomllib.loads(text))
+    with pytest.raises(ConfigError) as refused:
+        check_capacity(config, detector, {}, "refuse")
+    message = str(refused.value)
+    assert "\n" not in message and "cam0 and cam1 at a predicted 0.9 fps per camera" in message
+    assert "exceeds health.lost_after_s 1.00 s (camera_lost would STOP)" in message
+    fits = parse_config(tomllib.loads(text + "[health]\nlost_after_s = 4.0\n"))
+    verdict = check_capacity(fits, detector, {}, "refuse")
+    assert verdict is not None and verdict.refusal is None
 
 
 @pytest.mark.parametrize("bad", [0.0, -1.0, math.nan, math.inf])
@@ -180,7 +245,8 @@ def test_monitor_run_refuses_a_config_the_host_cannot_serve_and_starts_with_lowe
     # tests above check the arithmetic at the defaults)
     config = four_camera_config(tmp_path, synthetic_model, 0.5,
                                 "stall_timeout = 2.0\n"
-                                "[policy]\nframe_timeout = 6.0\nmax_frame_age = 5.0\n")
+                                "[policy]\nframe_timeout = 6.0\nmax_frame_age = 5.0\n"
+                                "[health]\nlost_after_s = 5.0\n")
     started = run_monitor("run", "--config", config, "--duration", "3")
     assert started.returncode == 0, started.stderr[-2000:]
     assert "capacity: " in started.stderr and "cam3 0.5 fps" in started.stderr

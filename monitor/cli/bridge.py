@@ -18,6 +18,7 @@ from monitor.cli.zenoh_args import add_zenoh_args, bounded, bus_config
 from monitor.errors import ConfigError
 from monitor.pose import OtusBridge, PoseLimits, Rejection, parse_host_port
 from monitor.signals import Interrupted, StopSignals, call_interruptible, exit_if_stopped
+from monitor.tracker_noise import TrackerConfig
 
 
 def cmd_bridge_otus(args: argparse.Namespace) -> int:
@@ -29,8 +30,10 @@ def _bridge_otus(args: argparse.Namespace, stop) -> int:
     host, port = parse_host_port(args.udp_listen)
     bus = bus_config(args, instance=args.instance or default_instance("otus-bridge"))
     keys = BusKeys.of(bus.key_prefix)
+    # the same precision as the monitor's [tracker]: the bridge must not drop what it accepts
+    noise = TrackerConfig(noise_mm=args.tracker_noise_mm, noise_deg=args.tracker_noise_deg)
     limits = PoseLimits(max_speed_m_s=args.max_speed, max_accel_m_s2=args.max_accel,
-                        quaternion_tolerance=args.quaternion_tolerance)
+                        quaternion_tolerance=args.quaternion_tolerance, noise=noise)
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     try:
         sock.bind((host, port))
@@ -131,6 +134,12 @@ def register(subparsers) -> None:
                    default=PoseLimits.quaternion_tolerance,
                    help="allowed deviation of |q| from 1 (default "
                    f"{PoseLimits.quaternion_tolerance:g})")
+    p.add_argument("--tracker-noise-mm", type=float, default=TrackerConfig.noise_mm,
+                   help="the tracker's declared position precision, mm (1 sigma per axis, as "
+                   "[tracker] noise_mm; default %(default)g)")
+    p.add_argument("--tracker-noise-deg", type=float, default=TrackerConfig.noise_deg,
+                   help="the tracker's declared orientation precision, degrees (1 sigma per "
+                   "axis, as [tracker] noise_deg; default %(default)g)")
     p.add_argument("--pose-timeout", type=float, default=0.1,
                    help="s of UDP silence that raise a pose_silence alert (once per gap; "
                    "default 0.1)")
