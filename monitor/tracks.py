@@ -35,6 +35,7 @@ from monitor.types import Persons, ZoneHit, ZoneReport
 from monitor.whereabouts import (
     HOLD_KINDS,
     FootGrid,
+    FreeElsewhere,
     HeldZone,
     Whereabouts,
     WhereaboutsConfig,
@@ -73,9 +74,9 @@ class TrackerConfig:
     exit_speed_pxps: float = 5.0  # outward speed at the edge that counts as leaving the view
     forget_after_s: float = 60.0  # lost tracks without an area are forgotten after this long
     velocity_smoothing: float = 0.5  # weight of the newest velocity sample (0..1]
-    # a track whose box grows this much while leaving a zone was merged with a neighbour:
-    # where it stood is kept as a lost person's area (someone may be hidden in the merged box)
-    merge_grow: float = 1.3
+    # a lost track's last box this much inside a seen box was merged into it: where both
+    # stood is kept (someone may be hidden in the merged box) until seen free
+    merge_ios: float = 0.3
     # where a lost person could be (monitor.whereabouts): grid columns over the image, the
     # reach's perspective margin, the share of a box under it where hidden feet may be
     cells_across: int = 48
@@ -175,16 +176,6 @@ def _bottom_centre(boxes: np.ndarray) -> np.ndarray:
     return np.stack([(boxes[:, 0] + boxes[:, 2]) * 0.5, boxes[:, 3]], axis=1)
 
 
-def _swallowed(old: np.ndarray, new: np.ndarray, grow: float) -> bool:
-    """The new box is ``grow`` times the old one's area or more and covers at least half of
-    it: two persons' boxes merged (not one person walking on)."""
-    area_old = max((old[2] - old[0]) * (old[3] - old[1]), 1e-9)
-    area_new = (new[2] - new[0]) * (new[3] - new[1])
-    w = min(old[2], new[2]) - max(old[0], new[0])
-    h = min(old[3], new[3]) - max(old[1], new[1])
-    return bool(area_new >= grow * area_old and max(w, 0.0) * max(h, 0.0) >= 0.5 * area_old)
-
-
 def lost_person_index(track_id: int) -> int:
     """The ``ZoneHit.person`` of a lost person's hit: negative (no row in this frame's
     ``Persons``) and distinct per track, so merging reports keeps every hold."""
@@ -281,7 +272,8 @@ class PersonTracker:
                frame_size: tuple[int, int], zones_of: ZonesOf | None = None, *,
                working: bool = True, hidden: HiddenCells | None = None,
                hidden_key: object = None, clear_time: float = 1.0,
-               zones_key: object = None) -> TrackUpdate:
+               zones_key: object = None, free_elsewhere: FreeElsewhere | None = None
+               ) -> TrackUpdate:
         """Associate this frame's persons with the tracks; return their ids and the report
         with track ids on the seen hits plus one lost hit per held zone.
 
@@ -292,7 +284,8 @@ class PersonTracker:
         ``zones_key`` is the same; None: this frame only). ``working`` False: the camera's
         view cannot be trusted in this frame (a STOP fault of the camera or detector), nothing
         is seen free. ``hidden(grid)``: the cells no person could be seen in (recomputed
-        when ``hidden_key`` changes). A cell is free once seen free for ``clear_time``.
+        when ``hidden_key`` changes). A cell is free once seen free for ``clear_time``, by
+        this camera or (``free_elsewhere``, floor points; needs ``to_floor``) another one.
         """
         boxes = np.asarray(persons.boxes_px, np.float64).reshape(-1, 4)
         n = len(boxes)
@@ -308,6 +301,7 @@ class PersonTracker:
             floors = [np.asarray(xy[i], np.float64) if located[i] else None for i in range(n)]
 
         seen_now = set(rows_to_id)
+        moved: dict[int, tuple[np.ndarray, float, bool]] = {}  # row -> old box, time, left
         for row, tid in enumerate(rows_to_id):
             rec = self._records.get(tid)
             if rec is None:
@@ -321,17 +315,13 @@ class PersonTracker:
                 continue
             # seen again: its area ends only while all of it is in view (a flicker); an area
             # that reached behind a fixture stays (someone else may have stepped out)
-            if rec.lost and row not in self._guessed:
+            if row not in self._guessed:
                 self.where.found(tid)
             old_box, old_seen = rec.box.copy(), rec.last_seen
             self._place(rec, boxes[row], floors[row], now, first=False)
             if row_zones is not None:
                 left = {z.zone_id for z in rec.zones} - {z.zone_id for z in row_zones[row]}
-                if left and _swallowed(old_box, boxes[row], self.config.merge_grow) \
-                        and not self._at_edge(old_box, frame_size):
-                    # merged with a neighbour into a box placed outside the zone: a person may
-                    # still stand where it was, hidden in the merged box
-                    self.where.lose(tid, old_box, old_seen)
+                moved[row] = (old_box, old_seen, bool(left))
                 rec.zones = row_zones[row]
             rec.lost, rec.seen_as, rec.left_view = False, None, False
 
@@ -340,8 +330,15 @@ class PersonTracker:
                 continue
             rec.lost = True
             rec.left_view = self._leaving_view(rec, frame_size)
-            self.where.lose(rec.track_id, rec.box, rec.last_seen)
-        self.where.update(now, boxes, working, clear_time, zones_of, zones_key)
+            into = self._merged_into(rec.box, boxes)
+            # swallowed by a neighbour's box: hidden right behind (or in front of) them
+            self.where.lose(rec.track_id, rec.box, rec.last_seen, behind=bool(into))
+            for row in into:  # whichever identity the merged box keeps: where it stood too
+                old_box, old_seen, left = moved.get(row, (None, 0.0, False))
+                if left and old_box is not None:
+                    self.where.lose(rows_to_id[row], old_box, old_seen, behind=True)
+        self.where.update(now, boxes, working, clear_time, zones_of, zones_key,
+                          free_elsewhere, self.to_floor)
 
         for tid in [t for t, r in self._records.items() if r.lost and t not in self.where.areas
                     and now - r.last_seen > self.config.forget_after_s]:
@@ -448,12 +445,15 @@ class PersonTracker:
         rec.box = box.copy()
         rec.last_seen = now
 
-    def _at_edge(self, box: np.ndarray, frame_size: tuple[int, int]) -> bool:
-        """A box at the left, right or bottom image border grows as the person steps into
-        the view: that is no merge."""
-        w, h = frame_size
-        m = self.config.edge_margin_px
-        return bool(box[0] <= m or box[2] >= w - m or box[3] >= h - m)
+    def _merged_into(self, box: np.ndarray, boxes: np.ndarray) -> list[int]:
+        """Rows of this frame's boxes that cover ``merge_ios`` or more of a lost box."""
+        if not len(boxes):
+            return []
+        area = max((box[2] - box[0]) * (box[3] - box[1]), 1e-9)
+        w = np.minimum(box[2], boxes[:, 2]) - np.maximum(box[0], boxes[:, 0])
+        h = np.minimum(box[3], boxes[:, 3]) - np.maximum(box[1], boxes[:, 1])
+        cover = np.clip(w, 0, None) * np.clip(h, 0, None) / area
+        return np.flatnonzero(cover >= self.config.merge_ios).tolist()
 
     def _leaving_view(self, rec: _Record, frame_size: tuple[int, int]) -> bool:
         """Box at the left, right or bottom image border and moving outwards across it. Not

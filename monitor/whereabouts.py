@@ -47,6 +47,10 @@ HOLD_KINDS = frozenset({"protective", "warning"})
 # be (two persons whose boxes merge stand within about half a metre of each other)
 FEET_BAND = 0.35
 ZonesOf = Callable[[np.ndarray], ZoneReport]
+# floor points (N, 2) m -> (N,) bool: seen free for clear_time by another working camera
+FreeElsewhere = Callable[[np.ndarray], np.ndarray]
+# pixels (N, 2) -> (floor xy (N, 2), located (N,)): this camera's calibration
+ToFloor = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
 
 
 @dataclass(frozen=True)
@@ -160,6 +164,8 @@ class LostArea:
     budget: float = 0.0  # growth owed in cells (fractions carried to the next frame)
     zones: tuple[HeldZone, ...] = ()
     merged: tuple[int, ...] = field(default=())  # other lost tracks folded into this one
+    behind: bool = False  # kept where a track stood before its box merged with another
+    explained: float | None = None  # since when all of it lies under seen persons' feet
 
     @property
     def box_height_px(self) -> float:
@@ -176,8 +182,11 @@ class Whereabouts:
         self._hidden_key: object = None
         self.free_since: np.ndarray | None = None  # (ny, nx) time, nan: not seen free now
         self.areas: dict[int, LostArea] = {}
+        self._free: np.ndarray | None = None  # seen free for clear_time at the last frame
         self._zone_cache: dict[tuple[int, int], tuple[HeldZone, ...]] = {}
         self._zone_key: object = None
+        self.last_time: float | None = None  # capture time of the last frame judged
+        self._floor: tuple[np.ndarray, np.ndarray] | None = None  # grid centres on the floor
 
     # ---------------------------------------------------------------------------------------
     def view(self, width: int, height: int,
@@ -190,19 +199,27 @@ class Whereabouts:
             self.areas.clear()  # another image: cells mean other places (never seen here)
             self._hidden_key = object()
             self._zone_cache.clear()
+            self._floor = None
         if key != self._hidden_key or self.hidden is None:
             self.hidden = (np.zeros(self.grid.shape, bool) if hidden is None
                            else np.asarray(hidden(self.grid), bool).reshape(self.grid.shape))
             self._hidden_key = key
+
+    def free_now(self) -> np.ndarray | None:
+        """(ny, nx) bool: the cells seen free for ``clear_time`` as of the last frame (None:
+        no frame yet)."""
+        return None if self.grid is None else self._free
 
     def blind(self) -> None:
         """A frame the camera could not judge (detector error): nothing has been seen free."""
         if self.free_since is not None:
             self.free_since[:] = np.nan
 
-    def lose(self, track_id: int, box_px: np.ndarray, last_seen: float) -> None:
+    def lose(self, track_id: int, box_px: np.ndarray, last_seen: float,
+             behind: bool = False) -> None:
         """A person lost: their area starts under their last box (joined to an area the same
-        track left before)."""
+        track left before). ``behind``: the track is still seen, in a box merged with a
+        neighbour's; someone may stand where it stood (only seeing that free ends it)."""
         if self.grid is None:
             raise RuntimeError("Whereabouts.lose before view(): the image size is unknown")
         seed = self.grid.cells_under(box_px, self.config.below)
@@ -211,9 +228,10 @@ class Whereabouts:
         if old is not None:
             old.cells |= seed
             old.box_px = box  # type: ignore[assignment]
+            old.behind = old.behind or behind
             return
         self.areas[track_id] = LostArea(track_id, float(last_seen), box,  # type: ignore[arg-type]
-                                        seed, float(last_seen))
+                                        seed, float(last_seen), behind=behind)
 
     def found(self, track_id: int) -> bool:
         """The lost person's own track is seen again: the sighting explains the loss while
@@ -221,7 +239,8 @@ class Whereabouts:
         reached cells the camera cannot see (behind a cabinet) stays: someone else may have
         come out. True when the area ended."""
         area = self.areas.get(track_id)
-        if area is None or self.hidden is None or (area.cells & self.hidden).any():
+        if area is None or area.behind or self.hidden is None \
+                or (area.cells & self.hidden).any():
             return False
         del self.areas[track_id]
         return True
@@ -234,22 +253,28 @@ class Whereabouts:
 
     # ---------------------------------------------------------------------------------------
     def update(self, now: float, boxes_px: np.ndarray, working: bool, clear_time: float,
-               zones_of: ZonesOf | None, zones_key: object = None) -> None:
+               zones_of: ZonesOf | None, zones_key: object = None,
+               free_elsewhere: FreeElsewhere | None = None, to_floor: ToFloor | None = None
+               ) -> None:
         """One frame at ``now``: ``boxes_px`` are the persons seen in it; ``working`` is False
         when the camera's view cannot be trusted (a STOP fault of the camera or detector).
         Then every area grows, loses the cells seen free for ``clear_time``, and learns the
         zones it touches (``zones_of``: the zone check of hypothetical boxes; its answers are
-        kept while ``zones_key`` stays the same, None: this frame only)."""
+        kept while ``zones_key`` stays the same, None: this frame only). With a calibration
+        (``to_floor``) the cells another working camera has seen free for ``clear_time``
+        (``free_elsewhere``, on the floor) are removed too: space a working camera sees empty
+        is free, whichever camera it is."""
         if self.grid is None or self.free_since is None or self.hidden is None:
             raise RuntimeError("Whereabouts.update before view(): the image size is unknown")
         grid, cfg = self.grid, self.config
-        seen_free = ~self.hidden & ~grid.cells_under(boxes_px, 0.0) if working \
-            else np.zeros(grid.shape, bool)
+        occupied = grid.cells_under(boxes_px, 0.0)
+        seen_free = ~self.hidden & ~occupied if working else np.zeros(grid.shape, bool)
         start = np.isnan(self.free_since)
         self.free_since[seen_free & start] = now
         self.free_since[~seen_free] = np.nan
         with np.errstate(invalid="ignore"):
             free = seen_free & (now - self.free_since >= clear_time - 1e-9)
+        floor = self._floor_points(to_floor)
         for area in self.areas.values():
             dt = max(0.0, now - area.updated)
             reach_px = cfg.walk_speed_mps / cfg.height_m * area.box_height_px \
@@ -257,8 +282,27 @@ class Whereabouts:
             area.budget += reach_px / grid.cell_px if math.isfinite(reach_px) else grid.nx
             steps = min(int(area.budget), grid.nx + grid.ny)
             area.budget -= int(area.budget)
-            area.cells = grow(area.cells, steps) & ~free
+            # where a merged track stood does not walk: a person hidden behind a neighbour
+            # who moves on is seen (or merges again); it ends once seen free
+            grown = grow(area.cells, 0 if area.behind else steps)
+            if floor is not None:  # in pixels near the horizon a step is metres: on the floor
+                grown = self._within_walk(area.cells, grown, floor,
+                                          cfg.walk_speed_mps * cfg.reach_margin * dt)
+            area.cells = grown & ~free
             area.updated = now
+            # a ghost: all of it in view, under seen persons' feet for clear_time (a person
+            # who flickered out and came back under a new id); not the place a merged track
+            # stood, and never one that reaches where the camera cannot see
+            if working and not area.behind and area.cells.any() \
+                    and not (area.cells & (self.hidden | ~occupied)).any():
+                area.explained = now if area.explained is None else area.explained
+                if now - area.explained >= clear_time - 1e-9:
+                    area.cells[:] = False
+            else:
+                area.explained = None
+        self._free, self.last_time = free, now
+        if free_elsewhere is not None and floor is not None:
+            self._clear_elsewhere(free_elsewhere, floor)
         for tid in [t for t, a in self.areas.items() if not a.cells.any()]:
             del self.areas[tid]
         self._merge_alike()
@@ -266,6 +310,49 @@ class Whereabouts:
             self._zone_cache.clear()
         self._zone_key = zones_key
         self._zones(zones_of)
+
+    def _floor_points(self, to_floor: ToFloor | None
+                      ) -> tuple[np.ndarray, np.ndarray] | None:
+        """The grid's foot positions on the floor (a calibrated camera; None: not)."""
+        if to_floor is None or self.grid is None:
+            return None
+        if self._floor is None:
+            xy, located = to_floor(self.grid.centres())
+            xy = np.asarray(xy, np.float64)
+            self._floor = (xy, np.asarray(located, bool) & np.all(np.isfinite(xy), axis=1))
+        return self._floor
+
+    def _within_walk(self, old: np.ndarray, grown: np.ndarray,
+                     floor: tuple[np.ndarray, np.ndarray], reach_m: float) -> np.ndarray:
+        """The grown cells whose floor point lies within ``reach_m`` (plus a cell's own
+        size, 0.3 m) of one of the old cells' floor points; a cell no floor point of the old
+        ones reaches (above the horizon, or from an area with no floor point) is left out."""
+        xy, located = floor
+        new = np.flatnonzero((grown & ~old).ravel())
+        if not len(new):
+            return grown
+        src = np.flatnonzero(old.ravel() & located)
+        out = old.copy()
+        if not len(src):
+            return out
+        cand = new[located[new]]
+        if len(cand):
+            d = np.min(np.linalg.norm(xy[cand][:, None, :] - xy[src][None, :, :], axis=2),
+                       axis=1)
+            out.flat[cand[d <= reach_m + 0.3]] = True
+        return out
+
+    def _clear_elsewhere(self, free_elsewhere: FreeElsewhere,
+                         floor: tuple[np.ndarray, np.ndarray]) -> None:
+        """Remove the area cells whose floor point another working camera has seen free."""
+        if self.grid is None or not self.areas:
+            return
+        xy, located = floor
+        for area in self.areas.values():
+            idx = np.flatnonzero(area.cells.ravel() & located)
+            if len(idx):
+                cleared = np.asarray(free_elsewhere(xy[idx]), bool)
+                area.cells.flat[idx[cleared]] = False
 
     def _merge_alike(self) -> None:
         """An area within another (ghosts of one person following them) joins it, named by

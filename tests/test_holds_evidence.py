@@ -92,3 +92,58 @@ def test_a_camera_in_fault_keeps_a_lost_persons_hold(detector):
         states.append(frame(i, reset=ResetRequest("anna", t, request_id=f"r{i}")).command.state)
     assert states[0] == STOP and states[-1] != STOP, states
     assert not any(pipe.holds.values())
+
+
+def _two_camera_cabinet(detector):
+    """A walks behind a 2 m cabinet (hidden from cam0, in front of it for cam1 on the far
+    side), stands, and walks out of the cell; both cameras calibrated in one zone file."""
+    import dataclasses
+
+    import numpy as np
+
+    from monitor.scene import Camera
+    from monitor.scene.cell import Block, CellScene, Walker, zone_data
+
+    cabinet = Block("cabinet", (0.0, -0.6, 0.0), (0.9, -0.3, 2.0), (60, 80, 150))
+    walk = Walker(((0.0, 2.4, 0.3), (2.0, 0.45, 0.0), (4.0, 0.45, 0.0), (6.0, 3.2, 0.0)))
+    scene0 = CellScene((walk,), (cabinet,), fps=2.0, duration_s=10.0)
+    k = np.array([[450.0, 0, 320], [0, 450.0, 180], [0, 0, 1]])
+    cam1 = Camera.look_at("cam1", (640, 360), k, (0.0, 6.5, 3.2), (0.0, 0.0, 0.6))
+    scene1 = dataclasses.replace(scene0, camera=cam1)
+    data = zone_data(scene0)
+    data["cameras"] += zone_data(scene1)["cameras"]
+    for z in data["zones"]:
+        if z["kind"] in ("protective", "warning"):
+            z["unobserved_ok"] = True
+    return scene0, scene1, parse_cell(data)
+
+
+@pytest.mark.parametrize("cam1_works", [True, False], ids=["cam1_sees", "cam1_in_fault"])
+def test_a_spot_one_camera_cannot_see_is_freed_by_another_camera_that_sees_it(detector,
+                                                                               cam1_works):
+    """Space a working camera sees empty is free, whichever camera: the spot behind the
+    cabinet is hidden from cam0 but in cam1's view. Once the person has walked out and cam1
+    has seen the spot free, cam0's hold ends and the cell runs; with cam1 in fault (its
+    self-test failing) nothing frees it and the STOP stays."""
+    scene0, scene1, cell = _two_camera_cabinet(detector)
+    # two cameras at 2 fps: a frame of the other camera is up to 0.5 s old at a decision
+    pipe = Pipeline(detector, ["cam0", "cam1"], PolicyConfig(max_frame_age=1.0), cell)
+    fault = () if cam1_works else (Fault("camera_blinded", "cam1: contrast too low", True,
+                                         "cam1"),)
+    states = []
+    for (img0, truth), (img1, _) in zip(scene0.frames(), scene1.frames(), strict=True):
+        t = truth.time_s
+        c0, c1 = scene0.camera, scene1.camera
+        pipe.process(img0, FrameInfo("cam0", truth.index, t, c0.width, c0.height), t)
+        res = pipe.process(img1, FrameInfo("cam1", truth.index, t, c1.width, c1.height), t,
+                           reset=ResetRequest("anna", t, request_id=f"r{truth.index}"),
+                           extra_faults=fault if t >= 5.0 else ())
+        inside = any(abs(p.floor_m[0]) < 1.3 and abs(p.floor_m[1]) < 1.3
+                     for p in truth.persons)
+        if inside:
+            assert res.command.state == STOP, t
+        states.append(res.command.state)
+    if cam1_works:
+        assert states[-1] != STOP and not any(pipe.holds.values())
+    else:
+        assert states[-1] == STOP

@@ -25,7 +25,7 @@ from monitor.pipeline.data import CameraState, StepResult
 from monitor.pipeline.evidence import ZonesApplying, policy_inputs
 from monitor.pipeline.fault_alerts import FaultAlerts, one_line
 from monitor.pipeline.holds import confirm_clear, holds_of
-from monitor.pipeline.locate import camera_working, hidden_of, locate
+from monitor.pipeline.locate import camera_working, free_elsewhere, hidden_of, locate
 from monitor.pipeline.masking import MaskRules, MaskTally, with_touching
 from monitor.pipeline.mutes import MuteDesk
 from monitor.pipeline.zone_sets import ZoneSets
@@ -280,7 +280,9 @@ class Pipeline:
         report, track_ids, person_ids = locate(
             frame, persons, cam, self.prepared, self.detector, self.persons, detector_error,
             now, tool_pose, tool_speed_mps, pose_time, self.policy, faults, working=working,
-            hidden=hidden_of(self.cell, frame.camera_id, self.masks.rule(frame)))
+            hidden=hidden_of(self.cell, frame.camera_id, self.masks.rule(frame)),
+            elsewhere=free_elsewhere(self.cameras, self.cell, frame.camera_id,
+                                     frame.capture_time, self.policy.clear_time))
         t3 = time.perf_counter()
         self.applying.waiting.discard(frame.camera_id)  # this frame was checked on the new zones
         cam.frame_time, cam.report, cam.faults = frame.capture_time, report, tuple(faults)

@@ -6,7 +6,7 @@ it; its answer is then unknown, never "no persons"."""
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 
 import numpy as np
 
@@ -16,7 +16,7 @@ from monitor.pipeline.data import CameraState
 from monitor.pipeline.fault_alerts import one_line
 from monitor.policy import PolicyConfig
 from monitor.types import Fault, FrameInfo, Persons, ZoneReport
-from monitor.whereabouts import FootGrid
+from monitor.whereabouts import FootGrid, FreeElsewhere
 from monitor.zones import Cell, check_persons
 from monitor.zones.masks import MaskRule
 from monitor.zones.moving import ToolState
@@ -64,6 +64,44 @@ def hidden_of(cell: Cell | None, camera_id: str, rule: MaskRule | None
     return hidden, (id(cell), id(rule))
 
 
+def free_elsewhere(cameras: Mapping[str, CameraState], cell: Cell | None, camera_id: str,
+                   now: float, clear_time: float) -> FreeElsewhere | None:
+    """Floor points the cell's *other* calibrated cameras have seen free for ``clear_time``
+    as of their newest frames (each no older than ``clear_time``): a lost person's area on
+    this camera loses them too (None: no such camera)."""
+    if cell is None:
+        return None
+    others = []
+    for cid, cam in cameras.items():
+        model = cell.camera_models.get(cid)
+        if cid == camera_id or cam.tracker is None or model is None:
+            continue
+        where = cam.tracker.where
+        free = where.free_now()
+        if free is None or where.grid is None or where.last_time is None \
+                or now - where.last_time > clear_time:
+            continue
+        others.append((model, where.grid, free))
+    if not others:
+        return None
+
+    def seen_free(xy: np.ndarray) -> np.ndarray:
+        out = np.zeros(len(xy), dtype=bool)
+        pts = np.c_[np.asarray(xy, np.float64).reshape(-1, 2), np.zeros(len(xy))]
+        for model, grid, free in others:
+            px, front = model.project(pts)
+            px = np.asarray(px, np.float64)
+            ok = np.asarray(front, bool) & np.all(np.isfinite(px), axis=1)
+            i = np.floor(px[:, 0] * (grid.width / model.width) / grid.cell_px)
+            j = np.floor(px[:, 1] * (grid.height / model.height) / grid.cell_px)
+            ok &= (i >= 0) & (i < grid.nx) & (j >= 0) & (j < grid.ny)
+            hit = np.zeros(len(xy), dtype=bool)
+            hit[ok] = free[j[ok].astype(int), i[ok].astype(int)]
+            out |= hit
+        return out
+    return seen_free
+
+
 def camera_working(camera_id: str, faults: list[Fault] | tuple[Fault, ...]) -> bool:
     """False when a STOP fault of the camera or the detector says its view cannot be trusted
     in this frame: nothing it shows counts as seen free."""
@@ -74,13 +112,15 @@ def locate(frame: FrameInfo, persons: Persons, cam: CameraState, prepared, detec
            cell_persons: CellPersons, detector_error: str | None, now: float, tool_pose,
            tool_speed_mps: float | None, pose_time: float | None, policy: PolicyConfig,
            faults: list[Fault], *, working: bool = True,
-           hidden: tuple[Callable[[FootGrid], np.ndarray] | None, object] = (None, None)
+           hidden: tuple[Callable[[FootGrid], np.ndarray] | None, object] = (None, None),
+           elsewhere: FreeElsewhere | None = None
            ) -> tuple[ZoneReport | None, tuple[int, ...], tuple[Who, ...]]:
     """The frame's zone answer (None: unknown), each row's track id and cell person; the
     faults of a failed stage are added to ``faults``. Nothing is checked after a detector
     error (the answer is unknown, nothing is seen free); no zones (``prepared`` None) is an
     empty answer. ``working``: the camera's view can be trusted in this frame (its lost
-    persons' areas shrink where it sees no person); ``hidden``: ``hidden_of``'s answer."""
+    persons' areas shrink where it sees no person); ``hidden``: ``hidden_of``'s answer;
+    ``elsewhere``: ``free_elsewhere``'s answer."""
     report = None
     tool_pose, tool_state = tool_for(now, tool_pose, tool_speed_mps, pose_time, policy)
     if prepared is not None and detector_error is None:
@@ -107,7 +147,7 @@ def locate(frame: FrameInfo, persons: Persons, cam: CameraState, prepared, detec
                 zones_of(prepared, detector, frame, tool_pose, tool_speed_mps, tool_state),
                 working=working and report is not None, hidden=hidden[0],
                 hidden_key=hidden[1], clear_time=policy.clear_time,
-                zones_key=id(prepared) if static else None)
+                zones_key=id(prepared) if static else None, free_elsewhere=elsewhere)
             named = cell_persons.name(frame.camera_id, cam.tracker, update, frame.capture_time)
             report, track_ids, person_ids = named.report, update.track_ids, named.person_ids
             for line in named.lines:  # holds begun, guesses (said once, holds stay)
