@@ -147,3 +147,35 @@ def test_a_spot_one_camera_cannot_see_is_freed_by_another_camera_that_sees_it(de
         assert states[-1] != STOP and not any(pipe.holds.values())
     else:
         assert states[-1] == STOP
+
+
+def test_zones_preview_hatches_the_foot_positions_a_camera_cannot_see(tmp_path, capsys):
+    """`monitor zones preview` draws where the camera cannot see a person (behind the
+    cabinet): the cells a lost person's area never loses by this camera's view."""
+    import cv2
+    import numpy as np
+    import yaml
+
+    from tests.helpers import zones_cli
+
+    counts = {}
+    for name, blocks in (("cabinet", True), ("open", False)):
+        scenario = EVIDENCE["stranger-2fps"]
+        if not blocks:
+            import dataclasses
+            scenario = dataclasses.replace(
+                scenario, scene=dataclasses.replace(scenario.scene, blocks=()))
+        zones = tmp_path / f"{name}.yaml"
+        zones.write_text(yaml.safe_dump(scenario.zone_data()))
+        img, _ = next(iter(scenario.scene.frames()))
+        frame = tmp_path / f"{name}.png"
+        cv2.imwrite(str(frame), img)
+        out = tmp_path / f"{name}-preview.png"
+        assert zones_cli("preview", zones, "--frame", frame, "--out", out) == 0
+        text = capsys.readouterr().out
+        counts[name] = int(text.split(" foot positions")[0].split()[-1]) \
+            if "foot positions" in text else 0
+        drawn = cv2.imread(str(out))
+        magenta = np.all(drawn == (180, 0, 180), axis=2).sum()
+        assert (magenta > 0) == (counts[name] > 0)
+    assert counts["cabinet"] > counts["open"]

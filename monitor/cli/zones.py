@@ -21,7 +21,11 @@ from monitor import geometry as geo
 from monitor import zones as zn
 from monitor.cli.tool_calibration import positive_number
 from monitor.errors import ConfigError, InputError
+from monitor.tracks import TrackerConfig
+from monitor.whereabouts import FootGrid
 from monitor.zones.cameras import choose_camera, zone_file_hint
+from monitor.zones.masks import zone_regions_px
+from monitor.zones.visibility import hidden_feet
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -518,11 +522,33 @@ def cmd_preview(args: argparse.Namespace) -> int:
         raise ConfigError(f"{args.file}: no zone '{unknown[0]}'")
     out = zn.draw_zones(frame, cell, camera, hit_zone_ids=args.hit, legend=True,
                         tool_pose=args.tool_pose)
+    hidden = _draw_hidden(out, cell, camera)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     if not cv2.imwrite(str(args.out), out):
         raise InputError(f"{args.out}: cannot write image")
     print(f"wrote {args.out} ({out.shape[1]}x{out.shape[0]}, camera {camera})")
+    if hidden:
+        print(f"{hidden} foot positions (hatched) are hidden from {camera}: a person lost there "
+              "stays held until another camera sees the spot free or an operator confirms "
+              "the cell clear (docs/tracking.md)")
     return 0
+
+
+def _draw_hidden(image: np.ndarray, cell: zn.Cell, camera: str) -> int:
+    """Hatch the foot positions where this camera cannot see a person (behind an occluder,
+    in a mask): the cells a lost person's area never loses by this camera's view."""
+    h, w = image.shape[:2]
+    grid = FootGrid.of(w, h, TrackerConfig().cells_across)
+    masks = [p for _, p in zone_regions_px(cell, camera, ("mask",))]
+    hidden = hidden_feet(grid.centres(), (w, h), cell.camera_models.get(camera), cell.spec,
+                         cell.meshes, masks).reshape(grid.shape)
+    c = grid.cell_px
+    for j, i in zip(*np.nonzero(hidden), strict=True):
+        x0, y0 = int(i * c), int(j * c)
+        x1, y1 = int((i + 1) * c), int((j + 1) * c)
+        cv2.line(image, (x0, y1), (x1, y0), (180, 0, 180), 1, cv2.LINE_AA)
+        cv2.line(image, (x0, y0), (x1, y1), (180, 0, 180), 1, cv2.LINE_AA)
+    return int(hidden.sum())
 
 
 def cmd_hash(args: argparse.Namespace) -> int:
