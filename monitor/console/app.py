@@ -14,7 +14,7 @@ Routes: ``/`` live view, ``/incidents`` list and playback, ``/zones`` zone edito
 
 from __future__ import annotations
 
-import json
+import functools
 import sqlite3
 import time
 from collections.abc import Callable
@@ -32,8 +32,9 @@ from starlette.routing import Mount, Route
 from starlette.staticfiles import StaticFiles
 
 from monitor.alerts import AlertLimiter
-from monitor.console.audit import AuditLog
+from monitor.console.audit import AuditLog, bounded
 from monitor.console.auth import Operators, basic_credentials
+from monitor.console.edit_body import MAX_BODY, BadRequest, check_zone_id, parse_edit_body
 from monitor.console.edits import ZoneEditIncidents
 from monitor.console.incidents import IncidentFilters, IncidentSource
 from monitor.console.live import LiveRenderer, LiveState, reference_image
@@ -43,7 +44,6 @@ from monitor.errors import ConfigError
 from monitor.types import Alert
 
 STATIC = Path(__file__).parent / "static"
-MAX_BODY = 256_000
 CHECK_THREADS = 1  # scrypt checks at once (16 MB, ~0.1 s of a core each): a flood of
 # guesses takes at most one core from the host the monitor runs on
 MAX_WAITING_CHECKS = 32  # more are refused at once (503), never queued without bound
@@ -92,6 +92,21 @@ class LoginChecks:
 
 def _json(body: object, status: int = 200) -> JSONResponse:
     return JSONResponse(body, status_code=status, headers=_SECURITY_HEADERS)
+
+
+async def read_body(request: Request) -> bytes:
+    """The body, read no further than ``MAX_BODY`` bytes (a larger one is refused, never
+    held in memory whole)."""
+    declared = request.headers.get("content-length", "")
+    if declared.isdigit() and int(declared) > MAX_BODY:
+        raise BadRequest(f"the body is {int(declared)} bytes: at most {MAX_BODY}")
+    chunks, size = [], 0
+    async for chunk in request.stream():
+        size += len(chunk)
+        if size > MAX_BODY:
+            raise BadRequest(f"the body is over {MAX_BODY} bytes")
+        chunks.append(chunk)
+    return b"".join(chunks)
 
 
 def build_app(console: Console) -> Starlette:
@@ -233,35 +248,51 @@ def build_app(console: Console) -> Starlette:
             headers = {"retry-after": "60"} if status in (429, 503) else {}
             return JSONResponse({"error": why}, status_code=status,
                                 headers={**_SECURITY_HEADERS, **headers})
-        raw = await request.body()
-        if len(raw) > MAX_BODY or "json" not in request.headers.get("content-type", ""):
-            return _json({"error": "a JSON body of at most 256 kB"}, 400)
+        zone = bounded(zone_id, 80)
+
+        def refuse(status: int, result: str, error: str) -> dict:
+            """An operator's refused attempt: audited whole (bounded) and an incident."""
+            entry = console.audit.record(zone=zone, operator=operator, client=client,
+                                         result=result, error=bounded(error, 400),
+                                         config_hash_before=current_hash())
+            return {"error": error, "incident": edit_incident(entry), "status": status}
+
         try:
-            body = json.loads(raw)
-            if not isinstance(body, dict):
-                raise ValueError
-        except ValueError:
-            return _json({"error": "the body is not a JSON object"}, 400)
+            check_zone_id(zone_id)
+            if "json" not in request.headers.get("content-type", ""):
+                raise BadRequest("the body must be JSON (content-type: application/json)")
+            body = parse_edit_body(await read_body(request))
+        except BadRequest as exc:
+            out = await run_in_threadpool(refuse, 400, "bad_request", str(exc))
+            return _json(out, out.pop("status"))
         try:
             cell, new, before = await run_in_threadpool(console.editor.save_polygon,
                                                          zone_id, body)
         except ConfigError as exc:
-            entry = console.audit.record(zone=zone_id, operator=operator, client=client,
-                                         result="invalid", error=str(exc),
-                                         config_hash_before=console.editor.cell().config_hash
-                                         if console.editor.path.is_file() else "")
-            incident = await run_in_threadpool(edit_incident, entry)
-            return _json({"error": str(exc), "incident": incident}, 422)
-        entry = console.audit.record(zone=zone_id, operator=operator, client=client,
-                                     result="saved", action="added" if new else "changed",
-                                     config_hash_before=before, config_hash=cell.config_hash,
-                                     file=str(console.editor.path))
+            out = await run_in_threadpool(refuse, 422, "invalid", str(exc))
+            return _json(out, out.pop("status"))
+        except Exception as exc:  # a fault of ours (disk, a bug): still audited, one line
+            text = f"the edit could not be saved: {type(exc).__name__}: " \
+                   f"{str(exc).splitlines()[0] if str(exc) else ''}"
+            out = await run_in_threadpool(refuse, 500, "error", text)
+            return _json(out, out.pop("status"))
+        entry = await run_in_threadpool(
+            functools.partial(console.audit.record, zone=zone_id, operator=operator,
+                              client=client, result="saved",
+                              action="added" if new else "changed", config_hash_before=before,
+                              config_hash=cell.config_hash, file=str(console.editor.path)))
         incident = await run_in_threadpool(edit_incident, entry)
         return _json({"saved": zone_id, "config_hash": cell.config_hash, "audit": entry,
                       "incident": incident, "warnings": list(cell.warnings),
                       "note": "the running monitor keeps its zone set until an operator "
                               "applies it (monitor zones apply; its commands name the hash in "
                               "force)"})
+
+    def current_hash() -> str:
+        try:
+            return console.editor.cell().config_hash
+        except (ConfigError, OSError):
+            return ""
 
     routes = [
         Route("/", page("live.html")),
