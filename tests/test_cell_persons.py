@@ -56,7 +56,18 @@ class Cell:
         persons = Persons(np.array(boxes, np.float32).reshape(-1, 4),
                           np.full(len(boxes), 0.9, np.float32), frame)
         tracker = self.trackers[cam]
-        update = tracker.update(persons, ZoneReport(hits=hits), t, (1280, 1280))
+
+        def zones_of(feet_boxes: np.ndarray) -> ZoneReport:
+            """P is the floor square 0.2 m around (3.0, 5.0): where a lost person's area is."""
+            out = []
+            for i, (x1, _, x2, y2) in enumerate(np.asarray(feet_boxes).reshape(-1, 4)):
+                x = (x1 + x2) / 2 / SCALE + OFFSETS[cam][0]
+                y = y2 / SCALE + OFFSETS[cam][1]
+                if abs(x - 3.0) <= 0.2 and abs(y - 5.0) <= 0.2:
+                    out.append(ZoneHit("P", "protective", i, 0.0))
+            return ZoneReport(hits=tuple(out))
+
+        update = tracker.update(persons, ZoneReport(hits=hits), t, (1280, 1280), zones_of)
         return self.persons.name(cam, tracker, update, t)
 
 

@@ -136,10 +136,10 @@ def register(subparsers) -> None:
                    f"{PoseLimits.quaternion_tolerance:g})")
     p.add_argument("--tracker-noise-mm", type=float, default=TrackerConfig.noise_mm,
                    help="the tracker's declared position precision, mm (1 sigma per axis, as "
-                   "[tracker] noise_mm; default %(default)g)")
+                   "[tracker] noise_mm; default %(default)s)")
     p.add_argument("--tracker-noise-deg", type=float, default=TrackerConfig.noise_deg,
                    help="the tracker's declared orientation precision, degrees (1 sigma per "
-                   "axis, as [tracker] noise_deg; default %(default)g)")
+                   "axis, as [tracker] noise_deg; default %(default)s)")
     p.add_argument("--pose-timeout", type=float, default=0.1,
                    help="s of UDP silence that raise a pose_silence alert (once per gap; "
                    "default 0.1)")
