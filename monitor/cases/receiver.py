@@ -49,7 +49,7 @@ class CaseReceiver:
     def for_bus(cls, session: zenoh.Session, bus_config, plan: CasePlan | None
                 ) -> CaseReceiver:
         key = case_key(bus_config.key_prefix)
-        selectors = (load_operators(bus_config.selectors_file)
+        selectors = (load_operators(bus_config.selectors_file, "selectors file", "selector")
                      if bus_config.selectors_file else None)
         return cls(session, key, CaseGate(CasePolicy(selectors, bus_config.cell, key,
                                                      bus_config.case_window_s)), plan)
