@@ -1,27 +1,79 @@
 """One way to send a signed request to the monitor and read its answer (resets, mutes, zone
-applies, zone-set selections): a Zenoh query, the first well-formed reply."""
+applies, zone-set selections): a Zenoh query, the first well-formed reply.
+
+Anyone who may declare a queryable on the key can answer (issue 31: a rogue responder made
+``monitor reset`` print "accepted" while the monitor stayed latched). So the monitor signs its
+answers with its command key (``answer_attachment``): the signature covers the answer, which
+names the SHA-256 of the request it answers (``request``), over ``answer_key(key)``. With
+``monitor_keys`` given, ``request_answer`` believes only answers signed by one of them that name
+this request, and says which key it was (``signed_by``)."""
 
 from __future__ import annotations
 
+import hashlib
 import json
 
 import zenoh
+from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PublicKey
+
+from monitor.signing import Signer, public_key_text, verify
+
+
+def answer_key(key_expr: str) -> str:
+    """What an answer's signature is bound to: never a key anything is published on."""
+    return key_expr + "/answer"
+
+
+def request_digest(payload: bytes) -> str:
+    return hashlib.sha256(payload).hexdigest()
+
+
+def answer_attachment(signer: Signer | None, key_expr: str, answer: bytes) -> bytes | None:
+    """The monitor's signature of its answer (None: the monitor has no key)."""
+    return signer.sign(answer_key(key_expr), answer) if signer is not None else None
+
+
+def signed_by(monitor_keys, key_expr: str, request: bytes, answer: bytes,
+              signature: bytes | None) -> str | None:
+    """The ``ed25519:...`` text of the key in ``monitor_keys`` that signed this answer to
+    ``request``; None when none did or the answer names another request."""
+    try:
+        body = json.loads(answer)
+    except (ValueError, UnicodeDecodeError, RecursionError):
+        return None
+    if not isinstance(body, dict) or body.get("request") != request_digest(request):
+        return None
+    for key in monitor_keys:
+        if verify(key, answer_key(key_expr), answer, signature):
+            return public_key_text(key)
+    return None
 
 
 def request_answer(session, key_expr: str, payload: bytes, signature: bytes | None,
-                   timeout: float) -> dict | None:
+                   timeout: float,
+                   monitor_keys: tuple[Ed25519PublicKey, ...] | None = None) -> dict | None:
     """Send ``payload`` (signed by ``signature``) as a query on ``key_expr``; the monitor's
-    answer ``{"accepted": bool, "reason": str, ...}`` (the first reply), None on timeout."""
+    answer ``{"accepted": bool, "reason": str, ...}`` (the first reply), None on timeout.
+    ``monitor_keys``: only an answer signed by one of them for this request counts (others
+    are skipped); it comes back with ``signed_by`` set to that key's text."""
     # no consolidation: Zenoh's default would hold the monitor's answer until every queryable
     # on the key finished (one that never does would hold it until ``timeout``)
     for reply in session.get(key_expr, payload=payload, attachment=signature, timeout=timeout,
                              consolidation=zenoh.ConsolidationMode.NONE):
         if reply.ok is None:
             continue
+        raw = reply.ok.payload.to_bytes()
+        signer = None
+        if monitor_keys is not None:
+            attachment = reply.ok.attachment
+            signer = signed_by(monitor_keys, key_expr, payload, raw,
+                               attachment.to_bytes() if attachment is not None else None)
+            if signer is None:
+                continue  # not the monitor's answer to this request: not believed
         try:
-            body = json.loads(reply.ok.payload.to_bytes())
-        except (ValueError, UnicodeDecodeError):
+            body = json.loads(raw)
+        except (ValueError, UnicodeDecodeError, RecursionError):
             continue
         if isinstance(body, dict) and isinstance(body.get("accepted"), bool):
-            return body
+            return {**body, **({"signed_by": signer} if signer else {})}
     return None

@@ -147,7 +147,8 @@ class SafetyBus:
         self._resets = ResetDesk(
             ResetGate(ResetPolicy(operators, config.cell, self.keys.reset,
                                   config.allow_unsigned_resets, config.reset_window_s)),
-            self.keys.reset, config.reset_answer_s, clock, self._lock)
+            self.keys.reset, config.reset_answer_s, clock, self._lock, self._signer,
+            {"instance": config.instance})
         self._peers = PeerWatch(
             cell=config.cell, role=config.role, instance=config.instance,
             alive_key=self.keys.alive, command_key=self.keys.command,
@@ -171,6 +172,7 @@ class SafetyBus:
         try:
             s = self._session
             self._boot = str(s.zid())
+            self._resets.who["boot"] = self._boot
             self._peers.refuse_if_another(s, self._startup_check_s)
             self._pub_command = s.declare_publisher(
                 self.keys.command, encoding="application/json",

@@ -10,14 +10,30 @@ unsigned, wrongly signed, malformed, for another cell, outside the clock window 
 (``seq`` not growing within one boot) is refused and counted (``holds_refused`` in the status,
 one ``foreign_holds`` alert per burst), like forged commands (``monitor.foreign``). A message can
 only add holds, never end one; a peer that falls silent ends nothing either.
+
+A flood cannot keep the genuine peer from being verified (issue 31: 64 zero bytes as
+"signatures" spent the one shared budget of 100 checks/s, the peer went unverified, a latched
+``handover_silent``). Each signed message *vouches* for the next ``AHEAD`` ones of its sender:
+it carries the SHA-256 digests of random tokens (``next``) and the message with seq n reveals
+its own token in the attachment (``signature || seq || token``, ``HoldsSender``). Checking a
+token is one hash, no signature: a message whose token matches a digest its sender signed
+before takes the sender's own *vouched* budget; every other one (the first of a boot, one after
+more than ``AHEAD`` losses, and every forgery: nobody else knows a token before the peer sends
+it) takes the sender's small *cold* budget, which a flood spends without touching the vouched
+one. Budgets are per sender (the role whose key the message came on), so a flood on one peer's
+key costs no other peer anything. A token copied off the wire after the peer revealed it vouches
+for a message at most ``TRIES`` times and only until that seq was verified.
 """
 
 from __future__ import annotations
 
 import collections
 import contextlib
+import hashlib
+import hmac
 import json
 import logging
+import os
 import threading
 import time
 from collections.abc import Callable, Mapping
@@ -43,6 +59,39 @@ from monitor.verify_budget import VerifyBudget
 _log = logging.getLogger("monitor.handover")
 KINDS = ("unknown_role", "unsigned", "signature", "unchecked", "invalid", "stale", "replayed")
 MAX_BOOTS = 64  # remembered (role, boot) seq counters: a flood cannot grow memory
+AHEAD = 8  # messages each one vouches for: up to AHEAD - 1 lost in a row stay vouched
+TOKEN_BYTES = 16
+SEQ_BYTES = 8
+ATTACHMENT_BYTES = SIGNATURE_BYTES + SEQ_BYTES + TOKEN_BYTES
+TRIES = 4  # signature checks one vouched seq may cost (a token copied off the wire)
+MAX_PAYLOAD = 64 * 1024  # a holds message of MAX_ENTRIES entries is a few kB
+
+
+def token_digest(token: bytes) -> bytes:
+    return hashlib.sha256(token).digest()[:TOKEN_BYTES]
+
+
+class HoldsSender:
+    """Builds this monitor's signed holds messages: seq growing from 1, each vouching for the
+    next ``AHEAD`` (the digests of their tokens, signed) and revealing its own token."""
+
+    def __init__(self, signer: Signer, key_expr: str, cell: str, role: str, boot: str) -> None:
+        self.signer, self.key_expr = signer, key_expr
+        self.cell, self.role, self.boot = cell, role, boot
+        self.seq = 0
+        self._tokens: dict[int, bytes] = {}
+
+    def message(self, wall: float, entries: tuple[Entry, ...]) -> tuple[bytes, bytes]:
+        """(payload, attachment) of the next message."""
+        self.seq += 1
+        n = self.seq
+        for k in range(n, n + AHEAD + 1):
+            self._tokens.setdefault(k, os.urandom(TOKEN_BYTES))
+        token = self._tokens.pop(n)
+        vouch = [token_digest(self._tokens[k]).hex() for k in range(n + 1, n + AHEAD + 1)]
+        payload = holds_payload(self.cell, self.role, self.boot, n, wall, entries, vouch)
+        return payload, (self.signer.sign(self.key_expr, payload) + n.to_bytes(SEQ_BYTES, "big")
+                         + token)
 
 
 class HoldsGate:
@@ -50,7 +99,7 @@ class HoldsGate:
 
     def __init__(self, cell: str, prefix: str, own_role: str,
                  peers: Mapping[str, Ed25519PublicKey], *, wall_window_s: float = 5.0,
-                 verify_per_s: float = 100.0) -> None:
+                 verify_per_s: float = 100.0, cold_per_s: float = 25.0) -> None:
         self.cell, self.own_role = cell, own_role
         self.keys = {role: BusKeys.of(prefix, role).holds for role in peers}
         self.peers = dict(peers)
@@ -59,8 +108,13 @@ class HoldsGate:
         self._lock = threading.Lock()
         self._counts: collections.Counter[str] = collections.Counter()
         self._alerted: collections.Counter[str] = collections.Counter()
+        self.verified: collections.Counter[str] = collections.Counter()  # role -> messages
         self._seq: dict[tuple[str, str], int] = {}
-        self._budget = VerifyBudget(verify_per_s)
+        # per sender: checks of vouched messages, and of all others (floods land there)
+        self._vouched_budget = {role: VerifyBudget(verify_per_s) for role in peers}
+        self._cold_budget = {role: VerifyBudget(cold_per_s) for role in peers}
+        # role -> {seq: [token digest, tries]} vouched for by its last verified message
+        self._vouch: dict[str, dict[int, list]] = {role: {} for role in peers}
 
     def check(self, key_expr: str, payload: bytes, signature: bytes | None, now: float,
               wall_now: float) -> tuple[str, str, tuple[Entry, ...], float] | None:
@@ -79,9 +133,17 @@ class HoldsGate:
             return "unknown_role", None
         if signature is None:
             return "unsigned", None
-        if len(signature) != SIGNATURE_BYTES:
+        if len(signature) not in (SIGNATURE_BYTES, ATTACHMENT_BYTES):
             return "signature", None
-        if not self._budget.take(now):
+        if len(payload) > MAX_PAYLOAD:
+            return "invalid", None
+        claimed, vouched = None, False
+        if len(signature) == ATTACHMENT_BYTES:  # signature || seq || token (HoldsSender)
+            tail, signature = signature[SIGNATURE_BYTES:], signature[:SIGNATURE_BYTES]
+            claimed = int.from_bytes(tail[:SEQ_BYTES], "big")
+            vouched = self._vouched(role, claimed, tail[SEQ_BYTES:])
+        budget = (self._vouched_budget if vouched else self._cold_budget)[role]
+        if not budget.take(now):
             return "unchecked", None
         if not verify(self.peers[role], key_expr, payload, signature):
             return "signature", None
@@ -91,7 +153,8 @@ class HoldsGate:
                     or body.get("role") != role:
                 return "invalid", None
             boot, seq, wall = body["boot"], body["seq"], body["wall"]
-            if not isinstance(boot, str) or not isinstance(seq, int) or isinstance(seq, bool):
+            if not isinstance(boot, str) or not isinstance(seq, int) or isinstance(seq, bool) \
+                    or (claimed is not None and seq != claimed):
                 return "invalid", None
             listed, more = body["entries"], body.get("overflow", 0)
             if not isinstance(listed, list) or not isinstance(more, int) or isinstance(
@@ -112,9 +175,23 @@ class HoldsGate:
             if last is None and len(self._seq) >= MAX_BOOTS:
                 self._seq.pop(next(iter(self._seq)))
             self._seq[(role, boot)] = seq
+            self._vouch[role] = _vouch_of(body.get("next"), seq)
+            self.verified[role] += 1
         if more:  # the persons left off could be anywhere: never silently lost
             entries += (overflow_entry(len(entries) + more, float(wall)),)
         return "", (role, boot, entries, float(wall))
+
+    def _vouched(self, role: str, seq: int, token: bytes) -> bool:
+        """The token of ``seq`` is the one its sender's last verified message vouched for (one
+        hash; at most ``TRIES`` times per seq)."""
+        with self._lock:
+            entry = self._vouch[role].get(seq)
+            if entry is None or entry[1] >= TRIES:
+                return False
+            if not hmac.compare_digest(entry[0], token_digest(token)):
+                return False
+            entry[1] += 1
+            return True
 
     def counts(self) -> dict[str, int]:
         with self._lock:
@@ -134,14 +211,28 @@ class HoldsGate:
                      now, details={"new": dict(new)})
 
 
+def _vouch_of(digests, seq: int) -> dict[int, list]:
+    """seq -> [digest, tries] of the messages after ``seq`` a verified one vouched for."""
+    if not isinstance(digests, list):
+        return {}
+    out = {}
+    for k, d in enumerate(digests[:AHEAD]):
+        if isinstance(d, str) and len(d) == 2 * TOKEN_BYTES:
+            with contextlib.suppress(ValueError):
+                out[seq + 1 + k] = [bytes.fromhex(d), 0]
+    return out
+
+
 def holds_payload(cell: str, role: str, boot: str, seq: int, wall: float,
-                  entries: tuple[Entry, ...]) -> bytes:
+                  entries: tuple[Entry, ...], vouch: list[str] | None = None) -> bytes:
     """The signed message body: at most ``MAX_ENTRIES`` entries (holds first), and in
-    ``overflow`` how many more there were (a receiver then holds every protective zone)."""
+    ``overflow`` how many more there were (a receiver then holds every protective zone);
+    ``next``: the token digests of the next messages (``HoldsSender``)."""
     return json.dumps({"schema": HANDOVER_SCHEMA, "cell": cell, "role": role, "boot": boot,
                        "seq": seq, "wall": wall, "mono": time.monotonic(),
                        "entries": [e.to_dict() for e in entries[:MAX_ENTRIES]],
-                       "overflow": max(0, len(entries) - MAX_ENTRIES)}).encode()
+                       "overflow": max(0, len(entries) - MAX_ENTRIES),
+                       **({"next": vouch} if vouch else {})}).encode()
 
 
 class HoldsLink:
@@ -160,7 +251,7 @@ class HoldsLink:
         walk = tracker.config.walk_speed_mps if tracker is not None else 1.5
         pipeline.handover = HandedHolds(walk, config.reach_s, when=pipeline.when)
         self._inbox: collections.deque = collections.deque(maxlen=256)
-        self._seq = 0
+        self._sender: HoldsSender | None = None  # made at the first publish (the bus's boot)
         self._last_put: float | None = None
         self._started = time.monotonic()
         self._heard: dict[str, float | None] = dict.fromkeys(peers)
@@ -235,11 +326,12 @@ class HoldsLink:
         tracks = {cid: cam.tracker.tracks for cid, cam in self.pipeline.cameras.items()
                   if cam.tracker is not None}
         entries = _entries_of(tracks, time.monotonic(), self.wall(), self.config.keep_s)
-        self._seq += 1
-        payload = holds_payload(self.bus.config.cell, self.bus.config.role, self.bus.boot,
-                                self._seq, self.wall(), entries)
+        if self._sender is None:
+            self._sender = HoldsSender(self.signer, self.key, self.bus.config.cell,
+                                       self.bus.config.role, self.bus.boot)
+        payload, attachment = self._sender.message(self.wall(), entries)
         with contextlib.suppress(Exception):  # a failed put: the peer sees silence, no RUN
-            self._pub.put(payload, attachment=self.signer.sign(self.key, payload))
+            self._pub.put(payload, attachment=attachment)
 
     def close(self) -> None:
         for entity in (self._sub, self._pub):

@@ -4,7 +4,9 @@ A reset arrives as a query (or a put) signed by an operator key; the desk checks
 ``monitor.resets.ResetGate`` bound to this boot and the latch published now. Refused requests
 are answered at once and alerted (``drain_alerts``); verified ones wait for the pipeline
 (``poll``), their queries until the policy's outcome is published (``answer``) or
-``answer_s`` has passed (``expire``).
+``answer_s`` has passed (``expire``). Every answer names the request it answers (its SHA-256),
+the monitor's instance and boot, and is signed with the monitor's key (``monitor.answers``):
+``monitor reset --monitor-key`` believes nothing else.
 """
 
 from __future__ import annotations
@@ -18,8 +20,10 @@ from collections.abc import Callable
 
 import zenoh
 
+from monitor.answers import answer_attachment, request_digest
 from monitor.policy import ResetRequest
 from monitor.resets import ResetGate, ResetRefused
+from monitor.signing import Signer
 from monitor.types import Alert
 
 SCHEMA_VERSION = 1
@@ -34,14 +38,18 @@ class ResetDesk:
     outcome (``last_reset``) in the same critical section as the command carrying it."""
 
     def __init__(self, gate: ResetGate, key: str, answer_s: float,
-                 clock: Callable[[], float], lock: threading.Lock) -> None:
+                 clock: Callable[[], float], lock: threading.Lock,
+                 signer: Signer | None = None, who: dict | None = None) -> None:
         self.gate = gate
         self.key = key
+        self.signer = signer
+        self.who = dict(who or {})  # instance, boot (set once the session is open): in answers
         self.answer_s = answer_s
         self._clock = clock
         self._lock = lock
         self._queue: collections.deque[ResetRequest] = collections.deque(maxlen=16)
-        self.pending: dict[str, tuple[zenoh.Query | None, float]] = {}  # request id -> query
+        # request id -> (query, deadline, the request's digest)
+        self.pending: dict[str, tuple[zenoh.Query | None, float, str]] = {}
         self.invalid = 0
         self.refused = 0
         self.last_reset: dict | None = None  # written with the bus's lock held
@@ -84,15 +92,15 @@ class ResetDesk:
                     f"reset in the name of {operator or '?'} refused by the bus: {exc}", "bus",
                     now, details={"operator": operator, "stage": "bus"}))
             if query is not None:
-                _reply(query, self.key, {"accepted": False, "stage": "bus",
-                                         "reason": str(exc), "operator": operator})
+                self._reply(query, payload, {"accepted": False, "stage": "bus",
+                                             "reason": str(exc), "operator": operator})
             return
         except Exception:  # nothing a sender does may kill this callback
             with self._lock:
                 self.invalid += 1
             if query is not None:
-                _reply(query, self.key, {"accepted": False, "stage": "bus",
-                                         "reason": "malformed reset request"})
+                self._reply(query, payload, {"accepted": False, "stage": "bus",
+                                             "reason": "malformed reset request"})
             return
         if req.confirm_clear:
             with self._lock:
@@ -104,23 +112,24 @@ class ResetDesk:
         with self._lock:
             self._queue.append(req)
             if query is not None:
-                self.pending[req.request_id] = (query, now + self.answer_s)
+                self.pending[req.request_id] = (query, now + self.answer_s,
+                                                request_digest(payload))
 
     def answer(self, request_id: str, accepted: bool, message: str, stage: str,
                state: str | None = None) -> None:
         """Answer that request's query (if it is still waiting) and finalise it."""
         with self._lock:
-            query, _ = self.pending.pop(request_id, (None, 0.0))
+            query, _, digest = self.pending.pop(request_id, (None, 0.0, ""))
         if query is not None:
-            _reply(query, self.key, {"accepted": accepted, "stage": stage,
-                                     "reason": message, "request_id": request_id,
-                                     "state": state})
+            self._reply(query, None, {"accepted": accepted, "stage": stage,
+                                      "reason": message, "request_id": request_id,
+                                      "state": state}, digest)
 
     def expire(self) -> None:
         """Answer queries the policy has not decided on within ``answer_s``."""
         now = self._clock()
         with self._lock:
-            late = [rid for rid, (_, deadline) in self.pending.items() if now > deadline]
+            late = [rid for rid, (_, deadline, _) in self.pending.items() if now > deadline]
         for rid in late:
             self.answer(rid, False, "the monitor did not decide on this request in time "
                         "(superseded by a newer request, or the pipeline is stalled)", "bus")
@@ -130,6 +139,18 @@ class ResetDesk:
             rids = list(self.pending)
         for rid in rids:
             self.answer(rid, False, why, "bus")
+
+    def _reply(self, query: zenoh.Query, request: bytes | None, body: dict,
+               digest: str = "") -> None:
+        """Answer a reset query, signed, and finalise it (the querier's get returns at once)."""
+        answer = json.dumps({"schema": RESET_ANSWER_SCHEMA, **body, **self.who,
+                             "request": request_digest(request) if request is not None
+                             else digest}).encode()
+        with contextlib.suppress(Exception):
+            query.reply(self.key, answer, encoding="application/json",
+                        attachment=answer_attachment(self.signer, self.key, answer))
+        with contextlib.suppress(Exception):
+            query.drop()
 
     def drain_alerts(self) -> list[Alert]:
         """Alerts of refused resets and of confirmed-clear resets, since the last call."""
@@ -145,12 +166,3 @@ def _operator_of(payload: bytes) -> str | None:
         if isinstance(op, str) and op.strip():
             return op.strip()[:64]
     return None
-
-
-def _reply(query: zenoh.Query, key: str, body: dict) -> None:
-    """Answer a reset query and finalise it (the querier's get then returns at once)."""
-    with contextlib.suppress(Exception):
-        query.reply(key, json.dumps({"schema": RESET_ANSWER_SCHEMA, **body}).encode(),
-                    encoding="application/json")
-    with contextlib.suppress(Exception):
-        query.drop()

@@ -133,22 +133,23 @@ class BusKeys:
     pose: str
     mute: str = ""  # signed mute requests (monitor.mute_requests; docs/muting.md)
     zones_apply: str = ""  # signed zone applies (monitor.zone_apply)
-    holds: str = ""  # signed holds of persons lost inside zones (monitor.cell_holds)
+    holds: str = ""  # signed holds of persons lost inside zones (monitor.bus_holds)
+    case: str = ""  # signed zone set selections, one key per cell (monitor.cases.receiver)
     role: str = ""
 
     @classmethod
     def of(cls, prefix: str, role: str = "") -> BusKeys:
         """The keys of the monitor with ``role`` under ``prefix``: role "" (the cell's only
         monitor) keeps ``safety/command`` ...; a role puts its own under ``safety/<role>/``
-        and its liveliness tokens under ``safety/alive/<role>/``. The tool pose is the
-        cell's, shared by all roles."""
+        and its liveliness tokens under ``safety/alive/<role>/``. The tool pose and the zone
+        set selection are the cell's, shared by all roles."""
         p = prefix if prefix.endswith("/") else prefix + "/"
         s = p + "safety/" + (f"{role}/" if role else "")
         return cls(command=s + "command", alert=s + "alert",
                    detections=s + "detections", status=s + "status",
                    reset=s + "reset", alive=p + "safety/alive" + (f"/{role}" if role else ""),
                    pose=p + "tracker/pose", mute=s + "mute", zones_apply=s + "zones/apply",
-                   holds=s + "holds", role=role)
+                   holds=s + "holds", case=p + "safety/case", role=role)
 
 
 def zenoh_config(bus: BusConfig) -> zenoh.Config:

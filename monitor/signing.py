@@ -117,10 +117,12 @@ def load_private_key(path: str | Path) -> Signer:
     return Signer(key)
 
 
-def load_operators(path: str | Path) -> dict[str, Ed25519PublicKey]:
-    """An operators file: ``<operator> ed25519:<base64>`` per line; duplicates are refused."""
+def load_operators(path: str | Path, what: str = "operators file",
+                   who: str = "operator") -> dict[str, Ed25519PublicKey]:
+    """An operators file: ``<operator> ed25519:<base64>`` per line; duplicates are refused.
+    The selectors file has the same format: ``what``/``who`` name it in the errors."""
     out: dict[str, Ed25519PublicKey] = {}
-    text = _read(path, "operators file", WRITABLE_BY_OTHERS, "chmod 644")
+    text = _read(path, what, WRITABLE_BY_OTHERS, "chmod 644")
     for n, line in enumerate(text.splitlines(), start=1):
         line = line.split("#", 1)[0].strip()
         if not line:
@@ -128,10 +130,10 @@ def load_operators(path: str | Path) -> dict[str, Ed25519PublicKey]:
         parts = line.split()
         where = f"{path}:{n}"
         if len(parts) != 2:
-            raise ConfigError(f"{where}: expected '<operator> ed25519:<base64>'")
+            raise ConfigError(f"{where}: expected '<{who}> ed25519:<base64>'")
         name, key = parts
         if name in out:
-            raise ConfigError(f"{where}: operator {name!r} is listed twice")
+            raise ConfigError(f"{where}: {who} {name!r} is listed twice")
         out[name] = parse_public_key(key, where)
     return out
 

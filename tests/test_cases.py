@@ -77,13 +77,17 @@ def test_a_selector_silent_beyond_its_ttl_is_a_stop_fault_until_it_speaks():
     assert cs.in_force(PLAN, state, 4.6).faults[0].name == "case_selector_silent"
 
 
-def test_a_refused_request_is_a_stop_fault_with_the_reason_until_a_valid_selection():
-    state = cs.apply_event(PLAN, cs.initial_case(PLAN, 0.0),
-                           cs.Refusal("unsigned selection in the name of 'robot'", "robot"), 0.2)
-    faults = cs.in_force(PLAN, state, 0.3).faults
-    assert faults[0].name == "case_refused" and "unsigned" in faults[0].reason
-    state = cs.apply_event(PLAN, state, cs.Selection("A", "robot", 1), 0.4)
-    assert cs.in_force(PLAN, state, 0.5).faults == ()
+def test_a_refused_request_changes_nothing_and_is_no_fault():
+    """One unsigned packet on safety/case was a latched STOP: a one-packet denial of service.
+    It comes from no selector, so it changes no set and stops nothing."""
+    start = cs.initial_case(PLAN, 0.0)
+    state = cs.apply_event(PLAN, start, cs.Refusal("unsigned selection in the name of "
+                                                   "'robot'", "robot"), 0.2)
+    assert state == start and cs.in_force(PLAN, state, 0.3).faults == ()
+    # mid-switch-over: the union stays as it was
+    switching = cs.apply_event(PLAN, start, cs.Selection("B", "robot", 1), 0.4)
+    after = cs.apply_event(PLAN, switching, cs.Refusal("replayed", "robot"), 0.5)
+    assert after == switching
 
 
 def test_hits_of_zones_of_sets_not_applying_do_not_count_and_set_caps_slow_warning_hits():
@@ -243,7 +247,7 @@ def test_a_selector_falling_silent_stops_the_cell_with_the_reason(detector):
     assert any(r.fault == "case_selector_silent" for r in late.reasons)
 
 
-def test_an_unknown_set_or_a_refused_request_stops_the_cell_with_the_reason(detector):
+def test_an_unknown_set_stops_the_cell_with_the_reason_a_refused_request_does_not(detector):
     pipe = Pipeline(detector, "cam0", POLICY, parse_cell(_station_cell("A")))
     results = _run(pipe, 0.0, 2.0, events_at={
         1.0: [cs.Selection("Z", "robot", 1)],
@@ -251,8 +255,9 @@ def test_an_unknown_set_or_a_refused_request_stops_the_cell_with_the_reason(dete
     assert results[9].command.state == "RUN"
     unknown = results[10].command
     assert unknown.state == "STOP" and "unknown zone set 'Z'" in unknown.describe()
-    replayed = results[-1].command
-    assert replayed.state == "STOP" and "replayed" in replayed.describe()
+    replayed = results[-1].command  # the unknown set's fault holds; the refusal adds none
+    assert replayed.state == "STOP" and "replayed" not in replayed.describe()
+    assert {r.fault for r in replayed.reasons} == {"case_unknown"}
 
 
 def test_the_sets_in_force_are_in_the_annotated_header_and_the_replay_events(detector):

@@ -62,7 +62,7 @@ class _Publish:
         pass
 
 
-def test_a_signed_selection_over_zenoh_switches_sets_and_an_unsigned_one_stops(
+def test_a_signed_selection_over_zenoh_switches_sets_and_an_unsigned_one_is_refused(
         tmp_path, detector):
     private, _, public = new_key_pair(tmp_path / "robot.key")
     selectors = tmp_path / "selectors"
@@ -101,18 +101,50 @@ def test_a_signed_selection_over_zenoh_switches_sets_and_an_unsigned_one_stops(
         assert switching[0].command.zone_sets == ("A", "B")
         assert wait_for(lambda: any(c.get("zone_sets") == ["A", "B"] for c in commands))
 
-        # unsigned, and the signed one again (replayed): refused with the reason, STOP
+        # unsigned, and the signed one again (replayed): refused with the reason, no event
         unsigned = case_payload("robot", "A", 2, cell="t")
         answer = request_case(robot, key, unsigned, None, timeout=3.0)
         assert answer is not None and not answer["accepted"]
         assert "unsigned" in answer["reason"]
         answer = request_case(robot, key, body, signer.sign(key, body), timeout=3.0)
         assert not answer["accepted"] and "replayed" in answer["reason"]
-        refused = run(15, 2, 1.5)[-1].command
-        assert refused.state == "STOP"
-        assert "unsigned selection" in refused.describe() or "replayed" in refused.describe()
-        assert {r.fault for r in refused.reasons} >= {"case_refused"}
+        assert receiver.poll() == ()
+        after = run(15, 2, 1.5)[-1].command
+        assert after.zone_sets == ("A", "B")  # still switching over: nothing changed
+        assert not {r.fault for r in after.reasons} & {"case_refused"}
         assert receiver.refused == 2 and receiver.accepted == 1
+
+
+def test_an_unsigned_packet_on_safety_case_neither_stops_nor_latches(tmp_path, detector):
+    """Issue 31: one unsigned put on safety/case latched the cell (case_refused). With the
+    manual restart interlock (every STOP latches) the cell keeps running through 20 of them."""
+    _, _, public = new_key_pair(tmp_path / "robot.key")
+    (tmp_path / "selectors").write_text(f"robot {public}\n")
+    port = free_port()
+    cfg = BusConfig(cell="t", instance="mon-dos", listen=(f"tcp/127.0.0.1:{port}",),
+                    selectors_file=str(tmp_path / "selectors"))
+    pipe = Pipeline(detector, "cam0", PolicyConfig(clear_time=0.5, restart_interlock="manual"),
+                    _cell())
+    with SafetyBus(cfg) as bus, \
+            CaseReceiver.for_bus(bus.session, bus.config, pipe.case_plan) as receiver, \
+            open_session(BusConfig(cell="t", connect=(f"tcp/127.0.0.1:{port}",),
+                                   instance="attacker")) as attacker:
+        driver = Driver(pipe, [_Publish(bus)])
+
+        def step(k: int):
+            t = round(k / 10.0, 6)
+            return driver.step(_person_at_b(k, t), t,
+                               StepInputs(case_events=receiver.poll())).result.command
+
+        assert [step(k) for k in range(10)][-1].state == "RUN"  # set A: B's person is no hazard
+        key = BusKeys.of("workcell/t/").case
+        for seq in range(20):
+            attacker.put(key, case_payload("robot", "B", 100 + seq, cell="t"))
+        assert wait_for(lambda: receiver.refused == 20, timeout=20), \
+            f"the unsigned packets did not all arrive ({receiver.refused} of 20)"
+        after = [step(k) for k in range(10, 20)]
+        assert all(c.state == "RUN" and c.zone_sets == ("A",) for c in after), after[-1]
+        assert pipe.state.latched_by is None
 
 
 @pytest.mark.slow  # six monitor processes

@@ -97,3 +97,58 @@ def test_reset_returns_at_the_monitors_answer(monitor_and_a_hung_queryable):
     assert proc.returncode == 0 and "accepted" in stdout, (stdout, stderr)
     assert len(held) >= 2, "the hung queryables did not see both queries"
     assert took < 10.0, f"monitor reset took {took:.1f} s"
+
+
+def _reset_against_a_rogue(tmp_path, *extra: str) -> tuple[str, str, int]:
+    """A latched monitor with a signing key and a rogue session that answers every reset
+    query at once with "accepted"; `monitor reset` run against both; the monitor's policy
+    refuses (a person is still in the zone)."""
+    from monitor.policy import Latch, ResetOutcome
+    from monitor.resets import LatchNonces
+    from monitor.signing import new_key_pair
+
+    new_key_pair(tmp_path / "monitor.key")
+    _, _, anna = new_key_pair(tmp_path / "anna.key")
+    (tmp_path / "operators").write_text(f"anna {anna}\n")
+    port = free_port()
+    cfg = BusConfig(cell="rg", instance="mon-rg", listen=(f"tcp/127.0.0.1:{port}",),
+                    signing_key=str(tmp_path / "monitor.key"),
+                    operators_file=str(tmp_path / "operators"))
+    with SafetyBus(cfg, startup_check_s=0.2) as bus, \
+            open_session(BusConfig(cell="rg", instance="rogue",
+                                   connect=(f"tcp/127.0.0.1:{port}",))) as rogue:
+        bus.publish_command(Command("STOP", 0.0, (), latched=True, latched_by=Latch(
+            "protective_zone", "person 0 in P1", 1.0, nonce=LatchNonces(bus.boot)(1))))
+        keys = BusKeys.of("workcell/rg/")
+        rogue.declare_queryable(keys.reset, lambda q: q.reply(keys.reset, json.dumps(
+            {"schema": "workcell.safety.reset-answer/1", "accepted": True, "stage": "policy",
+             "reason": "reset accepted", "state": "RUN", "instance": "mon-rg"})))
+        proc = subprocess.Popen([sys.executable, "-m", "monitor", "reset", "--operator", "anna",
+                                 "--key", str(tmp_path / "anna.key"), "--cell", "rg",
+                                 "--connect", f"tcp/127.0.0.1:{port}", "--timeout", "20",
+                                 *extra], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                text=True)
+        got: list = []
+        started = time.monotonic()
+        while not got and time.monotonic() - started < TIMEOUT_S and proc.poll() is None:
+            got = bus.poll_resets()
+            time.sleep(0.01)
+        if got:  # the policy's part: still a person in the zone
+            bus.publish_command(Command("STOP", 0.0, (), reset=ResetOutcome(
+                "anna", False, "refused: person 0 in zone P1", got[0].request_id)))
+        stdout, stderr = proc.communicate(timeout=TIMEOUT_S + 30)
+    return stdout, stderr, proc.returncode
+
+
+def test_a_rogue_responders_accepted_is_not_believed_with_the_monitor_key(tmp_path):
+    """Issue 31: a rogue queryable on the reset key answered "accepted" first and `monitor
+    reset` exited 0 while the monitor stayed latched. With --monitor-key only the monitor's
+    signed answer to this very request counts, and the output names who answered."""
+    (tmp_path / "a").mkdir()
+    stdout, stderr, code = _reset_against_a_rogue(tmp_path / "a")
+    assert code == 0 and "NOT authenticated" in stdout + stderr, (stdout, stderr)  # the attack
+    (tmp_path / "b").mkdir()
+    stdout, stderr, code = _reset_against_a_rogue(
+        tmp_path / "b", "--monitor-key", str(tmp_path / "b" / "monitor.key.pub"))
+    assert code == 1 and "REFUSED" in stdout and "person 0" in stdout, (stdout, stderr)
+    assert "answered by monitor mon-rg" in stdout and "signed by ed25519:" in stdout

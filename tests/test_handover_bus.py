@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import contextlib
 import json
+import os
+import threading
 import time
 from collections.abc import Iterator
 
@@ -12,7 +14,7 @@ import pytest
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
 
 from monitor.bus import BusConfig, SafetyBus, open_session
-from monitor.bus_holds import HoldsGate, HoldsLink, holds_payload
+from monitor.bus_holds import HoldsGate, HoldsLink, HoldsSender, holds_payload
 from monitor.busconfig import BusKeys
 from monitor.config import demo_cell_path
 from monitor.handover import Entry, HandoverConfig
@@ -20,7 +22,7 @@ from monitor.pipeline import Pipeline
 from monitor.policy import PolicyConfig
 from monitor.signing import Signer
 from monitor.zones import load_cell
-from tests.helpers import free_port
+from tests.helpers import free_port, wait_for
 
 KEY_A, KEY_B = Ed25519PrivateKey.generate(), Ed25519PrivateKey.generate()
 
@@ -113,3 +115,84 @@ def test_a_peer_restarted_within_the_silence_timeout_latches(detector):
     (fault,) = faults
     assert fault.name == "handover_restarted" and fault.stop and fault.latch
     assert "monitor-a restarted" in fault.reason
+
+
+def _genuine(port: int, stop: threading.Event) -> None:
+    """Monitor-a's own holds messages (``HoldsSender``, as ``HoldsLink`` sends them), 20 Hz."""
+    cfg = BusConfig(cell="ho", connect=(f"tcp/127.0.0.1:{port}",), instance="peer-a")
+    key = BusKeys.of("workcell/ho/", "monitor-a").holds
+    sender = HoldsSender(Signer(KEY_A), key, "ho", "monitor-a", "boot-a")
+    with open_session(cfg) as session:
+        while not stop.wait(0.05):
+            payload, attachment = sender.message(time.time(), ())
+            session.put(key, payload, attachment=attachment)
+
+
+def _flood(port: int, per_s: float, seconds: float, sent: list[int]) -> None:
+    """A keyless attacker at ``per_s`` messages a second for ``seconds``: copies of monitor-a's
+    newest message with a higher seq and 64 zero bytes as the signature, half of them with a
+    seq and a random token in the attachment, and every genuine token it sees copied onto a
+    forged payload (the race a copier can try)."""
+    cfg = BusConfig(cell="ho", connect=(f"tcp/127.0.0.1:{port}",), instance="attacker")
+    key = BusKeys.of("workcell/ho/", "monitor-a").holds
+    newest: list = [None]
+    with open_session(cfg) as session:
+        session.declare_subscriber(key, lambda s: newest.__setitem__(
+            0, (s.payload.to_bytes(), s.attachment.to_bytes())))
+        assert wait_for(lambda: newest[0] is not None, timeout=20), "no genuine message seen"
+        start = time.monotonic()
+        n = 0
+        while (now := time.monotonic()) < start + seconds:
+            if n > (now - start) * per_s:
+                time.sleep(0.001)
+                continue
+            payload, attachment = newest[0]
+            body = json.loads(payload)
+            body["seq"] += 1 + n % 5
+            body["entries"] = []
+            forged = json.dumps(body).encode()
+            seq = body["seq"].to_bytes(8, "big")
+            kind = n % 3
+            if kind == 0:
+                tail = b""
+            elif kind == 1:
+                tail = seq + os.urandom(16)
+            else:  # the genuine token just revealed, on a payload of the attacker's
+                tail = attachment[64:]
+            session.put(key, forged, attachment=bytes(64) + tail)
+            n += 1
+    sent.append(n)
+
+
+@pytest.mark.slow  # a 3 s flood
+def test_a_keyless_flood_on_a_peers_holds_key_leaves_the_genuine_peer_verified(detector):
+    """Issue 31: 64-zero-byte "signatures" spent the one budget of 100 checks/s, monitor-a went
+    unverified and monitor-b latched ``handover_silent`` after 2.65 s. Forgeries now land on
+    monitor-a's cold budget; its genuine messages vouch for each other and are all checked."""
+    stop = threading.Event()
+    with _monitor_b(detector) as (port, link):
+        genuine = threading.Thread(target=_genuine, args=(port, stop), daemon=True)
+        genuine.start()
+        try:
+            assert wait_for(lambda: link.gate.verified["monitor-a"] >= 5, timeout=20), \
+                "monitor-a's genuine messages were never verified"
+            before = link.gate.verified["monitor-a"]
+            sent: list[int] = []
+            attacker = threading.Thread(target=_flood, args=(port, 10_000.0, 3.0, sent))
+            attacker.start()
+            faults = []
+            while attacker.is_alive():
+                faults += [f for f in link.faults() if f.name == "handover_silent"]
+                time.sleep(0.05)
+            attacker.join()
+            faults += [f for f in link.faults() if f.name == "handover_silent"]
+            during = link.gate.verified["monitor-a"] - before
+        finally:
+            stop.set()
+            genuine.join(5.0)
+        counts = link.gate.counts()
+    refused = counts.get("unchecked", 0) + counts.get("signature", 0)
+    print(f"flood: {sent[0]} sent, refused {counts}, genuine verified during it: {during}")
+    assert refused >= 5_000, f"the flood never reached the gate: {counts}, sent {sent}"
+    assert faults == [], faults[0]
+    assert during >= 40, f"only {during} genuine messages verified in 3 s of flood (60 sent)"

@@ -321,3 +321,39 @@ def test_two_live_monitors_on_a_cell_mean_stop(keys):
 def test_parse_command_names_the_bad_field():
     with pytest.raises(ValueError, match="ttl_ms"):
         parse_command(command(1, ttl=float("nan")))
+
+
+def test_keys_new_for_a_selector_names_the_selectors_file_and_an_operator_hint_warns(tmp_path):
+    """Issue 31: `keys new --operator robot` told the user to put the robot's key into the
+    operators file, which would give the robot program reset rights."""
+    run = [sys.executable, "-m", "monitor", "keys", "new"]
+    sel = subprocess.run([*run, str(tmp_path / "robot.key"), "--selector", "robot"],
+                         capture_output=True, text=True)
+    assert sel.returncode == 0, sel.stderr
+    assert "selectors file (bus.selectors_file)" in sel.stdout
+    assert "never to the operators file" in sel.stdout
+    assert any(line.startswith("robot ed25519:") for line in sel.stdout.splitlines())
+    op = subprocess.run([*run, str(tmp_path / "anna.key"), "--operator", "anna"],
+                        capture_output=True, text=True)
+    assert "operators file" in op.stdout and "--selector NAME" in op.stdout
+    both = subprocess.run([*run, str(tmp_path / "x.key"), "--operator", "a", "--selector", "b"],
+                          capture_output=True, text=True)
+    assert both.returncode != 0 and "not both" in both.stderr
+
+
+def test_a_bad_selectors_file_is_named_as_the_selectors_file(tmp_path):
+    from monitor.cases.receiver import CaseReceiver
+
+    bad = tmp_path / "selectors"
+    bad.write_text("robot\n")
+    with pytest.raises(ConfigError) as err:
+        CaseReceiver.for_bus(None, type("Bus", (), {
+            "key_prefix": "workcell/c/", "selectors_file": str(bad), "cell": "c",
+            "case_window_s": 5.0})(), None)
+    assert "'<selector> ed25519:<base64>'" in str(err.value)
+    bad.chmod(0o666)
+    with pytest.raises(ConfigError) as err:
+        CaseReceiver.for_bus(None, type("Bus", (), {
+            "key_prefix": "workcell/c/", "selectors_file": str(bad), "cell": "c",
+            "case_window_s": 5.0})(), None)
+    assert "selectors file" in str(err.value) and "operators file" not in str(err.value)

@@ -42,3 +42,26 @@ def make_tls(tmp_path):
         paths[name] = tmp_path / f"{name}.pem"
         paths[name].write_bytes(data)
     return paths
+
+
+def secure_router(tmp_path, config_file, users: dict[str, str], port: int):
+    """The shipped router config ``config_file`` (deploy/zenoh/) with the test's TLS material,
+    users file and port on 127.0.0.1: everything else (its access control) as shipped."""
+    import json
+
+    import zenoh
+
+    tls = make_tls(tmp_path)
+    users_file = tmp_path / "zenoh-users.txt"
+    users_file.write_text("".join(f"{u}:{p}\n" for u, p in users.items()))
+    conf = zenoh.Config.from_file(str(config_file))
+    for key, value in {
+        "listen/endpoints": [f"tls/127.0.0.1:{port}"],
+        "connect/endpoints": [],
+        "transport/link/tls/root_ca_certificate": str(tls["ca"]),
+        "transport/link/tls/listen_certificate": str(tls["cert"]),
+        "transport/link/tls/listen_private_key": str(tls["key"]),
+        "transport/auth/usrpwd/dictionary_file": str(users_file),
+    }.items():
+        conf.insert_json5(key, json.dumps(value))
+    return conf, tls

@@ -1,7 +1,9 @@
 """Zone set selections off Zenoh: ``<prefix>safety/case`` as a queryable (the answer says
 whether the request was verified) and as a subscriber (a PLC adapter or robot program that
-only puts). Each request becomes an event for the pipeline's switch (``Pipeline.
-take_case_events``): a verified ``Selection`` or a ``Refusal`` with the reason."""
+only puts). A verified request becomes a ``Selection`` for the pipeline's switch (``Pipeline.
+take_case_events``); a refused one is answered with the reason and counted, and changes
+nothing: one forged packet must not stop (let alone latch) the cell, and a flood of them must
+not push a verified selection out of the queue."""
 
 from __future__ import annotations
 
@@ -14,6 +16,7 @@ import time
 import zenoh
 
 from monitor.answers import request_answer
+from monitor.busconfig import BusKeys
 from monitor.cases.requests import CaseGate, CasePolicy
 from monitor.cases.sets import CasePlan, Refusal, Selection
 from monitor.signing import load_operators
@@ -22,12 +25,13 @@ CASE_ANSWER_SCHEMA = "workcell.safety.case-answer/1"
 
 
 def case_key(prefix: str) -> str:
-    return (prefix if prefix.endswith("/") else prefix + "/") + "safety/case"
+    """The cell's selection key (``BusKeys.case``: one for every role of the cell)."""
+    return BusKeys.of(prefix).case
 
 
 class CaseReceiver:
-    """Verifies selection requests as they arrive and queues them (bounded: the newest 64; a
-    flood still leaves its refusals in the queue). Thread-safe ``poll``."""
+    """Verifies selection requests as they arrive and queues the verified ones (bounded: the
+    newest 64); refused ones are answered and counted only. Thread-safe ``poll``."""
 
     def __init__(self, session: zenoh.Session, key_expr: str, gate: CaseGate,
                  plan: CasePlan | None = None) -> None:
@@ -36,7 +40,7 @@ class CaseReceiver:
         self.gate = gate
         self.plan = plan
         self._lock = threading.Lock()
-        self._events: collections.deque[Selection | Refusal] = collections.deque(maxlen=64)
+        self._events: collections.deque[Selection] = collections.deque(maxlen=64)
         self._entities: list = []
         self.accepted = 0
         self.refused = 0
@@ -45,7 +49,7 @@ class CaseReceiver:
     def for_bus(cls, session: zenoh.Session, bus_config, plan: CasePlan | None
                 ) -> CaseReceiver:
         key = case_key(bus_config.key_prefix)
-        selectors = (load_operators(bus_config.selectors_file)
+        selectors = (load_operators(bus_config.selectors_file, "selectors file", "selector")
                      if bus_config.selectors_file else None)
         return cls(session, key, CaseGate(CasePolicy(selectors, bus_config.cell, key,
                                                      bus_config.case_window_s)), plan)
@@ -64,7 +68,7 @@ class CaseReceiver:
                 entity.undeclare()
         self._entities = []
 
-    def poll(self) -> tuple[Selection | Refusal, ...]:
+    def poll(self) -> tuple[Selection, ...]:
         with self._lock:
             out = tuple(self._events)
             self._events.clear()
@@ -77,10 +81,10 @@ class CaseReceiver:
         except Exception:  # nothing a sender does may kill this callback
             event = Refusal("malformed selection request")
         with self._lock:
-            self._events.append(event)
             if isinstance(event, Refusal):
                 self.refused += 1
                 return {"accepted": False, "reason": event.reason}
+            self._events.append(event)
             self.accepted += 1
         known = self.plan is None or self.plan.get(event.set_id) is not None
         reason = "verified; the switch follows the zone file's rules" if known else \

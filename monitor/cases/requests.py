@@ -6,8 +6,9 @@ select`` names the zone set the robot works in now. The monitor accepts a reques
 ``<name> ed25519:<base64>`` per line), signed with that selector's key on this key, for this
 cell, sent recently (``wall`` within ``window_s`` of the monitor's clock) and with a ``seq``
 larger than every earlier one of that selector in this run of the monitor. Anything else is
-refused with the reason, and a refusal is a STOP fault until the next valid selection
-(``monitor.cases.sets``): a lie on the network never looks like "all clear".
+refused with the reason (the answer to the sender, counted) and changes nothing
+(``monitor.cases.sets``): a lie on the network never switches zones, and one forged packet
+never stops the cell.
 
 Payload (UTF-8 JSON; the Ed25519 signature of ``monitor.signing.signed_message(<case key>,
 payload)`` is the attachment)::

@@ -2,11 +2,12 @@
 
 A *selection* names the set the robot program works in now. A switch from set A to set B
 takes effect only after ``switch_over_s``: until then both A and B apply (the union: never
-less protection while switching). A selection of an unknown set or of a transition the zone
-file does not allow, a refused request (unsigned, wrongly signed, replayed, stale) and a
-selector that has said nothing for ``selector_ttl_s`` are STOP faults with the reason; the sets
-in force stay as they were. A refusal's fault holds until the next valid selection; silence
-ends with the next valid selection. Zones that no set names apply always.
+less protection while switching). A verified selection of an unknown set or of a transition the
+zone file does not allow, and a selector that has said nothing for ``selector_ttl_s`` are STOP
+faults with the reason; the sets in force stay as they were. Such a fault holds until the next
+valid selection. A refused request (unsigned, wrongly signed, replayed, stale) comes from no
+selector: it changes nothing (the sender has the refusal as its answer). Zones that no set
+names apply always.
 
 No clocks, no I/O: ``apply_event`` and ``advance`` take the time they are given
 (``Pipeline``'s ``now``), so replay and tests are deterministic.
@@ -77,7 +78,7 @@ class Selection:
 @dataclass(frozen=True)
 class Refusal:
     """A request that was refused before it could select anything (unsigned, wrongly signed,
-    replayed, stale, malformed): the reason told to the sender."""
+    replayed, stale, malformed): the reason told to the sender. It changes no state."""
 
     reason: str
     selector: str = ""
@@ -112,12 +113,14 @@ def apply_event(plan: CasePlan, state: CaseState, event: Selection | Refusal,
                 now: float) -> CaseState:
     """One request at ``now``: a valid selection of the set selected now is a heartbeat; of an
     allowed other set starts a switch-over (every set applying now keeps applying until it
-    ends); anything else is a fault and changes no set."""
+    ends); a verified selection of an unknown set or a disallowed change is a fault and
+    changes no set; a refused request changes nothing."""
     state = advance(plan, state, now)
     if isinstance(event, Refusal):
-        who = f" from {event.selector}" if event.selector else ""
-        return replace(state, fault=Fault("case_refused", f"zone set selection{who} refused: "
-                                          f"{event.reason}", True, SOURCE))
+        # unsigned, forged, replayed, stale: it came from no selector, so it says nothing
+        # about the robot and changes nothing (a STOP here was a one-packet denial of
+        # service that latched the cell); the sender had the refusal as its answer
+        return state
     if plan.get(event.set_id) is None:
         known = ", ".join(s.id for s in plan.sets)
         return replace(state, fault=Fault("case_unknown", f"{event.selector or 'selector'} "

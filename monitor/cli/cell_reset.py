@@ -20,7 +20,7 @@ from monitor.signals import Interrupted, call_interruptible
 
 
 def reset_roles(args: argparse.Namespace, bus: BusConfig, session, signer, stop,
-                first_status) -> int:
+                first_status, monitor_keys=None) -> int:
     """Reset every latched monitor of ``args.role``; print one line per role; the exit code."""
     refused = silent = latched = 0
     for role in args.role:
@@ -42,7 +42,8 @@ def reset_roles(args: argparse.Namespace, bus: BusConfig, session, signer, stop,
                                 cell=bus.cell if bus.prefix is None else "",
                                 confirm_clear=args.confirm_clear, boot=boot, latch=latch)
         signature = signer.sign(keys.reset, payload) if signer else None
-        answer = _ask(session, keys.reset, payload, signature, args.timeout, stop)
+        answer = _ask(session, keys.reset, payload, signature, args.timeout, stop,
+                      monitor_keys)
         if answer is None:
             silent += 1
             print(f"{role}: NO ANSWER on {keys.reset} within {args.timeout:g} s")
@@ -62,7 +63,7 @@ def reset_roles(args: argparse.Namespace, bus: BusConfig, session, signer, stop,
 
 
 def _ask(session, key: str, payload: bytes, signature: bytes | None, timeout: float,
-         stop) -> dict | None:
+         stop, monitor_keys=None) -> dict | None:
     started = time.monotonic()
     while not stop.is_set():
         left = timeout - (time.monotonic() - started)
@@ -71,7 +72,7 @@ def _ask(session, key: str, payload: bytes, signature: bytes | None, timeout: fl
         asked = time.monotonic()
         try:
             answer = call_interruptible(lambda left=left: request_reset(
-                session, key, payload, signature, left), stop)
+                session, key, payload, signature, left, monitor_keys), stop)
         except Interrupted:
             return None
         if answer is not None or time.monotonic() - asked > 0.2:

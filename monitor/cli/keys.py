@@ -1,4 +1,4 @@
-"""``monitor keys new``: Ed25519 key pairs for the monitor and for operators."""
+"""``monitor keys new``: Ed25519 key pairs for the monitor, operators and selectors."""
 
 from __future__ import annotations
 
@@ -12,22 +12,33 @@ KEY_DIR = Path("~/.config/workcell-monitor/keys")
 
 
 def cmd_keys_new(args: argparse.Namespace) -> int:
+    if args.operator and args.selector:
+        raise ConfigError("monitor keys new: --operator or --selector, not both (a selector "
+                          "must not be able to reset: one key, one role)")
+    name = args.operator or args.selector
     if args.path:
         path = Path(args.path)
-    elif args.operator:
-        path = (KEY_DIR / f"{args.operator}.key").expanduser()
+    elif name:
+        path = (KEY_DIR / f"{name}.key").expanduser()
     else:
-        raise ConfigError("monitor keys new: give a PATH for the key, or --operator NAME "
-                          f"(then {KEY_DIR}/NAME.key)")
-    if args.operator and any(c.isspace() or c == "#" for c in args.operator):
-        raise ConfigError(f"--operator {args.operator!r}: no spaces or '#' in operator ids")
+        raise ConfigError("monitor keys new: give a PATH for the key, or --operator NAME or "
+                          f"--selector NAME (then {KEY_DIR}/NAME.key)")
+    flag = "--operator" if args.operator else "--selector"
+    if name and any(c.isspace() or c == "#" for c in name):
+        raise ConfigError(f"{flag} {name!r}: no spaces or '#' in {flag[2:]} ids")
     private, public, text = new_key_pair(path, force=args.force)
     print(f"private key: {private} (mode 600; keep it on this host only)")
     print(f"public key:  {public}")
     print(text)
     if args.operator:
+        print("(operators may reset a latched STOP; a robot program or PLC that selects zone "
+              "sets is a selector: monitor keys new --selector NAME)")
         print(f"add this line to the monitor's operators file (bus.operators_file):\n"
               f"{args.operator} {text}")
+    elif args.selector:
+        print(f"add this line to the monitor's selectors file (bus.selectors_file), never to "
+              f"the operators file (that would let it reset a latched STOP):\n"
+              f"{args.selector} {text}")
     else:
         print("monitor: set bus.signing_key to the private key; give consumers the public key "
               "(`monitor watch --monitor-key " + str(public) + "`)")
@@ -35,7 +46,8 @@ def cmd_keys_new(args: argparse.Namespace) -> int:
 
 
 def register(subparsers) -> None:
-    keys = subparsers.add_parser("keys", help="make signing keys (monitor, operators)")
+    keys = subparsers.add_parser("keys", help="make signing keys (monitor, operators, "
+                                 "selectors)")
     ksub = keys.add_subparsers(dest="keys_action", metavar="ACTION", required=True)
     p = ksub.add_parser("new", help="write a new Ed25519 key pair (private key mode 600)",
                         description="Writes PATH (private, mode 600) and PATH.pub (public). "
@@ -44,6 +56,9 @@ def register(subparsers) -> None:
                    f"{KEY_DIR}/<operator>.key with --operator)")
     p.add_argument("--operator", help="operator id: print the line for the operators file "
                    "(default: a monitor key)")
+    p.add_argument("--selector", help="selector id (a robot program, a PLC adapter that "
+                   "selects zone sets): print the line for the selectors file (default: a "
+                   "monitor key)")
     p.add_argument("--force", action="store_true",
                    help="replace existing key files (default: refuse)")
     p.set_defaults(func=cmd_keys_new)

@@ -25,7 +25,7 @@ from monitor.cli.zenoh_args import (
 from monitor.errors import ConfigError
 from monitor.resets import latch_of_status, request_reset, reset_payload
 from monitor.signals import Interrupted, StopSignals, call_interruptible
-from monitor.signing import load_private_key
+from monitor.signing import load_private_key, load_public_key
 
 STATUS_GRACE_S = 0.2  # s to wait for more monitors' status after the first
 _END = object()  # put by the query's drop callback: no more replies will come
@@ -46,6 +46,12 @@ def cmd_reset(args: argparse.Namespace) -> int:
         keys = role_keys(bus)
         key_path = _operator_key_path(args)
         signer = load_private_key(key_path) if key_path else None
+        monitor_keys = (tuple(load_public_key(k) for k in args.monitor_key)
+                        if args.monitor_key else None)
+        if monitor_keys is None:
+            print("monitor reset: no --monitor-key: the answer is NOT authenticated (anyone "
+                  "who may answer on the reset key could have sent it)", file=sys.stderr,
+                  flush=True)
         if signer is None:
             print(f"monitor reset: no key for {args.operator} (--key, or "
                   f"{KEY_DIR}/{args.operator}.key): sending unsigned; a monitor with "
@@ -58,7 +64,8 @@ def cmd_reset(args: argparse.Namespace) -> int:
             if args.role:  # several monitors on the cell: each latched one (cell_reset.py)
                 from monitor.cli.cell_reset import reset_roles
 
-                return reset_roles(args, bus, session, signer, stop, _first_status)
+                return reset_roles(args, bus, session, signer, stop, _first_status,
+                                   monitor_keys)
             started = time.monotonic()
             answer = None
             # the reset names the monitor's boot and the latch it releases (signed into it)
@@ -86,7 +93,7 @@ def cmd_reset(args: argparse.Namespace) -> int:
                 asked = time.monotonic()
                 try:
                     answer = call_interruptible(lambda left=left: request_reset(
-                        session, keys.reset, payload, signature, left), stop)
+                        session, keys.reset, payload, signature, left, monitor_keys), stop)
                 except Interrupted:
                     break
                 if answer is not None or time.monotonic() - asked > 0.2:
@@ -95,12 +102,21 @@ def cmd_reset(args: argparse.Namespace) -> int:
         if stop.is_set():
             return 130
     if answer is None:
-        raise ConfigError(f"monitor reset: no monitor answered on {keys.reset} within "
+        signed = " with an answer signed by --monitor-key" if monitor_keys else ""
+        raise ConfigError(f"monitor reset: no monitor answered{signed} on {keys.reset} within "
                           f"{args.timeout:g} s; {nothing_found_hint(bus)}")
     verdict = "accepted" if answer["accepted"] else "REFUSED"
     print(f"reset by {args.operator} {verdict}: {answer.get('reason', '')}"
           + (f" (monitor now {answer['state']})" if answer.get("state") else ""))
+    print(f"answered by {answered_by(answer)}")
     return 0 if answer["accepted"] else 1
+
+
+def answered_by(answer: dict) -> str:
+    """Which monitor answered: its instance and boot, and the key that signed it (or not)."""
+    who = f"monitor {answer.get('instance', '?')} (boot {str(answer.get('boot', '?'))[:8]})"
+    key = answer.get("signed_by")
+    return f"{who}, signed by {key}" if key else f"{who}, NOT authenticated"
 
 
 def ask(session, key: str, timeout: float, stop, want: Callable[[bytes], dict | None],
@@ -214,6 +230,10 @@ def register(subparsers) -> None:
     p.add_argument("--note", default="", help="free text for the log (default empty)")
     p.add_argument("--timeout", type=float, default=3.0,
                    help="s to wait for the monitor's answer (default 3)")
+    p.add_argument("--monitor-key", action="append", default=[], metavar="FILE",
+                   help="the monitor's public key (as for watch; repeat for several): only an "
+                   "answer it signed is believed (default none: the answer is shown as NOT "
+                   "authenticated)")
     add_role_arg(p, many=True, what="name every monitor of the cell: each latched one gets "
                  "its own signed request and answers; exit 0 only when all accepted")
     p.set_defaults(func=cmd_reset)
