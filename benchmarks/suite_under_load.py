@@ -4,10 +4,14 @@ A test that passes only on a quiet machine (a sleep that is long enough there, a
 no margin) fails in CI on a busy runner and teaches people to ignore red builds. This script
 starts ``--load`` busy processes (each spins one core in pure Python, at normal priority),
 runs ``python -m pytest`` ``--runs`` times in a row, and prints a table: run, passed, failed,
-errors, wall time, load average. Exit status 1 when any run was not green.
+errors, wall time, load average. Then, per run, the ten slowest tests (pytest's durations) and
+every test that needed more than half of its own wait (a wait's ceiling, tests/helpers.py
+``wait_for``): the tests closest to failing under this load. Exit status 1 when any run was not
+green, or ended without pytest's summary line (an INTERNALERROR, a crashed scheduler).
 
     .venv/bin/python benchmarks/suite_under_load.py                 # 3 runs, 1 busy process
     .venv/bin/python benchmarks/suite_under_load.py --runs 1 --load 2 -- -m "not slow"
+    .venv/bin/python benchmarks/suite_under_load.py --runs 1 --load 20   # a crushed machine
 
 Slow (three whole suites): a benchmark, never part of the test suite.
 """
@@ -15,11 +19,13 @@ Slow (three whole suites): a benchmark, never part of the test suite.
 from __future__ import annotations
 
 import argparse
+import json
 import multiprocessing as mp
 import os
 import re
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -43,6 +49,25 @@ def counts(output: str) -> dict[str, int]:
     return found
 
 
+def slowest(output: str, n: int = 10) -> list[str]:
+    """The first ``n`` lines of pytest's "slowest durations" table ("12.34s call  tests/...")."""
+    lines = output.splitlines()
+    start = next((i for i, line in enumerate(lines) if "slowest" in line and "durations" in line),
+                 None)
+    if start is None:
+        return []
+    rows = [line for line in lines[start + 1:] if re.match(r"\d+\.\d+s ", line)]
+    return rows[:n]
+
+
+def tight_waits(folder: Path) -> list[dict]:
+    """The waits the tests noted as taking over half their ceiling, longest first."""
+    found = []
+    for path in folder.glob("waits-*.jsonl"):
+        found += [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    return sorted(found, key=lambda w: -w["waited"] / w["ceiling"])
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=int, default=3, help="suites in a row (default 3)")
@@ -59,18 +84,33 @@ def main() -> int:
     try:
         for run in range(1, args.runs + 1):
             t0 = time.monotonic()
-            proc = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
-                                   *args.pytest_args], cwd=ROOT, capture_output=True, text=True)
+            with tempfile.TemporaryDirectory(prefix="waits-") as waits:
+                env = {**os.environ, "MONITOR_TEST_WAITS": waits}
+                proc = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p",
+                                       "no:cacheprovider", "--durations=10", *args.pytest_args],
+                                      cwd=ROOT, capture_output=True, text=True, env=env)
+                tight = tight_waits(Path(waits))
             wall = time.monotonic() - t0
             found = counts(proc.stdout)
+            # no summary line: pytest itself went down (INTERNALERROR), whatever the counts
+            summary = bool(re.search(r"\d+ (passed|failed)", proc.stdout.strip().splitlines()[-1]
+                                     if proc.stdout.strip() else ""))
+            code = proc.returncode if summary else proc.returncode or 3
             load = os.getloadavg()[0]
-            rows.append((run, found, wall, load, proc.returncode))
-            print(f"run {run}: exit {proc.returncode}, {found}, {wall:.0f} s, load {load:.2f}",
-                  flush=True)
+            rows.append((run, found, wall, load, code))
+            print(f"run {run}: exit {code}, {found}, {wall:.0f} s, load {load:.2f}"
+                  + ("" if summary else ", NO SUMMARY (pytest went down)"), flush=True)
             if proc.returncode != 0:
                 failing = [line for line in proc.stdout.splitlines()
-                           if line.startswith(("FAILED", "ERROR", "E   "))]
+                           if line.startswith(("FAILED", "ERROR", "E   ", "INTERNALERROR> E"))
+                           or "node down" in line or "crashed" in line]
                 print("\n".join(failing[:40]), flush=True)
+            print("ten slowest tests:\n  " + "\n  ".join(slowest(proc.stdout) or ["(none)"]),
+                  flush=True)
+            print(f"tests that needed over half of a wait ({len(tight)}):", flush=True)
+            for w in tight:
+                print(f"  {w['waited']:.1f} of {w['ceiling']:g} s  {w['test']}: {w['what']}",
+                      flush=True)
     finally:
         stop.set()
         for hog in hogs:

@@ -3,6 +3,9 @@ checks that an error is one clear line."""
 
 from __future__ import annotations
 
+import inspect
+import json
+import os
 import socket
 import subprocess
 import sys
@@ -28,15 +31,55 @@ def free_port(kind: int = socket.SOCK_STREAM) -> int:
         return s.getsockname()[1]
 
 
-def wait_for(cond: Callable[[], T], timeout: float = 3.0) -> T:
-    """Poll ``cond()`` every 5 ms until it is truthy or ``timeout`` s pass; its last answer."""
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
+# How long a wait may take before the test fails: a ceiling, not a delay (a wait returns as soon
+# as its event arrives). Things that take 0.1 s on a quiet machine take 1-4 s on a crushed one
+# (benchmarks/suite_under_load.py --load 20); a ceiling of 30 s costs nothing when all is well.
+WAIT_CEILING = 30.0
+
+
+def describe(cond: Callable[[], object]) -> str:
+    """The source text of ``cond`` (a lambda: its body) for a failure message."""
+    try:
+        text = " ".join(line.strip() for line in inspect.getsource(cond).splitlines())
+    except (OSError, TypeError):
+        return getattr(cond, "__qualname__", repr(cond))
+    if "lambda" in text:
+        text = text[text.index("lambda"):]
+    return text[:200]
+
+
+def note_wait(what: str, waited: float, ceiling: float) -> None:
+    """A wait that took over half its ceiling, written where benchmarks/suite_under_load.py
+    collects them (``MONITOR_TEST_WAITS``, a directory): the tests closest to a timeout."""
+    folder = os.environ.get("MONITOR_TEST_WAITS")
+    if not folder or waited <= ceiling / 2:
+        return
+    test = os.environ.get("PYTEST_CURRENT_TEST", "?").rsplit(" (", 1)[0]
+    line = json.dumps({"test": test, "what": what, "waited": round(waited, 2),
+                       "ceiling": ceiling})
+    with open(Path(folder) / f"waits-{os.getpid()}.jsonl", "a") as f:
+        f.write(line + "\n")
+
+
+def wait_for(cond: Callable[[], T], timeout: float = WAIT_CEILING,
+             what: str | Callable[[], object] = "") -> T:
+    """Poll ``cond()`` every 5 ms until it is truthy (its answer); after ``timeout`` s fail,
+    naming what did not arrive (``what``, or ``cond``'s source; a callable ``what`` adds
+    what it returns then, e.g. the last messages seen)."""
+    t0 = time.monotonic()
+    while True:
         value = cond()
+        waited = time.monotonic() - t0
         if value:
+            note_wait(what if isinstance(what, str) and what else describe(cond), waited,
+                      timeout)
             return value
+        if waited >= timeout:
+            break
         time.sleep(0.005)
-    return cond()
+    name = describe(cond) if callable(what) or not what else what
+    detail = f" (then: {what()!r})" if callable(what) else ""
+    raise AssertionError(f"did not arrive within {timeout:g} s: {name}{detail}")
 
 
 def assert_one_line(exc: BaseException, *needles: str) -> None:

@@ -13,7 +13,7 @@ from pathlib import Path
 from pymodbus.client import ModbusTcpClient
 
 from monitor.adapters import modbus_map as mm
-from tests.helpers import wait_for
+from tests.helpers import WAIT_CEILING, wait_for
 
 CELL = "plc"
 
@@ -48,7 +48,7 @@ class Plc:
             return self.client.write_register(address, values[0], device_id=1)
         return self.client.write_registers(address, list(values), device_id=1)
 
-    def wait(self, cond, timeout: float = 5.0) -> list[int] | None:
+    def wait(self, cond, timeout: float = WAIT_CEILING) -> list[int] | None:
         return wait_for(lambda: (r := self.read()) is not None and cond(r) and r, timeout)
 
     def close(self) -> None:

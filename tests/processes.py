@@ -22,7 +22,7 @@ from monitor.config import demo_cell_path
 from monitor.consumer import Verdict
 from monitor.inbox import Inbox
 from monitor.scene import DemoScene
-from tests.helpers import free_port
+from tests.helpers import free_port, note_wait
 
 # The tests run beside other tests and load (benchmarks/suite_under_load.py): the start-up
 # capacity check only warns here, as a slow CI machine is not what these tests are about
@@ -44,10 +44,11 @@ def _load_tolerant(extra: str) -> str:
 
 def wait_for(cond: Callable[[], object], timeout: float, what: str, proc=None):
     """Poll until ``cond()`` is truthy; fail with the service's log if it died or timed out."""
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < timeout:
         value = cond()
         if value:
+            note_wait(what, time.monotonic() - t0, timeout)
             return value
         if proc is not None and proc.poll() is not None:
             raise AssertionError(f"service exited ({proc.poll()}) waiting for {what}: "

@@ -198,10 +198,10 @@ def test_the_server_shows_stop_itself_when_the_adapter_loop_stops_handing_over()
                 out.publish(snapshot_of(Verdict("RUN", 1.0, "", i, cmd), now, time.time(), i,
                                         now - 0.01, ("cam0",)))
                 time.sleep(0.02)
-            assert wait_for(lambda: r["Heartbeat"] == 5, 3.0)
+            assert wait_for(lambda: r["Heartbeat"] == 5)
             assert r.state() == 2 and r["CamerasOk"] == [True]
             t_last = time.monotonic()
-            assert wait_for(lambda: r.state() == 0, 3.0)  # nothing more handed over
+            assert wait_for(lambda: r.state() == 0)  # nothing more handed over
             assert time.monotonic() - t_last < 2.0
             assert r["ReasonCode"] == "adapter_stale" and r["Heartbeat"] == 5
             assert r["CamerasOk"] == [False] and out.stale_stops == 1
@@ -223,14 +223,14 @@ def test_a_client_reads_run_slow_stop_of_a_signed_monitor_and_the_heartbeat(keys
             r = Reader(client)
             assert r.state() == 0 and r["ReasonCode"] == "no_command"
             beat = r["Heartbeat"]
-            assert wait_for(lambda: r["Heartbeat"] != beat, 2.0)
+            assert wait_for(lambda: r["Heartbeat"] != beat)
             cfg = BusConfig(cell=cell, instance="mon-op", listen=(f"tcp/127.0.0.1:{zport}",),
                             heartbeat_hz=20.0, ttl_ms=TTL_MS, signing_key=str(private))
             with SafetyBus(cfg) as bus:
                 pipe = Pipeline(bus)
                 try:
                     pipe.set(Command("RUN", 1.0))
-                    assert wait_for(lambda: r.state() == 2, 20.0), r["Reason"]
+                    assert wait_for(lambda: r.state() == 2, what=lambda: r["Reason"])
                     assert r["StateName"] == "RUN" and r["SpeedScale"] == 1.0
                     assert r["CameraOk"] and r["CamerasOk"] == [True]
                     assert r["MonitorInstance"] == "mon-op" and r["Seq"] > 0
@@ -238,19 +238,17 @@ def test_a_client_reads_run_slow_stop_of_a_signed_monitor_and_the_heartbeat(keys
                     assert 0.0 <= r["CommandAgeMs"] < 5000
                     pipe.set(Command("SLOW", 0.4, (Reason("warning_zone", "person 1 in W",
                                                           zone_id="W"),)))
-                    assert wait_for(lambda: r.state() == 1, 5.0)
+                    assert wait_for(lambda: r.state() == 1)
                     assert r["SpeedScale"] == pytest.approx(0.4) and r["ZoneId"] == "W"
                     assert r["ReasonCode"] == "warning_zone"
                     pipe.set(Command("STOP", 0.0, (Reason("protective_zone", "person 1 in P",
                                                           zone_id="P"),), latched=True))
-                    assert wait_for(lambda: r.state() == 0, 5.0)
+                    assert wait_for(lambda: r.state() == 0)
                     assert r["ReasonCode"] == "protective_zone" and r["Latched"]
                     assert r["SafetyStateManagement.VisionSafetyTriggered"]
                     assert "protective_zone" in r["SafetyStateManagement.VisionSafetyInformation"]
-                    beats = [r["Heartbeat"]]
-                    time.sleep(0.2)
-                    beats.append(r["Heartbeat"])
-                    assert beats[1] > beats[0]  # the adapter's heartbeat moves
+                    beat = r["Heartbeat"]
+                    assert wait_for(lambda: r["Heartbeat"] > beat)  # the adapter's heartbeat moves
                     stamp = r.nodes["Heartbeat"].read_data_value()
                     assert abs(stamp.SourceTimestamp.timestamp() - time.time()) < 5.0
                 finally:
@@ -295,7 +293,7 @@ def test_stop_within_ttl_plus_100ms_when_the_monitor_goes_away(keys, tmp_path, h
     try:
         with connect(adapter.url) as client:
             r = Reader(client)
-            assert wait_for(lambda: r.state() == 2, 30.0), r["Reason"]
+            assert wait_for(lambda: r.state() == 2, what=lambda: r["Reason"])
             state_node = r.nodes["State"]
             forger = None
             if how.endswith("forged-run"):
@@ -312,7 +310,7 @@ def test_stop_within_ttl_plus_100ms_when_the_monitor_goes_away(keys, tmp_path, h
                 reads.append((time.time(), r.state()))
                 return reads[-1][1] == 0
 
-            assert wait_for(stopped, 5.0), reads[-3:]
+            assert wait_for(stopped, what=lambda: reads[-3:])
             dv = state_node.read_data_value()
             assert dv.Value.Value == 0
             # the adapter's own time of the STOP (its snapshot clock, same host)
@@ -433,7 +431,7 @@ def test_writes_garbage_and_a_read_flood_get_status_errors_never_run(keys):
                 states.append(r.state())
                 # still serving, still beating, still STOP, never RUN
                 beat = r["Heartbeat"]
-                assert wait_for(lambda: r["Heartbeat"] != beat, 3.0)
+                assert wait_for(lambda: r["Heartbeat"] != beat)
                 assert set(states) == {0} and r["ReasonCode"] == "protective_zone"
                 assert adapter.proc.poll() is None
         finally:

@@ -64,7 +64,7 @@ def test_one_monitor_going_run_never_shows_run_while_the_other_is_latched(tmp_pa
             assert all(s == STOP for s in seen if s is not None), seen
             # the test can see RUN: monitor-b released too
             b.publish_command(Command("RUN", 1.0))
-            assert plc.wait(lambda r: r[STATE] == RUN, 5.0), "never RUN with both RUN"
+            assert plc.wait(lambda r: r[STATE] == RUN), "never RUN with both RUN"
         finally:
             if plc is not None:
                 plc.close()

@@ -144,7 +144,7 @@ def test_a_killed_or_frozen_monitor_is_stop_on_the_plc_within_ttl(keys, how):
         assert mon.stdout.readline().strip() == "up"
         proc = start_adapter(zport, mport, public)
         plc = Plc(mport)
-        assert plc.wait(lambda r: r[STATE] == RUN, 15.0), "never RUN before the kill"
+        assert plc.wait(lambda r: r[STATE] == RUN), "never RUN before the kill"
         t0 = time.monotonic()
         mon.send_signal(signal.SIGKILL if how == "kill" else signal.SIGSTOP)
         seen = _never_run_after(plc, t0, (TTL_MS + 100) / 1000.0, 1.5)
@@ -279,7 +279,7 @@ def test_the_plc_watchdog_stopping_raises_an_alert_on_the_bus(cell):
         assert not plc.read()[STATUS] & 0b10
         n_before = len([a for a in alerts if "not changed" in a.get("message", "")])
         got = wait_for(lambda: [a for a in alerts if a.get("kind") == "plc_watchdog"
-                                and "not changed" in a.get("message", "")], 5.0)
+                                and "not changed" in a.get("message", "")])
         sub.undeclare()
     assert n_before == 0 and got and got[0]["source"] == "plc"
     assert time.monotonic() - last >= 0.3  # not before the PLC's watchdog time
@@ -298,7 +298,7 @@ def test_a_frozen_adapter_loop_reads_stop_and_a_still_heartbeat():
         fresh = plc.read()
         assert fresh[STATE] == RUN and fresh[HEARTBEAT] == 7
         # nothing publishes any more (the loop is frozen): the map itself falls to STOP
-        late = plc.wait(lambda r: r[STATE] == STOP, 2.0)
+        late = plc.wait(lambda r: r[STATE] == STOP)
         assert late and late[HEARTBEAT] == 7 and late[STATUS] & 1
         assert late[REASON] == mm.REASON_CODES["adapter_stale"]
         assert late[mm.ADDRESS["snapshot_age_ms"]] >= 200
@@ -354,14 +354,14 @@ def test_a_plc_reset_reaches_the_monitor_as_the_operators_signed_reset(keys, tmp
                              "--reset-operator", "anna", "--reset-key", str(op_key))
         plc = Plc(mport)
         try:
-            assert plc.wait(lambda r: r[mm.ADDRESS["latched"]] == 1, 10.0), plc.read()
+            assert plc.wait(lambda r: r[mm.ADDRESS["latched"]] == 1), plc.read()
             assert not plc.write(mm.ADDRESS["reset_request"], 1).isError()
-            got = wait_for(bus.poll_resets, 10.0)
+            got = wait_for(bus.poll_resets)
             assert got and got[0].operator == "anna" and got[0].latch == "1-abcdef"
             assert "PLC" in got[0].note and "127.0.0.1" in got[0].note
             bus.publish_command(Command(
                 "RUN", 1.0, reset=ResetOutcome("anna", True, "reset", got[0].request_id)))
-            r = plc.wait(lambda r: r[mm.ADDRESS["reset_result"]] == 2, 10.0)
+            r = plc.wait(lambda r: r[mm.ADDRESS["reset_result"]] == 2)
             assert r and r[mm.ADDRESS["reset_count"]] == 1
         finally:
             plc.close()

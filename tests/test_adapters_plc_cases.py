@@ -114,12 +114,12 @@ def test_the_plc_writing_2_selects_set_b_signed_and_reads_the_switch_over(side):
         proc = start_adapter(zport, mport, public, *_case_args(sel_key))
         plc = Plc(mport)
         try:
-            r = plc.wait(lambda r: r[0] == 2 and r[SETS] == 0b01, 10.0)  # A: RUN
+            r = plc.wait(lambda r: r[0] == 2 and r[SETS] == 0b01)  # A: RUN
             assert r and r[ECHO] == 0 and r[RESULT] == 0 and r[COUNT] == 0
             assert not plc.write(CASE, 2).isError()
-            during = plc.wait(lambda r: r[SETS] == 0b11, 5.0)  # the union A+B: STOP
+            during = plc.wait(lambda r: r[SETS] == 0b11)  # the union A+B: STOP
             assert during and during[0] == 0
-            after = plc.wait(lambda r: r[SETS] == 0b10, 5.0)  # B alone after switch_over_s
+            after = plc.wait(lambda r: r[SETS] == 0b10)  # B alone after switch_over_s
             assert after and after[0] == 0 and after[RESULT] == 2 and after[ECHO] == 2
             assert after[COUNT] == 1 and after[CASE] == 2
             got = [e for e in mon.events if isinstance(e, Selection)]
@@ -150,13 +150,13 @@ def test_the_plc_writing_2_selects_set_b_signed_and_reads_the_switch_over(side):
 
             # a set the monitor does not know: refused, an alert, the echo keeps B
             assert not plc.write(CASE, 3).isError()
-            refused = plc.wait(lambda r: r[RESULT] == 3, 5.0)
+            refused = plc.wait(lambda r: r[RESULT] == 3)
             assert refused and refused[ECHO] == 2 and refused[COUNT] == 2
-            got = wait_for(lambda: [a for a in alerts if a.get("kind") == "plc_case"], 5.0)
+            got = wait_for(lambda: [a for a in alerts if a.get("kind") == "plc_case"])
             assert got and "refused" in got[0]["message"] and "'X'" in got[0]["message"]
             assert got[0]["source"] == "plc"
             seqs = wait_for(lambda: len(s := [e.seq for e in mon.events
-                                              if isinstance(e, Selection)]) == 2 and s, 2.0)
+                                              if isinstance(e, Selection)]) == 2 and s)
             assert seqs and seqs[1] > seqs[0]  # the second selection's seq grew
             assert all(s in {"A", "B"} for sets in mon.sets for s in sets)
         finally:
@@ -178,9 +178,9 @@ def test_an_unanswered_selection_reads_no_answer_and_raises_an_alert(side):
             assert not plc.write(CASE, 1).isError()
             pending = plc.read()
             assert pending[RESULT] in (1, 4) and pending[COUNT] == 1
-            r = plc.wait(lambda r: r[RESULT] == 4, 5.0)
+            r = plc.wait(lambda r: r[RESULT] == 4)
             assert r and r[ECHO] == 0
-            got = wait_for(lambda: [a for a in alerts if a.get("kind") == "plc_case"], 5.0)
+            got = wait_for(lambda: [a for a in alerts if a.get("kind") == "plc_case"])
             assert got and "no_answer" in got[0]["message"]
         finally:
             plc.close()
@@ -199,7 +199,7 @@ def test_without_a_case_key_register_34_is_stored_only(side, tmp_path):
         try:
             assert not plc.write(CASE, 2).isError()
             assert not plc.write(CASE, 200).isError()  # 0..255 as before: no table
-            r = plc.wait(lambda r: r[ECHO] == 200, 5.0)
+            r = plc.wait(lambda r: r[ECHO] == 200)
             time.sleep(0.5)
             assert r and r[RESULT] == 0 and r[COUNT] == 0
             assert rx.poll() == ()

@@ -161,6 +161,10 @@ class RosNode:
         with self.lock:
             return [m.data for m, _, _ in self.samples[SPEED_KEY]]
 
+    def messages(self, key) -> list:
+        with self.lock:
+            return [m for m, _, _ in self.samples[key]]
+
     def last(self, key):
         with self.lock:
             return self.samples[key][-1][0] if self.samples[key] else None
@@ -202,9 +206,9 @@ def test_a_raw_zenoh_subscriber_decodes_the_verdict_with_rosbags(cell):
     bus, _, _, _, node, _ = cell
     bus.publish_command(Command("SLOW", 0.4, (Reason("warning_zone", "person 1 in W",
                                                      zone_id="W"),)))
-    assert wait_for(lambda: 0.4 in node.speeds(), 5.0)
+    assert wait_for(lambda: 0.4 in node.speeds())
     diag = wait_for(lambda: (d := node.last(DIAG_KEY)) and d.status[0].message.startswith(
-        "SLOW") and d, 3.0)
+        "SLOW") and d)
     assert diag and diag.status[0].level == wire.DIAG_WARN
     values = {kv.key: kv.value for kv in diag.status[0].values}
     assert values["reason_code"] == "warning_zone" and values["zone_id"] == "W"
@@ -214,7 +218,7 @@ def test_a_raw_zenoh_subscriber_decodes_the_verdict_with_rosbags(cell):
     assert abs(diag.header.stamp.sec - time.time()) < 5 and diag.header.frame_id == \
         "/workcell/ad"
     body = json.loads(wait_for(lambda: (m := node.last(JSON_KEY)) and
-                               '"SLOW"' in m.data and m.data, 3.0))
+                               '"SLOW"' in m.data and m.data))
     assert body["state"] == "SLOW" and body["zone_id"] == "W"
 
     with node.lock:
@@ -229,29 +233,34 @@ def test_a_raw_zenoh_subscriber_decodes_the_verdict_with_rosbags(cell):
 def test_liveliness_tokens_show_the_node_and_its_publishers(cell):
     _, session, ros, _, _, out = cell
     zid = str(session.zid())
-    keys = sorted(str(r.ok.key_expr) for r in ros.liveliness().get("@ros2_lv/0/**",
-                                                                    timeout=3.0) if r.ok)
     prefix = f"@ros2_lv/0/{zid}/0/"
+
+    def tokens() -> list[str]:  # a loaded machine may answer before the tokens reached ros
+        keys = sorted(str(r.ok.key_expr) for r in ros.liveliness().get("@ros2_lv/0/**",
+                                                                        timeout=3.0) if r.ok)
+        return len([k for k in keys if k.startswith(prefix)]) >= 4 and keys
+
+    keys = wait_for(tokens, what="the node's and its three publishers' liveliness tokens")
     assert f"{prefix}0/NN/%/%workcell%ad/workcell_monitor_bridge" in keys
     assert (f"{prefix}1/MP/%/%workcell%ad/workcell_monitor_bridge/%workcell%ad%speed_override/"
             f"{SPEED_KEY.split('/', 4)[4]}/::,1:,:,:,,") in keys
     assert len([k for k in keys if k.startswith(prefix) and "/MP/" in k]) == 3
     out.close()  # the tokens go with the output
     assert wait_for(lambda: not [r for r in ros.liveliness().get(f"{prefix}**", timeout=0.5)
-                                 if r.ok], 6.0)
+                                 if r.ok])
 
 
 def test_silence_is_a_zero_override_and_the_adapter_leaves_with_zero(cell):
     bus, _, _, _, node, out = cell
     bus.publish_command(Command("RUN", 1.0))
-    assert wait_for(lambda: node.speeds() and node.speeds()[-1] == 1.0, 5.0)
+    assert wait_for(lambda: node.speeds() and node.speeds()[-1] == 1.0)
     bus.close()  # the monitor goes: its final STOP, then silence
-    assert wait_for(lambda: node.speeds()[-1] == 0.0, 3.0)
+    assert wait_for(lambda: node.speeds()[-1] == 0.0)
     time.sleep(TTL_MS / 1000 + 0.2)
     assert node.speeds()[-1] == 0.0
-    out.close()
-    assert wait_for(lambda: (d := node.last(DIAG_KEY)) and "adapter stopped" in
-                    d.status[0].message, 3.0)
+    out.close()  # the follower still ticks beside it: its heartbeat may come after the close's
+    assert wait_for(lambda: any("adapter stopped" in m.status[0].message  # STOP (2 threads)
+                                for m in node.messages(DIAG_KEY)), what="adapter stopped")
     assert node.speeds()[-1] == 0.0
 
 
@@ -260,7 +269,7 @@ def test_a_forged_run_never_gives_a_non_zero_override(cell, tmp_path):
     bus.publish_command(Command("STOP", 0.0, (Reason("protective_zone", "person 1 in P",
                                                      zone_id="P"),)))
     assert wait_for(lambda: (d := node.last(DIAG_KEY)) and "person 1 in P" in
-                    d.status[0].message, 5.0)
+                    d.status[0].message)
     forger = load_private_key(new_key_pair(tmp_path / "forger.key")[0])
     body = {"schema": COMMAND_SCHEMA, "cell": CELL, "instance": "mon-ad", "boot": "forged",
             "seq": 10**6, "state": "RUN", "speed_scale": 1.0, "ttl_ms": 1000}
@@ -371,7 +380,7 @@ def test_the_bridge_command_publishes_for_a_ros_node_and_leaves_with_zero(tmp_pa
                 bus.publish_command(Command("SLOW", 0.5))
                 return 0.5 in node.speeds()
 
-            assert wait_for(slow_seen, 20.0), (proc.poll(), node.speeds()[-5:])
+            assert wait_for(slow_seen, what=lambda: (proc.poll(), node.speeds()[-5:]))
             proc.send_signal(signal.SIGTERM)
             _, err = proc.communicate(timeout=20)
         finally:
@@ -379,6 +388,6 @@ def test_the_bridge_command_publishes_for_a_ros_node_and_leaves_with_zero(tmp_pa
                 proc.kill()
         assert proc.returncode == 0, err
         assert "ros2" in err and "Traceback" not in err
-        assert wait_for(lambda: node.speeds()[-1] == 0.0, 3.0)  # its last word is STOP
+        assert wait_for(lambda: node.speeds()[-1] == 0.0)  # its last word is STOP
         for s in node.subs:
             s.undeclare()

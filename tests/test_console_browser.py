@@ -138,7 +138,7 @@ def _wait_http(port: int, proc, log: Path) -> None:
     raise AssertionError(f"console did not answer: {log.read_text()}")
 
 
-def _wait(driver, cond, timeout: float = 15.0, what: str = ""):
+def _wait(driver, cond, timeout: float = 30.0, what: str = ""):
     from selenium.common.exceptions import StaleElementReferenceException
     from selenium.webdriver.support.ui import WebDriverWait
 

@@ -367,7 +367,7 @@ def test_grabber_hands_out_the_newest_frame_and_counts_dropped():
                             clock=lambda: float(next(ticks))) as grabber:
         for _ in range(5):
             source.gate.release()
-        assert wait_for(lambda: grabber.grabbed == 5, 5.0)
+        assert wait_for(lambda: grabber.grabbed == 5)
         frame = grabber.get(timeout=1)
         assert frame.info.seq == 4 and frame.info.capture_time == 1004.0
         assert frame.image.mean() == pytest.approx(50)  # the 5th frame served
@@ -387,10 +387,10 @@ def test_grabber_reconnects_with_backoff_after_a_loss_and_reports_it():
     try:
         for _ in range(3):
             source.gate.release()
-        assert wait_for(lambda: grabber.losses == 1, 5.0)
+        assert wait_for(lambda: grabber.losses == 1)
         assert not grabber.connected
         assert grabber.last_error == "gated test source: read failed"
-        assert wait_for(lambda: source.opens >= 4, 5.0)  # retried while the camera is gone
+        assert wait_for(lambda: source.opens >= 4)  # retried while the camera is gone
         assert grabber.last_error == "gated test source: camera gone"
         assert grabber.reconnects == 0 and grabber.losses == 1  # one loss episode
         assert grabber.get(timeout=0.5).info.seq == 1  # newest before the loss, stamped then
@@ -410,7 +410,7 @@ def test_grabber_refuses_frames_of_the_wrong_size():
     with LatestFrameGrabber(source, stop=source.stop, expected_size=(W, H),
                             backoff=Backoff(0.01, 0.02)) as grabber:
         source.gate.release()
-        assert wait_for(lambda: grabber.losses == 1, 5.0)
+        assert wait_for(lambda: grabber.losses == 1)
         assert grabber.get(timeout=0.05) is None and not grabber.connected
         assert_one_line(grabber.last_error, "32x24", f"{W}x{H}")
 
@@ -419,7 +419,7 @@ def test_grabber_plays_a_file_to_its_end(tmp_path):
     path = write_video(tmp_path / "v.mp4", 5)
     source = open_source(str(path), "cam0", realtime=False)
     grabber = LatestFrameGrabber(source).start()
-    assert wait_for(lambda: grabber.ended, 5.0)
+    assert wait_for(lambda: grabber.ended)
     assert grabber.join(2) and grabber.grabbed == 5 and not grabber.connected
     last = grabber.get(timeout=0.1)
     assert last is not None and last.info.seq == 4  # the last frame is still handed out
@@ -443,7 +443,7 @@ def test_stop_is_bounded_while_waiting_for_a_long_backoff():
     source = GatedSource()
     source.down.set()  # never opens: the grabber waits 30 s between tries
     grabber = LatestFrameGrabber(source, stop=source.stop, backoff=Backoff(30.0, 60.0)).start()
-    assert wait_for(lambda: source.opens == 1, 5.0)
+    assert wait_for(lambda: source.opens == 1)
     t0 = time.monotonic()
     assert grabber.stop(timeout=2)
     assert time.monotonic() - t0 < 2

@@ -43,6 +43,13 @@ def _monitor_b(detector) -> Iterator[tuple[int, HoldsLink]]:
             link.close()
 
 
+def _meet(session, key: str) -> None:
+    """Until monitor-b's holds subscriber is matched (the sessions met): none sent before."""
+    pub = session.declare_publisher(key)
+    wait_for(lambda: pub.matching_status.matching, what="monitor-b's holds subscriber")
+    pub.undeclare()
+
+
 def _feed(port: int, late_s: float, seconds: float = 1.6) -> None:
     """Monitor-a's genuine holds messages (its key, growing seq, 20 Hz), each ``late_s``
     behind the wall clock: what a man in the middle who holds the stream back delivers."""
@@ -50,7 +57,7 @@ def _feed(port: int, late_s: float, seconds: float = 1.6) -> None:
     key = BusKeys.of("workcell/ho/", "monitor-a").holds
     signer = Signer(KEY_A)
     with open_session(cfg) as session:
-        time.sleep(0.3)  # let the sessions meet
+        _meet(session, key)
         end, seq = time.monotonic() + seconds, 0
         while time.monotonic() < end:
             seq += 1
@@ -94,7 +101,7 @@ def _feed_boots(port: int, boots: list[str], each_s: float = 0.5) -> None:
     cfg = BusConfig(cell="ho", connect=(f"tcp/127.0.0.1:{port}",), instance="peer")
     key = BusKeys.of("workcell/ho/", "monitor-a").holds
     with open_session(cfg) as session:
-        time.sleep(0.3)
+        _meet(session, key)
         for boot in boots:
             for seq in range(1, int(each_s / 0.05) + 1):
                 payload = holds_payload("ho", "monitor-a", boot, seq, time.time(), ())

@@ -139,7 +139,7 @@ def test_without_hand_over_the_same_cell_runs(tmp_path, synthetic_model):
         a, _ = procs
         consumer.wait(lambda v: v.state == "RUN", 60, "RUN without hand-over", a)
         time.sleep(6.5)  # a whole loop of A's video: the person walked out again
-        consumer.wait(lambda v: v.state == "RUN", 10, "RUN after the person left", a)
+        consumer.wait(lambda v: v.state == "RUN", 30, "RUN after the person left", a)
         assert "handed over" not in " ".join(r for _, r in consumer.seen), consumer.seen
 
     _run_cell(tmp_path, synthetic_model, handover=False, check=check)

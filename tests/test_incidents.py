@@ -355,7 +355,7 @@ def test_the_service_records_the_demo_stop_and_answers_the_incidents_query(
             text = urllib.request.urlopen(url, timeout=3).read().decode()
             return text if 'monitor_incidents_total{cause="stop"}' in text else None
 
-        text = wait_for(metrics, 10, "the incident counter", svc)
+        text = wait_for(metrics, 30, "the incident counter", svc)
         assert "monitor_recorder_recording 1.0" in text
         # 0, or 143 when a loaded machine made it overrun its shutdown grace (exits anyway)
         assert svc.stop(signal.SIGTERM) in (0, 128 + signal.SIGTERM)

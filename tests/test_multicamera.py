@@ -240,12 +240,12 @@ def test_service_with_two_cameras(tmp_path, synthetic_model, batch):
     with svc:
         svc.next_command(0, lambda c: codes(c) - {"startup", "clearing"} or
                          c["state"] != "STOP", 60, "a decision after start-up")
-        status = wait_for(lambda: (s := svc.status()).get("fps") and s, 10, "status", svc)
+        status = wait_for(lambda: (s := svc.status()).get("fps") and s, 30, "status", svc)
         assert [c["id"] for c in status["cameras"]] == ["cam0", "cam1"]
         assert all(c["connected"] for c in status["cameras"])
         # both cameras' frames reach the decisions, batched or in turn
         wait_for(lambda: {d["frame"]["camera_id"] for d in list(svc.detections)}
-                 >= {"cam0", "cam1"}, 10, "detections of both cameras", svc)
+                 >= {"cam0", "cam1"}, 30, "detections of both cameras", svc)
         assert svc.stop(signal.SIGTERM) == 0
     log = svc.stderr_path.read_text()
     assert ("batching the cameras' frames" in log) is batch

@@ -71,12 +71,12 @@ def test_monitor_mute_against_a_running_monitor(tmp_path, synthetic_model):
         ok = mute("robot-protective", "--for", "3s")
         assert ok.returncode == 0, ok.stdout + ok.stderr
         assert "accepted" in ok.stdout and "muted by anna for 3 s" in ok.stdout
-        muted = wait_for(lambda: (s := svc.status()).get("muted") and s, 10, "status", svc)
+        muted = wait_for(lambda: (s := svc.status()).get("muted") and s, 30, "status", svc)
         (entry,) = muted["muted"]
         assert entry["zone"] == "robot-protective" and entry["operator"] == "anna"
         assert entry["until_wall"] > muted["wall"] - 1 and entry["max_s"] == 120
         svc.next_command(0, lambda c: any(r["code"] == "muted" and "anna" in r["message"]
-                                          for r in c["reasons"]), 10, "muted in a command")
+                                          for r in c["reasons"]), 30, "muted in a command")
 
         # the accepted request sent again: a replay
         replayed = mute_payload("anna", "cam0-protective", 5, cell="t5", boot=status["boot"],
@@ -89,7 +89,7 @@ def test_monitor_mute_against_a_running_monitor(tmp_path, synthetic_model):
 
         def kinds(kind: str) -> list[dict]:
             return [a for a in alerts if a["kind"] == kind]
-        wait_for(lambda: len(kinds("zone_unmuted")) >= 2, 15, "both mutes to end", svc)
+        wait_for(lambda: len(kinds("zone_unmuted")) >= 2, 30, "both mutes to end", svc)
         started = {a["details"]["zone"]: a for a in kinds("zone_muted")}
         ended = {a["details"]["zone"]: a for a in kinds("zone_unmuted")}
         assert set(started) == set(ended) == {"robot-protective", "cam0-protective"}
@@ -97,7 +97,7 @@ def test_monitor_mute_against_a_running_monitor(tmp_path, synthetic_model):
                                                                    *ended.values()))
         assert started["robot-protective"]["details"]["duration_s"] == 3.0
         assert any(a["kind"] == "mute_refused" for a in alerts)
-        wait_for(lambda: svc.status().get("muted") == [], 5, "the status to clear", svc)
+        wait_for(lambda: svc.status().get("muted") == [], 30, "the status to clear", svc)
 
 
 @pytest.mark.parametrize(("args", "needle"), [

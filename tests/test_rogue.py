@@ -23,16 +23,10 @@ from monitor.bus import BusConfig, BusKeys, DuplicateMonitor, SafetyBus, open_se
 from monitor.policy import Command, Latch, Reason, ResetOutcome
 from monitor.resets import LatchNonces, latch_of_status, request_reset, reset_payload
 from monitor.signing import load_private_key, new_key_pair
-from tests.helpers import free_port
-from tests.helpers import wait_for as _wait_for
+from tests.helpers import free_port, wait_for
 
 CELL = "rogue"
 CAP_MS = 500
-
-
-def wait_for(cond, timeout: float = 10.0) -> bool:
-    """The shared poll with this file's longer default (three processes start here)."""
-    return _wait_for(cond, timeout)
 
 
 FAIL_SAFE = ("ttl", "liveliness", "duplicate_monitor", "sequence")
@@ -132,11 +126,12 @@ def test_a_rogue_flooding_forged_replayed_and_malformed_runs_never_moves_the_con
 
         # both the consumer and the rogue hear the monitor: let it RUN for a moment
         assert wait_for(lambda: recording.is_set() and any(
-            v["state"] == "STOP" and v["code"] == "" for v in verdicts()), 60), events[-5:]
+            v["state"] == "STOP" and v["code"] == "" for v in verdicts()), 60, lambda: events[-5:])
         start_run.set()
-        assert wait_for(lambda: any(v["state"] == "RUN" for v in verdicts()), 30), events[-5:]
+        assert wait_for(lambda: any(v["state"] == "RUN" for v in verdicts()),
+                        what=lambda: events[-5:])
         assert wait_for(lambda: verdicts()[-1]["state"] == "STOP" and any(
-            v["state"] == "RUN" for v in verdicts()), 30), events[-5:]
+            v["state"] == "RUN" for v in verdicts()), what=lambda: events[-5:])
         go.set()  # the monitor says STOP now: attack
         time.sleep(3.0)  # flood for a while (the property is checked over every event below)
         os.kill(monitor.pid, signal.SIGKILL)
@@ -205,12 +200,12 @@ def test_rogue_resets_are_refused_with_an_alert_and_a_signed_one_is_accepted(tmp
         assert bus.poll_resets() == []
         assert bus.status()["resets_refused"] == 3
         assert wait_for(lambda: any(a["kind"] == "reset_refused" and "refused by the bus"
-                                    in a["message"] for a in alerts), 5)
+                                    in a["message"] for a in alerts))
         # a properly signed reset reaches the policy; its outcome is the answer
         answers = []
         t = threading.Thread(target=lambda: answers.append(ask("anna", "anna")))
         t.start()
-        assert wait_for(lambda: bool(bus._resets.pending), 10)
+        assert wait_for(lambda: bool(bus._resets.pending))
         (req,) = bus.poll_resets()
         assert req.operator == "anna"
         bus.publish_command(Command("RUN", 1.0, (), reset=ResetOutcome(
@@ -424,14 +419,14 @@ def test_unsigned_and_wrongly_signed_commands_are_counted_and_alerted_never_a_se
             assert counts.get("unsigned", 0) >= 50 and counts.get("signature", 0) >= 50, counts
             assert not any(any(r["code"] == "duplicate_monitor" for r in c["reasons"])
                            for c in commands)
-            assert wait_for(lambda: any(a["kind"] == "foreign_commands" for a in alerts), 5)
+            assert wait_for(lambda: any(a["kind"] == "foreign_commands" for a in alerts))
             raised = [a for a in alerts if a["kind"] == "foreign_commands"]
             assert len(raised) <= 2, raised  # rate-limited (5 s), the rest ride on `repeat`
             assert "not a second monitor" in raised[0]["message"]
             # a genuinely signed second monitor still stops the cell
             genuine.set()
             assert wait_for(lambda: any(f.name == "duplicate_monitor" for f in bus.faults()),
-                            10), bus.status()
+                            what=lambda: bus.status())
             (fault,) = bus.faults()
             assert (fault.stop, fault.latch) == (True, True)
             n = len(commands)

@@ -101,10 +101,10 @@ def test_line_and_cell_routers_linked_carry_signed_commands_and_keep_resets_at_t
                 keys.alive + "/*", lambda s: dog.on_liveliness(
                     str(s.key_expr), s.kind == zenoh.SampleKind.PUT), history=True)
             # the monitor's command crosses cell router -> link -> line router -> controller
-            assert wait_for(lambda: bus._pub_command.matching_status.matching, timeout=10)
+            assert wait_for(lambda: bus._pub_command.matching_status.matching)
             bus.publish_command(Command("RUN", 1.0, ()))
-            assert wait_for(lambda: dog.verdict(time.monotonic()).state == "RUN", timeout=5), \
-                dog.verdict(time.monotonic())
+            assert wait_for(lambda: dog.verdict(time.monotonic()).state == "RUN",
+                            what=lambda: dog.verdict(time.monotonic()))
             assert dog.live_instances(time.monotonic()) == ["monitor"]
             # another cell's monitor cannot write under cell1's keys at the line router
             other_cell.put(keys.command, json.dumps({"state": "RUN", "instance": "c2"}))
@@ -128,7 +128,7 @@ def test_line_and_cell_routers_linked_carry_signed_commands_and_keep_resets_at_t
             assert bus.poll_resets() == []
             payload, signature = signed()
             cell_panel.put(keys.reset, payload, attachment=signature)
-            got = wait_for(bus.poll_resets, timeout=5)
+            got = wait_for(bus.poll_resets)
             assert [r.operator for r in got] == ["operator1"]
             assert not any(c.get("instance") == "c2" for c in seen)
             assert dog.verdict(time.monotonic()).state == "STOP"
@@ -194,10 +194,10 @@ def test_router_acl_gives_each_role_the_rights_of_the_cells_only_monitor(tmp_pat
                 "workcell/cell1/safety/alive/**", lambda s: dog.on_liveliness(
                     str(s.key_expr), s.kind == zenoh.SampleKind.PUT), history=True)
             # the role's command and token reach the consumer through the router
-            assert wait_for(lambda: bus._pub_command.matching_status.matching, timeout=10)
+            assert wait_for(lambda: bus._pub_command.matching_status.matching)
             bus.publish_command(Command("RUN", 1.0, ()))
-            assert wait_for(lambda: dog.verdict(time.monotonic()).state == "RUN", timeout=5), \
-                dog.verdict(time.monotonic())
+            assert wait_for(lambda: dog.verdict(time.monotonic()).state == "RUN",
+                            what=lambda: dog.verdict(time.monotonic()))
             # everyone may read the role's status
             replies = list(controller.get(keys.status, timeout=3.0))
             assert json.loads(replies[0].ok.payload.to_bytes())["role"] == "monitor-a"
@@ -224,9 +224,9 @@ def test_router_acl_gives_each_role_the_rights_of_the_cells_only_monitor(tmp_pat
                            for _, body in seen), seen
             # the cell's operator may: the same requests reach the role's monitor
             panel.get(keys.mute, payload=mute, attachment=mute_sig, timeout=1.0)
-            assert [m.operator for m in wait_for(bus.poll_mutes, timeout=5)] == ["operator1"]
+            assert [m.operator for m in wait_for(bus.poll_mutes)] == ["operator1"]
             panel.put(keys.reset, reset, attachment=reset_sig)
-            assert [r.operator for r in wait_for(bus.poll_resets, timeout=5)] == ["operator1"]
+            assert [r.operator for r in wait_for(bus.poll_resets)] == ["operator1"]
     finally:
         router.terminate()
         try:

@@ -182,15 +182,16 @@ def test_the_watch_inbox_stays_bounded_under_a_flood_and_the_newest_command_wins
                                    connect=(f"tcp/127.0.0.1:{port}",))) as rogue:
         subs = _watch_subscriptions(consumer, keys, inbox, lambda: 0.0)
         token = rogue.liveliness().declare_token(f"{keys.alive}/mon-a")
-        assert wait_for(lambda: inbox.lengths().get("alive") == 1, 10)
+        assert wait_for(lambda: inbox.lengths().get("alive") == 1)
         pub = rogue.declare_publisher(keys.command,
                                       congestion_control=zenoh.CongestionControl.BLOCK)
         last = 5000
         for seq in range(1, last + 1):  # the consumer's loop is not reading: worst case
             pub.put(_cmd(seq=seq))
             assert len(inbox) <= 64 + 1  # every kind within its bound, at every moment
-        assert wait_for(lambda: inbox.dropped["command"] >= last - 64 - 100, 10), inbox.dropped
-        assert wait_for(lambda: any(_seq(e) == last for e in _peek(inbox)), 10)
+        assert wait_for(lambda: inbox.dropped["command"] >= last - 64 - 100,
+                        what=lambda: inbox.dropped)
+        assert wait_for(lambda: any(_seq(e) == last for e in _peek(inbox)))
         assert inbox.lengths() == {"alive": 1, "command": 64}  # the token survived the flood
         entries = [inbox.get(0.1) for _ in range(65)]
         assert entries[0][0] == "alive"  # arrival order across kinds

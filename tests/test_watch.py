@@ -59,7 +59,7 @@ class Watcher:
         for line in self.proc.stdout:
             self.events.append(json.loads(line))
 
-    def wait(self, pred, timeout: float = 10.0, start: int = 0) -> dict | None:
+    def wait(self, pred, timeout: float = 30.0, start: int = 0) -> dict | None:
         """First event from index ``start`` on that matches ``pred``."""
         deadline = time.monotonic() + timeout
         seen = start

@@ -131,11 +131,11 @@ def test_a_signed_apply_swaps_the_zones_a_person_in_the_new_zone_stops(service):
                        "--zones", cell, timeout=60)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert "zones applied by tester" in proc.stdout
-    i, first = svc.next_command(mark, lambda c: c["config_hash"] == new, 10, "the new hash")
+    i, first = svc.next_command(mark, lambda c: c["config_hash"] == new, 30, "the new hash")
     assert first["state"] == "STOP"  # the apply's own STOP comes with the new hash
     assert "zones_applying" in {r.get("fault") for r in first["reasons"]}
     svc.next_command(i, lambda c: "protective_zone" in codes(c)
-                     and "zones_applying" not in {r.get("fault") for r in c["reasons"]}, 15,
+                     and "zones_applying" not in {r.get("fault") for r in c["reasons"]}, 30,
                      "STOP for the person in the new protective zone")
     assert all(c["config_hash"] == new for c in svc.commands[i:])
     assert all(c["state"] != "RUN" and c["state"] != "SLOW" for c in svc.commands[i:])
