@@ -115,3 +115,16 @@ def one_error_line(capsys) -> str:
     errors = [ln for ln in lines if not ln.startswith("monitor: warning: ")]
     assert len(errors) == 1 and errors[0].startswith("monitor: error: "), lines
     return errors[0]
+
+
+def protective_walk(fps: float):
+    """A basic walk into the protective zone (2 x 2 m around the robot), a pause, and out:
+    (scene, cell) of the generated cell scene (tests of the model's envelope)."""
+    from monitor.scene import cell as scene_cell
+    from monitor.scene import scenarios as sc
+    from monitor.zones import parse_cell
+
+    walker = scene_cell.Walker(((0.0, -2.6, -0.8), (2.0, -0.2, -0.4), (3.5, -0.2, -0.4),
+                                (5.5, -2.6, -0.8)))
+    scene = scene_cell.CellScene((walker,), fps=fps, duration_s=6.0)
+    return scene, parse_cell(sc.Scenario("walk", "walk in", scene).zone_data())

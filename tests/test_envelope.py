@@ -21,11 +21,10 @@ from monitor.health import CameraHealth, HealthConfig
 from monitor.health.conditions import ENVELOPE, ENVELOPE_NEAR, judge
 from monitor.pipeline import Pipeline
 from monitor.policy import STOP, PolicyConfig, ResetRequest
-from monitor.scene import cell as scene_cell
 from monitor.scene import scenarios as sc
 from monitor.types import FrameInfo
-from monitor.zones import parse_cell
 from monitor.zones.masks import zone_regions_px
+from tests.helpers import protective_walk
 from tests.onnx_models import yolov8_like
 
 FPS = 5.0
@@ -43,10 +42,7 @@ def envelope(detector):
 @pytest.fixture(scope="module")
 def walk():
     """A basic walk into the protective zone (2 x 2 m around the robot), a pause, and out."""
-    walker = scene_cell.Walker(((0.0, -2.6, -0.8), (2.0, -0.2, -0.4), (3.5, -0.2, -0.4),
-                                (5.5, -2.6, -0.8)))
-    scene = scene_cell.CellScene((walker,), fps=FPS, duration_s=6.0)
-    cell = parse_cell(sc.Scenario("walk", "walk in", scene).zone_data())
+    scene, cell = protective_walk(FPS)
     return scene, cell, list(scene.frames()), scene.background()
 
 

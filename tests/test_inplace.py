@@ -13,11 +13,9 @@ from monitor.driver import Driver
 from monitor.frames import Frame
 from monitor.pipeline import Pipeline
 from monitor.policy import STOP, PolicyConfig
-from monitor.scene import cell as scene_cell
-from monitor.scene import scenarios as sc
 from monitor.types import FrameInfo
-from monitor.zones import parse_cell
 from monitor.zones.masks import zone_regions_px
+from tests.helpers import protective_walk
 
 FPS = 5.0
 PERIOD_S = 1.0
@@ -25,10 +23,7 @@ PERIOD_S = 1.0
 
 @pytest.fixture(scope="module")
 def walk():
-    walker = scene_cell.Walker(((0.0, -2.6, -0.8), (2.0, -0.2, -0.4), (3.5, -0.2, -0.4),
-                                (5.5, -2.6, -0.8)))
-    scene = scene_cell.CellScene((walker,), fps=FPS, duration_s=6.0)
-    cell = parse_cell(sc.Scenario("walk", "walk in", scene).zone_data())
+    scene, cell = protective_walk(FPS)
     return scene, cell, list(scene.frames())
 
 
