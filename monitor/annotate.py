@@ -29,6 +29,7 @@ from monitor.zones.check import placement
 from monitor.zones.draw import (
     COLOURS_BGR,
     LEGEND_KINDS,
+    ShadowCache,
     ZoneLabel,
     draw_legend,
     draw_zones_labelled,
@@ -137,6 +138,7 @@ class Annotator:
         self.foot_band_px = foot_band_px
         self.hold_s = hold_s
         self.recent: list[tuple[float, str]] = []
+        self.shadows = ShadowCache()
 
     def step(self, result: StepResult, image: np.ndarray | None
              ) -> tuple[np.ndarray, Drawn] | None:
@@ -147,19 +149,21 @@ class Annotator:
             return None
         shown = tuple(x for _, x in self.recent[-MAX_EVENT_ROWS:])
         return annotate(image, result, self.cell, self.camera_id, self.watch, shown,
-                        self.foot_band_px)
+                        self.foot_band_px, self.shadows)
 
 
 def annotate(image: np.ndarray, result: StepResult, cell: Cell | None, camera_id: str,
              watch: list, events: tuple[str, ...] = (),
-             foot_band_px: tuple[float, float] = (0.0, 0.0)) -> tuple[np.ndarray, Drawn]:
+             foot_band_px: tuple[float, float] = (0.0, 0.0),
+             shadows: ShadowCache | None = None) -> tuple[np.ndarray, Drawn]:
     """The frame with everything drawn on (see the module docstring), and what was drawn."""
     h, w = image.shape[:2]
     top = HEADER_PX + EVENT_ROW_PX * len(events)  # the legend sits below header and events
     reserved: list[Rect] = [(0, 0, w, top), (0, h - BAR_PX, w, h), legend_rect(w, top + 4)]
     hits = {x.zone_id for x in result.zone_report.hits} if result.zone_report else set()
     if cell is not None:
-        out, labels = draw_zones_labelled(image, cell, camera_id, hits, reserved)
+        out, labels = draw_zones_labelled(image, cell, camera_id, hits, reserved,
+                                          shadows=shadows)
     else:
         out, labels = image.copy(), []
     faults: tuple[str, ...] = ()

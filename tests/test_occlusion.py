@@ -346,3 +346,19 @@ def test_fast_projection_equals_opencv():
     want, want_front = model.project(pts)
     np.testing.assert_allclose(got, want, atol=1e-6)
     assert (front == want_front).all()
+
+
+def test_the_shadow_cache_follows_the_cell_it_was_given():
+    # a zone swap brings a new Cell: its shadow, never the old one, even at the same size
+    from monitor.zones.draw import ShadowCache, shadow_image
+
+    bench = zn.parse_cell(with_bench(demo_data(), 2.2, y=(-2.0, -1.6), x=(-0.5, 0.5),
+                                     zone_id="cabinet"))
+    plain = zn.load_cell(DEMO)
+    cache = ShadowCache()
+    first = cache.get(bench, "cam0", 640, 360)
+    assert cache.get(bench, "cam0", 640, 360) is first  # kept between frames
+    assert np.array_equal(first, shadow_image(bench, "cam0", 640, 360))
+    assert np.array_equal(cache.get(plain, "cam0", 640, 360), shadow_image(plain, "cam0", 640, 360))
+    assert not np.array_equal(cache.get(plain, "cam0", 640, 360), first)
+    assert cache.get(bench, "cam0", 320, 180).shape == (180, 320)

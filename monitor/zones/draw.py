@@ -169,7 +169,8 @@ class ZoneLabel:
 
 def draw_zones_labelled(frame_bgr: np.ndarray, cell: Cell, camera_id: str,
                         hit_zone_ids: Iterable[str] = (), reserved: Sequence[Rect] = (),
-                        tool_pose: geo.ToolPose | None = None
+                        tool_pose: geo.ToolPose | None = None,
+                        shadows: ShadowCache | None = None
                         ) -> tuple[np.ndarray, list[ZoneLabel]]:
     """A copy of the frame with the camera's zones drawn and labelled, and the labels drawn.
 
@@ -180,6 +181,7 @@ def draw_zones_labelled(frame_bgr: np.ndarray, cell: Cell, camera_id: str,
     (``monitor.zones.labels``): the most important zones' labels are placed first. A frame of
     another size than the camera is drawn scaled. Zones that follow the tool are drawn at
     ``tool_pose`` (a tracker pose, not grown), or at their maximum volume without one.
+    ``shadows`` keeps the shadow image from frame to frame (it is the slowest part to draw).
     """
     cam = cell.cameras.get(camera_id)
     if cam is None:
@@ -226,7 +228,7 @@ def draw_zones_labelled(frame_bgr: np.ndarray, cell: Cell, camera_id: str,
             outlines.append((lines, colour, thick, z.id))
     if model is not None:
         outlines += _draw_floors(fills, cell, model, scale)
-        shadow = shadow_image(cell, camera_id, img.shape[1], img.shape[0])
+        shadow = (shadows or ShadowCache()).get(cell, camera_id, img.shape[1], img.shape[0])
         if shadow is not None:
             fills[shadow] = SHADOW_BGR
     cv2.addWeighted(fills, 0.35, img, 0.65, 0, dst=img)
@@ -265,6 +267,23 @@ def _draw_floors(fills: np.ndarray, cell: Cell, model: geo.CameraModel, scale: n
         if lines:
             out.append((lines, FLOOR_BGR, 2, f"{f.id} {f.height_m:+g} m"))
     return out
+
+
+class ShadowCache:
+    """The shadow image of the last cell, camera and size asked for. A shadow depends only on
+    the cell's occluders and calibration, which do not change between frames (a zone swap
+    brings a new Cell); the cell is kept, so a new one can never be taken for it."""
+
+    def __init__(self) -> None:
+        self._key: tuple[Cell, str, int, int] | None = None
+        self._image: np.ndarray | None = None
+
+    def get(self, cell: Cell, camera_id: str, width: int, height: int) -> np.ndarray | None:
+        key = (cell, camera_id, width, height)
+        if self._key is None or self._key[0] is not cell or self._key[1:] != key[1:]:
+            self._image = shadow_image(cell, camera_id, width, height)
+            self._key = key
+        return self._image
 
 
 def shadow_image(cell: Cell, camera_id: str, width: int, height: int, step_px: int = 8
