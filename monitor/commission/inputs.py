@@ -11,14 +11,16 @@ import base64
 import hashlib
 import json
 from pathlib import Path
-from typing import Any
 
 import cv2
 import numpy as np
 
 from monitor import __version__
-from monitor.camera_references import choose_references, load_chosen_reference, \
-    reference_warnings
+from monitor.camera_references import (
+    choose_references,
+    load_chosen_reference,
+    reference_warnings,
+)
 from monitor.commission.floor import zone_floors
 from monitor.commission.pictures import camera_picture, floor_picture
 from monitor.commission.walk_video import read_walk

@@ -74,7 +74,7 @@ def floor_picture(cell: Cell, floors: Sequence[ZoneFloor], walk: WalkResult | No
             cv2.circle(img, (int(p[0]), int(p[1])), 2, (30, 30, 30), -1)
     o = np.round(px(np.zeros(2))[0]).astype(int)
     cv2.drawMarker(img, (int(o[0]), int(o[1])), (0, 0, 0), cv2.MARKER_CROSS, 12, 1)
-    _legend(img)
+    _legend(img, walk is not None)
     return _png(img)
 
 
@@ -96,7 +96,7 @@ def camera_picture(image_bgr: np.ndarray, cell: Cell, camera_id: str,
             for c, p, ok, vis in zip(f.centres_m, px, front, f.visible, strict=True):
                 if not ok or not (0 <= p[0] < cam.width and 0 <= p[1] < cam.height):
                     continue
-                q = (int(round(p[0])), int(round(p[1])))
+                q = (round(float(p[0])), round(float(p[1])))
                 key = (round(float(c[0]), 3), round(float(c[1]), 3))
                 if not vis:
                     cv2.drawMarker(img, q, BLIND_BGR, cv2.MARKER_TILTED_CROSS, 8, 2)
@@ -105,11 +105,12 @@ def camera_picture(image_bgr: np.ndarray, cell: Cell, camera_id: str,
     return _png(img)
 
 
-def _legend(img: np.ndarray) -> None:
+def _legend(img: np.ndarray, walked: bool) -> None:
     y = img.shape[0] - 10
     x = 8
-    for text, colour in (("seen in the walk", SEEN_BGR), ("visible, not walked", UNVISITED_BGR),
-                         ("blind spot", BLIND_BGR)):
+    keys = (("seen in the walk", SEEN_BGR), ("visible, not walked", UNVISITED_BGR)) if walked \
+        else (("visible to a camera", UNVISITED_BGR),)
+    for text, colour in (*keys, ("blind spot", BLIND_BGR)):
         cv2.rectangle(img, (x, y - 10), (x + 12, y + 2), colour, -1)
         cv2.putText(img, text, (x + 16, y), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1,
                     cv2.LINE_AA)

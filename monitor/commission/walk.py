@@ -8,9 +8,9 @@ in detection. Pure (``WalkRecorder`` only collects what the pipeline decided).
 * **entry**: the first frame in which the person is in the zone: a zone hit of the zone check,
   or a detected foot point on the zone's floor, whichever comes first, after a frame without.
   Its **time to STOP** is the time from that frame to the first decision (frame or timer tick)
-  whose command is STOP (a warning zone: SLOW or STOP) and names the zone; ``None`` when none
-  came before the person left. An entry while an earlier STOP still holds counts from the
-  first decision that names this zone.
+  whose command is STOP and names the zone (a warning zone: SLOW naming it, or any STOP);
+  ``None`` when none came before the person left. An entry while an earlier STOP still holds
+  counts from the first decision that names this zone.
 * **gap**: frames between two detections of a person (from the first detection to the last)
   with nobody detected, longer than 1.5 frame intervals; it belongs to the zones the person
   was last seen in.
@@ -18,6 +18,7 @@ in detection. Pure (``WalkRecorder`` only collects what the pipeline decided).
 
 from __future__ import annotations
 
+import itertools
 import statistics
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
@@ -144,7 +145,7 @@ def analyse(samples: Sequence[StepSample], floors: Sequence[ZoneFloor],
     seen = np.array([p for s in frames for p in s.feet_m], float).reshape(-1, 2)
     zones = []
     for f in floors:
-        inside = [bool(len(s.feet_m)) and bool((f.cell_of(np.array(s.feet_m)) >= 0).any())
+        inside = [(bool(s.feet_m) and bool((f.cell_of(np.array(s.feet_m)) >= 0).any()))
                   or f.zone_id in s.hit_zones for s in frames]
         zones.append(_zone(samples, frames, inside, f.zone_id, f.kind, gaps, f))
     for zone_id, kind in alarm_zones:
@@ -173,7 +174,6 @@ def _zone(samples: Sequence[StepSample], frames: Sequence[StepSample], inside: l
 
 def _entries(samples: Sequence[StepSample], frames: Sequence[StepSample], inside: list[bool],
              zone_id: str, kind: str) -> tuple[Entry, ...]:
-    states = (STOP,) if kind == "protective" else (SLOW, STOP)
     out = []
     k = 0
     while k < len(frames):
@@ -186,16 +186,24 @@ def _entries(samples: Sequence[StepSample], frames: Sequence[StepSample], inside
         t_in = frames[start].time_s
         t_out = frames[k].time_s if k < len(frames) else None
         stop = next((s.time_s for s in samples if s.time_s >= t_in - 1e-9
-                     and (t_out is None or s.time_s < t_out)
-                     and s.state in states and zone_id in s.named_zones), None)
+                     and (t_out is None or s.time_s < t_out) and _answers(s, zone_id, kind)),
+                    None)
         out.append(Entry(t_in, t_out, stop, None if stop is None else stop - t_in, k - start))
     return tuple(out)
+
+
+def _answers(s: StepSample, zone_id: str, kind: str) -> bool:
+    """The decision answers a person in the zone: a STOP naming a protective zone; for a
+    warning zone a SLOW naming it, or any STOP (the robot is stopped already)."""
+    if kind == "protective":
+        return s.state == STOP and zone_id in s.named_zones
+    return s.state == STOP or (s.state == SLOW and zone_id in s.named_zones)
 
 
 def _gaps(frames: Sequence[StepSample], interval: float) -> tuple[Gap, ...]:
     seen = [i for i, s in enumerate(frames) if s.persons > 0]
     out = []
-    for a, b in zip(seen, seen[1:], strict=False):
+    for a, b in itertools.pairwise(seen):
         dt = frames[b].time_s - frames[a].time_s
         if b - a > 1 and dt > GAP_FACTOR * interval:
             last = frames[a].feet_m[0] if frames[a].feet_m else None
@@ -205,10 +213,8 @@ def _gaps(frames: Sequence[StepSample], interval: float) -> tuple[Gap, ...]:
 
 def _gap_in(gap: Gap, frames: Sequence[StepSample], inside: list[bool]) -> bool:
     """The person was in the zone in the last frame before the gap or the first after it."""
-    for i, s in enumerate(frames):
-        if s.time_s in (gap.from_s, gap.to_s) and inside[i]:
-            return True
-    return False
+    return any(s.time_s in (gap.from_s, gap.to_s) and inside[i]
+               for i, s in enumerate(frames))
 
 
 def _points(a: np.ndarray) -> tuple[tuple[float, float], ...]:
