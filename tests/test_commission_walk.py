@@ -151,3 +151,21 @@ def test_entries_gaps_and_times_from_decisions():
 def test_a_missing_video_is_one_line(tmp_path, capsys):
     assert main(["commission", "walk", "--video", str(tmp_path / "nope.mp4")]) == 2
     assert "nope.mp4: no such video" in one_error_line(capsys)
+
+
+@pytest.mark.slow
+def test_record_a_walk_from_the_configs_camera(tmp_path, synthetic_model, capsys):
+    """--record: the config's camera (the demo scene, unpaced) into walk.mp4 at 10 fps, then
+    the same analysis (the demo cell's image zones have entries, no floor)."""
+    (tmp_path / "monitor.toml").write_text(
+        '[camera]\nsource = "synthetic:demo"\nrealtime = false\nloop = false\n'
+        f'[model]\npath = "{synthetic_model}"\n')
+    out = tmp_path / "walk"
+    assert main(["commission", "walk", "--record", "1", "--config", str(tmp_path / "monitor.toml"),
+                 "--out", str(out), "--no-video"]) == 0
+    printed = capsys.readouterr().out
+    assert "recorded 10 frames at 10 fps" in printed and "0 repeated" in printed
+    walk = json.loads((out / "walk.json").read_text())
+    assert walk["frames"] == 10 and walk["video"] == "walk.mp4" and walk["camera"] == "cam0"
+    kinds = {z["zone_id"]: z["cells"] for z in walk["zones"]}
+    assert kinds["robot-protective"] > 0 and kinds["cam0-protective"] == 0

@@ -27,13 +27,19 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
     p = sub.add_parser(
         "walk", help="analyse a walk through the cell: coverage, entries, time to STOP, gaps",
-        description="Runs a video of the integrator walking the cell (along each protective "
-        "zone's boundary, through it, crouching at the corners) through the monitor as "
-        "`monitor replay` does (restart interlock auto: each entry its own STOP) and writes "
+        description="Records (--record) or takes (--video) a video of the integrator walking "
+        "the cell (along each protective zone's boundary, through it, crouching at the "
+        "corners), runs it through the monitor as `monitor replay` does (restart "
+        "interlock auto: each entry its own STOP) and writes "
         "walk.json, floor.png, camera-<id>.png, events.jsonl, summary.json and "
         "annotated.mp4 into --out.")
-    p.add_argument("--video", type=Path, required=True,
-                   help="the recorded walk (record the camera while walking; required)")
+    source = p.add_mutually_exclusive_group(required=True)
+    source.add_argument("--video", type=Path, help="a recorded walk (one of --video, --record "
+                        "is required)")
+    source.add_argument("--record", type=float, metavar="SECONDS",
+                        help="record the walk from the config's camera (--camera) for this "
+                        "long into OUT/walk.mp4 first, then analyse it")
+    p.add_argument("--fps", type=float, default=10.0, help="frame rate of the --record video")
     p.add_argument("--config", type=Path, help="monitor.toml: its zones, model, policy and "
                    "detector settings (default: the embedded demo)")
     p.add_argument("--zones", type=Path, help="zone file (default: the config's)")
@@ -90,20 +96,26 @@ def cmd_walk(args: argparse.Namespace) -> int:
 
     if not 0.05 <= args.cell_size <= 2.0:
         raise InputError(f"--cell-size {args.cell_size:g}: must be within [0.05, 2] m")
-    if not args.video.is_file():
+    if args.video is not None and not args.video.is_file():
         raise InputError(f"{args.video}: no such video")
+    if args.record is not None and not 1.0 <= args.record <= 3600.0:
+        raise InputError(f"--record {args.record:g}: must be within [1, 3600] s")
+    if not 1.0 <= args.fps <= 60.0:
+        raise InputError(f"--fps {args.fps:g}: must be within [1, 60]")
     config = load_config(args.config)
     zones = args.zones or zones_file_of(config)
     if zones is None:
         raise InputError("no zone file: pass --zones or a --config with [zones] file")
     cell = load_cell(zones)
+    video = args.video if args.video is not None else _record(args, config)
     detector = Detector(_model_path(config, args.model), config.detector)
-    settings = ReplaySettings(out_dir=args.out, camera_id=args.camera,
+    recorded_from = config.cameras[0].id if args.record is not None else None
+    settings = ReplaySettings(out_dir=args.out, camera_id=args.camera or recorded_from,
                               annotate=not args.no_video, progress=sys.stderr.isatty(),
                               policy=config.policy, health=config.health,
                               tick_s=config.service.tick_s,
                               allow_no_protective=config.zones.allow_no_protective)
-    result, pictures = walk_video(args.video, detector, cell, settings, args.cell_size)
+    result, pictures = walk_video(video, detector, cell, settings, args.cell_size)
     for z in result.zones:
         cover = (f"{z.seen_cells}/{z.cells} floor cells seen, {len(z.blind_spots)} blind"
                  if z.cells else "image zone (no floor)")
@@ -113,6 +125,33 @@ def cmd_walk(args: argparse.Namespace) -> int:
               f"{'STOP' if z.kind == 'protective' else 'SLOW'}: {times}); gaps {len(z.gaps)}")
     print(f"outputs: {args.out}/ (walk.json, {', '.join(sorted(pictures.values()))})")
     return 0
+
+
+def _record(args: argparse.Namespace, config) -> Path:
+    """Record the walk from the config's camera (``--camera``, else its first) into
+    OUT/walk.mp4; the path."""
+    from monitor.commission.recording import record_walk
+    from monitor.frames import SourceOptions, open_source
+    from monitor.signals import StopSignals
+
+    cams = {c.id: c for c in config.cameras}
+    cam = cams.get(args.camera) if args.camera else config.cameras[0]
+    if cam is None:
+        raise InputError(f"--camera {args.camera}: not in the config (has {', '.join(cams)})")
+    args.out.mkdir(parents=True, exist_ok=True)
+    path = args.out / "walk.mp4"
+    with StopSignals(name="monitor commission walk") as stop:
+        source = open_source(cam.source, cam.id, realtime=cam.realtime,
+                             options=SourceOptions(), stop=stop)
+        print(f"recording {args.record:g} s of {cam.id} ({cam.source}): walk the cell now",
+              file=sys.stderr, flush=True)
+        try:
+            rec = record_walk(source, path, args.record, args.fps, stop)
+        finally:
+            source.close()
+    print(f"recorded {rec.frames} frames at {args.fps:g} fps into {path} ({rec.codec}); "
+          f"{rec.repeated} repeated (camera slower), {rec.dropped} dropped (camera faster)")
+    return path
 
 
 def cmd_report(args: argparse.Namespace) -> int:
