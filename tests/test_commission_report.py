@@ -14,6 +14,7 @@ import pytest
 from monitor.cli import main
 from monitor.commission.report import SECTIONS, checksum_of, printed_checksum, verify
 from monitor.commissioned import RECORD_NAME, status_of
+from tests.helpers import one_error_line
 from tests.processes import Service, wait_for
 
 CHROMIUM = Path("/usr/bin/chromium")
@@ -122,3 +123,17 @@ def test_the_report_renders_in_headless_chromium(demo_report, tmp_path):
         assert len(pdf) > 10_000
     finally:
         driver.quit()
+
+
+@pytest.mark.parametrize(("args", "needle"), [
+    pytest.param(["--status", "{missing}"], "no such status file", id="no-status"),
+    pytest.param(["--status", "{bad}"], "status file is not JSON", id="bad-status"),
+    pytest.param(["--walk", "{tmp}"], "no walk result here", id="no-walk"),
+])
+def test_bad_inputs_are_one_line(tmp_path, capsys, args, needle):
+    (tmp_path / "bad.json").write_text("{not json")
+    paths = {"missing": tmp_path / "none.json", "bad": tmp_path / "bad.json", "tmp": tmp_path}
+    argv = [a.format(**paths) for a in args]
+    assert main(["commission", "report", "--out", str(tmp_path / "r.html"), *argv]) == 2
+    assert needle in one_error_line(capsys)
+    assert not (tmp_path / "r.html").exists()
