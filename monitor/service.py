@@ -23,6 +23,8 @@ from pathlib import Path
 from monitor.bus import SafetyBus
 from monitor.camera_references import reference_warnings
 from monitor.cases.receiver import CaseReceiver
+from monitor.commissioned import fingerprint
+from monitor.commissioned import status_of as commissioned_status
 from monitor.config import MonitorConfig, load_config
 from monitor.driver import Driver, protective_warning
 from monitor.geometry import describe_separation
@@ -110,6 +112,12 @@ def _run(config_path, log_json: bool, duration: float | None, signals: StopSigna
                 bus.update_status(protective_zone=False, warning=warning)
             if test_model:
                 bus.update_status(test_model=test_model)
+
+            def commissioned(zones_hash: str) -> None:
+                """Which commissioned configuration runs (docs/commissioning.md)."""
+                running = fingerprint(config, zones_hash, pipeline.detector.model_path)
+                bus.update_status(commissioned=commissioned_status(config_path, running))
+            commissioned(cell.config_hash if cell else "")
             # zone set selections (monitor/cases/): only with sets in the zone file
             cases = (CaseReceiver.for_bus(bus.session, bus.config, pipeline.case_plan)
                      if pipeline.case_plan is not None else None)
@@ -124,7 +132,7 @@ def _run(config_path, log_json: bool, duration: float | None, signals: StopSigna
                        LatestFrameGrabber, SourceOptions, open_source, test_model,
                        capacity_check or ("warn" if config_path is None
                                           else config.service.capacity_check),
-                       closers, cases)
+                       closers, cases, commissioned)
             finally:
                 forget()
             event("shutting down: final STOP published")
@@ -145,7 +153,7 @@ def shutdown_forced() -> Command:
 def _serve(config: MonitorConfig, pipeline: Pipeline, bus: SafetyBus, expected: dict, metrics,
            stop: threading.Event, duration: float | None, grabber_cls, options_cls,
            open_source, test_model: str | None = None, capacity_mode: str = "refuse",
-           closers: list | None = None, cases=None) -> None:
+           closers: list | None = None, cases=None, commissioned=None) -> None:
     # zones that follow the tool need the pose too (without it they stay at their maximum)
     following = pipeline.prepared is not None and bool(pipeline.prepared.moving)
     pose = (bus.pose_subscriber(tracker_clock=config.tracker_clock,
@@ -202,6 +210,8 @@ def _serve(config: MonitorConfig, pipeline: Pipeline, bus: SafetyBus, expected: 
                 inplace.zones = protective_regions(cell, [c.id for c in config.cameras])
             if rec is not None:
                 rec.zones_changed(cell)
+            if commissioned is not None:  # the zones differ from the commissioned ones
+                commissioned(cell.config_hash)
 
         feed.zones = LiveZones(config, zones_file_of(config), pipeline, bus, applies,
                                sink.alert, event, on_applied=applied)

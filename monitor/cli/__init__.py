@@ -37,6 +37,7 @@ COMMAND_MODULES = (
     "monitor.cli.incidents",
     "monitor.cli.mute",
     "monitor.cli.cases",
+    "monitor.cli.commission",
 )
 # Commands whose module alone is imported to run them: the operator's bus commands start in a
 # fraction of the time when the detector, OpenCV and the zone tools are not imported. A command

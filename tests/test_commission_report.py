@@ -1,0 +1,139 @@
+"""`monitor commission report` on the demo cell: the same inputs give the same bytes and
+checksum, a changed byte is found by `commission verify`, the report renders in headless
+chromium with every section and picture, and `monitor status` of a running service names the
+checksum of the commissioned configuration and whether it still matches."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+
+from monitor.cli import main
+from monitor.commission.report import SECTIONS, checksum_of, printed_checksum, verify
+from monitor.commissioned import RECORD_NAME, status_of
+from tests.helpers import one_error_line
+from tests.processes import Service, wait_for
+
+CHROMIUM = Path("/usr/bin/chromium")
+CHROMEDRIVER = Path(shutil.which("chromedriver") or "/usr/bin/chromedriver")
+
+
+def _report(out: Path, *args: str) -> str:
+    assert main(["commission", "report", "--out", str(out), "--by", "anna", *args]) == 0
+    return out.read_text()
+
+
+@pytest.fixture(scope="module")
+def demo_report(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("report") / "demo.html"
+    with pytest.MonkeyPatch.context() as mp:  # the model cache of every other test (conftest)
+        mp.setenv("WORKCELL_MONITOR_HOME", str(tmp_path_factory.getbasetemp() / "monitor-home"))
+        _report(out)
+    return out
+
+
+def test_the_same_inputs_give_the_same_report_and_checksum(demo_report, tmp_path, capsys):
+    again = _report(tmp_path / "again.html")
+    first = demo_report.read_text()
+    assert again == first
+    checksum = printed_checksum(first)
+    assert checksum is not None and len(checksum) == 64
+    assert checksum == checksum_of(first) and verify(first) == (True, checksum)
+    assert f"checksum {checksum}" in capsys.readouterr().out
+    # what makes it: the zone set, the model, the changed settings and the sign-off
+    assert "demo-cell.yaml" in first and "bus.allow_unsigned_resets" in first
+    assert "anna" in first and _report(tmp_path / "other.html", "--by", "bob") != first
+
+
+def test_a_changed_report_fails_verification(demo_report, tmp_path, capsys):
+    assert main(["commission", "verify", str(demo_report)]) == 0
+    changed = tmp_path / "changed.html"
+    changed.write_text(demo_report.read_text().replace("robot-protective", "robot-protectiv", 1))
+    assert main(["commission", "verify", str(changed)]) == 1
+    assert "CHANGED" in capsys.readouterr().out
+
+
+def test_the_record_beside_the_config_and_the_status_field(tmp_path, synthetic_model):
+    config = tmp_path / "monitor.toml"
+    config.write_text(f'[camera]\nsource = "synthetic:demo"\n[model]\npath = "{synthetic_model}"\n'
+                      '[policy]\nclear_time = 1.5\n')
+    html = _report(tmp_path / "report.html", "--config", str(config))
+    record = json.loads((tmp_path / RECORD_NAME).read_text())
+    assert record["checksum"] == printed_checksum(html) and record["by"] == "anna"
+    assert "policy.clear_time" in html
+    running = {k: record[k] for k in ("zones_hash", "model_sha256", "settings_sha256")}
+    assert status_of(config, running)["matches"] is True
+    changed = status_of(config, {**running, "zones_hash": "0" * 16})
+    assert changed["matches"] is False and changed["differs"] == ["zones"]
+    assert changed["checksum"] == record["checksum"]
+    other = tmp_path / "other" / "monitor.toml"
+    other.parent.mkdir()
+    gone = status_of(other, running)
+    assert gone["checksum"] is None and not gone["matches"] and "not commissioned" in \
+        gone["reason"]
+
+
+@pytest.mark.slow
+def test_status_names_the_commissioned_checksum(tmp_path, synthetic_model):
+    svc = Service(tmp_path, synthetic_model, "synthetic:demo")
+    html = _report(tmp_path / "report.html", "--config", str(svc.config))
+    checksum = printed_checksum(html)
+    assert "tester" in html  # the operators file's operator and key fingerprint
+    with svc:
+        # the first answers: once the monitor has decided (its status queryable is routed)
+        wait_for(lambda: svc.commands, 60, "a command", svc)
+        status = wait_for(lambda: (s := svc.status()).get("commissioned") and s, 30,
+                          "the commissioned field in the status", svc)
+    assert status["commissioned"]["checksum"] == checksum
+    assert status["commissioned"]["matches"] is True and status["commissioned"]["differs"] == []
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not CHROMIUM.exists(), reason="/usr/bin/chromium missing (apt-get install "
+                    "chromium chromium-driver; .ci/run installs it)")
+def test_the_report_renders_in_headless_chromium(demo_report, tmp_path):
+    from selenium import webdriver
+    from selenium.webdriver.chrome.service import Service as DriverService
+    from selenium.webdriver.common.by import By
+
+    opts = webdriver.ChromeOptions()
+    opts.binary_location = str(CHROMIUM)
+    for flag in ("--headless", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
+                 "--disable-background-networking", "--no-first-run",
+                 f"--user-data-dir={tmp_path / 'profile'}", "--window-size=1200,900"):
+        opts.add_argument(flag)
+    driver = webdriver.Chrome(options=opts, service=DriverService(str(CHROMEDRIVER)))
+    try:
+        driver.set_page_load_timeout(30)
+        driver.get(demo_report.as_uri())
+        for sid in SECTIONS:
+            section = driver.find_element(By.ID, sid)
+            assert section.find_element(By.TAG_NAME, "h2").text, sid
+        images = driver.execute_script(
+            "return Array.from(document.images).map(i => [i.alt, i.complete, i.naturalWidth])")
+        assert {alt for alt, _, _ in images} >= {"floor plan", "camera cam0"}
+        assert all(done and width > 0 for _, done, width in images), images
+        checksum = driver.find_element(By.ID, "checksum").text
+        assert printed_checksum(demo_report.read_text()) in checksum
+        driver.save_screenshot(str(tmp_path / "report.png"))
+        pdf = driver.print_page()  # printable: Chrome's own print to PDF (base64)
+        assert len(pdf) > 10_000
+    finally:
+        driver.quit()
+
+
+@pytest.mark.parametrize(("args", "needle"), [
+    pytest.param(["--status", "{missing}"], "no such status file", id="no-status"),
+    pytest.param(["--status", "{bad}"], "status file is not JSON", id="bad-status"),
+    pytest.param(["--walk", "{tmp}"], "no walk result here", id="no-walk"),
+])
+def test_bad_inputs_are_one_line(tmp_path, capsys, args, needle):
+    (tmp_path / "bad.json").write_text("{not json")
+    paths = {"missing": tmp_path / "none.json", "bad": tmp_path / "bad.json", "tmp": tmp_path}
+    argv = [a.format(**paths) for a in args]
+    assert main(["commission", "report", "--out", str(tmp_path / "r.html"), *argv]) == 2
+    assert needle in one_error_line(capsys)
+    assert not (tmp_path / "r.html").exists()
