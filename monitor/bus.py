@@ -8,6 +8,8 @@ Keys (``prefix`` defaults to ``workcell/<cell>/``):
                                     with a bounded wait (``block_wait_ms``).
 ``<prefix>safety/alert``            alerts (JSON; JPEG snapshot as the sample attachment)
 ``<prefix>safety/detections``       persons and zone hits per processed frame (dashboards)
+``<prefix>safety/preview``          a small signed JPEG per camera at a low rate, published by
+                                    ``monitor.preview`` on its own publisher (the console)
 ``<prefix>safety/status``           queryable: state, config hash, fps, uptime, last reset
 ``<prefix>safety/reset``            queryable (and subscribed): signed operator resets
                                     (``monitor.resets``); the reply is the answer

@@ -30,7 +30,7 @@ KeyChunk = Annotated[Text, AfterValidator(_key_chunk)]
 # chunks under ``safety/`` that are keys of their own: a role by one of these names would mix
 # its keys with the cell's (``safety/<role>/...``)
 RESERVED_ROLES = frozenset({"alive", "alert", "case", "command", "detections", "holds",
-                            "incidents", "mute", "reset", "status", "zones"})
+                            "incidents", "mute", "preview", "reset", "status", "zones"})
 
 
 def _role(value: str) -> str:
@@ -135,6 +135,7 @@ class BusKeys:
     zones_apply: str = ""  # signed zone applies (monitor.zone_apply)
     holds: str = ""  # signed holds of persons lost inside zones (monitor.bus_holds)
     case: str = ""  # signed zone set selections, one key per cell (monitor.cases.receiver)
+    preview: str = ""  # small live pictures per camera for the console (monitor.preview)
     role: str = ""
 
     @classmethod
@@ -149,7 +150,8 @@ class BusKeys:
                    detections=s + "detections", status=s + "status",
                    reset=s + "reset", alive=p + "safety/alive" + (f"/{role}" if role else ""),
                    pose=p + "tracker/pose", mute=s + "mute", zones_apply=s + "zones/apply",
-                   holds=s + "holds", case=p + "safety/case", role=role)
+                   holds=s + "holds", case=p + "safety/case", preview=s + "preview",
+                   role=role)
 
 
 def zenoh_config(bus: BusConfig) -> zenoh.Config:

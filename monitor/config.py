@@ -4,8 +4,8 @@ One schema (monitor/schema.py): ``MonitorConfig`` is the root, and each section 
 pydantic dataclass of its stage (``[policy]`` -> PolicyConfig, ``[health]`` -> HealthConfig,
 ``[bus]`` -> BusConfig, ``[detector]`` -> DetectorConfig, ``[alerts]`` -> AlertLimits,
 ``[tracker_clock]`` -> TrackerClockConfig, ``[tracker]`` -> TrackerConfig, ``[recorder]`` ->
-RecorderConfig, ``[reaction]`` -> ReactionConfig, and the camera, model, zones and service
-sections here). Unknown sections and keys are refused, types
+RecorderConfig, ``[reaction]`` -> ReactionConfig, ``[preview]`` -> PreviewConfig, and the
+camera, model, zones and service sections here). Unknown sections and keys are refused, types
 and bounds are in the fields' annotations, cross-field rules are validators, and path fields
 resolve against the config file's folder. Validation has no side effects: nothing is opened,
 downloaded or built.
@@ -39,6 +39,7 @@ from monitor.health import HealthConfig
 from monitor.incidents.settings import RecorderConfig
 from monitor.policy import PolicyConfig
 from monitor.pose_time import TrackerClockConfig
+from monitor.preview import PreviewConfig
 from monitor.reaction import ReactionConfig
 from monitor.schema import Bool, ConfigPath, Float, Int, Text, describe, section
 from monitor.tracker_noise import TrackerConfig
@@ -133,6 +134,7 @@ class MonitorConfig:
     recorder: RecorderConfig = field(default_factory=RecorderConfig)
     reaction: ReactionConfig = field(default_factory=ReactionConfig)
     handover: HandoverConfig = field(default_factory=HandoverConfig)
+    preview: PreviewConfig = field(default_factory=PreviewConfig)
     source_file: Text | None = None
 
     @model_validator(mode="after")
@@ -155,14 +157,15 @@ class MonitorConfig:
 
 SECTIONS = ("camera", "model", "zones", "detector", "policy", "tracker_clock", "tracker",
             "tracking",
-            "health", "bus", "alerts", "service", "recorder", "reaction", "handover")
+            "health", "bus", "alerts", "service", "recorder", "reaction", "handover", "preview")
 _CLASSES = {"camera": CameraConfig, "model": ModelConfig, "zones": ZonesConfig,
             "detector": DetectorConfig, "policy": PolicyConfig,
             "tracker_clock": TrackerClockConfig, "tracker": TrackerConfig,
             "tracking": CellPersonsConfig,
             "health": HealthConfig,
             "bus": BusConfig, "alerts": AlertLimits, "service": ServiceConfig,
-            "recorder": RecorderConfig, "reaction": ReactionConfig, "handover": HandoverConfig}
+            "recorder": RecorderConfig, "reaction": ReactionConfig, "handover": HandoverConfig,
+            "preview": PreviewConfig}
 
 
 def section_keys(name: str) -> list[str]:

@@ -32,6 +32,7 @@ from monitor.health.build import inplace_check, protective_regions
 from monitor.metrics import Metrics
 from monitor.pipeline import Pipeline
 from monitor.policy import STOP, Command, Reason
+from monitor.preview import start_preview
 from monitor.resets import LatchNonces
 from monitor.service_log import event, setup_logging
 from monitor.service_loop import LiveFeed, ServiceSink
@@ -219,8 +220,12 @@ def _serve(config: MonitorConfig, pipeline: Pipeline, bus: SafetyBus, expected: 
         feed.cases = cases
         # after the service's sink: the command of a step is published when it times it
         reaction = reaction_sink(config, pipeline, capacity, bus, metrics, sink.alert)
-        # the safety sink first; the recorder (an optional extra) last
+        # the safety sink first; the recorder and the live preview (optional extras) last
         sinks = [sink, reaction] if recorder is None else [sink, reaction, recorder[0]]
+        preview = start_preview(config.preview, bus, event)
+        if preview is not None:
+            sinks.append(preview[0])
+            closers.insert(0, preview[1])
         handover = start_handover(config, pipeline, bus)  # holds of the cell's other monitors
         if handover is not None:
             sinks.insert(1, handover)

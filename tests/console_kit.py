@@ -3,6 +3,7 @@ data dir (a replay with the recorder on: H.264 clips, SQLite index), an operator
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import shutil
 import tempfile
@@ -105,3 +106,44 @@ def make_console(tmp: Path, with_passwords: bool = True, **options):
     return Console("c", live, LiveRenderer(live, editor.cell, {}), editor,
                    RecorderIncidents(incidents), references={},
                    edits=ZoneEditIncidents(incidents, "c"), **fields)
+
+
+CHROMIUM = Path("/usr/bin/chromium")
+
+
+@contextlib.contextmanager
+def chromium(profile: Path):
+    """A real headless chromium driven by selenium (Debian's chromium + chromium-driver)."""
+    from selenium import webdriver
+    from selenium.webdriver.chrome.service import Service
+
+    opts = webdriver.ChromeOptions()
+    opts.binary_location = str(CHROMIUM)
+    for flag in ("--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
+                 "--disable-component-update", "--disable-sync", "--no-first-run",
+                 "--disable-dev-shm-usage", f"--user-data-dir={profile}",
+                 "--window-size=1400,1000"):
+        opts.add_argument(flag)
+    driver = webdriver.Chrome(options=opts, service=Service(
+        shutil.which("chromedriver") or "/usr/bin/chromedriver"))
+    driver.set_page_load_timeout(30)
+    try:
+        yield driver
+    finally:
+        driver.quit()
+
+
+def wait_http(url: str, proc, log: Path, ceiling: float = 60.0) -> None:
+    """Until ``url`` answers (the console process ``proc`` is up), its log on failure."""
+    import time
+    import urllib.request
+
+    deadline = time.monotonic() + ceiling
+    while time.monotonic() < deadline:
+        assert proc.poll() is None, log.read_text()
+        try:
+            urllib.request.urlopen(url, timeout=1).read()
+            return
+        except OSError:
+            time.sleep(0.2)
+    raise AssertionError(f"{url} did not answer within {ceiling:g} s: {log.read_text()}")

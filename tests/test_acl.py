@@ -33,6 +33,7 @@ ACCESS = {
     "alert": ({"monitor", "otus-bridge"}, set(), set()),  # the bridge: the cell's key only
     "detections": ({"monitor"}, set(), set()),
     "holds": ({"monitor"}, set(), set()),
+    "preview": ({"monitor"}, set(), set()),  # the console's live pictures (monitor.preview)
     "pose": ({"otus-bridge"}, set(), set()),
     "status": (set(), {"*"}, {"monitor"}),
     "reset": ({"operator1"}, {"operator1"}, {"monitor"}),

@@ -127,6 +127,7 @@ def _serve(args, host: str, port: int, tls: bool, operators, references, audit) 
     from monitor.console.zones_api import ZoneEditor
     from monitor.inbox import Inbox
     from monitor.signals import close_bounded
+    from monitor.signing import load_public_key
 
     editor = ZoneEditor(args.zones)  # a broken zone file: one line, nothing started
     unknown = set(references) - set(editor.cell().cameras)
@@ -135,7 +136,9 @@ def _serve(args, host: str, port: int, tls: bool, operators, references, audit) 
     bus = _bus_config(args, instance=args.instance or default_instance("console"))
     keys = BusKeys.of(bus.key_prefix)
     dog = _watchdog(args, bus, keys)
-    live = LiveState()
+    # live pictures count only when signed with a pinned monitor key (as commands do)
+    live = LiveState(preview_keys=tuple(load_public_key(p) for p in args.monitor_key),
+                     require_signed=not args.unauthenticated, preview_key=keys.preview)
     console = Console(cell_name=bus.cell, live=live,
                       renderer=LiveRenderer(live, editor.cell, references), editor=editor,
                       incidents=RecorderIncidents(args.incidents) if args.incidents

@@ -1,16 +1,17 @@
-"""The console's live view: the cell's verdict, detections and alert snapshots, drawn.
+"""The console's live view: the cell's verdict, the live picture, detections and alert
+snapshots, drawn.
 
-Why no video from the monitor: ``monitor run`` publishes a signed command per step,
-detections per frame and alerts with a JPEG snapshot, but no frames; the console does not add a
-preview stream to the safety service (that would put JPEG encoding and a bulk publication into
-the loop that decides STOP). It draws instead, server-side, what the monitor *decided on*: the
-camera's reference image (``--reference cam0=FILE``), or the snapshot of a recent alert of that
-camera, with the zones (the same drawing as ``monitor zones preview``), the zones hit and the
-person boxes of the newest detections. The state and its reasons come from the consumer rule
+The picture is the monitor's live preview (``monitor.preview``: a small JPEG per camera at a low
+rate, ``[preview] fps``, signed with the monitor's key; a preview not signed by a pinned key is
+not shown), or, without one in the last ``PREVIEW_FRESH_S``, the snapshot of a recent alert of
+that camera, else the camera's reference image (``--reference cam0=FILE``). Over it the console
+draws the zones (the same drawing as ``monitor zones preview``), the zones hit and the person
+boxes of the newest detections. The state and its reasons come from the consumer rule
 (``monitor.adapters.follower``): signed by the monitor's key, STOP on silence, exactly what a
 robot-side adapter would follow, never the raw message.
 
-The Zenoh callbacks only store bytes (newest wins, bounded); parsing and drawing happen when a
+The Zenoh callbacks only store bytes (newest wins, bounded; a live picture is checked first:
+at most ``MAX_PREVIEW_BYTES``, its signature, its JPEG magic); parsing and drawing happen when a
 browser asks, at most every ``min_render_s`` per camera.
 """
 
@@ -28,6 +29,7 @@ import cv2
 import numpy as np
 
 from monitor.adapters.snapshot import SafetySnapshot
+from monitor.preview import MAX_PREVIEW_BYTES, read_preview
 from monitor.types import Alert
 from monitor.zones.draw import draw_zones
 from monitor.zones.files import Cell
@@ -35,6 +37,8 @@ from monitor.zones.files import Cell
 MAX_DETECTIONS_BYTES = 1_000_000  # a detections message larger than this is not drawn
 SNAPSHOT_FRESH_S = 30.0  # an alert snapshot older than this gives way to the reference image
 DETECTIONS_FRESH_S = 2.0  # older detections are not drawn as current
+PREVIEW_FRESH_S = 5.0  # an older live picture gives way to the alert snapshot / reference
+MAX_PREVIEW_CAMERAS = 64  # pictures of more cameras than this are not kept
 
 
 class LiveState:
@@ -42,13 +46,20 @@ class LiveState:
 
     name = "console"
 
-    def __init__(self, clock=time.monotonic) -> None:
+    def __init__(self, clock=time.monotonic, preview_keys: tuple = (),
+                 require_signed: bool = True, preview_key: str = "") -> None:
         self.clock = clock
         self._lock = threading.Lock()
         self.snapshot: SafetySnapshot | None = None
         self.detections: dict[str, tuple[bytes, float]] = {}  # camera -> (payload, received)
         self.alert_images: dict[str, tuple[bytes, float]] = {}  # camera -> (jpeg, received)
         self.alerts: deque[dict] = deque(maxlen=50)
+        # live pictures: checked against the monitor's keys (--monitor-key) unless the console
+        # runs --unauthenticated
+        self.preview_keys, self.require_signed = tuple(preview_keys), require_signed
+        self.preview_key = preview_key
+        self.previews: dict[str, tuple[bytes, float]] = {}  # camera -> (payload, received)
+        self.previews_refused = 0
 
     # --- writers (follower thread, Zenoh callbacks) ---------------------------------------
     def publish(self, snapshot: SafetySnapshot) -> None:
@@ -77,6 +88,18 @@ class LiveState:
             if attachment and attachment[:2] == b"\xff\xd8":  # a JPEG, by its magic
                 self.alert_images[str(body.get("source", ""))] = (attachment, self.clock())
 
+    def on_preview(self, payload: bytes, attachment: bytes | None) -> None:
+        """A live picture: kept (newest per camera) only when it is a signed preview."""
+        preview = read_preview(payload, attachment, self.preview_key, self.preview_keys,
+                               self.require_signed) if len(payload) <= MAX_PREVIEW_BYTES \
+            else None
+        with self._lock:
+            if preview is None or (preview.camera not in self.previews
+                                   and len(self.previews) >= MAX_PREVIEW_CAMERAS):
+                self.previews_refused += 1
+                return
+            self.previews[preview.camera] = (preview.jpeg, self.clock())
+
     def add_alert(self, alert: Alert) -> None:
         """One of the console's own alerts (a login lock-out), shown with the monitor's."""
         entry = {"kind": alert.kind, "severity": alert.severity, "message": alert.message,
@@ -90,8 +113,12 @@ class LiveState:
             snap = self.snapshot
             alerts = list(self.alerts)[:10]
             seen = {cam: self.clock() - t for cam, (_, t) in self.detections.items()}
+            pictures = {cam: self.clock() - t for cam, (_, t) in self.previews.items()}
+            refused = self.previews_refused
         body: dict[str, Any] = {"state": "STOP", "reason": "console starting", "alerts": alerts,
-                                "detections_age_s": {c: round(a, 2) for c, a in seen.items()}}
+                                "detections_age_s": {c: round(a, 2) for c, a in seen.items()},
+                                "preview_age_s": {c: round(a, 2) for c, a in pictures.items()},
+                                "previews_refused": refused}
         if snap is not None:
             body.update(asdict(snap))
         return body
@@ -103,6 +130,12 @@ class LiveState:
             return None, None
         return _json(item[0]), self.clock() - item[1]
 
+    def preview(self, camera: str) -> tuple[bytes | None, float | None]:
+        """The newest live picture of ``camera`` and its age (s), or (None, None)."""
+        with self._lock:
+            item = self.previews.get(camera)
+        return (item[0], self.clock() - item[1]) if item else (None, None)
+
     def alert_image(self, camera: str) -> tuple[bytes | None, float | None]:
         with self._lock:
             item = self.alert_images.get(camera)
@@ -110,8 +143,8 @@ class LiveState:
 
 
 def subscribe_live(session, keys, live: LiveState) -> list:
-    """Detections and alerts (with snapshots) into ``live``; the entities, for closing. The
-    commands go through the follower (the consumer rule), not here."""
+    """Detections, alerts (with snapshots) and live pictures into ``live``; the entities, for
+    closing. The commands go through the follower (the consumer rule), not here."""
 
     def attachment(s) -> bytes | None:
         return s.attachment.to_bytes() if s.attachment is not None else None
@@ -121,6 +154,8 @@ def subscribe_live(session, keys, live: LiveState) -> list:
                                    lambda s: live.on_detections(s.payload.to_bytes())),
         session.declare_subscriber(keys.alert,
                                    lambda s: live.on_alert(s.payload.to_bytes(), attachment(s))),
+        session.declare_subscriber(keys.preview,
+                                   lambda s: live.on_preview(s.payload.to_bytes(), attachment(s))),
     ]
 
 
@@ -137,6 +172,14 @@ class LiveRenderer:
         self._lock = threading.Lock()
 
     def background(self, cell: Cell, camera: str) -> tuple[np.ndarray, str]:
+        jpeg, age = self.live.preview(camera)
+        if jpeg is not None and age is not None and age <= PREVIEW_FRESH_S:
+            img = cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_COLOR)
+            if img is not None:
+                cam = cell.cameras[camera]
+                if img.shape[:2] != (cam.height, cam.width):  # zones are in camera pixels
+                    img = cv2.resize(img, (cam.width, cam.height))
+                return img, f"live picture, {age:.1f} s old"
         jpeg, age = self.live.alert_image(camera)
         if jpeg is not None and age is not None and age <= SNAPSHOT_FRESH_S:
             img = cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_COLOR)
