@@ -199,6 +199,9 @@ def test_console_live_incidents_and_zone_editor_in_a_browser(browser, cell_and_c
     _wait(d, lambda _: [r.get_attribute("data-id") for r in
                         d.find_elements(By.CSS_SELECTOR, "#rows tr")] == [entry.id],
           what="the recorded incident")
+    _wait(d, lambda _: d.execute_script(  # its thumbnail: the clip's frame, 240 px wide
+        "const i = document.querySelector('#rows img.thumb');"
+        "return i && i.complete && i.naturalWidth === 240"), what="the incident's thumbnail")
     d.find_element(By.CSS_SELECTOR, f"#rows tr[data-id='{entry.id}'] button.play").click()
     played = _wait(d, lambda _: d.execute_script(
         "const v = document.getElementById('player');"

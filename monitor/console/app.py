@@ -7,7 +7,8 @@ reference server, with TLS built in. The pages are plain HTML and one small scri
 
 Routes: ``/`` live view, ``/incidents`` list and playback, ``/zones`` zone editor (pages);
 ``/api/state``, ``/api/live/{camera}.jpg``, ``/api/incidents``,
-``/api/incidents/{id}/clip[?camera=]``, ``/api/zones``, ``/api/zones/{camera}/image.jpg``
+``/api/incidents/{id}/clip[?camera=]``, ``/api/incidents/{id}/thumb.jpg[?camera=]``,
+``/api/zones``, ``/api/zones/{camera}/image.jpg``
 (read-only, no login);
 ``PUT /api/zones/{id}`` (an operator's credential; audited, accepted or refused).
 """
@@ -156,6 +157,13 @@ def build_app(console: Console) -> Starlette:
         media = "video/mp4" if path.suffix.lower() in (".mp4", ".m4v") else None
         return FileResponse(path, media_type=media, headers={"cache-control": "no-store"})
 
+    async def thumbnail(request: Request) -> Response:
+        data = await run_in_threadpool(console.incidents.thumbnail, request.path_params["id"],
+                                       request.query_params.get("camera") or None)
+        if data is None:
+            return _json({"error": "no thumbnail for this incident"}, 404)
+        return Response(data, media_type="image/jpeg", headers=_SECURITY_HEADERS)
+
     async def zones(request: Request) -> Response:
         try:
             return _json(console.editor.editor_data())
@@ -302,6 +310,7 @@ def build_app(console: Console) -> Starlette:
         Route("/api/live/{camera}.jpg", live_jpeg),
         Route("/api/incidents", incidents),
         Route("/api/incidents/{id}/clip", clip),
+        Route("/api/incidents/{id}/thumb.jpg", thumbnail),
         Route("/api/zones", zones),
         Route("/api/zones/{camera}/image.jpg", zone_image),
         Route("/api/zones/{id}", save_zone, methods=["PUT"]),

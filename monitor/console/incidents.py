@@ -11,13 +11,19 @@ is never followed).
 from __future__ import annotations
 
 import sqlite3
+import threading
+from collections import OrderedDict
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
 
+import cv2
+
 from monitor.incidents import Incident, IncidentIndex
 
 MAX_LISTED = 500  # a page, not the whole history
+THUMB_WIDTH = 240  # pixels
+MAX_THUMBS = 256  # thumbnails kept in memory (a page of the list and some)
 
 
 @dataclass(frozen=True)
@@ -44,6 +50,10 @@ class IncidentSource(Protocol):
         """The incident's clip (an existing file inside the source's directory) or None."""
         ...
 
+    def thumbnail(self, incident_id: str, camera: str | None = None) -> bytes | None:
+        """A small JPEG of the clip's frame at the incident's moment, or None."""
+        ...
+
 
 class NoIncidents:
     """No ``--incidents`` given: an empty list, no clips."""
@@ -52,6 +62,9 @@ class NoIncidents:
         return []
 
     def clip_path(self, incident_id: str, camera: str | None = None) -> Path | None:
+        return None
+
+    def thumbnail(self, incident_id: str, camera: str | None = None) -> bytes | None:
         return None
 
 
@@ -63,6 +76,8 @@ class RecorderIncidents:
     def __init__(self, directory: str | Path) -> None:
         self.directory = Path(directory).resolve()
         self.index = IncidentIndex(self.directory)
+        self._thumbs: OrderedDict[tuple, bytes | None] = OrderedDict()  # newest used last
+        self._thumbs_lock = threading.Lock()
 
     def _inside(self, path: Path) -> Path | None:
         resolved = path.resolve()
@@ -122,3 +137,52 @@ class RecorderIncidents:
         if camera is None:
             return next(iter(clips.values()), None)
         return clips.get(camera)
+
+    def thumbnail(self, incident_id: str, camera: str | None = None) -> bytes | None:
+        try:
+            incident = self.index.get(incident_id)
+        except (sqlite3.Error, OSError, ValueError):
+            return None
+        if incident is None:
+            return None
+        clips = self._clips(incident)
+        camera = camera if camera is not None else next(iter(clips), None)
+        path = clips.get(camera) if camera is not None else None
+        if path is None:
+            return None
+        # the frame of the moment the incident began: the clip's frames before it
+        info = incident.record.get("clips", {}).get(camera, {})
+        at = info.get("frames_before", 0) if isinstance(info, dict) else 0
+        key = (incident_id, camera, path.stat().st_mtime_ns)
+        with self._thumbs_lock:
+            if key in self._thumbs:
+                self._thumbs.move_to_end(key)
+                return self._thumbs[key]
+        jpeg = clip_thumbnail(path, int(at) if isinstance(at, int) else 0)
+        with self._thumbs_lock:
+            self._thumbs[key] = jpeg
+            while len(self._thumbs) > MAX_THUMBS:
+                self._thumbs.popitem(last=False)
+        return jpeg
+
+
+def clip_thumbnail(path: Path, at: int, width: int = THUMB_WIDTH) -> bytes | None:
+    """Frame ``at`` of the clip (its last frame if shorter) scaled to ``width``, as JPEG;
+    None when the clip cannot be decoded."""
+    capture = cv2.VideoCapture(str(path))
+    try:
+        image = None
+        for _ in range(max(0, min(at, 10_000)) + 1):  # read on: seeking H.264 is unreliable
+            ok, frame = capture.read()
+            if not ok:
+                break
+            image = frame
+    finally:
+        capture.release()
+    if image is None:
+        return None
+    h, w = image.shape[:2]
+    image = cv2.resize(image, (width, max(1, round(h * width / w))),
+                       interpolation=cv2.INTER_AREA)
+    ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 75])
+    return buf.tobytes() if ok else None

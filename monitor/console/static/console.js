@@ -75,6 +75,12 @@ async function loadIncidents(ev) {
   $("count").textContent = list.length + " incident(s)";
   $("rows").replaceChildren(...list.map((i) => {
     const tr = el("tr", null, { "data-id": i.id });
+    const thumb = el("td");
+    if (i.has_clip) {  // the clip's frame at the incident's moment, fetched when shown
+      thumb.appendChild(el("img", null, { class: "thumb", alt: "", loading: "lazy",
+        src: "/api/incidents/" + encodeURIComponent(i.id) + "/thumb.jpg" }));
+    }
+    tr.appendChild(thumb);
     tr.appendChild(el("td", new Date(i.started * 1000).toLocaleString()));
     for (const k of ["cause", "state", "camera"]) tr.appendChild(el("td", i[k]));
     const td = el("td");
