@@ -451,9 +451,12 @@ def cmd_validate(args: argparse.Namespace) -> int:
     for cam_id, model in cell.camera_models.items():
         print(f"{args.file}: camera '{cam_id}': {_horizon_text(model)}")
     if args.config is not None:
-        from monitor.zones.handover_check import config_lines
+        from monitor.config import load_config
+        from monitor.zones.handover_check import uncalibrated_handover_lines
 
-        for line in config_lines(cell, args.config):
+        config = load_config(args.config)  # a bad config: ConfigError
+        for line in uncalibrated_handover_lines(cell, tuple(c.id for c in config.cameras),
+                                                tuple(config.handover.peers)):
             print(f"{args.file}: warning: {line}", file=sys.stderr)
     _print_coverage(cell, args.file)
     active = sum(1 for z in cell.zones if z.enabled)
