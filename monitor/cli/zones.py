@@ -419,17 +419,17 @@ def cmd_list(args: argparse.Namespace) -> int:
 def cmd_show(args: argparse.Namespace) -> int:
     cell = zn.load_cell(args.file)
     z = cell.zone(args.id)
-    text = yaml.dump(z.model_dump(mode="json", exclude_none=True), Dumper=zn._Dumper,
+    text = yaml.dump(z.model_dump(mode="json", exclude_none=True), Dumper=zn.ZoneDumper,
                      sort_keys=False)
     print(text.rstrip())
     if z.shape == "polygon":
         area = abs(geo.polygon_signed_area(np.array(z.points_px)))
         print(f"# area {area:.0f} px^2 of camera {z.camera}")
     else:
-        v = zn._prepare_volume(z, cell)
+        v = zn.prepare_volume(z, cell)
         print(f"# bounds_m min {np.round(v.lo, 3).tolist()} max {np.round(v.hi, 3).tolist()}")
         for cam_id in cell.camera_models:
-            seen = zn._volume_region_px(z, cell, cell.camera_models[cam_id], cell.cameras[cam_id])
+            seen = zn.volume_region_px(z, cell, cell.camera_models[cam_id], cell.cameras[cam_id])
             print(f"# {cam_id}: {'in view' if seen is not None else 'not in view'}")
     return 0
 
