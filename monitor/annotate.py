@@ -20,10 +20,10 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from monitor.events import describe
 from monitor.health import draw_health
 from monitor.pipeline import StepResult
 from monitor.policy import RUN, SLOW, STOP
-from monitor.timetext import video_time
 from monitor.zones import Cell
 from monitor.zones.check import placement
 from monitor.zones.draw import (
@@ -78,19 +78,6 @@ class Drawn:
     zone_labels: tuple[ZoneLabel, ...]
     floor_ranges: tuple[FloorRange, ...]
     faults: tuple[str, ...]
-
-
-def describe(command) -> str:
-    """One honest line for a command: ``Command.describe()`` where the policy has it, its
-    times in seconds of the video."""
-    text = getattr(command, "describe", None)
-    if text is not None:
-        return text(video_time)
-    line = f"{command.state} x{command.speed_scale:.2f}"
-    if command.latched:
-        line += " LATCHED - reset needed"
-    causes = [r.message for r in command.reasons if r.code != "latched"]
-    return line + (f": {causes[0]}" if causes else "")
 
 
 def person_ids(result: StepResult) -> tuple[int | str, ...]:

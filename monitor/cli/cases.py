@@ -67,9 +67,9 @@ def register_zone_sets(sub: argparse._SubParsersAction) -> None:
 
 
 def cmd_set_add(args: argparse.Namespace) -> int:
-    from monitor.cli.zones import _read, _write
+    from monitor.cli.zone_files import read_zone_data, write_zone_data
 
-    data = _read(args.file)
+    data = read_zone_data(args.file)
     sets = data.get("sets") or []
     if any(isinstance(s, dict) and s.get("id") == args.id for s in sets):
         raise ConfigError(f"{args.file}: set '{args.id}' exists")
@@ -82,7 +82,7 @@ def cmd_set_add(args: argparse.Namespace) -> int:
     data["sets"] = [*sets, entry]
     if args.default or not data.get("default_set"):
         data["default_set"] = args.id
-    cell = _write(data, args.file)
+    cell = write_zone_data(data, args.file)
     print(f"added set '{args.id}' ({len(entry['zones'])} zones); default set "
           f"{cell.spec.default_set}; config hash {cell.config_hash}")
     return 0

@@ -10,6 +10,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from monitor.annotate import annotate
+
 CODEC = "H.264 (libx264 via PyAV)"
 
 
@@ -17,8 +19,6 @@ def overlay(image: np.ndarray, result, cell, camera_id: str, watch: list) -> np.
     """The replay's overlay (``monitor.annotate``): the header with camera and time, zones with
     labels apart and a legend, each person with the track id the commands use and the floor
     range behind a hit, health, the state bar with the command's description."""
-    from monitor.annotate import annotate
-
     return annotate(image, result, cell, camera_id, watch)[0]
 
 

@@ -31,6 +31,7 @@ from pathlib import Path
 import cv2
 
 from monitor.driver import Step
+from monitor.events import alert_event, command_event, describe
 from monitor.incidents.clips import CODEC, ClipWriter, overlay
 from monitor.incidents.retention import enforce
 from monitor.incidents.ring import FrameRing, RingFrame, encode_jpeg
@@ -38,6 +39,7 @@ from monitor.incidents.settings import RecorderConfig
 from monitor.incidents.store import RECORD, IncidentStore
 from monitor.incidents.triggers import Triggers
 from monitor.types import Alert
+from monitor.zones import watch_regions
 
 MAX_QUEUED_FRAMES = 16  # ~45 MB of 720p frames waiting for the worker at most
 MAX_QUEUED_STEPS = 4096
@@ -241,8 +243,6 @@ class IncidentRecorder:
         self._alerts.append(alert)
 
     def _handle(self, step: Step, take: bool) -> None:
-        from monitor.replay import alert_event, command_event
-
         result = step.result
         self._now = now = result.now
         index = step.index
@@ -250,8 +250,6 @@ class IncidentRecorder:
         if result.changed:
             events.append(command_event(result, index, step.frame is None))
         if step.reset_possible:
-            from monitor.replay import describe
-
             events.append({"type": "reset_possible", "frame": index, "time_s": _r(now),
                            "describe": describe(result.command)})
         events += [alert_event(a, index, None) for a in result.alerts]
@@ -288,8 +286,6 @@ class IncidentRecorder:
 
     def _annotate(self, image, result, camera_id: str):
         if camera_id not in self._watch:
-            from monitor.zones import watch_regions
-
             self._watch[camera_id] = watch_regions(self.cell, camera_id) \
                 if self.cell is not None and camera_id in self.cell.cameras else []
         return overlay(image, result, self.cell, camera_id, self._watch[camera_id])
@@ -306,8 +302,6 @@ class IncidentRecorder:
         clip.setdefault("first_s", _r(t - incident.time_s))
 
     def _start(self, step: Step, causes: tuple[str, ...]) -> None:
-        from monitor.replay import command_event, describe
-
         result = step.result
         cmd = result.command
         wall = self.wall()
