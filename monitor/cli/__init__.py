@@ -170,7 +170,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     command = next((a for a in args_list if not a.startswith("-")), None)
     quick = COMMANDS.get(command or "")
     parser = build_parser((quick,) if quick else COMMAND_MODULES)
-    args = parser.parse_args(args_list)
+    args, extra = parser.parse_known_args(args_list)
+    # a command may take what argparse left over (an optional positional after an option,
+    # e.g. `zones add FILE ID --kind K 'x,y ...'`); anything else is refused as before
+    late = getattr(args, "late_positionals", None)
+    if extra and not (late is not None and late(args, extra)):
+        parser.error(f"unrecognized arguments: {' '.join(extra)}")
     debug = bool(getattr(args, "debug", False))
     try:
         return int(args.func(args) or 0)

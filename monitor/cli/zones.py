@@ -64,7 +64,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--kind", required=True, choices=zn.KINDS, help="zone kind")
     _zone_options(p)
     p.add_argument("--disabled", action="store_true", help="add the zone disabled")
-    p.set_defaults(func=cmd_add)
+    p.set_defaults(func=cmd_add, late_positionals=late_points)
 
     p = sub.add_parser("edit", help="change fields or the geometry of a zone")
     p.add_argument("file", type=Path)
@@ -185,6 +185,15 @@ def _zone_options(p: argparse.ArgumentParser) -> None:
 
 # --------------------------------------------------------------------------------------------
 # helpers
+
+
+def late_points(args: argparse.Namespace, extra: list[str]) -> bool:
+    """`zones add FILE ID --kind K 'x,y ...'`: argparse gives the optional POINTS up when an
+    option comes first and leaves them over; take them as POINTS (True when taken)."""
+    if len(extra) == 1 and args.points is None and not extra[0].startswith("-"):
+        args.points = extra[0]
+        return True
+    return False
 
 
 def _points(text: str, what: str, dims: int = 2) -> list[list[float]]:
