@@ -18,7 +18,7 @@ import yaml
 
 from monitor import geometry as geo
 from monitor import zones as zn
-from monitor.cli import cases, zone_calibrate, zone_cameras
+from monitor.cli import cases, zone_calibrate, zone_cameras, zone_mutes
 from monitor.cli.tool_calibration import calibrate_tool, positive_number
 from monitor.cli.zone_cameras import parse_size, write_new_zone_file
 from monitor.cli.zone_files import (
@@ -160,6 +160,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     zone_cameras.register(sub)
 
     cases.register_zone_sets(sub)
+    zone_mutes.register(sub)
 
 
 def _zone_options(p: argparse.ArgumentParser) -> None:
