@@ -68,16 +68,22 @@ def register_zone_sets(sub: argparse._SubParsersAction) -> None:
         "given stay as they are. The file is validated before it is written.")
     p.add_argument("file", type=Path, help="zone file (YAML)")
     p.add_argument("--allow", action="append", metavar="FROM:TO",
-                   help="an allowed switch (repeat); replaces the list of allowed switches")
-    p.add_argument("--any", action="store_true", help="allow every switch (no transitions list)")
+                   help="an allowed switch (repeat); replaces the list of allowed switches "
+                   "(default: the list stays)")
+    p.add_argument("--any", action="store_true",
+                   help="allow every switch (no transitions list; default off)")
     p.add_argument("--none", action="store_true",
-                   help="allow no switch at all (the default set stays in force)")
+                   help="allow no switch at all: the default set stays in force "
+                   "(default off)")
     p.add_argument("--switch-over", type=float, metavar="S",
-                   help="seconds both sets apply during a switch (0-60)")
-    p.add_argument("--default", dest="default_set", metavar="ID", help="the set in force at start")
+                   help="seconds both sets apply during a switch, 0-60 (default: unchanged)")
+    p.add_argument("--default", dest="default_set", metavar="ID",
+                   help="the set in force at start (default: unchanged)")
     p.add_argument("--selector-ttl", type=float, metavar="S",
-                   help="a selection older than this is a fault (the selector must repeat it)")
-    p.add_argument("--no-selector-ttl", action="store_true", help="do not watch the selector")
+                   help="a selection older than this is a fault: the selector must repeat it "
+                   "(default: unchanged)")
+    p.add_argument("--no-selector-ttl", action="store_true",
+                   help="do not watch the selector (default off)")
     p.set_defaults(func=cmd_set_rules)
     p = actions.add_parser("show", help="show one zone set")
     p.add_argument("file", type=Path, help="zone file (YAML)")

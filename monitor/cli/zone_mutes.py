@@ -20,17 +20,19 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("file", type=Path, help="zone file (YAML)")
     p.add_argument("id", help="zone id")
     p.add_argument("--operators", help="comma-separated operators (names of the operators "
-                   "file) allowed to mute the zone")
+                   "file) allowed to mute the zone (default: as in the file)")
     p.add_argument("--max-s", type=float, help="the longest mute one request may ask for, "
-                   "seconds (at most 3600)")
+                   "seconds, at most 3600 (default: as in the file)")
     p.add_argument("--as", dest="as_", choices=("warning", "none"),
                    help="what the muted zone is checked as (default warning: a person inside "
                    "SLOWs)")
     p.add_argument("--speed-scale", type=float,
                    help="SLOW scale of the muted zone checked as a warning zone (default: the "
                    "slowest warning zone scale of the file)")
-    p.add_argument("--unmutable", action="store_true", help="the zone may never be muted")
-    p.add_argument("--remove", action="store_true", help="drop the zone's mute section")
+    p.add_argument("--unmutable", action="store_true",
+                   help="the zone may never be muted (default off)")
+    p.add_argument("--remove", action="store_true",
+                   help="drop the zone's mute section (default off)")
     p.set_defaults(func=cmd_mute)
 
 
