@@ -333,6 +333,8 @@ class IncidentRecorder:
             "faults": [{"name": f.name, "reason": f.reason, "source": f.source}
                        for f in result.faults if f.stop],
             "reset": reset, "zones_hash": self.zones_hash, "config_hash": self.config_hash,
+            # the kinds of this step's alerts: a list names them (``Incident.cause_text``)
+            "alerts": list(dict.fromkeys(a.kind for a in result.alerts)),
             "window": {"pre_s": self.config.pre_s, "post_s": self.config.post_s},
             "events": [e for _, e in self._history], "clips": {}, "complete": False,
         }
