@@ -4,7 +4,8 @@ the incident recorder (``monitor.incidents.recorder``) and anyone who reads them
 One place for the record's shape, below all of its writers: the recorder takes the same
 records as the replay without importing the replay. No wall-clock values: the same input gives
 byte-identical events. ``describe`` is the one honest line for a command (times in seconds of
-the video) that the annotated video, the events and the incident records all show.
+the video; the live incident recorder passes the wall clock) that the annotated video, the
+events and the incident records all show.
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ from __future__ import annotations
 import math
 
 from monitor.pipeline import StepResult
-from monitor.timetext import video_time
+from monitor.timetext import TimeText, video_time
 from monitor.types import Alert
 
 
@@ -30,12 +31,12 @@ def _rounded(value):
     return value
 
 
-def describe(command) -> str:
+def describe(command, when: TimeText = video_time) -> str:
     """One honest line for a command: ``Command.describe()`` where the policy has it, its
-    times in seconds of the video."""
+    times written by ``when`` (seconds of the video by default)."""
     text = getattr(command, "describe", None)
     if text is not None:
-        return text(video_time)
+        return text(when)
     line = f"{command.state} x{command.speed_scale:.2f}"
     if command.latched:
         line += " LATCHED - reset needed"
@@ -43,8 +44,10 @@ def describe(command) -> str:
     return line + (f": {causes[0]}" if causes else "")
 
 
-def command_event(result: StepResult, index: int, tick: bool = False) -> dict:
-    """A command change as it goes into events.jsonl (no wall-clock values: deterministic)."""
+def command_event(result: StepResult, index: int, tick: bool = False,
+                  when: TimeText = video_time) -> dict:
+    """A command change as it goes into events.jsonl (no wall-clock values: deterministic;
+    ``when`` writes the times of its ``describe``, the live recorder's are wall clock)."""
     cmd = result.command.to_dict()
     reasons = [{k: (_r(v) if isinstance(v, float) else v) for k, v in r.items()}
                for r in cmd["reasons"]]
@@ -60,7 +63,7 @@ def command_event(result: StepResult, index: int, tick: bool = False) -> dict:
         event["reset"] = cmd["reset"]
     if "zone_sets" in cmd:  # the zone sets in force (docs/cases.md)
         event["zone_sets"] = cmd["zone_sets"]
-    event["describe"] = describe(result.command)
+    event["describe"] = describe(result.command, when)
     return event
 
 

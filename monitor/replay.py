@@ -38,6 +38,7 @@ from monitor.health.build import camera_health, inplace_check
 from monitor.pipeline import Pipeline
 from monitor.policy import RUN, SLOW, STOP, PolicyConfig, ResetRequest
 from monitor.progress import bar
+from monitor.timetext import video_time
 from monitor.zones import Cell, watch_regions
 from monitor.zones.cameras import choose_camera
 
@@ -421,6 +422,7 @@ def replay(video: str | Path, detector: Detector, cell: Cell | None, settings: R
     health = camera_health(settings.health, camera_id, settings.reference, cell, envelope) \
         if settings.health is not None else None
     pipeline = Pipeline(detector, camera_id, settings.policy, cell, health)
+    pipeline.when = video_time  # reason texts name a time where annotated.mp4 shows it
     summary = ReplaySummary(str(video), zones=cell.label if cell is not None else None)
     fps = reader.fps or 10.0
     counts = SummarySink(summary)
