@@ -47,13 +47,13 @@ TARGETS = {
                ("tests/test_policy.py", "tests/test_policy_properties.py")),
         Target("watchdog", ("monitor/bus.py",),
                ("tests/test_safety_mutants.py", "-k", "watchdog"), r"CommandWatchdog"),
-        Target("zone_check", ("monitor/zones/check.py",),
+        Target("zone_check", ("monitor/zones/check.py", "monitor/zones/volumes.py"),
                ("tests/test_zones.py", "tests/test_zone_merge.py", "tests/test_mesh_zones.py",
                 "tests/test_zone_check_edges.py", "tests/test_occlusion.py",
                 "tests/test_separation.py", "tests/test_masks.py", "tests/test_safety_mutants.py",
                 "-m", "not slow"),
                names=("monitor.zones.check.x_check_persons*", "monitor.zones.check.x__check_*",
-                      "monitor.zones.check.x__volume_hits*", "monitor.zones.check.x__overlaps*",
+                      "monitor.zones.check.x__volume_hits*", "monitor.zones.volumes.x_overlaps*",
                       "monitor.zones.check.x_merge_towards_danger*",
                       "monitor.zones.check.x__worse*")),
         Target("pipeline", ("monitor/pipeline/core.py", "monitor/pipeline/evidence.py",
@@ -135,10 +135,10 @@ EQUIVALENT: dict[str, str] = {
        "camera_centre None / missing: place_persons computes the same centre itself"
        for n in (49, 57, 59)},
     "monitor.zones.check.x__check__mutmut_106": "distance_m=None passed or left to its default",
-    **{f"monitor.zones.check.x__overlaps__mutmut_{n}":
+    **{f"monitor.zones.volumes.x_overlaps__mutmut_{n}":
        "python-fcl builds a default request / result when given None or nothing"
        for n in (3, 4, 8)},
-    **{f"monitor.zones.check.x__overlaps__mutmut_{n}":
+    **{f"monitor.zones.volumes.x_overlaps__mutmut_{n}":
        "the mesh-inside-the-person fallback (a vertex within the swept cylinder): FCL's solid "
        "triangle-vs-shape test already reports such a mesh (tests/test_mesh_zones.py), so no "
        "input reaches this line with another answer; kept as a defence"

@@ -27,6 +27,7 @@ zones, health and policy do their real work. Three passes in one run:
 from __future__ import annotations
 
 import argparse
+import gc
 import itertools
 import json
 import logging
@@ -167,15 +168,25 @@ def throughput_driver(video: Path, detector: Detector, cell: Cell) -> dict:
 
 
 class _TimedPipeline(Pipeline):
-    """Remembers the capture stamp of the frame just processed, and its inference time."""
+    """Remembers the capture stamp of the frame just processed, its inference time, and where
+    the time from capture to the decision went (``stages``: queue wait from the capture stamp
+    to the start of processing, then the pipeline's own stages)."""
 
     pending: float | None = None
     inference: list[float]
+    stages: dict[str, list[float]]
 
     def process(self, image, frame, now, **kwargs):
+        start = time.monotonic()
         result = super().process(image, frame, now, **kwargs)
         self.pending = frame.capture_time
         self.inference.append(result.stage_ms.get("inference", 0.0))
+        self.stages.setdefault("queue wait (capture -> processing)", []).append(
+            (start - frame.capture_time) * 1e3)
+        for name, ms in result.stage_ms.items():
+            self.stages.setdefault(name, []).append(ms)
+        self.stages.setdefault("process (all stages)", []).append(
+            (time.monotonic() - start) * 1e3)
         return result
 
 
@@ -189,11 +200,13 @@ class _TimedBus(SafetyBus):
         self.capture_of_seq: dict[int, float] = {}
 
     def publish_command(self, command, decided_at=None):
+        t0 = time.monotonic()
         seq = super().publish_command(command, decided_at)
         done = time.monotonic()
         capture, self.pipeline.pending = self.pipeline.pending, None
         if capture is not None:  # a step that processed a frame (not a timer tick)
             self.latency_ms.append((done - capture) * 1e3)
+            self.pipeline.stages.setdefault("publish", []).append((done - t0) * 1e3)
             if seq is not None:
                 self.capture_of_seq[seq] = capture
         return seq
@@ -209,7 +222,16 @@ def latency(video: Path, detector: Detector, cell: Cell, seconds: float) -> dict
     config = MonitorConfig()
     health = CameraHealth(config.health, "cam0", None, watch_regions(cell, "cam0"))
     pipeline = _TimedPipeline(detector, "cam0", config.policy, cell, health)
-    pipeline.inference = []
+    pipeline.inference, pipeline.stages = [], {}
+    pauses: list[float] = []
+    gc_start: list[float] = []
+
+    def gc_timer(phase: str, info: dict) -> None:  # every collection's pause, any thread
+        if phase == "start":
+            gc_start.append(time.perf_counter())
+        elif gc_start:
+            pauses.append((time.perf_counter() - gc_start.pop()) * 1e3)
+    gc.callbacks.append(gc_timer)
     port = free_port()
     bus_cfg = BusConfig(cell="bench", instance="bench", listen=(f"tcp/127.0.0.1:{port}",),
                         config_hash=cell.config_hash)
@@ -236,8 +258,10 @@ def latency(video: Path, detector: Detector, cell: Cell, seconds: float) -> dict
         time.sleep(0.2)  # the last puts arrive
         wire = [(t - bus.capture_of_seq[seq]) * 1e3 for t, seq in received
                 if seq in bus.capture_of_seq]
+        gc.callbacks.remove(gc_timer)
         return {"latency": bus.latency_ms, "wire": wire, "inference": pipeline.inference,
-                "dropped": grabber.dropped, "grabbed": grabber.grabbed}
+                "dropped": grabber.dropped, "grabbed": grabber.grabbed,
+                "stages": pipeline.stages, "gc": pauses}
 
 
 def main() -> int:
@@ -304,6 +328,17 @@ def main() -> int:
     if wire:
         print(f"| capture -> received by a subscriber (changed commands) | {len(wire)} "
               f"| {med(wire):.1f} | {pct(wire, 0.99):.1f} | |")
+    print("\n| where capture -> command goes (live pass) | n | p50 ms | p99 ms | p99.9 ms "
+          "| max ms |")
+    print("|---|---|---|---|---|---|")
+    for name, values in [*lat["stages"].items(), ("capture -> command", lt),
+                         ("garbage collection pauses", lat["gc"])]:
+        if values:
+            print(f"| {name} | {len(values)} | {med(values):.2f} | {pct(values, 0.99):.2f} "
+                  f"| {pct(values, 0.999):.2f} | {max(values):.2f} |")
+    ratio = pct(lt, 0.99) / inf
+    print(f"\ncapture -> command p99 / inference median: {ratio:.2f} (target <= 1.5: "
+          f"{'met' if ratio <= 1.5 else 'missed'})")
     print(f"\ngrabber: {lat['grabbed']} frames grabbed, {lat['dropped']} dropped (newest wins); "
           f"throughput target >= 0.95: {'met' if bare_ms / whole_ms >= 0.95 else 'missed'} "
           f"inline, {'met' if bare_ms / th['ms_per_frame'] >= 0.95 else 'missed'} threaded")

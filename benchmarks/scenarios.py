@@ -15,9 +15,9 @@ import time
 import numpy as np
 from monitor.models import synthetic
 
+from monitor import scenarios as sc
 from monitor.detector import Detector
 from monitor.scene import DemoScene, random_frames
-from monitor.scene import scenarios as sc
 from monitor.types import FrameInfo
 
 

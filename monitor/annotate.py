@@ -20,10 +20,11 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from monitor.events import describe
 from monitor.health import draw_health
 from monitor.pipeline import StepResult
 from monitor.policy import RUN, SLOW, STOP
-from monitor.timetext import video_time
+from monitor.timetext import TimeText
 from monitor.zones import Cell
 from monitor.zones.check import placement
 from monitor.zones.draw import (
@@ -80,19 +81,6 @@ class Drawn:
     faults: tuple[str, ...]
 
 
-def describe(command) -> str:
-    """One honest line for a command: ``Command.describe()`` where the policy has it, its
-    times in seconds of the video."""
-    text = getattr(command, "describe", None)
-    if text is not None:
-        return text(video_time)
-    line = f"{command.state} x{command.speed_scale:.2f}"
-    if command.latched:
-        line += " LATCHED - reset needed"
-    causes = [r.message for r in command.reasons if r.code != "latched"]
-    return line + (f": {causes[0]}" if causes else "")
-
-
 def person_ids(result: StepResult) -> tuple[int | str, ...]:
     """The id of each person row as the commands' reasons name it (``monitor.policy.causes``):
     the cell person's (one id for one person on every camera, ``monitor.cell_persons``), the
@@ -119,9 +107,12 @@ def event_texts(result: StepResult) -> list[str]:
     return out
 
 
-def header_text(result: StepResult, camera_id: str) -> str:
+def header_text(result: StepResult, camera_id: str, when: TimeText | None = None) -> str:
+    """Time, frame and camera. The time: the video's seconds (replay), or ``when``'s text of
+    it (the live recorder's clips: local wall-clock time)."""
     seq = result.frame.seq if result.frame is not None else -1
-    text = f"t {result.now:.2f} s   frame {seq}   camera {camera_id}"
+    at = f"t {result.now:.2f} s" if when is None else when(result.now)
+    text = f"{at}   frame {seq}   camera {camera_id}"
     sets = getattr(result.command, "zone_sets", ())
     if sets:  # the zone sets in force; two or more while switching (docs/cases.md)
         text += f"   sets {'+'.join(sets)}" + ("  (switching)" if len(sets) > 1 else "")
@@ -155,8 +146,10 @@ class Annotator:
 def annotate(image: np.ndarray, result: StepResult, cell: Cell | None, camera_id: str,
              watch: list, events: tuple[str, ...] = (),
              foot_band_px: tuple[float, float] = (0.0, 0.0),
-             shadows: ShadowCache | None = None) -> tuple[np.ndarray, Drawn]:
-    """The frame with everything drawn on (see the module docstring), and what was drawn."""
+             shadows: ShadowCache | None = None, when: TimeText | None = None
+             ) -> tuple[np.ndarray, Drawn]:
+    """The frame with everything drawn on (see the module docstring), and what was drawn.
+    ``when``: times as text (header, description); None: seconds of the video."""
     h, w = image.shape[:2]
     top = HEADER_PX + EVENT_ROW_PX * len(events)  # the legend sits below header and events
     reserved: list[Rect] = [(0, 0, w, top), (0, h - BAR_PX, w, h), legend_rect(w, top + 4)]
@@ -173,9 +166,9 @@ def annotate(image: np.ndarray, result: StepResult, cell: Cell | None, camera_id
     ids = person_ids(result)
     labels_drawn, ranges = _draw_persons(out, result, cell, camera_id, ids, foot_band_px)
     legend = tuple(kind for kind, _ in draw_legend(out, top + 4, LEGEND_KINDS))
-    header = header_text(result, camera_id)
+    header = header_text(result, camera_id, when)
     _draw_header(out, header, events)
-    banner, reason = _draw_bar(out, result)
+    banner, reason = _draw_bar(out, result, when)
     return out, Drawn(header, labels_drawn, ids, events, banner, reason, legend, tuple(labels),
                       ranges, faults)
 
@@ -276,7 +269,8 @@ def _draw_header(out: np.ndarray, header: str, events: tuple[str, ...]) -> None:
                     cv2.LINE_AA)
 
 
-def _draw_bar(out: np.ndarray, result: StepResult) -> tuple[str, str]:
+def _draw_bar(out: np.ndarray, result: StepResult,
+              when: TimeText | None = None) -> tuple[str, str]:
     """The command bar at the bottom: state, speed, latch, tool separation, and why."""
     cmd = result.command
     h, w = out.shape[:2]
@@ -290,7 +284,7 @@ def _draw_bar(out: np.ndarray, result: StepResult) -> tuple[str, str]:
         text += f"  tool {rep.tool_separation_m:.2f} m"
         if rep.required_separation_m is not None:
             text += f" (needs {rep.required_separation_m:.2f} m)"
-    reason = describe(cmd)
+    reason = describe(cmd) if when is None else describe(cmd, when)
     cv2.putText(out, text, (12, h - 16), FONT, 0.8, (255, 255, 255), 2)
     cv2.putText(out, reason[:80], (int(w * 0.45), h - 16), FONT, 0.55, (255, 255, 255), 1,
                 cv2.LINE_AA)

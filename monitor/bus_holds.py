@@ -41,6 +41,7 @@ from collections.abc import Callable, Mapping
 import zenoh
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PublicKey
 
+from monitor import payload as payload_json
 from monitor.busconfig import BusKeys
 from monitor.handover import (
     HANDOVER_SCHEMA,
@@ -115,6 +116,7 @@ class HoldsGate:
         self._cold_budget = {role: VerifyBudget(cold_per_s) for role in peers}
         # role -> {seq: [token digest, tries]} vouched for by its last verified message
         self._vouch: dict[str, dict[int, list]] = {role: {} for role in peers}
+        self.last_invalid = ""  # why the newest invalid message was refused
 
     def check(self, key_expr: str, payload: bytes, signature: bytes | None, now: float,
               wall_now: float) -> tuple[str, str, tuple[Entry, ...], float] | None:
@@ -123,6 +125,8 @@ class HoldsGate:
         if kind:
             with self._lock:
                 self._counts[kind] += 1
+                if kind == "invalid":  # the reason of the newest invalid one, for its alert
+                    self.last_invalid = str(out or "")
             return None
         return out
 
@@ -136,7 +140,7 @@ class HoldsGate:
         if len(signature) not in (SIGNATURE_BYTES, ATTACHMENT_BYTES):
             return "signature", None
         if len(payload) > MAX_PAYLOAD:
-            return "invalid", None
+            return "invalid", f"payload has {len(payload)} bytes (at most {MAX_PAYLOAD})"
         claimed, vouched = None, False
         if len(signature) == ATTACHMENT_BYTES:  # signature || seq || token (HoldsSender)
             tail, signature = signature[SIGNATURE_BYTES:], signature[:SIGNATURE_BYTES]
@@ -148,22 +152,24 @@ class HoldsGate:
         if not verify(self.peers[role], key_expr, payload, signature):
             return "signature", None
         try:
-            body = json.loads(payload)
+            # bounded: deep nesting, 1e400, 10**400, NaN are refused here, before any field
+            body = payload_json.load_object(payload, MAX_PAYLOAD)
             if body.get("schema") != HANDOVER_SCHEMA or body.get("cell") != self.cell \
                     or body.get("role") != role:
-                return "invalid", None
+                return "invalid", "not a holds message of this cell and role"
             boot, seq, wall = body["boot"], body["seq"], body["wall"]
             if not isinstance(boot, str) or not isinstance(seq, int) or isinstance(seq, bool) \
                     or (claimed is not None and seq != claimed):
-                return "invalid", None
+                return "invalid", "boot, seq or the attachment's seq malformed"
             listed, more = body["entries"], body.get("overflow", 0)
             if not isinstance(listed, list) or not isinstance(more, int) or isinstance(
                     more, bool) or more < 0:
-                return "invalid", None
+                return "invalid", "entries or overflow malformed"
             entries = tuple(Entry.from_dict(e) for e in listed[:MAX_ENTRIES])
             more += max(0, len(listed) - MAX_ENTRIES)
-        except (ValueError, KeyError, TypeError, AttributeError):
-            return "invalid", None
+        except (ValueError, KeyError, TypeError, AttributeError, OverflowError) as exc:
+            return "invalid", str(exc).splitlines()[0][:160] if str(exc) else \
+                type(exc).__name__
         # "not <=": a NaN wall (json reads NaN) is outside every window
         if not isinstance(wall, int | float) or isinstance(wall, bool) \
                 or not abs(float(wall) - wall_now) <= self.wall_window_s:

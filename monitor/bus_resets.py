@@ -20,9 +20,10 @@ from collections.abc import Callable
 
 import zenoh
 
+from monitor import payload as payload_json
 from monitor.answers import answer_attachment, request_digest
 from monitor.policy import ResetRequest
-from monitor.resets import ResetGate, ResetRefused
+from monitor.resets import MAX_RESET_PAYLOAD, ResetGate, ResetRefused
 from monitor.signing import Signer
 from monitor.types import Alert
 
@@ -162,7 +163,7 @@ class ResetDesk:
 
 def _operator_of(payload: bytes) -> str | None:
     with contextlib.suppress(Exception):
-        op = json.loads(payload).get("operator")
+        op = payload_json.load_object(payload, MAX_RESET_PAYLOAD).get("operator")
         if isinstance(op, str) and op.strip():
             return op.strip()[:64]
     return None

@@ -13,7 +13,6 @@ downloaded or built.
 
 from __future__ import annotations
 
-import dataclasses
 import tomllib
 from dataclasses import field
 from pathlib import Path
@@ -115,7 +114,12 @@ def _cameras(value: Any) -> Any:
     return [value] if isinstance(value, dict) else value
 
 
-@section("config")
+SECTIONS = ("camera", "model", "zones", "detector", "policy", "tracker_clock", "tracker",
+            "tracking",
+            "health", "bus", "alerts", "service", "recorder", "reaction", "handover", "preview")
+
+
+@section("config", keys=SECTIONS)
 class MonitorConfig:
     # ``[camera]`` for one camera, ``[[camera]]`` (an array of tables) for several
     cameras: Annotated[tuple[CameraConfig, ...], BeforeValidator(_cameras),
@@ -155,9 +159,6 @@ class MonitorConfig:
         return self.cameras[0]
 
 
-SECTIONS = ("camera", "model", "zones", "detector", "policy", "tracker_clock", "tracker",
-            "tracking",
-            "health", "bus", "alerts", "service", "recorder", "reaction", "handover", "preview")
 _CLASSES = {"camera": CameraConfig, "model": ModelConfig, "zones": ZonesConfig,
             "detector": DetectorConfig, "policy": PolicyConfig,
             "tracker_clock": TrackerClockConfig, "tracker": TrackerConfig,
@@ -166,13 +167,6 @@ _CLASSES = {"camera": CameraConfig, "model": ModelConfig, "zones": ZonesConfig,
             "bus": BusConfig, "alerts": AlertLimits, "service": ServiceConfig,
             "recorder": RecorderConfig, "reaction": ReactionConfig, "handover": HandoverConfig,
             "preview": PreviewConfig}
-
-
-def section_keys(name: str) -> list[str]:
-    """The keys a section accepts (the sections themselves for the whole config)."""
-    if name in _CLASSES:
-        return sorted(f.name for f in dataclasses.fields(_CLASSES[name]))
-    return list(SECTIONS)
 
 
 def _where_in_file(loc: tuple) -> tuple[str, tuple]:

@@ -28,10 +28,10 @@ liveliness token is present, and no second monitor is live on the cell.
 from __future__ import annotations
 
 import collections
-import json
 import math
 from dataclasses import dataclass
 
+from monitor import payload as payload_json
 from monitor.signing import verify
 
 COMMAND_SCHEMA = "workcell.safety.command/1"
@@ -89,11 +89,9 @@ def parse_command(payload: bytes) -> dict:
     if not isinstance(payload, bytes | bytearray) or len(payload) > MAX_PAYLOAD:
         raise InvalidCommand("payload too large")
     try:
-        body = json.loads(payload)
-    except (ValueError, UnicodeDecodeError, RecursionError):
-        raise InvalidCommand("not JSON") from None
-    if not isinstance(body, dict):
-        raise InvalidCommand("not a JSON object")
+        body = payload_json.load_object(payload, MAX_PAYLOAD)
+    except payload_json.PayloadError as exc:
+        raise InvalidCommand(str(exc)) from None
     if body.get("schema") != COMMAND_SCHEMA:
         raise InvalidCommand("schema")
     seq = body.get("seq")

@@ -30,6 +30,8 @@ from pydantic import Field
 from monitor.busconfig import Role
 from monitor.schema import ConfigPath, Float, section
 from monitor.types import Fault, ZoneHit, ZoneReport
+from monitor.zones.draw import volume_outline_m
+from monitor.zones.moving import follows_tool
 
 HANDOVER_SCHEMA = "workcell.safety.holds/1"
 MAX_ENTRIES = 64  # per message: a flood cannot grow a receiver's memory without bound
@@ -191,9 +193,6 @@ def zone_footprints(cell: Any) -> dict[str, np.ndarray]:
     a volume's outline at its floor, a mesh's bounding box, an image polygon mapped to the
     floor through its camera's calibration. A zone with no footprint (a polygon of an
     uncalibrated camera, a zone that follows the tool) is reached only by its id."""
-    from monitor.zones.draw import volume_outline_m
-    from monitor.zones.moving import follows_tool
-
     out: dict[str, np.ndarray] = {}
     for z in getattr(cell, "zones", ()):
         if not (z.enabled and z.kind == "protective") or follows_tool(z):

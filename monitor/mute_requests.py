@@ -28,6 +28,7 @@ import os
 import threading
 import time
 
+from monitor import payload as payload_json
 from monitor.answers import request_answer
 from monitor.muting import MuteOutcome, MuteRequest
 from monitor.signed_requests import RequestIds, RequestKind, check_cell, check_signer, check_window
@@ -92,9 +93,9 @@ def _parse(payload: bytes) -> dict:
     if len(payload) > MAX_PAYLOAD:
         raise MuteRefused("mute request too large")
     try:
-        body = json.loads(payload)
-    except (ValueError, UnicodeDecodeError, RecursionError):
-        raise MuteRefused("mute request is not JSON") from None
+        body = payload_json.load(payload, MAX_PAYLOAD)
+    except payload_json.PayloadError as exc:
+        raise MuteRefused(f"mute request refused: {exc}") from None
     if not isinstance(body, dict) or body.get("schema") != MUTE_SCHEMA:
         raise MuteRefused(f"mute request is not a {MUTE_SCHEMA} object")
     out = {}
@@ -124,7 +125,7 @@ def _finite(value: int | float) -> bool:
 
 def _operator_of(payload: bytes) -> str | None:
     with contextlib.suppress(Exception):
-        op = json.loads(payload).get("operator")
+        op = payload_json.load_object(payload, MAX_PAYLOAD).get("operator")
         if isinstance(op, str) and op.strip():
             return op.strip()[:64]
     return None

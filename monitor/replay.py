@@ -26,18 +26,19 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from monitor.annotate import Annotator, describe
+from monitor.annotate import Annotator
 from monitor.detector import Detector
 from monitor.detector.envelope import for_detector
 from monitor.driver import Driver, Step, StepInputs, require_protective_zone
 from monitor.errors import InputError
+from monitor.events import alert_event, command_event, describe
 from monitor.frames import Frame, VideoFileReader
 from monitor.health import HealthConfig
 from monitor.health.build import camera_health, inplace_check
-from monitor.pipeline import Pipeline, StepResult
+from monitor.pipeline import Pipeline
 from monitor.policy import RUN, SLOW, STOP, PolicyConfig, ResetRequest
 from monitor.progress import bar
-from monitor.types import Alert
+from monitor.timetext import video_time
 from monitor.zones import Cell, watch_regions
 from monitor.zones.cameras import choose_camera
 
@@ -131,45 +132,6 @@ def _when(event: dict | None) -> str:
 
 def _r(value: float) -> float:
     return round(float(value), 4)
-
-
-def _rounded(value):
-    if isinstance(value, float):
-        return _r(value) if math.isfinite(value) else str(value)
-    if isinstance(value, dict):
-        return {k: _rounded(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_rounded(v) for v in value]
-    return value
-
-
-def command_event(result: StepResult, index: int, tick: bool = False) -> dict:
-    """A command change as it goes into events.jsonl (no wall-clock values: deterministic)."""
-    cmd = result.command.to_dict()
-    reasons = [{k: (_r(v) if isinstance(v, float) else v) for k, v in r.items()}
-               for r in cmd["reasons"]]
-    event = {"type": "command", "frame": index, "time_s": _r(result.now), "state": cmd["state"],
-             "speed_scale": _r(cmd["speed_scale"]), "latched": cmd["latched"],
-             "reasons": reasons}
-    if tick:
-        event["tick"] = True  # decided between two frames (timers), not on a frame
-    for key in ("latched_by", "reset_possible", "clear_for_s"):  # the policy's honest view
-        if key in cmd:
-            event[key] = _rounded(cmd[key])
-    if "reset" in cmd:
-        event["reset"] = cmd["reset"]
-    if "zone_sets" in cmd:  # the zone sets in force (docs/cases.md)
-        event["zone_sets"] = cmd["zone_sets"]
-    event["describe"] = describe(result.command)
-    return event
-
-
-def alert_event(alert: Alert, index: int, snapshot: str | None) -> dict:
-    event = {"type": "alert", "frame": index, "time_s": _r(alert.time), "kind": alert.kind,
-             "severity": alert.severity, "source": alert.source, "message": alert.message}
-    if snapshot:
-        event["snapshot"] = snapshot
-    return event
 
 
 # --- the feed: the video's frames and the timer ticks between them ------------------------------
@@ -460,6 +422,7 @@ def replay(video: str | Path, detector: Detector, cell: Cell | None, settings: R
     health = camera_health(settings.health, camera_id, settings.reference, cell, envelope) \
         if settings.health is not None else None
     pipeline = Pipeline(detector, camera_id, settings.policy, cell, health)
+    pipeline.when = video_time  # reason texts name a time where annotated.mp4 shows it
     summary = ReplaySummary(str(video), zones=cell.label if cell is not None else None)
     fps = reader.fps or 10.0
     counts = SummarySink(summary)

@@ -34,6 +34,7 @@ import os
 import time
 from dataclasses import dataclass, field
 
+from monitor import payload as payload_json
 from monitor.answers import request_answer
 from monitor.policy import ResetRequest
 from monitor.signed_requests import RequestIds, RequestKind, check_cell, check_signer, check_window
@@ -166,9 +167,9 @@ def _parse(payload: bytes) -> dict:
     if len(payload) > MAX_RESET_PAYLOAD:
         raise ResetRefused("reset request too large")
     try:
-        body = json.loads(payload)
-    except (ValueError, UnicodeDecodeError, RecursionError):
-        raise ResetRefused("reset request is not JSON") from None
+        body = payload_json.load(payload, MAX_RESET_PAYLOAD)
+    except payload_json.PayloadError as exc:
+        raise ResetRefused(f"reset request refused: {exc}") from None
     if not isinstance(body, dict):
         raise ResetRefused("reset request is not a JSON object")
     operator = body.get("operator")

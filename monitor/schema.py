@@ -17,6 +17,7 @@ Errors become one ``ConfigError`` line naming the section and key (and the file,
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from collections.abc import Callable
 from pathlib import Path
@@ -53,9 +54,15 @@ _SECTION = ConfigDict(extra="forbid")
 
 T = TypeVar("T")
 
+# the keys each section accepts, by section name, filled in by ``@section`` as each stage's
+# module declares its section: an error names the known keys without this bottom layer
+# importing monitor.config (which assembles the sections, and so sits above every stage)
+_KEYS: dict[str, Callable[[], list[str]]] = {}
 
-def section(name: str) -> Callable[[type[T]], type[T]]:
-    """Make ``cls`` a frozen, validated config section named ``name`` in messages."""
+
+def section(name: str, keys: tuple[str, ...] | None = None) -> Callable[[type[T]], type[T]]:
+    """Make ``cls`` a frozen, validated config section named ``name`` in messages. ``keys``:
+    the keys an error lists as known (the dataclass fields when not given)."""
 
     def wrap(cls: type[T]) -> type[T]:
         cls = pydantic_dataclass(frozen=True, config=_SECTION)(cls)
@@ -70,6 +77,8 @@ def section(name: str) -> Callable[[type[T]], type[T]]:
 
         cls.__init__ = __init__  # type: ignore[method-assign]
         cls.__section__ = name  # type: ignore[attr-defined]
+        _KEYS[name] = ((lambda: list(keys)) if keys is not None
+                       else (lambda: sorted(f.name for f in dataclasses.fields(cls))))
         return cls
 
     return wrap
@@ -107,9 +116,12 @@ def describe(exc: ValidationError, section_name: str, where: str | None = None,
     return f"{name}.{key}: {msg} (got {shown})" if key else f"{name}: {msg} (got {shown})"
 
 
-def _unknown(name: str, key: str, where: str | None) -> str:
-    from monitor.config import section_keys
+def section_keys(name: str) -> list[str]:
+    """The keys a section accepts (the sections themselves for the whole config)."""
+    return _KEYS.get(name, _KEYS.get("config", list))()
 
+
+def _unknown(name: str, key: str, where: str | None) -> str:
     known = ", ".join(section_keys(name))
     if where:
         return f"{where}: [{name}] unknown key {key!r} (known: {known})"

@@ -37,6 +37,18 @@ def wall_clock(monotonic: Callable[[], float] = time.monotonic,
     return text
 
 
+def wall_iso(monotonic: Callable[[], float] = time.monotonic,
+              wall: Callable[[], float] = time.time) -> TimeText:
+    """Live records read later (incidents, their clips): a monotonic time as the local date and
+    time, ISO 8601 to the second (``2026-11-28 14:03:12``), the clock the service's log uses."""
+
+    def text(t: float) -> str:
+        return datetime.fromtimestamp(wall() - (monotonic() - t)).isoformat(
+            sep=" ", timespec="seconds")
+
+    return text
+
+
 def _age(s: float) -> str:
     if s < 3600:
         return f"{int(s // 60)} min"

@@ -43,9 +43,16 @@ from monitor.whereabouts import (
     union_zones,
 )
 
-with warnings.catch_warnings():  # ByteTrack announces its move to the `trackers` package
-    warnings.simplefilter("ignore", FutureWarning)
-    import supervision as sv
+
+def _supervision():
+    """The ``supervision`` package, imported when the first tracker is made, not with this
+    module: it pulls in scipy's interpolation and its annotators (over a second on a small
+    host), and the CLI's zone commands read this module's settings without tracking anyone."""
+    with warnings.catch_warnings():  # ByteTrack announces its move to the `trackers` package
+        warnings.simplefilter("ignore", FutureWarning)
+        import supervision
+
+    return supervision
 
 # pixels (N, 2) -> (floor xy metres (N, 2), located (N,) bool): a camera's calibration
 ToFloor = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
@@ -194,6 +201,7 @@ class PersonTracker:
                  ) -> None:
         self.config = config or TrackerConfig()
         self.to_floor = to_floor
+        sv = self._sv = _supervision()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", FutureWarning)
             # activation threshold 0: every detection the detector reports gets a track
@@ -366,13 +374,13 @@ class PersonTracker:
         self._guessed = set()
         byte_ids = np.full(n, -1, np.int64)
         if n:
-            dets = sv.Detections(xyxy=boxes.astype(np.float32), confidence=scores.astype(
+            dets = self._sv.Detections(xyxy=boxes.astype(np.float32), confidence=scores.astype(
                 np.float32), data={"row": np.arange(n)})
             tracked = self._byte.update_with_detections(dets)
             if len(tracked):
                 byte_ids[np.asarray(tracked.data["row"], int)] = tracked.tracker_id
         else:
-            self._byte.update_with_detections(sv.Detections.empty())
+            self._byte.update_with_detections(self._sv.Detections.empty())
 
         ids: list[int | None] = [None] * n
         for row in range(n):

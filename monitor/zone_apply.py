@@ -28,6 +28,7 @@ import re
 import time
 from dataclasses import dataclass
 
+from monitor import payload as payload_json
 from monitor.answers import request_answer
 from monitor.resets import MAX_FIELD, MAX_RESET_PAYLOAD, _finite
 from monitor.signed_requests import RequestIds, RequestKind, check_cell, check_signer, check_window
@@ -101,9 +102,9 @@ def _parse(payload: bytes) -> dict:
     if len(payload) > MAX_RESET_PAYLOAD:
         raise ApplyRefused("zone apply request too large")
     try:
-        body = json.loads(payload)
-    except (ValueError, UnicodeDecodeError, RecursionError):
-        raise ApplyRefused("zone apply request is not JSON") from None
+        body = payload_json.load(payload, MAX_RESET_PAYLOAD)
+    except payload_json.PayloadError as exc:
+        raise ApplyRefused(f"zone apply request refused: {exc}") from None
     if not isinstance(body, dict) or body.get("schema") != APPLY_SCHEMA:
         raise ApplyRefused(f"zone apply request is not a {APPLY_SCHEMA} object")
     operator = body.get("operator")

@@ -33,7 +33,9 @@ from collections.abc import Callable
 
 import numpy as np
 
+from monitor import payload as payload_json
 from monitor.errors import ConfigError, InputError
+from monitor.resets import MAX_RESET_PAYLOAD
 from monitor.signing import load_operators
 from monitor.types import Alert
 from monitor.zone_apply import APPLY_ANSWER_SCHEMA, ApplyGate, ApplyRefused, ApplyRequest
@@ -95,7 +97,8 @@ class ZoneApplies:
 
 def _operator_of(query) -> str | None:
     with contextlib.suppress(Exception):
-        op = json.loads(query.payload.to_bytes()).get("operator")
+        op = payload_json.load_object(query.payload.to_bytes(), MAX_RESET_PAYLOAD).get(
+            "operator")
         if isinstance(op, str) and op.strip():
             return op.strip()[:64]
     return None

@@ -24,7 +24,6 @@ import pytest
 
 asyncua = pytest.importorskip("asyncua")
 from asyncua import ua  # noqa: E402
-from asyncua.sync import Client  # noqa: E402
 
 from monitor.adapters.opcua import (  # noqa: E402
     APPLICATION_URI,
@@ -44,6 +43,8 @@ from monitor.consumer import Verdict  # noqa: E402
 from monitor.policy import Command, Reason  # noqa: E402
 from monitor.signing import new_key_pair  # noqa: E402
 from tests.helpers import assert_one_line_error, free_port, run_monitor, wait_for  # noqa: E402
+from tests.opcua_kit import ConnectedClient as Client  # noqa: E402
+from tests.opcua_kit import connected as _connected  # noqa: E402
 
 TTL_MS = 300
 BUDGET_S = (TTL_MS + 100) / 1000.0  # STOP within ttl + 100 ms of the monitor going away
@@ -105,17 +106,6 @@ def connect(url: str, **kw) -> Client:
     for k, v in kw.items():
         getattr(client, f"set_{k}")(v)
     return _connected(client)
-
-
-def _connected(client: Client) -> Client:
-    """``client`` connected; if that fails, its loop thread stopped (else pytest never exits)."""
-    try:
-        client.connect()
-    except BaseException:
-        with contextlib.suppress(Exception):
-            client.disconnect()
-        raise
-    return client
 
 
 class Pipeline:
@@ -407,18 +397,24 @@ def test_writes_garbage_and_a_read_flood_get_status_errors_never_run(keys):
                             s.recv(1024)
                 # 3. a flood of reads from 4 clients, and more clients than allowed
                 bad: list[int] = []
+                connected = threading.Semaphore(0)
+                done: list[int] = []
 
                 def flood() -> None:
                     with connect(adapter.url) as c:
                         node = Reader(c).nodes["State"]
-                        for _ in range(150):
+                        connected.release()  # the extra clients come after the flooders
+                        for _ in range(60):
                             value = node.read_value()
                             if value != 0:
                                 bad.append(value)
+                        done.append(1)
 
                 threads = [threading.Thread(target=flood) for _ in range(4)]
                 for t in threads:
                     t.start()
+                for _ in threads:
+                    assert connected.acquire(timeout=60), "a flooding client did not connect"
                 extra = []
                 for _ in range(8):  # above --max-clients 8 with the others
                     with contextlib.suppress(Exception):
@@ -427,7 +423,7 @@ def test_writes_garbage_and_a_read_flood_get_status_errors_never_run(keys):
                     t.join(timeout=120)
                 for c in extra:
                     c.disconnect()
-                assert not bad and len(extra) < 8
+                assert not bad and len(done) == 4 and len(extra) < 8
                 states.append(r.state())
                 # still serving, still beating, still STOP, never RUN
                 beat = r["Heartbeat"]

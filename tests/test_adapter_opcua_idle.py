@@ -4,18 +4,18 @@ send nothing, real asyncua clients."""
 
 from __future__ import annotations
 
-import contextlib
 import socket
 import time
 
 import pytest
 
 pytest.importorskip("asyncua")
-from asyncua.sync import Client
 
 from monitor.adapters.opcua import NAMESPACE, OpcUaOutput, OpcUaSettings, node_id
 from monitor.adapters.opcua_guard import DEAD_PEER_S, KEEPALIVE, keep_alive
 from tests.helpers import free_port
+from tests.opcua_kit import ConnectedClient as Client
+from tests.opcua_kit import connected as connect_once
 
 WAIT_S = 20.0  # generous: a loaded 2-core machine
 
@@ -37,14 +37,7 @@ def read_state(client: Client) -> int:
 
 
 def connected(url: str) -> Client:
-    client = Client(url, timeout=WAIT_S)
-    try:
-        client.connect()
-    except BaseException:
-        with contextlib.suppress(Exception):
-            client.disconnect()
-        raise
-    return client
+    return connect_once(Client(url, timeout=WAIT_S))
 
 
 def closed_by_server(sock: socket.socket, timeout: float = WAIT_S) -> bool:

@@ -12,7 +12,7 @@ import time
 import pytest
 
 from monitor.bus import BusConfig, BusKeys, SafetyBus, open_session
-from monitor.policy import Command
+from monitor.policy import Command, Reason
 from tests.helpers import free_port
 
 TIMEOUT_S = 30.0  # what the commands may wait; they must return long before it
@@ -54,13 +54,26 @@ def _run(connect: list[str], *argv: str) -> tuple[subprocess.CompletedProcess, f
 
 def test_status_returns_at_the_monitors_first_reply(monitor_and_a_hung_queryable):
     connect, held, _ = monitor_and_a_hung_queryable
-    out, took = _run(connect, "status")
+    out, took = _run(connect, "status", "--json")
     assert out.returncode == 0, out.stderr
     status = json.loads(out.stdout)
     assert status["instance"] == "mon-lat" and status["fps"] == 9.5
     assert held, "the hung queryable never saw the query: the test proves nothing"
     # generous (process start, imports, a loaded machine); the old code waited TIMEOUT_S
     assert took < 10.0, f"monitor status took {took:.1f} s"
+
+
+def test_status_prints_a_summary_by_default(monitor_and_a_hung_queryable):
+    connect, _held, bus = monitor_and_a_hung_queryable
+    bus.publish_command(Command("SLOW", 0.4, (Reason("warning_zone", "person 2 in W1",
+                                                     zone_id="W1"),)))
+    out, _took = _run(connect, "status")
+    assert out.returncode == 0, out.stderr
+    lines = out.stdout.splitlines()
+    assert lines[0].startswith("monitor mon-lat (cell lat), boot "), out.stdout
+    assert lines[1:3] == ["command: SLOW x0.40", "  warning_zone [W1]: person 2 in W1"]
+    assert "faults: none" in lines and "muted zones: none" in lines
+    assert not out.stdout.lstrip().startswith("{")
 
 
 def test_reset_reads_the_status_at_the_first_reply(monitor_and_a_hung_queryable):

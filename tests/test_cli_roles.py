@@ -71,7 +71,7 @@ def _run(monitors: dict, *argv: str, timeout: float = 5.0) -> subprocess.Complet
 
 
 def test_status_of_each_named_role_and_only_of_those(cell):
-    both = _run(cell, "status", "--role", "monitor-a", "--role", "monitor-b")
+    both = _run(cell, "status", "--json", "--role", "monitor-a", "--role", "monitor-b")
     assert both.returncode == 0, both.stderr
     lines = both.stdout.splitlines()
     assert lines[0] == "monitor-a:" and "monitor-b:" in lines
@@ -81,14 +81,15 @@ def test_status_of_each_named_role_and_only_of_those(cell):
 
     for m in cell.values():
         m.queries.clear()
-    one = _run(cell, "status", "--role", "monitor-b")
+    one = _run(cell, "status", "--json", "--role", "monitor-b")
     assert one.returncode == 0, one.stderr
     assert json.loads(one.stdout.split("\n", 1)[1])["instance"] == "monitor-b"
     assert cell["monitor-b"].asked(cell["monitor-b"].keys.status)
     assert cell["monitor-a"].queries == []
 
     # a role nobody runs: named, exit 2, the others still shown
-    typo = _run(cell, "status", "--role", "monitor-a", "--role", "monitor-c", timeout=2.0)
+    typo = _run(cell, "status", "--json", "--role", "monitor-a", "--role", "monitor-c",
+                timeout=2.0)
     assert typo.returncode == 2, typo.stderr
     assert "monitor-c: NO ANSWER on workcell/rl/safety/monitor-c/status" in typo.stdout
     assert '"role": "monitor-a"' in typo.stdout

@@ -247,3 +247,18 @@ def test_edits_keep_the_files_comments_and_layout(tmp_path):
     assert "- [900.0, 400.0]" in text  # points in flow style, one per line
     cell = zn.load_cell(f)
     assert cell.zone("door").kind == "warning" and not cell.zone("shelf-watch").enabled
+
+
+def test_zones_add_takes_the_points_after_an_option_too(tmp_path):
+    """`zones add FILE ID --kind K 'x,y ...'` used to fail with "unrecognized arguments"."""
+    cell = tmp_path / "cell.yaml"
+    cell.write_bytes(DEMO.read_bytes())
+    pts = "10,10 200,10 200,200 10,200"
+    first = run_monitor("zones", "add", cell, "late", "--kind", "protective", pts)
+    assert first.returncode == 0, first.stderr
+    assert run_monitor("zones", "add", cell, "early", pts, "--kind", "protective").returncode == 0
+    shown = run_monitor("zones", "show", cell, "late").stdout
+    assert "200" in shown
+    # a second leftover is still refused in one line
+    bad = run_monitor("zones", "add", cell, "twice", "--kind", "protective", pts, pts)
+    assert bad.returncode == 2 and "unrecognized arguments" in bad.stderr

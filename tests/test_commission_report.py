@@ -127,7 +127,8 @@ def test_the_report_renders_in_headless_chromium(demo_report, tmp_path):
 
 @pytest.mark.parametrize(("args", "needle"), [
     pytest.param(["--status", "{missing}"], "no such status file", id="no-status"),
-    pytest.param(["--status", "{bad}"], "status file is not JSON", id="bad-status"),
+    pytest.param(["--status", "{bad}"],
+                 "status file is not JSON (save it with `monitor status --json", id="bad-status"),
     pytest.param(["--walk", "{tmp}"], "no walk result here", id="no-walk"),
 ])
 def test_bad_inputs_are_one_line(tmp_path, capsys, args, needle):

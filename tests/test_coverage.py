@@ -231,8 +231,8 @@ def _walk_behind_base(detector, robot_base: dict | None):
     inside)."""
     from monitor.pipeline import Pipeline
     from monitor.policy import RUN, SLOW, PolicyConfig, ResetRequest
+    from monitor.scenarios import PROTECTIVE, _rect_distance
     from monitor.scene.cell import Block, CellScene, Walker, zone_data
-    from monitor.scene.scenarios import PROTECTIVE, _rect_distance
     from monitor.types import FrameInfo
 
     scene = CellScene((Walker(((0.0, 2.4, 1.6), (2.5, 0.2, 0.55), (4.5, 0.2, 0.55),

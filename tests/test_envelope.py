@@ -14,6 +14,7 @@ import cv2
 import numpy as np
 import pytest
 
+from monitor import scenarios as sc
 from monitor.detector import Detector
 from monitor.detector import envelope as env
 from monitor.detector.selftest import SelfTestCase
@@ -21,7 +22,6 @@ from monitor.health import CameraHealth, HealthConfig
 from monitor.health.conditions import ENVELOPE, ENVELOPE_NEAR, judge
 from monitor.pipeline import Pipeline
 from monitor.policy import STOP, PolicyConfig, ResetRequest
-from monitor.scene import scenarios as sc
 from monitor.types import FrameInfo
 from monitor.zones.masks import zone_regions_px
 from tests.helpers import protective_walk
@@ -138,6 +138,30 @@ def test_the_envelope_is_stored_beside_the_model_and_measured_anew_when_stale(
     other = SelfTestCase(detector.self_test_case.image[::-1].copy(),
                          detector.self_test_case.box_px, "flipped")
     assert env.stored(synthetic_model, stored.model_sha256, other, 0.9) is None
+
+
+def test_the_shipped_envelope_of_the_default_build_is_what_measuring_gives(
+        detector, synthetic_model, tmp_path):
+    # write_model places the shipped envelope beside the default build (a fresh install does
+    # not measure it at its first start); it must be exactly what measuring this model gives
+    from monitor.models import synthetic
+
+    shipped = env.from_json(synthetic.SHIPPED_ENVELOPE.read_text(), "shipped")
+    assert shipped.model_sha256 == env.file_sha256(synthetic_model)
+    assert env.stored(synthetic_model, shipped.model_sha256, detector.self_test_case,
+                      0.9) == shipped
+    layout = detector.layout
+    measured = env.measure(detector.detect, detector.self_test_case,
+                           (layout.input_width, layout.input_height),
+                           detector.finest_stride_px(), 0.9, detector.config.self_test_min_iou)
+    assert (measured.min_gain, measured.max_gain, measured.min_contrast, measured.max_noise,
+            measured.max_blur, measured.recall, measured.case_sha256) == \
+        (shipped.min_gain, shipped.max_gain, shipped.min_contrast, shipped.max_noise,
+         shipped.max_blur, shipped.recall, shipped.case_sha256)
+    # another build (another input size) gets no shipped envelope: it is measured
+    other = tmp_path / "m320.onnx"
+    synthetic.write_model(other, input_size=320)
+    assert not env.sidecar_path(other).exists()
 
 
 def test_a_malformed_sidecar_is_a_one_line_model_error(tmp_path):

@@ -216,8 +216,41 @@ def fuzz_resets(rng: random.Random, case: dict) -> None:
         gate.check(payload, rng.choice([None, b"", rng.randbytes(64)]), 1.0, 1.8e9)
 
 
+def fuzz_holds(rng: random.Random, case: dict) -> None:
+    """Signed holds messages (a peer monitor's key): the body reaches the parser, which must
+    refuse deep nesting, huge numbers, NaN as "invalid", never raise (issue 31: 176 of
+    10,000 such messages raised in the handler)."""
+    from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
+
+    from monitor.bus_holds import HoldsGate, holds_payload
+    from monitor.busconfig import BusKeys
+    from monitor.handover import Entry
+    from monitor.signing import Signer
+
+    key = case.setdefault("key", Ed25519PrivateKey.generate())
+    gate = case.setdefault("gate", HoldsGate("c1", "workcell/c1/", "monitor-b",
+                                             {"monitor-a": key.public_key()},
+                                             verify_per_s=1e9, cold_per_s=1e9))
+    key_expr = BusKeys.of("workcell/c1/", "monitor-a").holds
+    body = json.loads(holds_payload("c1", "monitor-a", "b1", rng.randint(1, 10**6), 1.8e9, (
+        Entry(3, "departure", (4.0, 0.0), 1.8e9, ("P",), "camA"),)))
+    r = rng.random()
+    if r < 0.1:
+        payload = b"[" * rng.randint(1, 20_000)
+    elif r < 0.2:
+        payload = json.dumps(body).replace("1800000000.0", rng.choice(
+            ["1e400", "1" + "0" * 400, "NaN", "-Infinity", "[" * 3000])).encode()
+    else:
+        payload = json.dumps(mutate(body, rng)).encode()
+    case["input"] = payload[:200]
+    out = gate.check(key_expr, payload, Signer(key).sign(key_expr, payload), 0.0, 1.8e9)
+    if out is not None and not isinstance(out, tuple):
+        raise TypeError("check returns the verified message or None")
+
+
 TARGETS = {"otus": fuzz_otus, "pose_json": fuzz_pose_json, "zones": fuzz_zones,
-           "config": fuzz_config, "consumer": fuzz_consumer, "resets": fuzz_resets}
+           "config": fuzz_config, "consumer": fuzz_consumer, "resets": fuzz_resets,
+           "holds": fuzz_holds}
 
 
 def stateful(target):
@@ -236,7 +269,7 @@ def stateful(target):
 # --- tests -----------------------------------------------------------------------------------
 
 N = {"otus": 3000, "pose_json": 3000, "zones": 300, "config": 300, "consumer": 4000,
-     "resets": 3000}
+     "resets": 3000, "holds": 1000}
 # zones and config cost ~12 ms per input (pydantic), hence fewer here.
 # Crashes found in other helpers' modules are reported, not fixed here (see the final report).
 

@@ -85,7 +85,8 @@ def test_a_peer_stream_held_back_seconds_is_silent_not_all_clear(detector, late_
 
 def test_a_signed_message_with_a_nan_wall_time_is_outside_the_window():
     """json reads NaN: ``abs(NaN - now) > window`` is False, so the first version took a
-    message with ``"wall": NaN`` as inside any clock window (and as heard now)."""
+    message with ``"wall": NaN`` as inside any clock window (and as heard now). NaN is now
+    refused before any field is read (monitor/payload.py): invalid, never heard."""
     gate = HoldsGate("ho", "workcell/ho/", "monitor-b", {"monitor-a": KEY_A.public_key()})
     key = BusKeys.of("workcell/ho/", "monitor-a").holds
     body = json.loads(holds_payload("ho", "monitor-a", "b", 1, 1000.0,
@@ -93,7 +94,7 @@ def test_a_signed_message_with_a_nan_wall_time_is_outside_the_window():
     body["wall"] = float("nan")
     payload = json.dumps(body).encode()
     assert gate.check(key, payload, Signer(KEY_A).sign(key, payload), 0.0, 1000.0) is None
-    assert gate.counts() == {"stale": 1}
+    assert gate.counts() == {"invalid": 1} and "NaN" in gate.last_invalid
 
 
 def _feed_boots(port: int, boots: list[str], each_s: float = 0.5) -> None:

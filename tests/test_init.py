@@ -164,3 +164,15 @@ def test_kit_in_the_wheel_list_ships_every_deploy_and_doc_file():
             if f.is_file():
                 rel = f.relative_to(root / folder).as_posix()
                 assert any(fnmatch(rel, g) for g in globs), f"{folder}/{rel} not shipped"
+
+
+@pytest.mark.parametrize("listen, connect", [
+    pytest.param(None, "tcp/127.0.0.1:7447", id="default"),
+    pytest.param("tcp/0.0.0.0:7555", "tcp/127.0.0.1:7555", id="all-interfaces"),
+])
+def test_the_watch_hint_names_the_cell_and_the_endpoint(tmp_path, listen, connect):
+    cam = clip(tmp_path / "cam0.mp4", 0, seconds=0.5)
+    out = ok("init", tmp_path / "kit", "--cell", "cell7", "--camera", f"cam0={cam}",
+             *(("--listen", listen) if listen else ()))
+    hint = next(ln for ln in out.splitlines() if "try it:" in ln)
+    assert f"monitor watch --cell cell7 --connect {connect} --monitor-key" in hint, hint

@@ -297,12 +297,17 @@ def test_truncated_video_is_processed_up_to_the_break_then_reported(tmp_path, sy
 
 
 @pytest.mark.slow
-def test_replay_publish_sends_the_commands_over_zenoh(demo, synthetic_model, tmp_path):
-    """`--publish`: the replay's commands reach a subscriber in another process (this one)."""
+def test_replay_publish_sends_the_commands_over_zenoh(synthetic_model, tmp_path):
+    """`--publish`: the replay's commands reach a subscriber in another process (this one).
+    The demo's first 9 s at 5 fps: the walk into the protective zone (about 6.5 s)."""
     import socket
     import time
 
     from monitor.bus import BusConfig, BusKeys, open_session
+
+    scene = DemoScene(fps=5.0, duration_s=9.0)
+    video = tmp_path / "walk-in.mp4"
+    write_video(video, scene.frames(), scene.fps)
 
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -312,7 +317,7 @@ def test_replay_publish_sends_the_commands_over_zenoh(demo, synthetic_model, tmp
                       '[policy]\nrestart_interlock = "manual"\n')
     received: list[dict] = []
     proc = subprocess.Popen(
-        [sys.executable, "-m", "monitor", "replay", str(demo.video), "--zones",
+        [sys.executable, "-m", "monitor", "replay", str(video), "--zones",
          str(demo_cell_path()), "--model", str(synthetic_model), "--out", str(tmp_path / "o"),
          "--publish", "--no-video", "--config", str(config)],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)

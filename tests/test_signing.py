@@ -131,7 +131,7 @@ def test_a_properly_signed_reset_passes_the_gate(keys):
     pytest.param(lambda k: (b"garbage", None), "not JSON", id="garbage"),
     pytest.param(lambda k: (json.dumps({"operator": "anna", "request_id": "x",
                                         "wall": float("nan")}).encode(), None),
-                 "valid wall time", id="nan-wall"),
+                 "NaN is not a number", id="nan-wall"),
 ])
 def test_rogue_resets_are_refused_with_the_reason(keys, case, reason):
     payload, sig = case(keys)
@@ -320,6 +320,9 @@ def test_two_live_monitors_on_a_cell_mean_stop(keys):
 
 def test_parse_command_names_the_bad_field():
     with pytest.raises(ValueError, match="ttl_ms"):
+        parse_command(command(1, ttl=-5))
+    # NaN is refused by the bounded decoder before any field is read (monitor/payload.py)
+    with pytest.raises(ValueError, match="NaN is not a number"):
         parse_command(command(1, ttl=float("nan")))
 
 

@@ -228,7 +228,7 @@ def test_router_status_and_reset_commands_through_a_router(tmp_path):
         with SafetyBus(cfg) as bus:
             bus.publish_command(Command("RUN", 1.0, ()))
             bus.update_status(fps=9.5)
-            out = subprocess.run([sys.executable, "-m", "monitor", "status", *client],
+            out = subprocess.run([sys.executable, "-m", "monitor", "status", "--json", *client],
                                  capture_output=True, text=True, timeout=30)
             assert out.returncode == 0, out.stderr
             status = json.loads(out.stdout)

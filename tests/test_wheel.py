@@ -55,7 +55,7 @@ def test_wheel_installs_and_runs_outside_the_checkout(tmp_path):
     src = tmp_path / "src"
     shutil.copytree(ROOT, src, symlinks=True, ignore=shutil.ignore_patterns(
         ".venv", ".git", "build", "dist", "*.egg-info", "__pycache__", ".pytest_cache",
-        ".ruff_cache"))
+        ".ruff_cache", ".import_linter_cache"))
     built = _run([sys.executable, "-m", "pip", "wheel", str(src), "--no-deps",
                   "--no-build-isolation", "--no-index", "--quiet", "-w", str(tmp_path / "dist")],
                  tmp_path)

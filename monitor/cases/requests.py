@@ -27,6 +27,7 @@ import math
 import time
 from dataclasses import dataclass
 
+from monitor import payload as payload_json
 from monitor.cases.sets import Refusal, Selection
 from monitor.signed_requests import RequestKind, check_cell, check_signer, check_window
 
@@ -98,8 +99,8 @@ class CaseGate:
 
 def _selector_of(payload: bytes) -> str | None:
     try:
-        body = json.loads(payload[:MAX_CASE_PAYLOAD])
-    except (ValueError, UnicodeDecodeError, RecursionError):
+        body = payload_json.load(payload[:MAX_CASE_PAYLOAD], MAX_CASE_PAYLOAD)
+    except payload_json.PayloadError:
         return None
     who = body.get("selector") if isinstance(body, dict) else None
     return who[:MAX_FIELD] if isinstance(who, str) else None
@@ -109,9 +110,9 @@ def _parse(payload: bytes) -> dict:
     if len(payload) > MAX_CASE_PAYLOAD:
         raise CaseRefused("selection request too large")
     try:
-        body = json.loads(payload)
-    except (ValueError, UnicodeDecodeError, RecursionError):
-        raise CaseRefused("selection request is not JSON") from None
+        body = payload_json.load(payload, MAX_CASE_PAYLOAD)
+    except payload_json.PayloadError as exc:
+        raise CaseRefused(f"selection request refused: {exc}") from None
     if not isinstance(body, dict) or body.get("schema") != CASE_SCHEMA:
         raise CaseRefused(f"selection request is not a {CASE_SCHEMA} object")
     who, set_id = body.get("selector"), body.get("set")

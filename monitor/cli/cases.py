@@ -13,6 +13,7 @@ import yaml
 from monitor import zones as zn
 from monitor.cases.receiver import case_key, request_case
 from monitor.cases.requests import case_payload
+from monitor.cli.zone_files import read_zone_data, write_zone_data
 from monitor.errors import ConfigError
 
 
@@ -60,6 +61,30 @@ def register_zone_sets(sub: argparse._SubParsersAction) -> None:
     p = actions.add_parser("list", help="list the zone sets and the switching rules")
     p.add_argument("file", type=Path, help="zone file (YAML)")
     p.set_defaults(func=cmd_set_list)
+    p = actions.add_parser(
+        "rules", help="set the switching rules: allowed transitions, switch-over time, "
+        "default set, selector watch",
+        description="Change the zone file's switching rules (docs/cases.md); options not "
+        "given stay as they are. The file is validated before it is written.")
+    p.add_argument("file", type=Path, help="zone file (YAML)")
+    p.add_argument("--allow", action="append", metavar="FROM:TO",
+                   help="an allowed switch (repeat); replaces the list of allowed switches "
+                   "(default: the list stays)")
+    p.add_argument("--any", action="store_true",
+                   help="allow every switch (no transitions list; default off)")
+    p.add_argument("--none", action="store_true",
+                   help="allow no switch at all: the default set stays in force "
+                   "(default off)")
+    p.add_argument("--switch-over", type=float, metavar="S",
+                   help="seconds both sets apply during a switch, 0-60 (default: unchanged)")
+    p.add_argument("--default", dest="default_set", metavar="ID",
+                   help="the set in force at start (default: unchanged)")
+    p.add_argument("--selector-ttl", type=float, metavar="S",
+                   help="a selection older than this is a fault: the selector must repeat it "
+                   "(default: unchanged)")
+    p.add_argument("--no-selector-ttl", action="store_true",
+                   help="do not watch the selector (default off)")
+    p.set_defaults(func=cmd_set_rules)
     p = actions.add_parser("show", help="show one zone set")
     p.add_argument("file", type=Path, help="zone file (YAML)")
     p.add_argument("id", help="set id")
@@ -67,9 +92,7 @@ def register_zone_sets(sub: argparse._SubParsersAction) -> None:
 
 
 def cmd_set_add(args: argparse.Namespace) -> int:
-    from monitor.cli.zones import _read, _write
-
-    data = _read(args.file)
+    data = read_zone_data(args.file)
     sets = data.get("sets") or []
     if any(isinstance(s, dict) and s.get("id") == args.id for s in sets):
         raise ConfigError(f"{args.file}: set '{args.id}' exists")
@@ -82,10 +105,41 @@ def cmd_set_add(args: argparse.Namespace) -> int:
     data["sets"] = [*sets, entry]
     if args.default or not data.get("default_set"):
         data["default_set"] = args.id
-    cell = _write(data, args.file)
+    cell = write_zone_data(data, args.file)
     print(f"added set '{args.id}' ({len(entry['zones'])} zones); default set "
           f"{cell.spec.default_set}; config hash {cell.config_hash}")
     return 0
+
+
+def cmd_set_rules(args: argparse.Namespace) -> int:
+    if sum((bool(args.allow), args.any, args.none)) > 1:
+        raise ConfigError("zones set rules: give one of --allow, --any or --none")
+    if args.selector_ttl is not None and args.no_selector_ttl:
+        raise ConfigError("zones set rules: give --selector-ttl or --no-selector-ttl, not both")
+    data = read_zone_data(args.file)
+    if args.allow:
+        moves = []
+        for text in args.allow:
+            a, sep, b = text.partition(":")
+            if not sep or not a.strip() or not b.strip():
+                raise ConfigError(f"zones set rules: --allow {text!r}: expected FROM:TO "
+                                  "(two set ids)")
+            moves.append([a.strip(), b.strip()])
+        data["transitions"] = moves
+    elif args.any:
+        data.pop("transitions", None)
+    elif args.none:
+        data["transitions"] = []
+    if args.switch_over is not None:
+        data["switch_over_s"] = args.switch_over
+    if args.default_set is not None:
+        data["default_set"] = args.default_set
+    if args.selector_ttl is not None:
+        data["selector_ttl_s"] = args.selector_ttl
+    elif args.no_selector_ttl:
+        data.pop("selector_ttl_s", None)
+    write_zone_data(data, args.file)  # validates first: a fault writes nothing
+    return cmd_set_list(args)
 
 
 def cmd_set_list(args: argparse.Namespace) -> int:

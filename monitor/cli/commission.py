@@ -64,7 +64,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    "then no record is written)")
     p.add_argument("--walk", type=Path, metavar="DIR", help="a `commission walk` output folder")
     p.add_argument("--status", type=Path, metavar="FILE", help="the running service's status "
-                   "(`monitor status > status.json`): its capacity and reaction figures")
+                   "(`monitor status --json > status.json`): its capacity and reaction figures")
     p.add_argument("--by", default="", help="who commissioned the cell (printed in the "
                    "sign-off; default blank)")
     p.add_argument("--date", default="", help="the date printed in the sign-off (default "

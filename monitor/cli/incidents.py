@@ -34,7 +34,8 @@ def _common(p: argparse.ArgumentParser) -> None:
 
 def _filters(p: argparse.ArgumentParser) -> None:
     p.add_argument("--cause", help="only incidents with this cause (stop, latch, "
-                   "reset_accepted, reset_refused, fault, alert)")
+                   "reset_accepted, reset_refused, fault, alert) or an alert of this kind "
+                   "(zone_muted, scene_change, ...)")
     p.add_argument("--hours", type=float, help="only the last HOURS hours (default: all)")
     p.add_argument("--limit", type=int, help="at most this many, newest first (default: all)")
 
@@ -78,7 +79,7 @@ def cmd_list(args: argparse.Namespace) -> int:
         reset = "" if i.operator is None else \
             f"  reset by {i.operator}: {i.reset_message}"
         clips = len(i.clip_paths())
-        print(f"{i.id}  {when}  {','.join(i.causes):<22} {i.describe}{reset}  "
+        print(f"{i.id}  {when}  {i.cause_text():<22} {i.describe}{reset}  "
               f"[{clips} clip{'s' if clips != 1 else ''}{'' if i.complete else ', recording'}]")
     if not incidents:
         print("no incidents")

@@ -23,6 +23,7 @@ from monitor.frames import source_kind
 from monitor.signing import new_key_pair
 
 _ID = re.compile(r"^[A-Za-z0-9_.-]+$")
+DEFAULT_LISTEN = "tcp/127.0.0.1:7447"  # zenoh/peer.json5's listen endpoint
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -134,11 +135,18 @@ def cmd_init(args: argparse.Namespace) -> int:
         _, _, text = new_key_pair(keys / f"{name}.key", force=True)
         lines.append(f"{name} {text}")
     (out / "operators").write_text("\n".join(lines) + "\n", encoding="utf-8")
-    _next_steps(out, args.cell, cameras, operators)
+    _next_steps(out, args.cell, cameras, operators, args.listen)
     return 0
 
 
-def _next_steps(out: Path, cell: str, cameras: list[KitCamera], operators: list[str]) -> None:
+def watch_endpoint(listen: str | None) -> str:
+    """Where `monitor watch` on this host reaches a monitor listening on ``listen``."""
+    endpoint = listen or DEFAULT_LISTEN
+    return endpoint.replace("/0.0.0.0:", "/127.0.0.1:").replace("/[::]:", "/[::1]:")
+
+
+def _next_steps(out: Path, cell: str, cameras: list[KitCamera], operators: list[str],
+                listen: str | None = None) -> None:
     written = ["monitor.toml", "cell.yaml", "workcell-monitor.service", "zenoh/*.json5",
                "keys/monitor.key(.pub)"] + [f"keys/{n}.key(.pub)" for n in operators] + \
         ["operators"]
@@ -168,8 +176,9 @@ def _next_steps(out: Path, cell: str, cameras: list[KitCamera], operators: list[
                      f"then its line into {d}/operators")
     steps.append(f"controllers pin the monitor's public key {d}/keys/monitor.key.pub "
                  "(monitor docs consumer)")
-    steps.append(f"try it: monitor run --config {d}/monitor.toml (monitor watch --monitor-key "
-                 f"{d}/keys/monitor.key.pub beside it)")
+    steps.append(f"try it: monitor run --config {d}/monitor.toml (monitor watch --cell {cell} "
+                 f"--connect {watch_endpoint(listen)} --monitor-key {d}/keys/monitor.key.pub "
+                 "beside it)")
     steps.append(f"install: copy {d}/ to /etc/workcell-monitor/ and workcell-monitor.service to "
                  "/etc/systemd/system/, then systemctl enable --now workcell-monitor; beyond "
                  "this host: monitor docs security")

@@ -15,6 +15,7 @@ import zenoh
 from monitor.bus import BusKeys, default_instance, open_session
 from monitor.cli.keys import KEY_DIR
 from monitor.cli.roles import add_role_arg, no_answer, role_keys
+from monitor.cli.status_text import status_text
 from monitor.cli.zenoh_args import (
     add_zenoh_args,
     bounded,
@@ -200,7 +201,7 @@ def cmd_status(args: argparse.Namespace) -> int:
         for body in answers:
             if role:
                 print(f"{role}:")
-            print(json.dumps(body, indent=2))
+            print(json.dumps(body, indent=2) if args.json else status_text(body))
     return 2 if silent else 0
 
 
@@ -240,11 +241,16 @@ def register(subparsers) -> None:
 
     p = subparsers.add_parser(
         "status", help="query the monitor's status",
-        description="Prints the status of the cell's monitor as JSON (every monitor that "
-        "answers, as a second one on the cell is a fault to see). With --role: each named "
+        description="Prints the status of the cell's monitor as a summary for an operator "
+        "(command and reasons, latch and reset, cameras, faults, muted zones, zone sets, "
+        "commissioning, uptime), or with --json the whole answer as JSON; every monitor that "
+        "answers, as a second one on the cell is a fault to see. With --role: each named "
         "monitor's status under a line with its role; exit 2 when any did not answer.")
     add_zenoh_args(p, default_connect=True)
     add_role_arg(p, many=True, what="each one's status is printed under its role's name")
     p.add_argument("--timeout", type=float, default=3.0,
                    help="s to wait for an answer (default 3)")
+    p.add_argument("--json", action="store_true",
+                   help="print the monitor's answer as JSON, every field (for scripts and "
+                   "`monitor commission report --status`; default: a text summary)")
     p.set_defaults(func=cmd_status)

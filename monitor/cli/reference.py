@@ -149,16 +149,16 @@ def _camera_source_out(args: argparse.Namespace) -> tuple[str, str, Path]:
 def _store_in_zone_file(zones: Path, camera: str, out: Path) -> str | None:
     """Name ``out`` as the camera's reference in the zone file (an atomic zone edit, FILE.bak
     kept); None when it names it already."""
-    from monitor.cli.zone_cameras import _camera, reference_entry
-    from monitor.cli.zones import _read, _write
+    from monitor.cli.zone_cameras import camera_entry, reference_entry
+    from monitor.cli.zone_files import read_zone_data, write_zone_data
 
-    data = _read(zones)
-    cam = _camera(data, camera, zones)
+    data = read_zone_data(zones)
+    cam = camera_entry(data, camera, zones)
     entry = reference_entry(zones, out, camera, cam["width"], cam["height"])
     if cam.get("reference") == entry:
         return None
     cam["reference"] = entry
-    return _write(data, zones).config_hash
+    return write_zone_data(data, zones).config_hash
 
 
 def _capture(args: argparse.Namespace) -> int:

@@ -18,7 +18,7 @@ import numpy as np
 
 from monitor import geometry as geo
 from monitor import zones as zn
-from monitor.cli.zones import _camera_for, _numbers, _read, _write
+from monitor.cli.zone_files import camera_for, numbers, read_zone_data, write_zone_data
 from monitor.errors import ConfigError, InputError
 
 
@@ -45,7 +45,7 @@ def _read_pairs(args: argparse.Namespace) -> np.ndarray:
     rows: list[list[float]] = []
     if args.pairs:
         for token in args.pairs.replace(";", " ").split():
-            rows.append(_numbers(token, None, "--pairs"))
+            rows.append(numbers(token, None, "--pairs"))
     else:
         try:
             with args.csv.open(newline="", encoding="utf-8") as fh:
@@ -73,9 +73,9 @@ RMS_WARN_PX = 2.0  # more: a wrong pair or unmodelled distortion (zones/README.m
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
-    data = _read(args.file)
+    data = read_zone_data(args.file)
     cams = data.get("cameras") or []
-    args.camera = _camera_for(data, args)
+    args.camera = camera_for(data, args)
     cam = next(c for c in cams if c.get("id") == args.camera)
     pairs = _read_pairs(args)
     old = cam.get("calibration") or {}
@@ -118,7 +118,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     if args.dry_run:
         return 0
     cam["calibration"] = cal
-    _write(data, args.file)
+    write_zone_data(data, args.file)
     print(f"calibrated camera {args.camera} ({cal['type']})")
     return 0
 

@@ -18,7 +18,7 @@ import cv2
 import yaml
 
 from monitor import zones as zn
-from monitor.cli.zones import _count, _document_defaults, _read, _write
+from monitor.cli.zone_files import document_defaults, plural, read_zone_data, write_zone_data
 from monitor.errors import ConfigError
 from monitor.frames import source_kind
 from monitor.zones.cameras import choose_camera, zone_file_hint
@@ -82,7 +82,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=cmd_camera_list)
 
     for action in actions.choices.values():
-        _document_defaults(action, "not set")
+        document_defaults(action, "not set")
 
 
 def parse_size(text: str) -> tuple[int, int]:
@@ -107,14 +107,14 @@ def write_new_zone_file(path: Path, name: str, cameras: list[tuple[str, int, int
                         force: bool = False) -> zn.Cell:
     if path.exists() and not force:
         raise ConfigError(f"{path}: file exists (use --force to overwrite)")
-    return _write(new_zone_document(name, cameras), path)
+    return write_zone_data(new_zone_document(name, cameras), path)
 
 
 def _camera_ids(data: dict) -> list[str]:
     return [c.get("id") for c in data.get("cameras") or [] if isinstance(c, dict)]
 
 
-def _camera(data: dict, camera: str | None, path: Path) -> dict:
+def camera_entry(data: dict, camera: str | None, path: Path) -> dict:
     chosen = choose_camera(_camera_ids(data), camera, str(path),
                            zone_file_hint(path, camera or "ID"))
     return next(c for c in data["cameras"] if isinstance(c, dict) and c.get("id") == chosen)
@@ -197,7 +197,7 @@ def _write_text_atomic(path: Path, text: str) -> None:
 
 
 def cmd_camera_add(args: argparse.Namespace) -> int:
-    data = _read(args.file)
+    data = read_zone_data(args.file)
     if args.camera in _camera_ids(data):
         raise ConfigError(f"{args.file}: camera '{args.camera}' exists already (change it with "
                           f"'monitor zones camera set {args.file} {args.camera}')")
@@ -213,18 +213,18 @@ def cmd_camera_add(args: argparse.Namespace) -> int:
         cam["calibration"] = _read_calibration(args.calibration)
     config_text = _config_with_camera(args, width, height) if args.config else None
     data.setdefault("cameras", []).append(cam)
-    cell = _write(data, args.file)
+    cell = write_zone_data(data, args.file)
     if config_text is not None:
         _write_text_atomic(args.config, config_text)
         print(f"added [[camera]] {args.camera} ({args.source}) to {args.config}")
-    print(f"added camera {args.camera} ({width}x{height}); {_count(len(cell.cameras), 'camera')}"
+    print(f"added camera {args.camera} ({width}x{height}); {plural(len(cell.cameras), 'camera')}"
           f", config hash {cell.config_hash}")
     return 0
 
 
 def cmd_camera_remove(args: argparse.Namespace) -> int:
-    data = _read(args.file)
-    cam = _camera(data, args.camera, args.file)
+    data = read_zone_data(args.file)
+    cam = camera_entry(data, args.camera, args.file)
     polygons = _polygons(data, args.camera)
     if polygons and not args.with_zones:
         raise ConfigError(f"{args.file}: camera '{args.camera}' has image zones "
@@ -236,7 +236,7 @@ def cmd_camera_remove(args: argparse.Namespace) -> int:
     data["cameras"].remove(cam)
     for z in polygons:
         data["zones"].remove(z)
-    _write(data, args.file)
+    write_zone_data(data, args.file)
     gone = f" and its zones {', '.join(z['id'] for z in polygons)}" if polygons else ""
     print(f"removed camera {args.camera}{gone}")
     return 0
@@ -276,8 +276,8 @@ def reference_entry(zone_file: Path, image_path: Path, camera: str, width: int,
 
 
 def cmd_camera_set(args: argparse.Namespace) -> int:
-    data = _read(args.file)
-    cam = _camera(data, args.camera, args.file)
+    data = read_zone_data(args.file)
+    cam = camera_entry(data, args.camera, args.file)
     camera = cam["id"]
     polygons = _polygons(data, camera)
     changed = []
@@ -319,7 +319,7 @@ def cmd_camera_set(args: argparse.Namespace) -> int:
     if not changed:
         raise ConfigError("camera set: nothing to change (give --size, --calibration, "
                           "--no-calibration, --reference, --no-reference or --new-id)")
-    cell = _write(data, args.file)
+    cell = write_zone_data(data, args.file)
     print(f"camera {camera}: {', '.join(changed)}; config hash {cell.config_hash}")
     return 0
 

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import re
 import sys
 from pathlib import Path
 from typing import Any
@@ -19,7 +18,18 @@ import yaml
 
 from monitor import geometry as geo
 from monitor import zones as zn
-from monitor.cli.tool_calibration import positive_number
+from monitor.cli import cases, zone_calibrate, zone_cameras, zone_mutes
+from monitor.cli.tool_calibration import calibrate_tool, positive_number
+from monitor.cli.zone_cameras import parse_size, write_new_zone_file
+from monitor.cli.zone_files import (
+    camera_for,
+    document_defaults,
+    numbers,
+    plural,
+    read_zone_data,
+    write_zone_data,
+)
+from monitor.cli.zones_apply import register as register_apply
 from monitor.errors import ConfigError, InputError
 from monitor.tracks import TrackerConfig
 from monitor.whereabouts import FootGrid
@@ -54,7 +64,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--kind", required=True, choices=zn.KINDS, help="zone kind")
     _zone_options(p)
     p.add_argument("--disabled", action="store_true", help="add the zone disabled")
-    p.set_defaults(func=cmd_add)
+    p.set_defaults(func=cmd_add, late_positionals=late_points)
 
     p = sub.add_parser("edit", help="change fields or the geometry of a zone")
     p.add_argument("file", type=Path)
@@ -92,8 +102,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "take from this file (default: none)")
     p.set_defaults(func=cmd_validate)
 
-    from monitor.cli import zone_calibrate  # needs this module's helpers: import late
-
     zone_calibrate.register(sub)
 
     p = sub.add_parser("preview", help="draw the zones over a camera frame")
@@ -113,8 +121,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p = sub.add_parser("hash", help="print the config hash of the active zone set")
     p.add_argument("file", type=Path)
     p.set_defaults(func=cmd_hash)
-
-    from monitor.cli.zones_apply import register as register_apply
 
     register_apply(sub)
 
@@ -149,37 +155,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
     for name, action in sub.choices.items():
         none_text = {"edit": "unchanged", "calibrate-tool": "what the tracker noise explains"}
-        _document_defaults(action, none_text.get(name, "not set"))
-
-    from monitor.cli import zone_cameras  # needs this module's helpers: import late
+        document_defaults(action, none_text.get(name, "not set"))
 
     zone_cameras.register(sub)
 
-    from monitor.cli import cases
-
     cases.register_zone_sets(sub)
-
-
-_POSITIONAL_HELP = {"file": "zone file (YAML)", "id": "zone id", "ids": "zone ids"}
-
-
-def _document_defaults(parser: argparse.ArgumentParser, none_text: str) -> None:
-    """Every option says its default in --help (and every argument has a help text)."""
-    for action in parser._actions:
-        if isinstance(action, argparse._HelpAction):
-            continue
-        if action.help is None:
-            action.help = _POSITIONAL_HELP.get(action.dest, action.dest.replace("_", " "))
-        if not action.option_strings or "default" in action.help:
-            continue
-        if action.required:
-            action.help += " (required)"
-        elif isinstance(action, argparse._StoreTrueAction):
-            action.help += " (default: off)"
-        elif action.default in (None, []):
-            action.help += f" (default: {none_text})"
-        else:
-            action.help += " (default: %(default)s)"
+    zone_mutes.register(sub)
 
 
 def _zone_options(p: argparse.ArgumentParser) -> None:
@@ -207,39 +188,22 @@ def _zone_options(p: argparse.ArgumentParser) -> None:
 # helpers
 
 
-def _numbers(text: str, count: int | None, what: str) -> list[float]:
-    parts = [p for p in re.split(r"[,\s]+", text.strip()) if p]
-    try:
-        out = [float(p) for p in parts]
-    except ValueError:
-        raise ConfigError(f"{what}: cannot read numbers from {text!r}") from None
-    if not all(np.isfinite(out)):
-        raise ConfigError(f"{what}: numbers must be finite in {text!r}")
-    if count is not None and len(out) != count:
-        raise ConfigError(f"{what}: expected {count} numbers, got {len(out)} in {text!r}")
-    return out
+def late_points(args: argparse.Namespace, extra: list[str]) -> bool:
+    """`zones add FILE ID --kind K 'x,y ...'`: argparse gives the optional POINTS up when an
+    option comes first and leaves them over; take them as POINTS (True when taken)."""
+    if len(extra) == 1 and args.points is None and not extra[0].startswith("-"):
+        args.points = extra[0]
+        return True
+    return False
 
 
 def _points(text: str, what: str, dims: int = 2) -> list[list[float]]:
     pts = []
     for token in text.replace(";", " ").split():
-        pts.append(_numbers(token, dims, what))
+        pts.append(numbers(token, dims, what))
     if not pts:
         raise ConfigError(f"{what}: no points given")
     return pts
-
-
-def _read(path: Path) -> dict:
-    data = zn.read_cell_document(path)  # edits keep the file's comments and layout
-    zn.parse_cell(data, path)  # refuse to edit a file that is already invalid
-    return data
-
-
-def _write(data: dict, path: Path) -> zn.Cell:
-    cell = zn.write_cell_data(data, path)  # validates first: a fault writes nothing
-    for w in cell.warnings:
-        print(f"monitor: warning: {path}: {w}", file=sys.stderr)
-    return cell
 
 
 def _find(data: dict, zone_id: str, path: Path) -> int:
@@ -261,19 +225,19 @@ def _geometry(args: argparse.Namespace, points: str | None) -> dict | None:
     if points:
         return {"shape": "polygon", "points_px": _points(points, "points")}
     if args.box:
-        v = _numbers(args.box, 6, "--box")
+        v = numbers(args.box, 6, "--box")
         geom: dict[str, Any] = {"shape": "box", "min_m": v[:3], "max_m": v[3:]}
         if args.yaw:
             geom["yaw_deg"] = args.yaw
         return geom
     if args.cylinder:
-        v = _numbers(args.cylinder, 5, "--cylinder")
+        v = numbers(args.cylinder, 5, "--cylinder")
         return {"shape": "cylinder", "center_m": v[:2], "radius_m": v[2], "z_min_m": v[3],
                 "z_max_m": v[4]}
     if args.extrude:
         if not args.z:
             raise ConfigError("--extrude needs --z ZMIN,ZMAX")
-        z = _numbers(args.z, 2, "--z")
+        z = numbers(args.z, 2, "--z")
         return {"shape": "extrude", "points_m": _points(args.extrude, "--extrude"),
                 "z_min_m": z[0], "z_max_m": z[1]}
     geom = {"shape": "mesh", "file": args.mesh}
@@ -293,7 +257,7 @@ def _apply_options(zone: dict, args: argparse.Namespace) -> None:
         zone["speed_scale"] = args.speed_scale
     if zone.get("shape") == "polygon":
         if args.camera is not None:
-            zone["camera"] = args.camera  # checked against the file by _camera_for
+            zone["camera"] = args.camera  # checked against the file by camera_for
         if args.anchor is not None:
             zone["anchor"] = args.anchor
             if args.anchor != "share":
@@ -314,8 +278,6 @@ def _apply_options(zone: dict, args: argparse.Namespace) -> None:
 
 
 def cmd_new(args: argparse.Namespace) -> int:
-    from monitor.cli.zone_cameras import parse_size, write_new_zone_file
-
     width, height = parse_size(args.size)
     write_new_zone_file(args.file, args.name, [(args.camera, width, height)], force=args.force)
     print(f"created {args.file} with camera {args.camera} ({width}x{height}); more cameras: "
@@ -324,7 +286,7 @@ def cmd_new(args: argparse.Namespace) -> int:
 
 
 def cmd_add(args: argparse.Namespace) -> int:
-    data = _read(args.file)
+    data = read_zone_data(args.file)
     geom = _geometry(args, args.points)
     if geom is None:
         raise ConfigError("add: give an image polygon 'x,y x,y ...' or one of --box, "
@@ -334,24 +296,16 @@ def cmd_add(args: argparse.Namespace) -> int:
         zone["enabled"] = False
     zone.update(geom)
     if geom["shape"] == "polygon":
-        zone["camera"] = _camera_for(data, args)
+        zone["camera"] = camera_for(data, args)
     _apply_options(zone, args)
     data.setdefault("zones", []).append(zone)
-    _write(data, args.file)
+    write_zone_data(data, args.file)
     print(f"added zone {args.id} ({args.kind}, {geom['shape']})")
     return 0
 
 
-def _camera_for(data: dict, args: argparse.Namespace) -> str:
-    """The camera of an image polygon: --camera, or the file's only camera (one rule for
-    every command: monitor.zones.cameras)."""
-    cams = [c.get("id") for c in data.get("cameras") or [] if isinstance(c, dict)]
-    return choose_camera(cams, args.camera, str(args.file),
-                         zone_file_hint(args.file, args.camera or "ID"))
-
-
 def cmd_edit(args: argparse.Namespace) -> int:
-    data = _read(args.file)
+    data = read_zone_data(args.file)
     k = _find(data, args.id, args.file)
     zone = dict(data["zones"][k])
     geom = _geometry(args, args.points)
@@ -362,9 +316,9 @@ def cmd_edit(args: argparse.Namespace) -> int:
         if geom["shape"] == "polygon":
             zone.update(keep)
             if "camera" not in zone:
-                zone["camera"] = _camera_for(data, args)
+                zone["camera"] = camera_for(data, args)
     if zone.get("shape") == "polygon" and args.camera is not None:
-        _camera_for(data, args)  # a camera the file does not have: the choices and a hint
+        camera_for(data, args)  # a camera the file does not have: the choices and a hint
     if args.kind is not None:
         zone["kind"] = args.kind
         if args.kind != "warning" and args.speed_scale is None:
@@ -373,25 +327,25 @@ def cmd_edit(args: argparse.Namespace) -> int:
         zone["id"] = args.new_id
     _apply_options(zone, args)
     data["zones"][k] = zone
-    _write(data, args.file)
+    write_zone_data(data, args.file)
     print(f"edited zone {args.id}")
     return 0
 
 
 def cmd_remove(args: argparse.Namespace) -> int:
-    data = _read(args.file)
+    data = read_zone_data(args.file)
     k = _find(data, args.id, args.file)
     del data["zones"][k]
-    _write(data, args.file)
+    write_zone_data(data, args.file)
     print(f"removed zone {args.id}")
     return 0
 
 
 def cmd_enable(args: argparse.Namespace) -> int:
-    data = _read(args.file)
+    data = read_zone_data(args.file)
     for zid in args.ids:
         data["zones"][_find(data, zid, args.file)]["enabled"] = args.enabled
-    cell = _write(data, args.file)
+    cell = write_zone_data(data, args.file)
     word = "enabled" if args.enabled else "disabled"
     print(f"{word} {', '.join(args.ids)}; config hash {cell.config_hash}")
     return 0
@@ -411,7 +365,7 @@ def cmd_list(args: argparse.Namespace) -> int:
     widths = [max(len(r[c]) for r in rows) for c in range(len(rows[0]))]
     for r in rows:
         print("  ".join(v.ljust(w) for v, w in zip(r, widths, strict=True)).rstrip())
-    print(f"{_count(len(cell.zones), 'zone')}, {_count(len(cell.cameras), 'camera')}, "
+    print(f"{plural(len(cell.zones), 'zone')}, {plural(len(cell.cameras), 'camera')}, "
           f"config hash {cell.config_hash}")
     return 0
 
@@ -419,17 +373,17 @@ def cmd_list(args: argparse.Namespace) -> int:
 def cmd_show(args: argparse.Namespace) -> int:
     cell = zn.load_cell(args.file)
     z = cell.zone(args.id)
-    text = yaml.dump(z.model_dump(mode="json", exclude_none=True), Dumper=zn._Dumper,
+    text = yaml.dump(z.model_dump(mode="json", exclude_none=True), Dumper=zn.ZoneDumper,
                      sort_keys=False)
     print(text.rstrip())
     if z.shape == "polygon":
         area = abs(geo.polygon_signed_area(np.array(z.points_px)))
         print(f"# area {area:.0f} px^2 of camera {z.camera}")
     else:
-        v = zn._prepare_volume(z, cell)
+        v = zn.prepare_volume(z, cell)
         print(f"# bounds_m min {np.round(v.lo, 3).tolist()} max {np.round(v.hi, 3).tolist()}")
         for cam_id in cell.camera_models:
-            seen = zn._volume_region_px(z, cell, cell.camera_models[cam_id], cell.cameras[cam_id])
+            seen = zn.volume_region_px(z, cell, cell.camera_models[cam_id], cell.cameras[cam_id])
             print(f"# {cam_id}: {'in view' if seen is not None else 'not in view'}")
     return 0
 
@@ -451,14 +405,17 @@ def cmd_validate(args: argparse.Namespace) -> int:
     for cam_id, model in cell.camera_models.items():
         print(f"{args.file}: camera '{cam_id}': {_horizon_text(model)}")
     if args.config is not None:
-        from monitor.zones.handover_check import config_lines
+        from monitor.config import load_config
+        from monitor.zones.handover_check import uncalibrated_handover_lines
 
-        for line in config_lines(cell, args.config):
+        config = load_config(args.config)  # a bad config: ConfigError
+        for line in uncalibrated_handover_lines(cell, tuple(c.id for c in config.cameras),
+                                                tuple(config.handover.peers)):
             print(f"{args.file}: warning: {line}", file=sys.stderr)
     _print_coverage(cell, args.file)
     active = sum(1 for z in cell.zones if z.enabled)
-    print(f"{args.file}: ok: {_count(len(cell.zones), 'zone')} ({active} enabled), "
-          f"{_count(len(cell.cameras), 'camera')}, config hash {cell.config_hash}")
+    print(f"{args.file}: ok: {plural(len(cell.zones), 'zone')} ({active} enabled), "
+          f"{plural(len(cell.cameras), 'camera')}, config hash {cell.config_hash}")
     return 0
 
 
@@ -557,11 +514,6 @@ def cmd_hash(args: argparse.Namespace) -> int:
 
 
 def cmd_calibrate_tool(args: argparse.Namespace) -> int:
-    from monitor.cli.tool_calibration import calibrate_tool
-
-    return calibrate_tool(args, _read, _write)
+    return calibrate_tool(args, read_zone_data, write_zone_data)
 
 
-def _count(n: int, noun: str) -> str:
-    """'1 camera', '2 cameras'."""
-    return f"{n} {noun}" if n == 1 else f"{n} {noun}s"

@@ -1,7 +1,7 @@
 """What the commissioning report says, gathered from files (I/O at this edge; the rendering in
 ``report`` is pure). Every value comes from an input file or is computed from one: no clock,
 no host timing, so the same inputs give the same report and checksum. Host figures (capacity,
-reaction time) come from a saved ``monitor status`` answer of the running service
+reaction time) come from a saved ``monitor status --json`` answer of the running service
 (``--status FILE``), the host's own measurement; without one the report says "not given".
 """
 
@@ -43,7 +43,8 @@ def gather(config_path: Path | None, model_path: Path, walk_dir: Path | None = N
     config = load_config(config_path)
     zones_file = zones_file_of(config)
     cell = load_cell(zones_file) if zones_file else None
-    status = _read_json(status_file, "status file") if status_file else None
+    status = _read_json(status_file, "status file", " (save it with `monitor status --json "
+                        "> FILE`)") if status_file else None
     walk = read_walk(walk_dir) if walk_dir else None
     base = config_path.parent if config_path else None
     print_ = fingerprint(config, cell.config_hash if cell else "", model_path)
@@ -82,13 +83,13 @@ def _name(path: Path, base: Path | None) -> str:
     return path.name
 
 
-def _read_json(path: Path, what: str) -> dict:
+def _read_json(path: Path, what: str, hint: str = "") -> dict:
     try:
         data = json.loads(Path(path).read_text())
     except FileNotFoundError:
         raise InputError(f"{path}: no such {what}") from None
     except (ValueError, UnicodeDecodeError):
-        raise InputError(f"{path}: {what} is not JSON") from None
+        raise InputError(f"{path}: {what} is not JSON{hint}") from None
     if not isinstance(data, dict):
         raise InputError(f"{path}: {what} is not a JSON object")
     return data

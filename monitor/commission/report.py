@@ -170,7 +170,7 @@ def _capacity(cap: dict | None) -> str:
     if not cap:
         return _section("capacity", "Capacity check",
                         "<p class=\"warn\">Not given: pass the running service's status "
-                        "(<code>monitor status &gt; status.json</code>, "
+                        "(<code>monitor status --json &gt; status.json</code>, "
                         "<code>--status status.json</code>).</p>")
     rows = [(k, v) for k, v in sorted(cap.items()) if k != "cameras"]
     cams = _table([(c, v.get("fps"), v.get("frame_age_ms"))

@@ -98,7 +98,7 @@ class RecorderIncidents:
         clips = self._clips(incident)
         cameras = sorted(incident.record.get("clips", {})) or sorted(clips)
         return {"id": incident.id, "started": float(incident.wall),
-                "cause": ",".join(incident.causes), "state": incident.state,
+                "cause": incident.cause_text(), "state": incident.state,
                 "camera": ",".join(cameras), "cameras": cameras, "has_clip": bool(clips),
                 "clip_cameras": sorted(clips), "describe": incident.describe,
                 "operator": incident.operator, "reset_accepted": incident.reset_accepted,

@@ -17,6 +17,7 @@ import numpy as np
 
 from monitor import boxes as box_ops
 from monitor.errors import ConfigError
+from monitor.scene import Figure, draw_figure
 from monitor.types import Fault, Persons
 
 FAULT_NAME = "detector_self_test"
@@ -33,8 +34,6 @@ class SelfTestCase:
 
 def builtin_case(width: int = 640, height: int = 480) -> SelfTestCase:
     """A person of the synthetic model's kind (monitor.scene) standing on a plain grey floor."""
-    from monitor.scene import Figure, draw_figure
-
     image = np.full((height, width, 3), 120, np.uint8)
     figure = Figure((width * 0.45, height * 0.9), height * 0.6, phase=0.6)
     draw_figure(image, figure)

@@ -9,12 +9,12 @@ import zipfile
 from collections.abc import Sequence
 from pathlib import Path
 
-from monitor.incidents.store import COLUMNS, RECORD, Incident
+from monitor.incidents.store import RECORD, ROW_COLUMNS, Incident
 
 
 def to_csv(incidents: Sequence[Incident]) -> str:
     out = io.StringIO()
-    writer = csv.DictWriter(out, fieldnames=list(COLUMNS), lineterminator="\n")
+    writer = csv.DictWriter(out, fieldnames=list(ROW_COLUMNS), lineterminator="\n")
     writer.writeheader()
     for incident in incidents:
         writer.writerow(incident.row())

@@ -11,6 +11,7 @@ from collections.abc import Callable
 from monitor.incidents import IncidentIndex, data_dir_of, remote
 from monitor.incidents.recorder import IncidentRecorder
 from monitor.incidents.settings import config_hash
+from monitor.timetext import wall_iso
 
 
 def start_recorder(config, cell, bus, metrics, alert, event: Callable) -> tuple:
@@ -19,7 +20,8 @@ def start_recorder(config, cell, bus, metrics, alert, event: Callable) -> tuple:
     recorder = IncidentRecorder(
         config.recorder, data_dir, [c.id for c in config.cameras], cell,
         cell_id=bus.config.cell, config_hash=config_hash(config.source_file), on_alert=alert,
-        on_incident=lambda causes: [metrics.incidents.labels(c).inc() for c in causes])
+        on_incident=lambda causes: [metrics.incidents.labels(c).inc() for c in causes],
+        when=wall_iso())  # live: descriptions and clips in local wall-clock time
     queryable = None
     key = remote.incidents_key(bus.keys.status)
     try:

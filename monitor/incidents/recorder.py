@@ -31,13 +31,16 @@ from pathlib import Path
 import cv2
 
 from monitor.driver import Step
+from monitor.events import alert_event, command_event, describe
 from monitor.incidents.clips import CODEC, ClipWriter, overlay
 from monitor.incidents.retention import enforce
 from monitor.incidents.ring import FrameRing, RingFrame, encode_jpeg
 from monitor.incidents.settings import RecorderConfig
 from monitor.incidents.store import RECORD, IncidentStore
 from monitor.incidents.triggers import Triggers
+from monitor.timetext import TimeText
 from monitor.types import Alert
+from monitor.zones import watch_regions
 
 MAX_QUEUED_FRAMES = 16  # ~45 MB of 720p frames waiting for the worker at most
 MAX_QUEUED_STEPS = 4096
@@ -69,13 +72,17 @@ class IncidentRecorder:
     """A ``Sink``. ``on_alert(alert)``: called from ``on_step`` with the recorder's own alerts
     (recording stopped); ``on_incident(causes)``: called by the worker per new incident
     (Prometheus counters). ``lossless`` (replay only): ``on_step`` waits for the worker
-    instead of dropping frames, so a replay's clips are complete and repeatable."""
+    instead of dropping frames, so a replay's clips are complete and repeatable. ``when``:
+    the times of the descriptions and the clips' header as text; live, the local wall-clock
+    time (``monitor.timetext.wall_iso``: an incident read days later names the moment as the
+    log does); None (replay): seconds of the video."""
 
     def __init__(self, config: RecorderConfig, data_dir: str | Path, cameras: Sequence[str],
                  cell=None, *, cell_id: str = "", config_hash: str = "",
                  on_alert: Callable[[Alert], None] | None = None,
                  on_incident: Callable[[tuple[str, ...]], None] | None = None,
-                 lossless: bool = False, wall: Callable[[], float] = time.time) -> None:
+                 lossless: bool = False, wall: Callable[[], float] = time.time,
+                 when: TimeText | None = None) -> None:
         self.config = config
         self.data_dir = Path(data_dir)
         self.cell = cell
@@ -86,6 +93,7 @@ class IncidentRecorder:
         self.on_incident = on_incident
         self.lossless = lossless
         self.wall = wall
+        self.when = when
         budget = int(config.memory_mb * 2 ** 20 / max(1, len(cameras)))
         self.rings = {c: FrameRing(config.pre_s, budget) for c in cameras}
         self._watch: dict[str, list] = {}
@@ -241,19 +249,15 @@ class IncidentRecorder:
         self._alerts.append(alert)
 
     def _handle(self, step: Step, take: bool) -> None:
-        from monitor.replay import alert_event, command_event
-
         result = step.result
         self._now = now = result.now
         index = step.index
         events = []
         if result.changed:
-            events.append(command_event(result, index, step.frame is None))
+            events.append(self._command_event(result, index, step.frame is None))
         if step.reset_possible:
-            from monitor.replay import describe
-
             events.append({"type": "reset_possible", "frame": index, "time_s": _r(now),
-                           "describe": describe(result.command)})
+                           "describe": self._describe(result.command)})
         events += [alert_event(a, index, None) for a in result.alerts]
         for event in events:
             self._history.append((now, event))
@@ -288,11 +292,16 @@ class IncidentRecorder:
 
     def _annotate(self, image, result, camera_id: str):
         if camera_id not in self._watch:
-            from monitor.zones import watch_regions
-
             self._watch[camera_id] = watch_regions(self.cell, camera_id) \
                 if self.cell is not None and camera_id in self.cell.cameras else []
-        return overlay(image, result, self.cell, camera_id, self._watch[camera_id])
+        return overlay(image, result, self.cell, camera_id, self._watch[camera_id], self.when)
+
+    def _describe(self, command) -> str:
+        return describe(command) if self.when is None else describe(command, self.when)
+
+    def _command_event(self, result, index: int, tick: bool) -> dict:
+        return command_event(result, index, tick) if self.when is None \
+            else command_event(result, index, tick, self.when)
 
     def _write(self, incident: _Open, camera_id: str, base, t: float) -> None:
         image = base.copy()
@@ -306,8 +315,6 @@ class IncidentRecorder:
         clip.setdefault("first_s", _r(t - incident.time_s))
 
     def _start(self, step: Step, causes: tuple[str, ...]) -> None:
-        from monitor.replay import command_event, describe
-
         result = step.result
         cmd = result.command
         wall = self.wall()
@@ -321,11 +328,13 @@ class IncidentRecorder:
         record = {
             "schema": SCHEMA, "id": incident_id, "cell": self.cell_id, "wall": round(wall, 3),
             "time_s": _r(result.now), "frame": step.index, "causes": list(causes),
-            "state": cmd.state, "latched": bool(cmd.latched), "describe": describe(cmd),
-            "command": command_event(result, step.index, step.frame is None),
+            "state": cmd.state, "latched": bool(cmd.latched), "describe": self._describe(cmd),
+            "command": self._command_event(result, step.index, step.frame is None),
             "faults": [{"name": f.name, "reason": f.reason, "source": f.source}
                        for f in result.faults if f.stop],
             "reset": reset, "zones_hash": self.zones_hash, "config_hash": self.config_hash,
+            # the kinds of this step's alerts: a list names them (``Incident.cause_text``)
+            "alerts": list(dict.fromkeys(a.kind for a in result.alerts)),
             "window": {"pre_s": self.config.pre_s, "post_s": self.config.post_s},
             "events": [e for _, e in self._history], "clips": {}, "complete": False,
         }

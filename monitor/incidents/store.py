@@ -43,6 +43,7 @@ CREATE INDEX IF NOT EXISTS incidents_wall ON incidents (wall);
 """
 COLUMNS = ("id", "wall", "time_s", "cell", "causes", "state", "latched", "describe", "operator",
            "reset_accepted", "reset_message", "zones_hash", "config_hash", "bytes", "complete")
+ROW_COLUMNS = (*COLUMNS, "alerts")  # an export's row: the index's columns and the alert kinds
 
 
 @dataclass(frozen=True)
@@ -73,10 +74,30 @@ class Incident:
         paths = {cam: self.dir / c["file"] for cam, c in clips.items() if c.get("file")}
         return {cam: p for cam, p in paths.items() if p.is_file()}
 
+    @property
+    def alert_kinds(self) -> tuple[str, ...]:
+        """The kinds of the alerts raised at the incident's step (``zone_muted``,
+        ``scene_change``, ...), in order, each once. Records written before the recorder kept
+        them (``alerts``) give them from their events of that step."""
+        kinds = self.record.get("alerts")
+        if not isinstance(kinds, list):
+            kinds = [e.get("kind") for e in self.record.get("events", [])
+                     if isinstance(e, dict) and e.get("type") == "alert"
+                     and e.get("frame") == self.record.get("frame")]
+        return tuple(dict.fromkeys(str(k) for k in kinds if k))
+
+    def cause_text(self) -> str:
+        """The causes for a list, each alert named by its kind: ``stop,latch,alert(zone_muted)``
+        (an alert row that does not say which alert looks like every other one)."""
+        kinds = self.alert_kinds
+        return ",".join(f"alert({','.join(kinds)})" if c == "alert" and kinds else c
+                        for c in self.causes)
+
     def row(self) -> dict:
-        """The flat row (CSV/JSON export, the queryable)."""
+        """The flat row (CSV/JSON export, the queryable); ``alerts``: the alert kinds."""
         out = {k: getattr(self, k) for k in COLUMNS}
         out["causes"] = ",".join(self.causes)
+        out["alerts"] = ",".join(self.alert_kinds)
         return out
 
 
@@ -122,14 +143,17 @@ class IncidentIndex:
 
     def list(self, since: float | None = None, until: float | None = None,
              cause: str | None = None, limit: int | None = None) -> list[Incident]:
-        """Incidents newest first; ``since``/``until``: Unix times; ``cause``: one cause."""
+        """Incidents newest first; ``since``/``until``: Unix times; ``cause``: one cause, or the
+        kind of an alert raised at the incident (``zone_muted``)."""
         sql, args = "SELECT * FROM incidents WHERE 1=1", []
         if since is not None:
             sql, args = sql + " AND wall >= ?", [*args, since]
         if until is not None:
             sql, args = sql + " AND wall <= ?", [*args, until]
         if cause:
-            sql, args = sql + " AND (',' || causes || ',') LIKE ?", [*args, f"%,{cause},%"]
+            sql, args = sql + (" AND ((',' || causes || ',') LIKE ? OR EXISTS (SELECT 1 FROM "
+                               "json_each(record, '$.alerts') WHERE value = ?))"), \
+                [*args, f"%,{cause},%", cause]
         sql += " ORDER BY wall DESC, id DESC"
         if limit is not None:
             sql, args = sql + " LIMIT ?", [*args, int(limit)]

@@ -30,7 +30,10 @@ class Triggers:
     def update(self, result) -> tuple[str, ...]:
         cmd = result.command
         causes: list[str] = []
-        for_cause = cmd.state == "STOP" and bool(stop_causes(cmd))
+        # latched with the cause gone, the command names no cause (the latch says it as a past
+        # event): still the same STOP for a cause, so a person coming back opens no new one
+        for_cause = cmd.state == "STOP" and (bool(stop_causes(cmd))
+                                             or (cmd.latched and self.stopped_for_cause))
         if for_cause and not self.stopped_for_cause:
             causes.append("stop")
         self.stopped_for_cause = for_cause

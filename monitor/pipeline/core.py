@@ -121,7 +121,7 @@ class Pipeline:
 
     @property
     def when(self) -> TimeText:
-        """Times in mute reasons (live: the wall clock)."""
+        """Times in mute reasons and the latch's reason (live: the wall clock)."""
         return self.mute_desk.when
 
     @when.setter
@@ -335,7 +335,7 @@ class Pipeline:
             if self.latch_nonces is not None else "")
 
     def _decide(self, inputs: PolicyInputs, now: float) -> Command:
-        self.state, command = step(self.state, inputs, now, self.policy)
+        self.state, command = step(self.state, inputs, now, self.policy, self.when)
         if self.zone_sets.in_force is not None:
             command = replace(command, zone_sets=self.zone_sets.in_force.sets)
         return command

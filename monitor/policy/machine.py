@@ -29,6 +29,7 @@ from monitor.policy.model import (
     ResetOutcome,
     ResetRequest,
 )
+from monitor.timetext import TimeText, seconds
 from monitor.types import Fault
 
 _STOP_PHASES = frozenset({STOP_ACTIVE, STOP_CLEARING, STOP_LATCHED})
@@ -133,9 +134,28 @@ def _clearing(seen: float, now: float, config: PolicyConfig) -> Reason:
     return Reason("clearing", f"causes absent for {now - seen:.3f} s of {config.clear_time} s")
 
 
+def latch_reason(latched_by: Latch, holding: bool, slow_causes: tuple[Reason, ...],
+                 when: TimeText) -> Reason:
+    """The latch as a reason. While a STOP cause holds, the causes before it say why (present
+    tense, with their zones) and this one says a reset waits. Once none holds it is the
+    command's only cause and says the latch's cause as a past event, at its time on the
+    operator's clock (``when``), with the latch's zone: every output reads its reason and zone
+    from the first reason
+    (OPC UA ``Reason``, the Modbus ``reason``/``zone`` registers, the console), so none shows a
+    person inside a cell that is clear. A person in a warning zone meanwhile is named (the
+    cell is not clear then, though a reset is possible)."""
+    if holding:
+        return Reason("latched", "STOP latched: waiting for an operator reset")
+    now_text = "cell clear" if not slow_causes else \
+        "no STOP cause now (" + "; ".join(r.text(when) for r in slow_causes) + ")"
+    return Reason("latched", f"latched by {latched_by.message} at {when(latched_by.at)}; "
+                  f"{now_text}, reset possible", zone_id=latched_by.zone_id)
+
+
 def step(state: PolicyState, inputs: PolicyInputs, now: float,
-         config: PolicyConfig) -> tuple[PolicyState, Command]:
-    """Advance the policy by one step at time ``now`` (seconds, monotonic)."""
+         config: PolicyConfig, when: TimeText = seconds) -> tuple[PolicyState, Command]:
+    """Advance the policy by one step at time ``now`` (seconds, monotonic). ``when`` writes a
+    time of that clock in the operator's clock (live: the wall clock) in reason texts."""
     if not math.isfinite(now):
         raise ValueError(f"policy.step: now={now!r} is not finite")
     has_frame = inputs.frame_time is not None
@@ -166,13 +186,16 @@ def step(state: PolicyState, inputs: PolicyInputs, now: float,
         STOP_ACTIVE: stop_causes,
         SLOW_ACTIVE: slow_causes,
         RUN_CLEAR: (),
+        # latched with no STOP cause: the causes before are history, said by the latch reason
+        STOP_LATCHED: (latch_reason(latched_by, False, slow_causes, when),)
+        if latched_by is not None else (),
     }.get(phase, state.hold_reasons)
     if phase in (STOP_CLEARING, STOP_LATCHED) and not stop_cleared:
         reasons += (_clearing(stop_seen, now, config),)
     elif phase == SLOW_CLEARING:
         reasons += (_clearing(slow_seen, now, config),)
-    if latched_by is not None:
-        reasons += (Reason("latched", "STOP latched: waiting for an operator reset"),)
+    if latched_by is not None and phase != STOP_LATCHED:
+        reasons += (latch_reason(latched_by, True, slow_causes, when),)
     reasons += inputs.mutes  # muted zones: said in every command while muted
 
     # (1.0 without a SLOW cause; a STOP's own entry would expire before STOP can be left)

@@ -51,7 +51,8 @@ class Reason:
     ``zone_invalid``, ``startup``. SLOW codes: ``warning_zone``, ``separation_speed``
     (v_max(separation) below the programmed speed). Notes: ``muted`` (a zone muted by an
     operator, in every command while it holds; docs/muting.md). Bookkeeping: ``clearing``
-    (cause gone, waiting ``clear_time``), ``latched`` (waiting for a reset), ``shutdown`` and
+    (cause gone, waiting ``clear_time``), ``latched`` (waiting for a reset; with no STOP cause
+    now the first reason, saying the latch's cause as past, with its zone), ``shutdown`` and
     ``stalled`` (added by the bus). ``person`` is the cell person's id when the person is
     tracked (``monitor.cell_persons``: a number, or "cam1:4" on an uncalibrated camera of
     several), else the row.

@@ -110,7 +110,7 @@ class FrameTruth:
     distractor_boxes_px: tuple[tuple[int, int, int, int], ...] = ()
 
 
-def _limb(canvas: np.ndarray, a: np.ndarray, b: np.ndarray, thickness: float,
+def limb(canvas: np.ndarray, a: np.ndarray, b: np.ndarray, thickness: float,
           colour: tuple[int, int, int]) -> None:
     t = max(2, round(thickness))
     cv2.line(canvas, _pt(a), _pt(b), colour, t, cv2.LINE_8)
@@ -135,17 +135,17 @@ def draw_figure(canvas: np.ndarray, fig: Figure) -> None:
         hip_s = hip + np.array([side * 0.05 * h, 0])
         ang = sgn * swing
         foot = hip_s + leg_len * np.array([math.sin(ang), math.cos(ang)])
-        _limb(canvas, hip_s, foot, 0.10 * h, c[1])
+        limb(canvas, hip_s, foot, 0.10 * h, c[1])
     for side, sgn in ((-1, -1), (1, 1)):
         sh = np.array([fx + side * 0.11 * h, shoulder_y])
         ang = sgn * swing * 0.8 + side * (0.15 + fig.arm_raise)
         hand = sh + arm_len * np.array([math.sin(ang), math.cos(ang)])
-        _limb(canvas, sh, hand, 0.075 * h, c[2])
+        limb(canvas, sh, hand, 0.075 * h, c[2])
     top = shoulder_y - 0.02 * h
     torso = np.array([[fx - 0.13 * h, top], [fx + 0.13 * h, top],
                       [fx + 0.10 * h, fy - 0.47 * h], [fx - 0.10 * h, fy - 0.47 * h]])
     cv2.fillConvexPoly(canvas, np.round(torso).astype(np.int32), c[0], cv2.LINE_8)
-    _limb(canvas, np.array([fx, shoulder_y - 0.02 * h]), np.array([fx, fy - 0.86 * h]),
+    limb(canvas, np.array([fx, shoulder_y - 0.02 * h]), np.array([fx, fy - 0.86 * h]),
           0.07 * h, c[0])  # neck
     head_r = max(2, round(0.065 * h))
     cv2.circle(canvas, (round(fx), round(fy - 0.93 * h)), head_r, c[3], -1, cv2.LINE_8)
@@ -158,7 +158,7 @@ def _figure_mask(shape: tuple[int, int], fig: Figure) -> np.ndarray:
     return mask > 0
 
 
-def _box_of(mask: np.ndarray) -> tuple[int, int, int, int] | None:
+def box_of(mask: np.ndarray) -> tuple[int, int, int, int] | None:
     ys = np.flatnonzero(mask.any(axis=1))
     if len(ys) == 0:
         return None
@@ -212,7 +212,7 @@ def draw_robot(img: np.ndarray, base_px: tuple[int, int], scale: float, angle: f
     cv2.circle(img, _pt(j3), max(2, int(12 * scale)), (60, 60, 60), -1)
 
 
-def _add_noise(img: np.ndarray, rng: np.random.Generator, sigma: float = 2.0) -> np.ndarray:
+def add_noise(img: np.ndarray, rng: np.random.Generator, sigma: float = 2.0) -> np.ndarray:
     """Sensor noise, generated at quarter resolution (cheap) and shared by the channels."""
     noise = rng.normal(0.0, sigma, size=(img.shape[0] // 4 + 1, img.shape[1] // 4 + 1))
     noise = cv2.resize(noise.astype(np.float32), (img.shape[1], img.shape[0]),
@@ -242,11 +242,11 @@ def _truth(visible: list[tuple[np.ndarray, Figure]], shape: tuple[int, int],
            floor: list[tuple[float, float] | None] | None = None) -> tuple[PersonTruth, ...]:
     out = []
     for k, (mask, fig) in enumerate(visible):
-        box = _box_of(mask)
+        box = box_of(mask)
         if box is None:
             continue
         full = _figure_mask(shape, fig)
-        full_box = _box_of(full) or box
+        full_box = box_of(full) or box
         total = max(1, int(full.sum()))
         out.append(PersonTruth(box, full_box, float(mask.sum()) / total,
                                floor[k] if floor else None))
@@ -321,12 +321,12 @@ def random_frames(n: int, seed: int = 0, size: tuple[int, int] = (1280, 720),
                 distractors.append((sx, sy, sx + sticker, sy + sticker))
                 break
         for mask, _fig in visible[len(persons):]:
-            box = _box_of(mask)
+            box = box_of(mask)
             if box:
                 distractors.append(box)
         truth = FrameTruth(index, 0.0, _truth(visible[:len(persons)], img.shape[:2]),
                            tuple(distractors))
-        yield _add_noise(img, rng), truth
+        yield add_noise(img, rng), truth
 
 
 
@@ -408,7 +408,7 @@ class DemoScene:
             img, visible = _compose(img, figures, [])
             floor = [self.position_at(t)] if fig else []
             truth = FrameTruth(index, t, _truth(visible, img.shape[:2], floor))
-            yield _add_noise(img, rng), truth
+            yield add_noise(img, rng), truth
 
 
 def write_video(path: str | Path, frames: Iterator[tuple[np.ndarray, FrameTruth]],

@@ -31,11 +31,11 @@ from monitor.scene import (
     WORKWEAR_BGR,
     Camera,
     Figure,
-    _add_noise,
-    _box_of,
-    _limb,
+    add_noise,
+    box_of,
     draw_figure,
     draw_robot,
+    limb,
     path_position,
     render_background,
 )
@@ -164,7 +164,7 @@ class CellScene:
         for index in range(self.n_frames):
             t = index / self.fps
             img, truth = self.render(static, index, t)
-            yield (_add_noise(img, rng) if self.noise else img), truth
+            yield (add_noise(img, rng) if self.noise else img), truth
 
     def render(self, static: np.ndarray, index: int, t: float
                ) -> tuple[np.ndarray, CellFrameTruth]:
@@ -217,9 +217,9 @@ class CellScene:
                 mask = np.zeros(shape, np.uint8)
                 draw_posed(mask, fig, w.posture, colours=((255,),) * 4)
                 whole = mask > 0
-                full = _box_of(whole)
+                full = box_of(whole)
                 vis = owner == k
-                box = _box_of(vis)
+                box = box_of(vis)
                 frac = float(vis.sum()) / max(1, int(whole.sum()))
             persons.append(PersonState(k, (float(x), float(y)), w.figure_height_m, w.posture,
                                        frac, box, full))
@@ -302,18 +302,18 @@ def draw_posed(canvas: np.ndarray, fig: Figure, posture: str = "standing",
         else:  # kneeling: thighs down to the knee on the floor, shins back
             knee = np.array([fx + side * 0.06 * full, fy - 0.04 * full])
             foot = np.array([fx + side * 0.06 * full + 0.2 * full, fy - 0.03 * full])
-        _limb(canvas, hip, knee, 0.10 * full, c[1])
-        _limb(canvas, knee, foot, 0.09 * full, c[1])
+        limb(canvas, hip, knee, 0.10 * full, c[1])
+        limb(canvas, knee, foot, 0.09 * full, c[1])
     for side in (-1, 1):
         sh = np.array([fx + side * 0.11 * full, shoulder_y])
         hand = sh + 0.36 * full * np.array([math.sin(side * 0.5), math.cos(side * 0.5)])
-        _limb(canvas, sh, hand, 0.075 * full, c[2])
+        limb(canvas, sh, hand, 0.075 * full, c[2])
     top = shoulder_y - 0.02 * full
     torso = np.array([[fx - 0.13 * full, top], [fx + 0.13 * full, top],
                       [fx + 0.10 * full, hip_y + 0.03 * full],
                       [fx - 0.10 * full, hip_y + 0.03 * full]])
     cv2.fillConvexPoly(canvas, np.round(torso).astype(np.int32), c[0], cv2.LINE_8)
-    _limb(canvas, np.array([fx, shoulder_y - 0.02 * full]),
+    limb(canvas, np.array([fx, shoulder_y - 0.02 * full]),
           np.array([fx, shoulder_y - 0.06 * full]), 0.07 * full, c[0])
     head_r = max(2, round(0.065 * full))
     cv2.circle(canvas, (round(fx), round(shoulder_y - 0.13 * full)), head_r, c[3], -1,

@@ -26,10 +26,10 @@ naming the file, the zone and the fault.
 """
 
 from monitor.zones.check import check_persons, merge_towards_danger, volume_distances
-from monitor.zones.draw import _volume_region_px, draw_zones, volume_outline_m, watch_regions
+from monitor.zones.draw import draw_zones, volume_outline_m, volume_region_px, watch_regions
 from monitor.zones.files import (
     Cell,
-    _Dumper,
+    ZoneDumper,
     cell_faults,
     cell_to_data,
     config_hash,
@@ -42,7 +42,7 @@ from monitor.zones.files import (
     save_cell,
     write_cell_data,
 )
-from monitor.zones.prepare import PreparedCell, _prepare_volume, prepare_cell, tool_object
+from monitor.zones.prepare import PreparedCell, prepare_cell, tool_object
 from monitor.zones.schema import (
     ANCHORS,
     KINDS,
@@ -65,14 +65,15 @@ from monitor.zones.schema import (
     ToolOffset,
     ToolSphere,
 )
+from monitor.zones.volumes import prepare_volume
 
 __all__ = [
     "ANCHORS", "KINDS", "SCHEMA_VERSION", "VOLUME_SHAPES", "BoxZone", "CameraSpec", "Cell",
     "CellSpec", "CylinderZone", "ExtrudeZone", "HomographyCalibration", "MeshZone", "PersonSpec",
     "PinholeCalibration", "PolygonZone", "PreparedCell", "SeparationSpec", "ToolBox",
-    "ToolCylinder", "ToolMesh", "ToolOffset", "ToolSphere", "_Dumper", "_prepare_volume",
-    "_volume_region_px", "cell_faults", "cell_to_data", "check_persons", "config_hash",
-    "draw_zones", "dump_cell_document", "dump_cell_yaml", "load_cell", "merge_towards_danger",
-    "parse_cell", "prepare_cell", "read_cell_data", "read_cell_document", "save_cell",
-    "tool_object", "volume_distances", "volume_outline_m", "watch_regions", "write_cell_data",
+    "ToolCylinder", "ToolMesh", "ToolOffset", "ToolSphere", "ZoneDumper", "cell_faults",
+    "cell_to_data", "check_persons", "config_hash", "draw_zones", "dump_cell_document",
+    "dump_cell_yaml", "load_cell", "merge_towards_danger", "parse_cell", "prepare_cell",
+    "prepare_volume", "read_cell_data", "read_cell_document", "save_cell", "tool_object",
+    "volume_distances", "volume_outline_m", "volume_region_px", "watch_regions", "write_cell_data"
 ]

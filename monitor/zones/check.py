@@ -15,8 +15,10 @@ from monitor.errors import ConfigError, InputError
 from monitor.types import ZoneHit, ZoneReport
 from monitor.zones.files import Cell
 from monitor.zones.moving import ToolState
-from monitor.zones.prepare import PreparedCell, _Volume, tool_object
+from monitor.zones.moving_check import moving_hits
+from monitor.zones.prepare import PreparedCell, tool_object
 from monitor.zones.separation import evaluate_separation, pose_in_cell
+from monitor.zones.volumes import overlaps, stand_span, swept_person
 
 # --------------------------------------------------------------------------------------------
 # The per-frame query
@@ -122,7 +124,6 @@ def _worse(new: ZoneHit, old: ZoneHit) -> bool:
 
 
 # read-only request settings shared by every query (FCL copies them per call)
-_REQ = fcl.CollisionRequest()
 _DREQ = fcl.DistanceRequest()
 
 
@@ -158,8 +159,6 @@ def _check(prep: PreparedCell, camera_id: str, boxes_px: np.ndarray,
     if place is not None and prep.volumes:
         hits.extend(_volume_hits(prep, place))
     if place is not None and prep.moving:  # zones that follow the tool (monitor/zones/moving.py)
-        from monitor.zones.moving_check import moving_hits  # it uses this module: late
-
         hits.extend(moving_hits(prep, place, tool_state))
 
     def measure() -> float | None:
@@ -203,7 +202,7 @@ def _volume_hits(prep: PreparedCell, place: occ.Placement) -> list[ZoneHit]:
     out: list[ZoneHit] = []
     lo_xy = np.minimum(place.near_m, place.far_m)
     hi_xy = np.maximum(place.near_m, place.far_m)
-    z0, z1 = _stand_span(place, h)
+    z0, z1 = stand_span(place, h)
     near = _aabb_all(prep, lo_xy, hi_xy, r, z0, z1) & place.located[:, None] & prep.volume_alert
     shapes: dict[int, list[fcl.CollisionObject]] = {}
     ks, rows = np.nonzero(near.T)
@@ -211,9 +210,9 @@ def _volume_hits(prep: PreparedCell, place: occ.Placement) -> list[ZoneHit]:
         v = prep.volumes[k]
         objs = shapes.get(i)
         if objs is None:
-            objs = shapes[i] = _swept_person(prep, place.near_m[i], place.far_m[i],
+            objs = shapes[i] = swept_person(prep, place.near_m[i], place.far_m[i],
                                              float(z0[i]), float(z1[i]))
-        if _overlaps(objs, v, place.near_m[i], place.far_m[i], r, float(z1[i] - z0[i]),
+        if overlaps(objs, v, place.near_m[i], place.far_m[i], r, float(z1[i] - z0[i]),
                      float(z0[i])):
             out.append(ZoneHit(v.id, v.kind, i, v.speed_scale, 0.0))
     lost = np.flatnonzero(~place.located)
@@ -221,38 +220,6 @@ def _volume_hits(prep: PreparedCell, place: occ.Placement) -> list[ZoneHit]:
     out.extend(ZoneHit(v.id, v.kind, int(i), v.speed_scale, None)
                for v in prep.volumes if v.kind in ("protective", "warning") for i in lost)
     return out
-
-
-def _stand_span(place: occ.Placement, height_m: float) -> tuple[np.ndarray, np.ndarray]:
-    """(N,) lowest foot and highest head of each person over every surface their range may
-    put them on (the cell floor, declared floor regions)."""
-    n = len(place.located)
-    lo = place.stand_lo_m if place.stand_lo_m is not None else np.zeros(n)
-    hi = place.stand_hi_m if place.stand_hi_m is not None else np.zeros(n)
-    return np.minimum(lo, 0.0), np.maximum(hi, 0.0) + height_m
-
-
-def _swept_person(prep: PreparedCell, a: np.ndarray, b: np.ndarray, z0: float = 0.0,
-                  z1: float | None = None) -> list[fcl.CollisionObject]:
-    """The zone cylinder swept from floor point ``a`` to ``b``: one cylinder, or a box between
-    two end cylinders (exactly the swept volume); from ``z0`` to ``z1`` (the person height
-    over the floor by default; taller over floor regions)."""
-    r, h = prep.person.zone_radius_m, prep.person.height_m
-    span = h if z1 is None else z1 - z0
-    cyl = prep.zone_cylinder if z0 == 0.0 and span == h else fcl.Cylinder(r, span)
-    zc = z0 + span / 2
-    d = b - a
-    length = float(np.hypot(*d))
-    ends = [np.array((a[0], a[1], zc))]
-    if length < 1e-4:
-        return [fcl.CollisionObject(cyl, fcl.Transform(ends[0]))]
-    ends.append(np.array((b[0], b[1], zc)))
-    c, s = d[0] / length, d[1] / length  # turn the box's x axis onto the segment
-    rot = np.array(((c, -s, 0.0), (s, c, 0.0), (0.0, 0.0, 1.0)))
-    mid = np.array(((a[0] + b[0]) / 2, (a[1] + b[1]) / 2, zc))
-    objs = [fcl.CollisionObject(fcl.Box(length, 2 * r, span), fcl.Transform(rot, mid))]
-    objs += [fcl.CollisionObject(cyl, fcl.Transform(e)) for e in ends]
-    return objs
 
 
 def _sample_ranges(prep: PreparedCell, place: occ.Placement, step_m: float = 0.1
@@ -263,7 +230,7 @@ def _sample_ranges(prep: PreparedCell, place: occ.Placement, step_m: float = 0.1
     possible surfaces: the cylinder then spans all of them)."""
     centres, located, tall = [], [], []
     ranged = False
-    z0, z1 = _stand_span(place, prep.person.height_m)
+    z0, z1 = stand_span(place, prep.person.height_m)
     for i in range(len(place.located)):
         a, b = place.near_m[i], place.far_m[i]
         length = float(np.hypot(*(b - a))) if place.located[i] else 0.0
@@ -333,7 +300,7 @@ def volume_distances(cell: Cell | PreparedCell, camera_id: str, boxes_px: np.nda
         centre = np.array([floor[i, 0], floor[i, 1], h / 2])
         obj = fcl.CollisionObject(prep.zone_cylinder, fcl.Transform(centre))
         for k, v in enumerate(vols):
-            if _overlaps([obj], v, floor[i], floor[i], r, h):
+            if overlaps([obj], v, floor[i], floor[i], r, h):
                 out[i, k] = 0.0
             else:
                 out[i, k] = min(float(fcl.distance(obj, p, _DREQ, fcl.DistanceResult()))
@@ -354,24 +321,3 @@ def _aabb_all(prep: PreparedCell, lo_xy: np.ndarray, hi_xy: np.ndarray, r: float
             & (z1[:, None] >= lo[..., 2]) & (hi[..., 2] >= z0[:, None]))
 
 
-def _overlaps(objs: list[fcl.CollisionObject], v: _Volume, a: np.ndarray, b: np.ndarray,
-              r: float, h: float, z0: float = 0.0) -> bool:
-    for obj in objs:
-        for part in v.parts:
-            if fcl.collide(obj, part, _REQ, fcl.CollisionResult()):
-                return True
-    if v.mesh is None:
-        return False
-    # FCL tests mesh surfaces only: with no surface contact the swept cylinder is wholly
-    # inside or wholly outside the closed mesh (or the mesh is inside the swept cylinder)
-    if geo.points_in_mesh(np.r_[a, z0 + h / 2][None], *v.mesh)[0]:
-        return True
-    p = v.mesh[0][0]
-    return bool(_point_segment_distance(p[:2], a, b) <= r and z0 <= p[2] <= z0 + h)
-
-
-def _point_segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
-    d = b - a
-    den = float(d @ d)
-    t = 0.0 if den == 0 else min(max(float((p - a) @ d) / den, 0.0), 1.0)
-    return float(np.hypot(*(a + t * d - p)))

@@ -23,6 +23,7 @@ from monitor.zones.schema import (
     MeshZone,
     PolygonZone,
 )
+from monitor.zones.volumes import box_corners
 
 # --------------------------------------------------------------------------------------------
 # Outlines in an image: watch regions and drawing
@@ -39,7 +40,7 @@ def volume_outline_m(z: Any, cell: Cell, segments: int = 32) -> list[np.ndarray]
                          z.center_m[1] + z.radius_m * np.sin(a)]
         return _prism_lines(base, z.z_min_m, z.z_max_m, vertical=isinstance(z, ExtrudeZone))
     if isinstance(z, BoxZone):
-        c = _box_corners(z)
+        c = box_corners(z)
         return _prism_lines(c[:4, :2], z.min_m[2], z.max_m[2])
     verts, faces = cell.meshes[z.id]
     edges = np.unique(np.sort(np.r_[faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]],
@@ -58,17 +59,6 @@ def _prism_lines(base: np.ndarray, z0: float, z1: float, vertical: bool = True
     step = 1 if vertical else max(1, len(base) // 4)
     lines += [np.array([[x, y, z0], [x, y, z1]]) for x, y in base[::step]]
     return lines
-
-
-def _box_corners(z: BoxZone) -> np.ndarray:
-    lo, hi = np.array(z.min_m), np.array(z.max_m)
-    c = (lo + hi) / 2
-    half = (hi - lo) / 2
-    sx, sy = half[0], half[1]
-    base = np.array([[-sx, -sy], [sx, -sy], [sx, sy], [-sx, sy]])
-    rot = geo.rpy_to_matrix(0, 0, z.yaw_deg)[:2, :2]
-    xy = base @ rot.T + c[:2]
-    return np.r_[np.c_[xy, np.full(4, lo[2])], np.c_[xy, np.full(4, hi[2])]]
 
 
 def _project_lines(model: geo.CameraModel, lines: list[np.ndarray], samples: int = 24
@@ -93,7 +83,7 @@ def _project_lines(model: geo.CameraModel, lines: list[np.ndarray], samples: int
     return out
 
 
-def _volume_region_px(z: Any, cell: Cell, model: geo.CameraModel, cam: CameraSpec
+def volume_region_px(z: Any, cell: Cell, model: geo.CameraModel, cam: CameraSpec
                       ) -> np.ndarray | None:
     """Image outline (convex hull) of a volume zone, clipped to the image; None if unseen."""
     lines = _project_lines(model, volume_outline_m(z, cell), samples=8)
@@ -126,7 +116,7 @@ def watch_regions(cell: Cell, camera_id: str) -> list[tuple[str, np.ndarray]]:
             if z.camera == camera_id:
                 out.append((z.id, np.array(z.points_px, dtype=np.float32)))
         elif model is not None:
-            region = _volume_region_px(z, cell, model, cam)
+            region = volume_region_px(z, cell, model, cam)
             if region is not None:
                 out.append((z.id, region.astype(np.float32)))
     return out

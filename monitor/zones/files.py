@@ -16,7 +16,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import yaml
@@ -25,11 +25,9 @@ from pydantic import ValidationError
 from monitor import geometry as geo
 from monitor.errors import ConfigError
 from monitor.zones.layout import Indent, guess_indent
+from monitor.zones.prepare import PreparedCell, prepare_cell
 from monitor.zones.schema import CameraSpec, CellSpec
-from monitor.zones.validate import _check_spec, _pydantic_message, useful_errors
-
-if TYPE_CHECKING:
-    from monitor.zones.prepare import PreparedCell
+from monitor.zones.validate import check_spec, pydantic_message, useful_errors
 
 # --------------------------------------------------------------------------------------------
 # The validated cell
@@ -72,8 +70,6 @@ class Cell:
     @cached_property
     def prepared(self) -> PreparedCell:
         """Geometry built once for the per-frame queries (cached on this object)."""
-        from monitor.zones.prepare import prepare_cell  # prepare needs Cell: import late
-
         return prepare_cell(self)
 
 
@@ -252,10 +248,10 @@ def parse_cell(data: Any, path: str | os.PathLike | None = None) -> Cell:
     try:
         spec = CellSpec.model_validate(_as_tuples(data))
     except ValidationError as exc:
-        raise ConfigError(f"{label}: {_pydantic_message(exc, data, 0, useful_errors(exc, data))}"
+        raise ConfigError(f"{label}: {pydantic_message(exc, data, 0, useful_errors(exc, data))}"
                           ) from None
     base = Path(path).parent if path is not None else Path.cwd()
-    errors, warnings, models, meshes = _check_spec(spec, base)
+    errors, warnings, models, meshes = check_spec(spec, base)
     if errors:
         more = ""
         if len(errors) > 1:
@@ -281,9 +277,9 @@ def cell_faults(data: Any, path: str | os.PathLike | None = None) -> tuple[list[
         spec = CellSpec.model_validate(_as_tuples(data))
     except ValidationError as exc:
         errs = useful_errors(exc, data)
-        return [_pydantic_message(exc, data, index=k, errors=errs) for k in range(len(errs))], []
+        return [pydantic_message(exc, data, index=k, errors=errs) for k in range(len(errs))], []
     base = Path(path).parent if path is not None else Path.cwd()
-    errors, warnings, _, _ = _check_spec(spec, base)
+    errors, warnings, _, _ = check_spec(spec, base)
     return errors, warnings
 
 
@@ -307,7 +303,7 @@ def cell_to_data(cell_or_spec: Cell | CellSpec) -> dict:
     return data
 
 
-class _Dumper(yaml.SafeDumper):
+class ZoneDumper(yaml.SafeDumper):
     """Lists of numbers in flow style ([x, y]) so that polygons stay readable."""
 
 
@@ -316,13 +312,13 @@ def _represent_list(dumper: yaml.SafeDumper, data: list) -> yaml.Node:
     return dumper.represent_sequence("tag:yaml.org,2002:seq", data, flow_style=flow)
 
 
-_Dumper.add_representer(list, _represent_list)
+ZoneDumper.add_representer(list, _represent_list)
 
 
 def dump_cell_yaml(cell_or_spec: Cell | CellSpec) -> str:
     header = ("# workcell-monitor zone file (format: zones/README.md). Written by "
               "'monitor zones new'.\n")
-    body = yaml.dump(cell_to_data(cell_or_spec), Dumper=_Dumper, sort_keys=False,
+    body = yaml.dump(cell_to_data(cell_or_spec), Dumper=ZoneDumper, sort_keys=False,
                      allow_unicode=True, width=100)
     return header + body
 

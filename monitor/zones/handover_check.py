@@ -1,11 +1,10 @@
 """`monitor zones validate --config monitor.toml`: what the zone file means for the hand-over
 the config asks for. A person seen only by a camera without a calibration has no floor point,
 so with ``[handover] peers`` that camera hands nobody over (docs/consumer.md); today's one
-other place that says so is the log of ``monitor run``."""
+other place that says so is the log of ``monitor run``. The caller loads the config: the
+zones layer never imports monitor.config (which sits above every stage)."""
 
 from __future__ import annotations
-
-from pathlib import Path
 
 from monitor.zones.files import Cell
 
@@ -21,11 +20,3 @@ def uncalibrated_handover_lines(cell: Cell, camera_ids: tuple[str, ...],
             f"({', '.join(sorted(peers))}) its persons have no floor point and are never "
             f"handed over" for cam in cameras if cam not in cell.camera_models]
 
-
-def config_lines(cell: Cell, config_path: Path) -> list[str]:
-    """The hand-over warnings of ``config_path`` for ``cell`` (a bad config: ConfigError)."""
-    from monitor.config import load_config
-
-    config = load_config(config_path)
-    return uncalibrated_handover_lines(cell, tuple(c.id for c in config.cameras),
-                                       tuple(config.handover.peers))

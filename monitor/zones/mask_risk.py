@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from monitor.zones.files import Cell
-from monitor.zones.masks import ALERT_KINDS, _grow, _raster, zone_regions_px
+from monitor.zones.masks import ALERT_KINDS, grow_mask, raster, zone_regions_px
 
 LEVELS = ("hides", "unknown", "fits", "larger", "smaller")
 RISKY = frozenset({"hides", "unknown"})
@@ -165,9 +165,9 @@ def mask_risks(cell: Cell, box_error_px: float | None = None) -> list[MaskRisk]:
                 else:
                     level = "smaller"
             reach = pw[1] if pw is not None else cam.width / 10
-            region = _grow(_raster([poly], cam.width, cam.height), max(reach, err))
+            region = grow_mask(raster([poly], cam.width, cam.height), max(reach, err))
             near = [(az.kind, az.id) for az, apoly in alerts
-                    if (region & _raster([apoly], cam.width, cam.height)).any()]
+                    if (region & raster([apoly], cam.width, cam.height)).any()]
             near.sort(key=lambda k: ALERT_KINDS.index(k[0]))
             out.append(MaskRisk(mz.id, camera_id, level, (ew, eh), err, (lo_m, hi_m), pw, ph,
                                 tuple(dict.fromkeys(near))))

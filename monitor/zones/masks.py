@@ -35,7 +35,7 @@ import cv2
 import numpy as np
 
 from monitor.boxes import connected_groups, gap_matrix
-from monitor.zones.draw import _volume_region_px
+from monitor.zones.draw import volume_region_px
 from monitor.zones.files import Cell
 from monitor.zones.schema import PolygonZone
 
@@ -58,20 +58,20 @@ def zone_regions_px(cell: Cell, camera_id: str, kinds: tuple[str, ...]
             if z.camera == camera_id:
                 out.append((z, np.array(z.points_px, np.float32)))
         elif model is not None:
-            region = _volume_region_px(z, cell, model, cam)
+            region = volume_region_px(z, cell, model, cam)
             if region is not None:
                 out.append((z, np.asarray(region, np.float32)))
     return out
 
 
-def _raster(polygons: list[np.ndarray], width: int, height: int) -> np.ndarray:
+def raster(polygons: list[np.ndarray], width: int, height: int) -> np.ndarray:
     img = np.zeros((height, width), np.uint8)
     for p in polygons:
         cv2.fillPoly(img, [np.round(p).astype(np.int32).reshape(-1, 1, 2)], 1)
     return img
 
 
-def _grow(img: np.ndarray, margin_px: float) -> np.ndarray:
+def grow_mask(img: np.ndarray, margin_px: float) -> np.ndarray:
     r = int(np.ceil(max(margin_px, 0.0)))
     if r == 0:
         return img
@@ -110,7 +110,7 @@ class MaskRule:
         self.ids = tuple(ids) if ids is not None else tuple(
             f"mask{i}" for i in range(len(self.polygons)))
         self.active = bool(self.polygons)
-        self._sums = [cv2.integral(_grow(_raster([p], self.width, self.height), self.margin_px),
+        self._sums = [cv2.integral(grow_mask(raster([p], self.width, self.height), self.margin_px),
                                    sdepth=cv2.CV_64F) for p in self.polygons]
         limits = np.array([self.width, self.height, self.width, self.height], np.float64)
         self.extents = np.array(

@@ -15,14 +15,22 @@ from monitor import geometry as geo
 from monitor import occlusion as occ
 from monitor.geometry.shapes import prism_geometries
 from monitor.types import ZoneHit
-from monitor.zones.check import _overlaps, _stand_span, _swept_person
 from monitor.zones.moving import ToolState, cell_from_zone, growth_m, max_zone, transform_points
-from monitor.zones.prepare import PreparedCell, _prepare_volume, _scale, _Volume, occluder_corners_m
 from monitor.zones.schema import BoxZone, CylinderZone, ExtrudeZone
-from monitor.zones.separation import FCL_DISTANCE_MARGIN_M
+from monitor.zones.volumes import (
+    FCL_DISTANCE_MARGIN_M,
+    Volume,
+    occluder_corners_m,
+    overlaps,
+    prepare_volume,
+    stand_span,
+    swept_person,
+    zone_scale,
+)
 
 if TYPE_CHECKING:
     from monitor.zones.files import Cell
+    from monitor.zones.prepare import PreparedCell
 
 _DREQ = fcl.DistanceRequest()
 
@@ -37,7 +45,7 @@ class MovingZone:
     parts: tuple[tuple[fcl.CollisionGeometry, np.ndarray], ...]
     hull: np.ndarray  # (M, 3), zone frame
     mesh: tuple[np.ndarray, np.ndarray] | None
-    maximum: _Volume
+    maximum: Volume
 
     @property
     def id(self) -> str:
@@ -70,11 +78,11 @@ def prepare_moving(cell: Cell) -> tuple[MovingZone, ...]:
             model.endModel()
             parts = [(model, np.eye(4))]
         out.append(MovingZone(z, tuple(parts), occluder_corners_m(z, cell), mesh,
-                              _prepare_volume(max_zone(z), cell)))
+                              prepare_volume(max_zone(z), cell)))
     return tuple(out)
 
 
-def place_zone(mz: MovingZone, m: np.ndarray) -> _Volume:
+def place_zone(mz: MovingZone, m: np.ndarray) -> Volume:
     """The zone at cell-from-zone transform ``m`` as a cell-frame volume."""
     objs = []
     for geom, local in mz.parts:
@@ -83,11 +91,11 @@ def place_zone(mz: MovingZone, m: np.ndarray) -> _Volume:
     pts = transform_points(m, mz.hull)
     mesh = None if mz.mesh is None else (transform_points(m, mz.mesh[0]), mz.mesh[1])
     z = mz.zone
-    return _Volume(z.id, z.kind, _scale(z), tuple(objs), pts.min(axis=0), pts.max(axis=0), mesh)
+    return Volume(z.id, z.kind, zone_scale(z), tuple(objs), pts.min(axis=0), pts.max(axis=0), mesh)
 
 
 def placed_zones(prep: PreparedCell, tool: ToolState | None
-                 ) -> list[tuple[_Volume, float, bool]]:
+                 ) -> list[tuple[Volume, float, bool]]:
     """Each following zone as it stands this step: (volume, growth m, at maximum size). A
     fresh pose places it (grown with the speed); otherwise it is its maximum volume."""
     out = []
@@ -111,7 +119,7 @@ def moving_hits(prep: PreparedCell, place: occ.Placement, tool: ToolState | None
     if not zones:
         return []
     r = prep.person.zone_radius_m
-    z0, z1 = _stand_span(place, prep.person.height_m)
+    z0, z1 = stand_span(place, prep.person.height_m)
     lo_xy = np.minimum(place.near_m, place.far_m)
     hi_xy = np.maximum(place.near_m, place.far_m)
     out: list[ZoneHit] = []
@@ -126,15 +134,15 @@ def moving_hits(prep: PreparedCell, place: occ.Placement, tool: ToolState | None
                     or z1[i] < lo[2] or hi[2] < z0[i]:
                 continue
             if objs is None:
-                objs = _swept_person(prep, place.near_m[i], place.far_m[i], float(z0[i]),
+                objs = swept_person(prep, place.near_m[i], place.far_m[i], float(z0[i]),
                                      float(z1[i]))
-            if _overlaps(objs, v, place.near_m[i], place.far_m[i], r, float(z1[i] - z0[i]),
+            if overlaps(objs, v, place.near_m[i], place.far_m[i], r, float(z1[i] - z0[i]),
                          float(z0[i])) or (grow > 0 and _within(objs, v, grow)):
                 out.append(ZoneHit(v.id, v.kind, i, v.speed_scale, 0.0))
     return out
 
 
-def _within(objs: list[fcl.CollisionObject], v: _Volume, grow: float) -> bool:
+def _within(objs: list[fcl.CollisionObject], v: Volume, grow: float) -> bool:
     """Some part of the person is at most ``grow`` from the volume (FCL's distance, taken
     as over-reporting by up to FCL_DISTANCE_MARGIN_M)."""
     for obj in objs:

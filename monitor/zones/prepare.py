@@ -20,21 +20,18 @@ from monitor.occlusion import (
     occluder_outline_px,
     segments_hit_polygons,
 )
-from monitor.types import ZoneReport
-from monitor.zones.draw import _box_corners
-
-if TYPE_CHECKING:
-    from monitor.zones.files import Cell
+from monitor.zones.moving_check import prepare_moving
 from monitor.zones.schema import (
-    BoxZone,
     CameraSpec,
-    CylinderZone,
-    ExtrudeZone,
     PolygonZone,
     ToolBox,
     ToolCylinder,
     ToolSphere,
 )
+from monitor.zones.volumes import Volume, occluder_corners_m, prepare_volume, zone_scale
+
+if TYPE_CHECKING:
+    from monitor.zones.files import Cell
 
 # --------------------------------------------------------------------------------------------
 # Prepared geometry for the per-frame query
@@ -97,17 +94,6 @@ class _ImageZones:
 
 
 @dataclass(frozen=True, eq=False)
-class _Volume:
-    id: str
-    kind: str
-    speed_scale: float
-    parts: tuple[fcl.CollisionObject, ...]
-    lo: np.ndarray  # axis-aligned bounds, metres
-    hi: np.ndarray
-    mesh: tuple[np.ndarray, np.ndarray] | None  # closed mesh: containment needs a ray test
-
-
-@dataclass(frozen=True, eq=False)
 class _Tool:
     geometry: fcl.CollisionGeometry
     local: np.ndarray  # 4x4 geometry placement in the tool frame
@@ -123,7 +109,7 @@ class PreparedCell:
 
     cell: Cell
     image_zones: Mapping[str, _ImageZones]
-    volumes: tuple[_Volume, ...]
+    volumes: tuple[Volume, ...]
     volume_lo: np.ndarray  # (V, 3)
     volume_hi: np.ndarray
     volume_alert: np.ndarray  # (V,) bool: protective or warning (not mask)
@@ -133,7 +119,7 @@ class PreparedCell:
     zone_cylinder: fcl.Cylinder  # person widened by Z_d, for zone checks
     body_cylinder: fcl.Cylinder  # nominal person, for the tool distance
     axis_cylinder: fcl.Cylinder  # 1 mm person axis, for mask volumes
-    occluders: tuple[_Volume, ...] = ()  # fixtures that can hide a person
+    occluders: tuple[Volume, ...] = ()  # fixtures that can hide a person
     # per camera: image outlines (convex hulls, raw pixels) of the occluders it sees
     occluder_outlines: Mapping[str, tuple[np.ndarray, ...]] = field(default_factory=dict)
     height_range_m: tuple[float, float] = (1.0, 2.0)
@@ -142,28 +128,20 @@ class PreparedCell:
     floors: tuple[FloorRegion, ...] = ()  # raised or sunken floor regions (platforms, pits)
     moving: tuple[Any, ...] = ()  # zones that follow the tool (moving_check.MovingZone)
 
-    def check(self, camera_id: str, boxes_px: np.ndarray, tool_pose: geo.ToolPose | None = None,
-              tool_speed_mps: float | None = None, tool_state: Any = None) -> ZoneReport:
-        from monitor.zones.check import _check  # check needs PreparedCell: import late
-
-        return _check(self, camera_id, boxes_px, tool_pose, tool_speed_mps,
-                      tool_state=tool_state)
-
 
 def prepare_cell(cell: Cell) -> PreparedCell:
     """Build the per-frame geometry of a cell (use ``cell.prepared`` to build it once)."""
-    from monitor.zones.moving_check import prepare_moving  # it needs this module: late
     image: dict[str, _ImageZones] = {}
     for cam_id, cam in cell.cameras.items():
         zs = [z for z in cell.zones if isinstance(z, PolygonZone) and z.enabled
               and z.camera == cam_id and z.kind != "watch"]
         if zs:
             image[cam_id] = _prepare_image_zones(zs, cam)
-    volumes = tuple(_prepare_volume(z, cell) for z in cell.zones
+    volumes = tuple(prepare_volume(z, cell) for z in cell.zones
                     if z.is_volume and z.enabled and z.kind not in ("watch", "occluder")
                     and getattr(z, "follow", None) is None)  # following zones: moving_check
     occ_zones = cell.spec.occluder_zones()  # the declared ones and the robot base, always
-    occluders = tuple(_prepare_volume(z, cell) for z in occ_zones)
+    occluders = tuple(prepare_volume(z, cell) for z in occ_zones)
     floors = tuple(FloorRegion.of(f.id, f.points_m, f.height_m) for f in cell.spec.floors)
     outlines: dict[str, tuple[np.ndarray, ...]] = {}
     for cam_id, model in cell.camera_models.items():
@@ -207,24 +185,6 @@ def floor_corners_m(region: FloorRegion) -> np.ndarray:
     return np.r_[np.c_[p, np.zeros(len(p))], np.c_[p, np.full(len(p), region.height_m)]]
 
 
-def occluder_corners_m(z: Any, cell: Cell, segments: int = 24) -> np.ndarray:
-    """Points (M, 3) whose convex hull contains a volume (corners; a cylinder's rims)."""
-    if isinstance(z, ExtrudeZone):
-        base = np.array(z.points_m, dtype=float)
-        return np.r_[np.c_[base, np.full(len(base), z.z_min_m)],
-                     np.c_[base, np.full(len(base), z.z_max_m)]]
-    if isinstance(z, BoxZone):
-        return _box_corners(z)
-    if isinstance(z, CylinderZone):
-        a = np.linspace(0, 2 * np.pi, segments, endpoint=False)
-        # the polygon's corners lie outside the circle, so the hull contains it
-        r = z.radius_m / np.cos(np.pi / segments)
-        ring = np.c_[z.center_m[0] + r * np.cos(a), z.center_m[1] + r * np.sin(a)]
-        return np.r_[np.c_[ring, np.full(segments, z.z_min_m)],
-                     np.c_[ring, np.full(segments, z.z_max_m)]]
-    return np.asarray(cell.meshes[z.id][0], dtype=float)
-
-
 def _prepare_image_zones(zs: list[PolygonZone], cam: CameraSpec) -> _ImageZones:
     point = [k for k, z in enumerate(zs) if z.anchor in ("bottom-centre", "centre")]
     area = [k for k, z in enumerate(zs) if z.anchor in ("any-overlap", "share")]
@@ -239,7 +199,7 @@ def _prepare_image_zones(zs: list[PolygonZone], cam: CameraSpec) -> _ImageZones:
     return _ImageZones(
         ids=tuple(z.id for z in zs),
         kinds=tuple(z.kind for z in zs),
-        scales=tuple(_scale(z) for z in zs),
+        scales=tuple(zone_scale(z) for z in zs),
         anchors=tuple(z.anchor for z in zs),
         point_cols=np.array(point, dtype=np.intp),
         point_edges=geo._PolygonEdges.build([np.array(zs[k].points_px) for k in point]),
@@ -253,34 +213,6 @@ def _prepare_image_zones(zs: list[PolygonZone], cam: CameraSpec) -> _ImageZones:
         width=cam.width,
         height=cam.height,
     )
-
-
-def _scale(z: Any) -> float:
-    return float(z.speed_scale) if z.kind == "warning" and z.speed_scale is not None else 0.0
-
-
-def _prepare_volume(z: Any, cell: Cell) -> _Volume:
-    mesh = None
-    if isinstance(z, ExtrudeZone):
-        pts = np.array(z.points_m, dtype=float)
-        parts = geo.fcl_prism_parts(pts, z.z_min_m, z.z_max_m)
-        lo = np.r_[pts.min(axis=0), z.z_min_m]
-        hi = np.r_[pts.max(axis=0), z.z_max_m]
-    elif isinstance(z, BoxZone):
-        parts = [geo.fcl_box(z.min_m, z.max_m, z.yaw_deg)]
-        corners = _box_corners(z)
-        lo, hi = corners.min(axis=0), corners.max(axis=0)
-    elif isinstance(z, CylinderZone):
-        parts = [geo.fcl_vertical_cylinder(z.center_m, z.radius_m, z.z_min_m, z.z_max_m)]
-        c = np.array(z.center_m)
-        lo = np.r_[c - z.radius_m, z.z_min_m]
-        hi = np.r_[c + z.radius_m, z.z_max_m]
-    else:
-        mesh = cell.meshes[z.id]
-        parts = [geo.fcl_mesh(*mesh)]
-        lo, hi = mesh[0].min(axis=0), mesh[0].max(axis=0)
-    return _Volume(z.id, z.kind, _scale(z), tuple(parts), np.asarray(lo, float),
-                   np.asarray(hi, float), mesh)
 
 
 def _prepare_tool(cell: Cell) -> _Tool | None:

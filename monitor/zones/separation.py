@@ -17,12 +17,11 @@ from monitor import geometry as geo
 from monitor.errors import ConfigError
 from monitor.zones.files import Cell
 from monitor.zones.prepare import PreparedCell
+from monitor.zones.volumes import FCL_DISTANCE_MARGIN_M
+
 
 # FCL's person-cylinder to tool distance was measured against closed forms to over-report by
 # up to 0.31 mm (never under): the separation is reduced by this much before it is used.
-FCL_DISTANCE_MARGIN_M = 0.0005
-
-
 @dataclasses.dataclass(frozen=True)
 class SeparationAnswer:
     """``required_m`` S_p at the tool speed used; ``separation_m`` the smallest person-to-tool

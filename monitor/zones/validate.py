@@ -35,7 +35,7 @@ from monitor.zones.set_checks import check_sets
 # Error messages
 
 
-def _pydantic_message(exc: ValidationError, data: dict, index: int = 0,
+def pydantic_message(exc: ValidationError, data: dict, index: int = 0,
                       errors: list | None = None) -> str:
     """One line for one pydantic error: where (zone id, camera id, section), field, fault.
     Pass ``errors`` (``exc.errors()``, built once) when formatting many: building the list is
@@ -122,7 +122,7 @@ def _locate(loc: list, data: dict) -> tuple[str, list]:
 # Cross-field checks: small named functions, each yields messages
 
 
-def _check_spec(spec: CellSpec, base: Path
+def check_spec(spec: CellSpec, base: Path
                 ) -> tuple[list[str], list[str], dict[str, geo.CameraModel],
                            dict[str, tuple[np.ndarray, np.ndarray]]]:
     errors: list[str] = []

@@ -1,4 +1,6 @@
 """The scenario suite: hidden, crouching, crossing persons run through the real pipeline.
+(Beside ``monitor.scene``, not in it: the scenes draw frames for the low layers, e.g. the
+``synthetic:demo`` source; the suite runs the pipeline, so it sits above it.)
 
 Each ``Scenario`` is a ``CellScene`` (640x360, 10 fps, a few seconds) with its zone file (a
 2 x 2 m protective box around the robot, a 5 x 5 m warning square, the scene's fixtures as
@@ -25,7 +27,15 @@ import math
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
+import numpy as np
+
+from monitor.errors import ConfigError
+from monitor.pipeline import Pipeline
+from monitor.policy import STOP, PolicyConfig, ResetRequest
+from monitor.scene import Camera, Figure, box_of, draw_figure
 from monitor.scene.cell import Block, CellScene, CutOut, Platform, Walker, zone_data
+from monitor.types import FrameInfo
+from monitor.zones import parse_cell
 
 RESET_PERIOD_S = 0.5
 CLEAR_VIEW_FRACTION = 0.95
@@ -196,10 +206,6 @@ def edge_scenarios(fps: float = 10.0) -> list[Scenario]:
     left sees the zone's right edge leave the image (the person's right side cut off), one
     pitched down sees the zone's far side with heads above the image. Zone floor out of view
     is ``unobserved_ok``."""
-    import numpy as np
-
-    from monitor.scene import Camera
-
     k = np.array([[450.0, 0, 320], [0, 450.0, 180], [0, 0, 1]])
     right = Camera.look_at("cam0", (640, 360), k, (-3.6, -6.0, 3.2), (-3.6, 0.0, 0.8))
     top = Camera.look_at("cam0", (640, 360), k, (0.0, -4.5, 3.6), (0.0, -0.6, 0.0))
@@ -241,17 +247,13 @@ def low_rate_scenarios() -> list[Scenario]:
 
 def cutout_box_px(scene: CellScene, cutout: CutOut) -> tuple[int, int, int, int]:
     """The pixel box (x2/y2 exclusive) of a cut-out as the scene draws it."""
-    import numpy as np
-
-    from monitor.scene import Figure, _box_of, draw_figure
-
     cam = scene.camera
     feet, head = cam.project(np.array([[*cutout.floor_m, 0.0], [*cutout.floor_m,
                                                                   cutout.height_m]]))
     canvas = np.zeros((cam.height, cam.width), np.uint8)
     draw_figure(canvas, Figure((float(feet[0]), float(feet[1])), float(feet[1] - head[1]),
                                arm_raise=0.3, colours=((255,),) * 4))
-    box = _box_of(canvas > 0)
+    box = box_of(canvas > 0)
     assert box is not None, "cut-out out of view"
     return box
 
@@ -353,11 +355,6 @@ def evidence_scenarios() -> list[Scenario]:
 def run_scenario(scenario: Scenario, detector, policy=None,
                  on_frame: Callable[[int], None] | None = None) -> ScenarioResult:
     """Render the scenario, run every frame through the real pipeline, score the commands."""
-    from monitor.pipeline import Pipeline
-    from monitor.policy import STOP, PolicyConfig, ResetRequest
-    from monitor.types import FrameInfo
-    from monitor.zones import parse_cell
-
     cell = parse_cell(scenario.zone_data())
     policy = policy or PolicyConfig()
     cam = scenario.scene.camera
@@ -460,8 +457,6 @@ def select(names: Iterable[str] | None, fps: float = 10.0) -> list[Scenario]:
         return scenarios(fps)
     unknown = [n for n in names if n not in pool]
     if unknown:
-        from monitor.errors import ConfigError
-
         raise ConfigError(f"unknown scenario {', '.join(unknown)} (known: "
                           f"{', '.join(pool)})")
     return [pool[n] for n in names]
