@@ -1,7 +1,7 @@
 """Whole-pipeline benchmark on a 1080p video at 416: throughput against bare inference, and the
 latency from frame capture to command published.
 
-Run: .venv/bin/python benchmarks/pipeline.py [--seconds 12] [--threads 2] [--int8]
+Run: .venv/bin/python benchmarks/pipeline.py [--seconds 12] [--fps 15] [--threads 2] [--int8]
 
 The video is the demo walk (the person enters the warning and the protective zone) rendered at
 1280x720 and scaled to 1920x1080, with the demo cell's zones and calibration scaled to match, so
@@ -66,8 +66,8 @@ SIZE = (1920, 1080)
 SCALE = 1.5  # 1280x720 -> 1920x1080
 
 
-def make_video(path: Path, seconds: float) -> int:
-    scene = DemoScene()
+def make_video(path: Path, seconds: float, fps: float = 15.0) -> int:
+    scene = DemoScene(fps=fps)
     n = round(seconds * scene.fps)
     frames = ((cv2.resize(img, SIZE, interpolation=cv2.INTER_LINEAR), t)
               for img, t in itertools.islice(scene.frames(), n))
@@ -269,6 +269,8 @@ def main() -> int:
     parser.add_argument("--seconds", type=float, default=12.0,
                         help="video length (the walk enters both zones by 6 s)")
     parser.add_argument("--threads", type=int, default=2, help="onnxruntime intra-op threads")
+    parser.add_argument("--fps", type=float, default=15.0,
+                        help="the camera's frame rate (the video is rendered and paced at it)")
     parser.add_argument("--int8", action="store_true",
                         help="the synthetic model's int8 file (as `monitor model build --int8`)")
     args = parser.parse_args()
@@ -277,7 +279,7 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as tmp_name:
         tmp = Path(tmp_name)
         video = tmp / "demo-1080p.mp4"
-        n = make_video(video, args.seconds)
+        n = make_video(video, args.seconds, args.fps)
         cell = cell_1080p(tmp)
         model = synthetic.ensure_model()
         if args.int8:
@@ -295,7 +297,7 @@ def main() -> int:
         lat = latency(video, detector, cell, args.seconds)
 
     bare_ms, whole_ms = sum(t["bare"]) / n, sum(t["whole"]) / n
-    print(f"1080p video, {n} frames ({args.seconds:g} s, 15 fps), model input 416 "
+    print(f"1080p video, {n} frames ({args.seconds:g} s, {args.fps:g} fps), model input 416 "
           f"{'int8' if args.int8 else 'fp32'}, "
           f"{args.threads} threads, {t['persons']} person detections\n")
     print("| throughput | ms per frame (mean) | median ms | fps | / bare inference |")
@@ -317,7 +319,7 @@ def main() -> int:
             print(f"| {stage} | {med(t['stages'][stage]):.2f} |")
     inf = med(lat["inference"])
     lt, wire = lat["latency"], lat["wire"]
-    print("\n| latency, live (paced 15 fps, real SafetyBus) | n | median ms | p99 ms "
+    print(f"\n| latency, live (paced {args.fps:g} fps, real SafetyBus) | n | median ms | p99 ms "
           "| target |")
     print("|---|---|---|---|---|")
     print(f"| inference (session.run inside the pipeline) | {len(lat['inference'])} "
