@@ -73,10 +73,10 @@ from monitor.busconfig import (
     MODES,
     BusConfig,
     BusKeys,
-    _zenoh_error,
     default_instance,
     open_session,
     zenoh_config,
+    zenoh_error,
 )
 from monitor.consumer import COMMAND_SCHEMA, CommandWatchdog, Verdict
 from monitor.mute_requests import MuteDesk, MuteGate
@@ -89,9 +89,23 @@ from monitor.types import Alert, Fault, Persons, ZoneReport
 
 _log = logging.getLogger("monitor.bus")
 
-__all__ = ["COMMAND_SCHEMA", "MODES", "RESET_ANSWER_SCHEMA", "RESET_SCHEMA", "BusConfig",
-           "BusKeys", "CommandWatchdog", "DuplicateMonitor", "SafetyBus", "Verdict",
-           "_zenoh_error", "default_instance", "open_session", "reset_payload", "zenoh_config"]
+__all__ = [
+    "COMMAND_SCHEMA",
+    "MODES",
+    "RESET_ANSWER_SCHEMA",
+    "RESET_SCHEMA",
+    "BusConfig",
+    "BusKeys",
+    "CommandWatchdog",
+    "DuplicateMonitor",
+    "SafetyBus",
+    "Verdict",
+    "default_instance",
+    "open_session",
+    "reset_payload",
+    "zenoh_config",
+    "zenoh_error",
+]
 
 SCHEMA_VERSION = 1
 ALERT_SCHEMA = f"workcell.safety.alert/{SCHEMA_VERSION}"

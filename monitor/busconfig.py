@@ -33,7 +33,7 @@ RESERVED_ROLES = frozenset({"alive", "alert", "case", "command", "detections", "
                             "incidents", "mute", "preview", "reset", "status", "zones"})
 
 
-def _role(value: str) -> str:
+def checked_role(value: str) -> str:
     """A monitor's role in the cell ("" = the single monitor of the cell, today's keys)."""
     if value == "":
         return value
@@ -44,7 +44,7 @@ def _role(value: str) -> str:
     return value
 
 
-Role = Annotated[Text, AfterValidator(_role)]
+Role = Annotated[Text, AfterValidator(checked_role)]
 WithinTenMinutes = Annotated[Float, Field(gt=0, le=600)]
 
 
@@ -161,13 +161,13 @@ def zenoh_config(bus: BusConfig) -> zenoh.Config:
                 else zenoh.Config())
     except Exception as exc:
         raise ConfigError(f"{bus.zenoh_config_file}: not a valid Zenoh config: "
-                          f"{_zenoh_error(exc)}") from None
+                          f"{zenoh_error(exc)}") from None
 
     def put(key: str, value) -> None:
         try:
             conf.insert_json5(key, json.dumps(value))
         except Exception as exc:
-            raise ConfigError(f"bus: Zenoh rejects {key}={value!r}: {_zenoh_error(exc)}"
+            raise ConfigError(f"bus: Zenoh rejects {key}={value!r}: {zenoh_error(exc)}"
                               ) from None
 
     if bus.mode is not None or bus.zenoh_config_file is None:
@@ -204,10 +204,10 @@ def open_session(bus: BusConfig) -> zenoh.Session:
     except Exception as exc:
         raise ConfigError(f"bus: cannot open the Zenoh session ({bus.mode or 'peer'}, "
                           f"listen={list(bus.listen)}, connect={list(bus.connect)}): "
-                          f"{_zenoh_error(exc)}") from None
+                          f"{zenoh_error(exc)}") from None
 
 
-def _zenoh_error(exc: Exception) -> str:
+def zenoh_error(exc: Exception) -> str:
     """Zenoh's error text without its Rust source paths and chained context (one line)."""
     msg = re.search(r'msg: "([^"\n]*)', str(exc))
     text = msg.group(1) if msg else (str(exc).splitlines()[0] if str(exc) else "failed")

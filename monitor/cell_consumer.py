@@ -273,7 +273,7 @@ def subscribe_cell(session: zenoh.Session, prefix: str, inbox,
 def parse_expect(items: list[str], load_key: Callable[[str], object]) -> dict[str, tuple]:
     """``ROLE=KEYFILE`` options into role -> (public key, ...); a role may be given twice
     (two keys during a key change). ValueError names the bad item."""
-    from monitor.busconfig import _role
+    from monitor.busconfig import checked_role
 
     out: dict[str, tuple] = {}
     for item in items:
@@ -282,7 +282,7 @@ def parse_expect(items: list[str], load_key: Callable[[str], object]) -> dict[st
             raise ValueError(f"--expect {item!r}: give ROLE=KEYFILE (e.g. "
                              "monitor-a=monitor-a.key.pub)")
         try:
-            _role(role)
+            checked_role(role)
         except ValueError as exc:
             raise ValueError(f"--expect {item!r}: {exc}") from None
         out[role] = (*out.get(role, ()), load_key(path))

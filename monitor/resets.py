@@ -156,7 +156,7 @@ class ResetGate:
                             latch=nonce)
 
 
-def _finite(value: int | float) -> bool:
+def finite_number(value: int | float) -> bool:
     try:
         return math.isfinite(value)  # a JSON integer may be too large for a float
     except OverflowError:
@@ -179,7 +179,7 @@ def _parse(payload: bytes) -> dict:
     if not isinstance(rid, str) or not rid or len(rid) > MAX_FIELD:
         raise ResetRefused("reset request without a request_id")
     wall = body.get("wall")
-    if isinstance(wall, bool) or not isinstance(wall, int | float) or not _finite(wall):
+    if isinstance(wall, bool) or not isinstance(wall, int | float) or not finite_number(wall):
         raise ResetRefused("reset request without a valid wall time")
     note = body.get("note", "")
     confirm = body.get("confirm_clear", False)

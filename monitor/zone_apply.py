@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 from monitor import payload as payload_json
 from monitor.answers import request_answer
-from monitor.resets import MAX_FIELD, MAX_RESET_PAYLOAD, _finite
+from monitor.resets import MAX_FIELD, MAX_RESET_PAYLOAD, finite_number
 from monitor.signed_requests import RequestIds, RequestKind, check_cell, check_signer, check_window
 
 APPLY_SCHEMA = "workcell.safety.zones-apply/1"
@@ -117,7 +117,7 @@ def _parse(payload: bytes) -> dict:
     if not isinstance(zones_hash, str) or not _HASH.match(zones_hash):
         raise ApplyRefused("zone apply request without a zone hash (`monitor zones hash`)")
     wall = body.get("wall")
-    if isinstance(wall, bool) or not isinstance(wall, int | float) or not _finite(wall):
+    if isinstance(wall, bool) or not isinstance(wall, int | float) or not finite_number(wall):
         raise ApplyRefused("zone apply request without a valid wall time")
     note, boot, cell = body.get("note", ""), body.get("boot", ""), body.get("cell")
     if not isinstance(note, str) or len(note) > 4 * MAX_FIELD:

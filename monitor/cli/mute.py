@@ -13,7 +13,7 @@ import time
 
 from monitor.bus import default_instance, open_session
 from monitor.cli.keys import KEY_DIR
-from monitor.cli.operator import _first_status, _operator_key_path
+from monitor.cli.operator import first_status, operator_key_path
 from monitor.cli.roles import add_role_arg, no_answer, role_keys
 from monitor.cli.zenoh_args import add_zenoh_args as _add_zenoh_args
 from monitor.cli.zenoh_args import bounded as _bounded
@@ -41,7 +41,7 @@ def cmd_mute(args: argparse.Namespace) -> int:
         raise ConfigError("monitor mute: give either --for DURATION (mute) or --end "
                           "(end the zone's mute now)")
     duration = 0.0 if args.end else parse_duration(args.duration)
-    key_path = _operator_key_path(args)
+    key_path = operator_key_path(args)
     if key_path is None:  # muting is never unsigned
         raise ConfigError(f"monitor mute: no key for {args.operator} (--key, or "
                           f"{KEY_DIR}/{args.operator}.key); mutes must be signed")
@@ -56,7 +56,7 @@ def cmd_mute(args: argparse.Namespace) -> int:
         answer = None
         with _bounded(session, "monitor mute") as session:
             started = time.monotonic()
-            status = _first_status(session, keys, args.timeout, stop)  # the monitor's boot
+            status = first_status(session, keys, args.timeout, stop)  # the monitor's boot
             if status is None:
                 if stop.is_set():
                     return 130

@@ -32,7 +32,7 @@ STATUS_GRACE_S = 0.2  # s to wait for more monitors' status after the first
 _END = object()  # put by the query's drop callback: no more replies will come
 
 
-def _operator_key_path(args: argparse.Namespace) -> Path | None:
+def operator_key_path(args: argparse.Namespace) -> Path | None:
     if args.key:
         return Path(args.key)
     default = (KEY_DIR / f"{args.operator}.key").expanduser()
@@ -45,7 +45,7 @@ def cmd_reset(args: argparse.Namespace) -> int:
     with StopSignals(name="monitor reset") as stop:
         bus = bus_config(args, instance=args.instance or default_instance("reset"))
         keys = role_keys(bus)
-        key_path = _operator_key_path(args)
+        key_path = operator_key_path(args)
         signer = load_private_key(key_path) if key_path else None
         monitor_keys = (tuple(load_public_key(k) for k in args.monitor_key)
                         if args.monitor_key else None)
@@ -65,12 +65,12 @@ def cmd_reset(args: argparse.Namespace) -> int:
             if args.role:  # several monitors on the cell: each latched one (cell_reset.py)
                 from monitor.cli.cell_reset import reset_roles
 
-                return reset_roles(args, bus, session, signer, stop, _first_status,
+                return reset_roles(args, bus, session, signer, stop, first_status,
                                    monitor_keys)
             started = time.monotonic()
             answer = None
             # the reset names the monitor's boot and the latch it releases (signed into it)
-            status = _first_status(session, keys, args.timeout, stop)
+            status = first_status(session, keys, args.timeout, stop)
             if status is None:
                 if stop.is_set():
                     return 130
@@ -164,7 +164,7 @@ def _monitor_status(payload: bytes) -> dict | None:
     return body if isinstance(body.get("boot"), str) else None
 
 
-def _first_status(session, keys: BusKeys, timeout: float, stop) -> dict | None:
+def first_status(session, keys: BusKeys, timeout: float, stop) -> dict | None:
     """The first status answer of a monitor within ``timeout``; None when none came."""
     answers = ask(session, keys.status, timeout, stop, _monitor_status)
     return answers[0] if answers else None

@@ -13,7 +13,7 @@ import time
 
 import zenoh
 
-from monitor.busconfig import BusConfig, BusKeys, _role
+from monitor.busconfig import BusConfig, BusKeys, checked_role
 from monitor.cli.zenoh_args import nothing_found_hint
 from monitor.errors import ConfigError
 
@@ -23,7 +23,7 @@ ROLES_LOOKUP_S = 1.0  # s to ask which roles answer, after the asked key stayed 
 def parse_role(text: str) -> str:
     """A role as the monitor's ``[bus] role`` allows it; argparse's error otherwise."""
     try:
-        return _role(text) if text else ""
+        return checked_role(text) if text else ""
     except ValueError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
@@ -72,7 +72,7 @@ def roles_answering(session, bus: BusConfig, timeout: float, stop) -> list[str]:
 
 def _is_role(text: str) -> bool:
     try:
-        return bool(_role(text))
+        return bool(checked_role(text))
     except ValueError:  # a reply on a wildcard or a nested key: no monitor's status
         return False
 

@@ -48,7 +48,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def cmd_apply(args: argparse.Namespace) -> int:
     from monitor import zones as zn
     from monitor.bus import default_instance, open_session
-    from monitor.cli.operator import _first_status, _operator_key_path
+    from monitor.cli.operator import first_status, operator_key_path
     from monitor.cli.roles import no_answer, role_keys
     from monitor.cli.zenoh_args import bounded as _bounded
     from monitor.cli.zenoh_args import bus_config as _bus_config
@@ -60,7 +60,7 @@ def cmd_apply(args: argparse.Namespace) -> int:
     with StopSignals(name="monitor zones apply") as stop:
         bus = _bus_config(args, instance=args.instance or default_instance("zones-apply"))
         keys = role_keys(bus, args.role)
-        key_path = _operator_key_path(args)
+        key_path = operator_key_path(args)
         signer = load_private_key(key_path) if key_path else None
         if signer is None:
             print(f"monitor zones apply: no key for {args.operator} (--key): sending unsigned; "
@@ -73,7 +73,7 @@ def cmd_apply(args: argparse.Namespace) -> int:
             return 130
         with _bounded(session, "monitor zones apply") as session:
             started = time.monotonic()
-            status = _first_status(session, keys, args.timeout, stop)
+            status = first_status(session, keys, args.timeout, stop)
             if status is None:
                 if stop.is_set():
                     return 130
