@@ -121,7 +121,8 @@ def chromium(profile: Path):
     opts.binary_location = str(CHROMIUM)
     for flag in ("--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
                  "--disable-component-update", "--disable-sync", "--no-first-run",
-                 "--disable-dev-shm-usage", f"--user-data-dir={profile}",
+                 "--disable-dev-shm-usage", "--autoplay-policy=no-user-gesture-required",
+                 f"--user-data-dir={profile}",
                  "--window-size=1400,1000"):
         opts.add_argument(flag)
     driver = webdriver.Chrome(options=opts, service=Service(

@@ -10,7 +10,6 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import shutil
 import subprocess
 import sys
 import tempfile
@@ -28,18 +27,19 @@ from monitor.signing import new_key_pair
 from monitor.types import Alert
 from monitor.zones import load_cell
 from tests.console_kit import (
+    CHROMIUM,
     OPERATOR,
     PASSWORD,
     ROOT,
+    chromium,
     incident_dir,
     passwords,
     reference_image,
+    wait_http,
     zone_file,
 )
 from tests.helpers import free_port, run_monitor
 
-CHROMIUM = Path("/usr/bin/chromium")
-CHROMEDRIVER = Path(shutil.which("chromedriver") or "/usr/bin/chromedriver")
 DOC_SHOTS = ROOT / "docs" / "console"
 SHOTS = DOC_SHOTS if os.environ.get("UPDATE_CONSOLE_SHOTS") == "1" else \
     Path(tempfile.gettempdir()) / "console-shots"
@@ -54,22 +54,8 @@ pytestmark = [
 
 @pytest.fixture()
 def browser(tmp_path):
-    from selenium import webdriver
-    from selenium.webdriver.chrome.service import Service
-
-    opts = webdriver.ChromeOptions()
-    opts.binary_location = str(CHROMIUM)
-    for flag in ("--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
-                 "--disable-component-update", "--disable-sync", "--no-first-run",
-                 "--disable-dev-shm-usage", "--autoplay-policy=no-user-gesture-required",
-                 f"--user-data-dir={tmp_path / 'chromium-profile'}", "--window-size=1400,1000"):
-        opts.add_argument(flag)
-    driver = webdriver.Chrome(options=opts, service=Service(str(CHROMEDRIVER)))
-    driver.set_page_load_timeout(30)
-    try:
+    with chromium(tmp_path / "chromium-profile") as driver:
         yield driver
-    finally:
-        driver.quit()
 
 
 class Pipeline:
@@ -112,7 +98,7 @@ def cell_and_console(tmp_path):
             stdout=log, stderr=subprocess.STDOUT, cwd=tmp_path,
             env={**os.environ, "PYTHONPATH": str(ROOT)})
         try:
-            _wait_http(hport, proc, tmp_path / "console.log")
+            wait_http(f"http://127.0.0.1:{hport}/api/state", proc, tmp_path / "console.log")
             yield bus, pipeline, f"http://127.0.0.1:{hport}", cell
         finally:
             pipeline.close()
@@ -122,20 +108,6 @@ def cell_and_console(tmp_path):
             except subprocess.TimeoutExpired:
                 proc.kill()
             log.close()
-
-
-def _wait_http(port: int, proc, log: Path) -> None:
-    import urllib.request
-
-    deadline = time.monotonic() + 60
-    while time.monotonic() < deadline:
-        assert proc.poll() is None, log.read_text()
-        try:
-            urllib.request.urlopen(f"http://127.0.0.1:{port}/api/state", timeout=1).read()
-            return
-        except OSError:
-            time.sleep(0.2)
-    raise AssertionError(f"console did not answer: {log.read_text()}")
 
 
 def _wait(driver, cond, timeout: float = 30.0, what: str = ""):

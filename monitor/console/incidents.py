@@ -126,19 +126,9 @@ class RecorderIncidents:
                 break
         return rows
 
-    def clip_path(self, incident_id: str, camera: str | None = None) -> Path | None:
-        try:
-            incident = self.index.get(incident_id)
-        except (sqlite3.Error, OSError, ValueError):
-            return None
-        if incident is None:
-            return None
-        clips = self._clips(incident)
-        if camera is None:
-            return next(iter(clips.values()), None)
-        return clips.get(camera)
-
-    def thumbnail(self, incident_id: str, camera: str | None = None) -> bytes | None:
+    def _clip(self, incident_id: str, camera: str | None):
+        """(incident, camera, clip path) of the named or the first camera; None when the
+        incident, its record or that clip cannot be had."""
         try:
             incident = self.index.get(incident_id)
         except (sqlite3.Error, OSError, ValueError):
@@ -148,8 +138,17 @@ class RecorderIncidents:
         clips = self._clips(incident)
         camera = camera if camera is not None else next(iter(clips), None)
         path = clips.get(camera) if camera is not None else None
-        if path is None:
+        return (incident, camera, path) if path is not None else None
+
+    def clip_path(self, incident_id: str, camera: str | None = None) -> Path | None:
+        found = self._clip(incident_id, camera)
+        return found[2] if found is not None else None
+
+    def thumbnail(self, incident_id: str, camera: str | None = None) -> bytes | None:
+        found = self._clip(incident_id, camera)
+        if found is None:
             return None
+        incident, camera, path = found
         # the frame of the moment the incident began: the clip's frames before it
         info = incident.record.get("clips", {}).get(camera, {})
         at = info.get("frames_before", 0) if isinstance(info, dict) else 0
