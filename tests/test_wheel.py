@@ -81,6 +81,12 @@ def test_wheel_installs_and_runs_outside_the_checkout(tmp_path):
     module, cell = where.stdout.split()
     assert Path(module).is_relative_to(venv) and Path(cell).is_relative_to(venv)
     assert Path(cell).read_bytes() == (ROOT / "zones" / "demo-cell.yaml").read_bytes()
+    # the default build's measured envelope comes with it (no 5-10 s measuring at first start)
+    shipped = _run([str(python), "-c", "from monitor.models import synthetic as s; "
+                    "print(s.SHIPPED_ENVELOPE.read_bytes() == open("
+                    f"{str(ROOT / 'models' / 'tiny-yolov3-synthetic.onnx.envelope.json')!r}, "
+                    "'rb').read())"], elsewhere)
+    assert shipped.stdout.strip() == "True", shipped.stderr[-2000:]
 
     # `monitor run` with the demo defaults: synthetic camera, synthetic model, demo zones
     config = elsewhere / "monitor.toml"
