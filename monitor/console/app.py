@@ -2,15 +2,19 @@
 
 Why Starlette + uvicorn: a small ASGI toolkit (routing, static files, file responses with HTTP
 ranges for video seeking) without a template engine, ORM or build step; uvicorn is its
-reference server, with TLS built in. The pages are plain HTML and one small script
-(``static/console.js``) that polls JSON: nothing to compile, nothing fetched from the internet.
+reference server, with TLS built in. The pages are plain HTML and small scripts
+(``static/console.js``, ``static/incidents.js``) that poll JSON: nothing to compile, nothing
+fetched from the internet.
 
-Routes: ``/`` live view, ``/incidents`` list and playback, ``/zones`` zone editor (pages);
-``/api/state``, ``/api/live/{camera}.jpg``, ``/api/incidents``,
+Routes: ``/`` live view, ``/incidents`` review (list, timeline, groups, playback), ``/zones``
+zone editor (pages); ``/api/state``, ``/api/live/{camera}.jpg``,
+``/api/incidents[?kind=&camera=&state=&cause=&since=&until=&reviewed=&grouped=&limit=]``,
+``/api/incidents/facets``, ``/api/incidents.csv[?filters]``,
 ``/api/incidents/{id}/clip[?camera=]``, ``/api/incidents/{id}/thumb.jpg[?camera=]``,
-``/api/zones``, ``/api/zones/{camera}/image.jpg``
-(read-only, no login);
-``PUT /api/zones/{id}`` (an operator's credential; audited, accepted or refused).
+``/api/incidents/{id}/export`` (a zip), ``/api/zones``, ``/api/zones/{camera}/image.jpg``
+(read-only, no login); ``PUT /api/zones/{id}`` and ``POST /api/incidents/{id}/reviewed`` (an
+operator's credential; audited, accepted or refused). The incident review's routes are in
+``review_api.py``.
 """
 
 from __future__ import annotations
@@ -37,9 +41,11 @@ from monitor.console.audit import AuditLog, bounded
 from monitor.console.auth import Operators, basic_credentials
 from monitor.console.edit_body import MAX_BODY, BadRequest, check_zone_id, parse_edit_body
 from monitor.console.edits import ZoneEditIncidents
-from monitor.console.incidents import IncidentFilters, IncidentSource
+from monitor.console.incidents import IncidentSource
 from monitor.console.live import LiveRenderer, LiveState, reference_image
 from monitor.console.logins import Lockout, LoginGuard
+from monitor.console.responses import SECURITY_HEADERS, json_response
+from monitor.console.review_api import review_routes
 from monitor.console.zones_api import ZoneEditor
 from monitor.errors import ConfigError
 from monitor.types import Alert
@@ -49,14 +55,6 @@ CHECK_THREADS = 1  # scrypt checks at once (16 MB, ~0.1 s of a core each): a flo
 # guesses takes at most one core from the host the monitor runs on
 MAX_WAITING_CHECKS = 32  # more are refused at once (503), never queued without bound
 LOCKOUT_ALERT = "console_login_lockout"
-_SECURITY_HEADERS = {
-    "cache-control": "no-store",
-    "x-content-type-options": "nosniff",
-    "x-frame-options": "DENY",
-    "content-security-policy": "default-src 'self'; img-src 'self' blob:; media-src 'self'; "
-                               "object-src 'none'; frame-ancestors 'none'",
-    "referrer-policy": "no-referrer",
-}
 
 
 @dataclass
@@ -91,10 +89,6 @@ class LoginChecks:
         return self._limiter
 
 
-def _json(body: object, status: int = 200) -> JSONResponse:
-    return JSONResponse(body, status_code=status, headers=_SECURITY_HEADERS)
-
-
 async def read_body(request: Request) -> bytes:
     """The body, read no further than ``MAX_BODY`` bytes (a larger one is refused, never
     held in memory whole)."""
@@ -113,7 +107,7 @@ async def read_body(request: Request) -> bytes:
 def build_app(console: Console) -> Starlette:
     def page(name: str):
         async def handler(request: Request) -> Response:
-            return FileResponse(STATIC / name, headers=_SECURITY_HEADERS)
+            return FileResponse(STATIC / name, headers=SECURITY_HEADERS)
         return handler
 
     async def state(request: Request) -> Response:
@@ -128,32 +122,20 @@ def build_app(console: Console) -> Starlette:
         # the file on disk and the zone set the monitor decides with: never silently apart
         body["zone_file_pending"] = bool(in_force and file_hash and in_force != file_hash)
         body["camera_ids"] = list(console.editor.cell().cameras)
-        return _json(body)
+        return json_response(body)
 
     async def live_jpeg(request: Request) -> Response:
         camera = request.path_params["camera"]
         if camera not in console.editor.cell().cameras:
-            return _json({"error": f"no camera {camera!r}"}, 404)
+            return json_response({"error": f"no camera {camera!r}"}, 404)
         data = await run_in_threadpool(console.renderer.jpeg, camera)
-        return Response(data, media_type="image/jpeg", headers=_SECURITY_HEADERS)
-
-    async def incidents(request: Request) -> Response:
-        q = request.query_params
-        try:
-            filters = IncidentFilters(
-                cause=q.get("cause") or None, state=q.get("state") or None,
-                camera=q.get("camera") or None,
-                since=float(q["since"]) if q.get("since") else None,
-                until=float(q["until"]) if q.get("until") else None)
-        except ValueError:
-            return _json({"error": "since/until: Unix seconds"}, 400)
-        return _json({"incidents": console.incidents.list(filters)})
+        return Response(data, media_type="image/jpeg", headers=SECURITY_HEADERS)
 
     async def clip(request: Request) -> Response:
         path = console.incidents.clip_path(request.path_params["id"],
                                            request.query_params.get("camera") or None)
         if path is None:
-            return _json({"error": "no clip for this incident"}, 404)
+            return json_response({"error": "no clip for this incident"}, 404)
         media = "video/mp4" if path.suffix.lower() in (".mp4", ".m4v") else None
         return FileResponse(path, media_type=media, headers={"cache-control": "no-store"})
 
@@ -161,23 +143,23 @@ def build_app(console: Console) -> Starlette:
         data = await run_in_threadpool(console.incidents.thumbnail, request.path_params["id"],
                                        request.query_params.get("camera") or None)
         if data is None:
-            return _json({"error": "no thumbnail for this incident"}, 404)
-        return Response(data, media_type="image/jpeg", headers=_SECURITY_HEADERS)
+            return json_response({"error": "no thumbnail for this incident"}, 404)
+        return Response(data, media_type="image/jpeg", headers=SECURITY_HEADERS)
 
     async def zones(request: Request) -> Response:
         try:
-            return _json(console.editor.editor_data())
+            return json_response(console.editor.editor_data())
         except ConfigError as exc:
-            return _json({"error": str(exc)}, 500)
+            return json_response({"error": str(exc)}, 500)
 
     async def zone_image(request: Request) -> Response:
         camera = request.path_params["camera"]
         cell = console.editor.cell()
         if camera not in cell.cameras:
-            return _json({"error": f"no camera {camera!r}"}, 404)
+            return json_response({"error": f"no camera {camera!r}"}, 404)
         img = reference_image(cell, camera, console.references.get(camera))
         _, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 85])
-        return Response(buf.tobytes(), media_type="image/jpeg", headers=_SECURITY_HEADERS)
+        return Response(buf.tobytes(), media_type="image/jpeg", headers=SECURITY_HEADERS)
 
     def edit_incident(entry: dict) -> str | None:
         """The audited attempt as a ``zone_edit`` incident (None: no --incidents, or it could
@@ -255,7 +237,7 @@ def build_app(console: Console) -> Starlette:
                                     client=client, result="refused", error=why)
             headers = {"retry-after": "60"} if status in (429, 503) else {}
             return JSONResponse({"error": why}, status_code=status,
-                                headers={**_SECURITY_HEADERS, **headers})
+                                headers={**SECURITY_HEADERS, **headers})
         zone = bounded(zone_id, 80)
 
         def refuse(status: int, result: str, error: str) -> dict:
@@ -272,25 +254,25 @@ def build_app(console: Console) -> Starlette:
             body = parse_edit_body(await read_body(request))
         except BadRequest as exc:
             out = await run_in_threadpool(refuse, 400, "bad_request", str(exc))
-            return _json(out, out.pop("status"))
+            return json_response(out, out.pop("status"))
         try:
             cell, new, before = await run_in_threadpool(console.editor.save_polygon,
                                                          zone_id, body)
         except ConfigError as exc:
             out = await run_in_threadpool(refuse, 422, "invalid", str(exc))
-            return _json(out, out.pop("status"))
+            return json_response(out, out.pop("status"))
         except Exception as exc:  # a fault of ours (disk, a bug): still audited, one line
             text = f"the edit could not be saved: {type(exc).__name__}: " \
                    f"{str(exc).splitlines()[0] if str(exc) else ''}"
             out = await run_in_threadpool(refuse, 500, "error", text)
-            return _json(out, out.pop("status"))
+            return json_response(out, out.pop("status"))
         entry = await run_in_threadpool(
             functools.partial(console.audit.record, zone=zone_id, operator=operator,
                               client=client, result="saved",
                               action="added" if new else "changed", config_hash_before=before,
                               config_hash=cell.config_hash, file=str(console.editor.path)))
         incident = await run_in_threadpool(edit_incident, entry)
-        return _json({"saved": zone_id, "config_hash": cell.config_hash, "audit": entry,
+        return json_response({"saved": zone_id, "config_hash": cell.config_hash, "audit": entry,
                       "incident": incident, "warnings": list(cell.warnings),
                       "note": "the running monitor keeps its zone set until an operator "
                               "applies it (monitor zones apply; its commands name the hash in "
@@ -308,7 +290,7 @@ def build_app(console: Console) -> Starlette:
         Route("/zones", page("zones.html")),
         Route("/api/state", state),
         Route("/api/live/{camera}.jpg", live_jpeg),
-        Route("/api/incidents", incidents),
+        *review_routes(console, login),
         Route("/api/incidents/{id}/clip", clip),
         Route("/api/incidents/{id}/thumb.jpg", thumbnail),
         Route("/api/zones", zones),
