@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import json
 import shutil
 import tempfile
 from pathlib import Path
@@ -13,6 +14,8 @@ import cv2
 import numpy as np
 
 from monitor.console.auth import set_password
+from monitor.incidents import IncidentIndex
+from monitor.incidents.store import RECORD, IncidentStore
 
 ROOT = Path(__file__).resolve().parents[1]
 OPERATOR, PASSWORD = "anna", "correct horse battery"
@@ -70,6 +73,47 @@ def incident_dir(tmp: Path) -> Path:
     d = tmp / "incidents"
     shutil.copytree(_recorded(), d)
     return d
+
+
+def _put_alert(store, base: dict, directory: Path, incident_id: str, wall: float,
+               kinds: list[str], clips: dict[str, Path | None]) -> None:
+    """An alert incident as the recorder writes it (its folder, incident.json, the row);
+    ``clips``: camera -> a clip to copy in (None: named in the record, not there)."""
+    folder = directory / incident_id
+    folder.mkdir()
+    record = {**base, "id": incident_id, "wall": wall, "causes": ["alert"], "alerts": kinds,
+              "state": "RUN", "latched": False, "describe": f"{','.join(kinds)} at {wall}",
+              "command": {"type": "command", "state": "RUN", "reasons": []}, "clips": {}}
+    for camera, source in clips.items():
+        record["clips"][camera] = {"file": f"{camera}.mp4", "frames_before": 2}
+        if source is not None:
+            shutil.copy(source, folder / f"{camera}.mp4")
+    (folder / RECORD).write_text(json.dumps(record))
+    store.put(record, complete=True)
+
+
+def review_incidents(directory: Path) -> dict[str, str]:
+    """Alert incidents before the recorded STOP of ``incident_dir``'s copy, written by the
+    recorder's own store: a camera move whose cam1 clip is missing (500 s before), three mutes
+    of cam0 20 s apart (300 s before), a scene change without its clip, a later mute. Their
+    ids by name (``stop``, ``moved``, ``mute1``..``mute4``, ``scene``)."""
+    (stop,) = IncidentIndex(directory).list()
+    clip = stop.clip_paths()["cam0"]
+    ids = {"stop": stop.id}
+    plan = [("moved", -500, ["camera_moved"], {"cam0": clip, "cam1": None}),
+            ("mute1", -300, ["zone_muted"], {"cam0": clip}),
+            ("mute2", -280, ["zone_muted"], {"cam0": clip}),
+            ("mute3", -260, ["zone_muted"], {"cam0": clip}),
+            ("scene", -200, ["scene_change"], {"cam0": None}),
+            ("mute4", -100, ["zone_muted"], {"cam0": clip})]
+    store = IncidentStore(directory)
+    try:
+        for name, dt, kinds, clips in plan:
+            ids[name] = f"20261128T000000Z-test-{name}"
+            _put_alert(store, stop.record, directory, ids[name], stop.wall + dt, kinds, clips)
+    finally:
+        store.close()
+    return ids
 
 
 def passwords(tmp: Path) -> Path:

@@ -3,9 +3,10 @@
 operator (audited, kept beside the index, never written by a forged request), an incident's
 export as a zip and the list as CSV.
 
-The data: a real recorder data dir (the console kit's replay: a STOP with its H.264 clip) and,
-written by the recorder's own store, alert incidents around it: three mutes of cam0 within a
-minute, a scene change, a later mute, and a camera move whose cam1 clip is missing."""
+The data: ``console_kit.review_incidents``: a real recorder data dir (the kit's replay: a STOP
+with its H.264 clip) and, written by the recorder's own store, alert incidents before it: three
+mutes of cam0 within a minute, a scene change, a later mute, and a camera move whose cam1 clip
+is missing."""
 
 from __future__ import annotations
 
@@ -13,12 +14,10 @@ import csv
 import http.client
 import io
 import json
-import shutil
 import socket
 import threading
 import time
 import zipfile
-from pathlib import Path
 
 import pytest
 import uvicorn
@@ -37,8 +36,8 @@ from monitor.console.review import (
 )
 from monitor.console.review_marks import FILE as MARKS_FILE
 from monitor.incidents import IncidentIndex
-from monitor.incidents.store import RECORD, IncidentStore
-from tests.console_kit import OPERATOR, PASSWORD, basic, make_console
+from monitor.incidents.store import IncidentStore
+from tests.console_kit import OPERATOR, PASSWORD, basic, make_console, review_incidents
 
 # --- pure: filters ------------------------------------------------------------------------
 
@@ -126,46 +125,11 @@ def test_csv_keeps_a_formula_as_text():
 # --- the console over a real data dir -----------------------------------------------------
 
 
-def _put(store: IncidentStore, base: dict, directory: Path, incident_id: str, wall: float,
-         kinds: list[str], clips: dict[str, Path | None]) -> None:
-    """An alert incident as the recorder writes it (its folder, incident.json, the row);
-    ``clips``: camera -> a clip to copy in (None: named in the record, not there)."""
-    folder = directory / incident_id
-    folder.mkdir()
-    record = {**base, "id": incident_id, "wall": wall, "causes": ["alert"], "alerts": kinds,
-              "state": "RUN", "latched": False, "describe": f"{','.join(kinds)} at {wall}",
-              "command": {"type": "command", "state": "RUN", "reasons": []}, "clips": {}}
-    for camera, source in clips.items():
-        record["clips"][camera] = {"file": f"{camera}.mp4", "frames_before": 2}
-        if source is not None:
-            shutil.copy(source, folder / f"{camera}.mp4")
-    (folder / RECORD).write_text(json.dumps(record))
-    store.put(record, complete=True)
-
-
 @pytest.fixture(scope="module")
 def review(tmp_path_factory):
     """(client, console, ids by name) over the kit's data dir and the alerts around it."""
-    tmp = tmp_path_factory.mktemp("review")
-    console = make_console(tmp)
-    directory = console.incidents.directory
-    (stop,) = IncidentIndex(directory).list()
-    clip = stop.clip_paths()["cam0"]
-    w = stop.wall
-    ids = {"stop": stop.id}
-    store = IncidentStore(directory)
-    try:
-        plan = [("moved", -500, ["camera_moved"], {"cam0": clip, "cam1": None}),
-                ("mute1", -300, ["zone_muted"], {"cam0": clip}),
-                ("mute2", -280, ["zone_muted"], {"cam0": clip}),
-                ("mute3", -260, ["zone_muted"], {"cam0": clip}),
-                ("scene", -200, ["scene_change"], {"cam0": None}),
-                ("mute4", -100, ["zone_muted"], {"cam0": clip})]
-        for name, dt, kinds, clips in plan:
-            ids[name] = f"20261128T000000Z-test-{name}"
-            _put(store, stop.record, directory, ids[name], w + dt, kinds, clips)
-    finally:
-        store.close()
+    console = make_console(tmp_path_factory.mktemp("review"))
+    ids = review_incidents(console.incidents.directory)
     with TestClient(build_app(console)) as client:
         yield client, console, ids
 

@@ -1,4 +1,5 @@
-// The console's only script: polls the JSON API; no build step, no libraries.
+// The console's script (the incident review has its own, incidents.js, loaded after this
+// one: it uses $, el and getJSON from here): polls the JSON API; no build step, no libraries.
 "use strict";
 
 const $ = (id) => document.getElementById(id);
@@ -59,49 +60,6 @@ function refreshImages() {
     const img = $("live-" + c);
     if (img) img.src = "/api/live/" + encodeURIComponent(c) + ".jpg?t=" + Date.now();
   }
-}
-
-// --- incidents ----------------------------------------------------------------------------
-async function loadIncidents(ev) {
-  if (ev) ev.preventDefault();
-  const form = new FormData($("filters"));
-  const q = new URLSearchParams();
-  for (const [k, v] of form.entries()) {
-    if (!v) continue;
-    q.set(k, k === "since" ? String(Date.parse(v) / 1000) : v);
-  }
-  const body = await getJSON("/api/incidents?" + q.toString());
-  const list = body.incidents || [];
-  $("count").textContent = list.length + " incident(s)";
-  $("rows").replaceChildren(...list.map((i) => {
-    const tr = el("tr", null, { "data-id": i.id });
-    const thumb = el("td");
-    if (i.has_clip) {  // the clip's frame at the incident's moment, fetched when shown
-      thumb.appendChild(el("img", null, { class: "thumb", alt: "", loading: "lazy",
-        src: "/api/incidents/" + encodeURIComponent(i.id) + "/thumb.jpg" }));
-    }
-    tr.appendChild(thumb);
-    tr.appendChild(el("td", new Date(i.started * 1000).toLocaleString()));
-    for (const k of ["cause", "state", "camera"]) tr.appendChild(el("td", i[k]));
-    const td = el("td");
-    if (i.has_clip) {
-      const b = el("button", "play", { type: "button", class: "play" });
-      b.addEventListener("click", () => play(i, tr));
-      td.appendChild(b);
-    } else td.textContent = "-";
-    tr.appendChild(td);
-    return tr;
-  }));
-}
-
-function play(incident, row) {
-  for (const r of document.querySelectorAll("tr.sel")) r.classList.remove("sel");
-  row.classList.add("sel");
-  const v = $("player");
-  v.hidden = false;
-  v.src = "/api/incidents/" + encodeURIComponent(incident.id) + "/clip";
-  $("playing").textContent = "incident " + incident.id + ": " + incident.cause;
-  v.play().catch(() => {});
 }
 
 // --- zone editor --------------------------------------------------------------------------
@@ -262,9 +220,7 @@ const page = document.body.dataset.page;
 if (page === "live") {
   pollState(); setInterval(pollState, 300);
   setInterval(refreshImages, 700);
-} else if (page === "incidents") {
-  $("filters").addEventListener("submit", loadIncidents);
-  loadIncidents();
+} else if (page === "incidents") {  // the review page's own script: incidents.js
   getJSON("/api/state").then((s) => { $("cell").textContent = "cell " + (s.cell || ""); });
 } else if (page === "zones") {
   initZones();
