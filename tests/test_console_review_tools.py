@@ -176,7 +176,7 @@ def test_repeated_mutes_are_one_group_and_a_different_incident_splits_them(revie
     assert "groups" not in client.get("/api/incidents").json()
 
 
-def test_marking_reviewed_needs_a_credential_and_survives_a_restart(review):
+def test_marking_reviewed_needs_a_credential_and_is_kept_beside_the_index(review):
     client, console, ids = review
     marks = console.incidents.directory / MARKS_FILE
     audit = console.audit.path
