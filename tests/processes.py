@@ -21,6 +21,7 @@ from monitor.cell_consumer import CellWatchdog, subscribe_cell
 from monitor.config import demo_cell_path
 from monitor.consumer import Verdict
 from monitor.inbox import Inbox
+from monitor.resets import latch_of_status, reset_payload, signed_reset
 from monitor.scene import DemoScene
 from tests.helpers import free_port, note_wait
 
@@ -151,6 +152,29 @@ class Service:
             for i in range(start, len(self.commands)):
                 if pred(self.commands[i]):
                     return i, self.commands[i]
+            return None
+        return wait_for(find, timeout, what, self)
+
+    def reach(self, start: int, pred: Callable[[dict], bool], timeout: float, what: str
+              ) -> tuple[int, dict]:
+        """``next_command``, but a STOP latched on the way is reset, as an operator would, once
+        the monitor says reset is possible. On a loaded host the monitor is right to latch for
+        a stall or late frames; a test whose subject is not the latch waits past it this way."""
+        sent: set[str] = set()
+
+        def find():
+            for i in range(start, len(self.commands)):
+                if pred(self.commands[i]):
+                    return i, self.commands[i]
+            last = self.commands[-1] if self.commands else {}
+            if last.get("latched") and last.get("reset_possible"):
+                boot, latch = latch_of_status(self.status())
+                if latch and latch not in sent:
+                    sent.add(latch)
+                    payload = reset_payload("tester", f"load-{len(sent)}", cell="t5", boot=boot,
+                                            latch=latch)
+                    self.session.put(self.keys.reset, payload, attachment=signed_reset(
+                        self.operator, self.keys.reset, payload))
             return None
         return wait_for(find, timeout, what, self)
 

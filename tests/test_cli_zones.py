@@ -1,7 +1,10 @@
-"""``monitor zones``: round trip as real subprocesses, calibration, preview, refused edits."""
+"""``monitor zones``: round trip (edits in this process, checks in a fresh one), calibration,
+preview, refused edits."""
 
 from __future__ import annotations
 
+import contextlib
+import io
 import subprocess
 from pathlib import Path
 
@@ -25,10 +28,21 @@ def run(*args: str, cwd: Path) -> subprocess.CompletedProcess:
 
 
 def ok(*args: str, cwd: Path) -> str:
+    """One ``monitor zones ...`` command in a fresh process; its output on success."""
     res = run(*args, cwd=cwd)
     assert res.returncode == 0, res.stderr
     assert "Traceback" not in res.stderr
     return res.stdout
+
+
+def ok_here(*args: str, cwd: Path) -> str:
+    """The same command in this process (the ``main`` a fresh process runs, without its ~1 s
+    start-up); its output on success."""
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.chdir(cwd), contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = cli.main(["zones", *args])
+    assert code == 0, err.getvalue()
+    return out.getvalue()
 
 
 def demo_pairs(noise_px: float = 0.0, n: int = 8, seed: int = 0) -> np.ndarray:
@@ -49,29 +63,32 @@ def main(*args: str) -> int:
 @pytest.mark.slow
 def test_round_trip_leaves_a_valid_file_and_preview_draws(tmp_path):
     f = "cell.yaml"
-    ok("new", f, "--camera", "cam0", "--size", "1280x720", "--name", "test cell", cwd=tmp_path)
+    ok_here("new", f, "--camera", "cam0", "--size", "1280x720", "--name", "test cell",
+            cwd=tmp_path)
     pairs = " ".join(",".join(f"{v:.6f}" for v in row) for row in demo_pairs())
-    out = ok("calibrate", f, "--camera", "cam0", "--pairs", pairs, cwd=tmp_path)
+    out = ok_here("calibrate", f, "--camera", "cam0", "--pairs", pairs, cwd=tmp_path)
     assert "reprojection error: RMS 0.000 px" in out
-    ok("add", f, "stop-img", "500,400 800,400 780,540 480,540", "--kind", "protective",
-       cwd=tmp_path)
-    ok("add", f, "slow-img", "100,300 1200,300 1200,700 100,700", "--kind", "warning",
-       "--speed-scale", "0.4", "--anchor", "share", "--min-share", "0.3", cwd=tmp_path)
-    ok("add", f, "stop-box", "--box=-1,-1,0,1,1,2.2", "--kind", "protective", cwd=tmp_path)
-    ok("add", f, "slow-ring", "--extrude=-2.5,-2.5 2.5,-2.5 2.5,2.5 -2.5,2.5", "--z", "0,2.2",
-       "--kind", "warning", "--speed-scale", "0.3", cwd=tmp_path)
-    ok("add", f, "pillar", "--cylinder=2,2,0.3,0,3", "--kind", "watch", cwd=tmp_path)
-    ok("add", f, "poster", "40,80 140,80 140,260 40,260", "--kind", "mask", cwd=tmp_path)
-    ok("edit", f, "stop-img", "--points", "520,400 800,400 780,540 500,540", "--name", "Press",
-       cwd=tmp_path)
-    ok("edit", f, "pillar", "--new-id", "column", "--cylinder", "2,2,0.35,0,3", cwd=tmp_path)
-    ok("disable", f, "slow-img", cwd=tmp_path)
-    ok("remove", f, "poster", cwd=tmp_path)
-    table = ok("list", f, cwd=tmp_path)
+    ok_here("add", f, "stop-img", "500,400 800,400 780,540 480,540", "--kind", "protective",
+            cwd=tmp_path)
+    ok_here("add", f, "slow-img", "100,300 1200,300 1200,700 100,700", "--kind", "warning",
+            "--speed-scale", "0.4", "--anchor", "share", "--min-share", "0.3", cwd=tmp_path)
+    ok_here("add", f, "stop-box", "--box=-1,-1,0,1,1,2.2", "--kind", "protective", cwd=tmp_path)
+    ok_here("add", f, "slow-ring", "--extrude=-2.5,-2.5 2.5,-2.5 2.5,2.5 -2.5,2.5", "--z",
+            "0,2.2",
+            "--kind", "warning", "--speed-scale", "0.3", cwd=tmp_path)
+    ok_here("add", f, "pillar", "--cylinder=2,2,0.3,0,3", "--kind", "watch", cwd=tmp_path)
+    ok_here("add", f, "poster", "40,80 140,80 140,260 40,260", "--kind", "mask", cwd=tmp_path)
+    ok_here("edit", f, "stop-img", "--points", "520,400 800,400 780,540 500,540", "--name",
+            "Press",
+            cwd=tmp_path)
+    ok_here("edit", f, "pillar", "--new-id", "column", "--cylinder", "2,2,0.35,0,3", cwd=tmp_path)
+    ok_here("disable", f, "slow-img", cwd=tmp_path)
+    ok_here("remove", f, "poster", cwd=tmp_path)
+    table = ok_here("list", f, cwd=tmp_path)
     assert "stop-img" in table and "column" in table and "poster" not in table
     row = next(line.split() for line in table.splitlines() if line.startswith("slow-img"))
     assert row[:3] == ["slow-img", "warning", "no"]
-    shown = ok("show", f, "stop-img", cwd=tmp_path)
+    shown = ok_here("show", f, "stop-img", cwd=tmp_path)
     assert "name: Press" in shown and "[520.0, 400.0]" in shown
     assert "ok: 5 zones (4 enabled), 1 camera," in ok("validate", f, cwd=tmp_path)
 
@@ -79,13 +96,13 @@ def test_round_trip_leaves_a_valid_file_and_preview_draws(tmp_path):
     assert [z.id for z in cell.zones] == ["stop-img", "slow-img", "stop-box", "slow-ring",
                                           "column"]
     assert cell.zone("column").radius_m == 0.35 and not cell.zone("slow-img").enabled
-    assert ok("hash", f, cwd=tmp_path).strip() == cell.config_hash
+    assert ok_here("hash", f, cwd=tmp_path).strip() == cell.config_hash
     assert (tmp_path / "cell.yaml.bak").is_file()
 
     frame = np.random.default_rng(0).integers(0, 256, (720, 1280, 3), dtype=np.uint8)
     cv2.imwrite(str(tmp_path / "frame.png"), frame)
-    ok("preview", f, "--frame", "frame.png", "--out", "out/preview.png", "--hit", "stop-box",
-       cwd=tmp_path)
+    ok_here("preview", f, "--frame", "frame.png", "--out", "out/preview.png", "--hit", "stop-box",
+            cwd=tmp_path)
     drawn = cv2.imread(str(tmp_path / "out" / "preview.png"))
     assert drawn.shape == frame.shape
     assert np.any(drawn[470, 650] != frame[470, 650])  # inside stop-img

@@ -10,6 +10,7 @@ import io
 import json
 import signal
 import sqlite3
+import subprocess
 import threading
 import time
 import zipfile
@@ -36,6 +37,7 @@ from monitor.scene import DemoScene, write_video
 from monitor.types import Alert, Fault, FrameInfo
 from monitor.zones import load_cell
 from tests.helpers import run_monitor
+from tests.shared import built_once
 
 PRE_S, POST_S, TICK_S = 1.5, 1.0, 0.05
 # walks into the protective zone (~0.8 s), stands there, leaves the view by ~4.5 s
@@ -44,27 +46,28 @@ PATH = ((0.0, -2.6, -0.3), (1.2, -0.4, -0.3), (2.6, -0.4, -0.3), (4.5, -6.5, -0.
 RESETS = (2.0, 6.6)  # refused (the person is inside), accepted (gone for > clear_time)
 
 
-@pytest.fixture(scope="module")
-def scene_video(tmp_path_factory) -> Path:
-    video = tmp_path_factory.mktemp("incidents") / "walk-in-out.mp4"
+def _replay_recording(base: Path, model: Path
+                      ) -> tuple[Path, list[dict], subprocess.CompletedProcess]:
+    """`monitor replay --incidents DIR` as a user runs it, with a short [recorder] window."""
+    video = base / "walk-in-out.mp4"
     scene = DemoScene(fps=5.0, duration_s=8.0, path=PATH)
     write_video(video, scene.frames(), scene.fps)
-    return video
-
-
-@pytest.fixture(scope="module")
-def recorded(scene_video, synthetic_model, tmp_path_factory):
-    """`monitor replay --incidents DIR` as a user runs it, with a short [recorder] window."""
-    base = tmp_path_factory.mktemp("recorded")
     config = base / "monitor.toml"
     config.write_text(f"[recorder]\nenabled = true\npre_s = {PRE_S}\npost_s = {POST_S}\n")
-    proc = run_monitor("replay", scene_video, "--zones", demo_cell_path(), "--model",
-                       synthetic_model, "--config", config, "--out", base / "out",
+    proc = run_monitor("replay", video, "--zones", demo_cell_path(), "--model",
+                       model, "--config", config, "--out", base / "out",
                        "--incidents", base / "incidents", "--no-video",
                        "--reset-at", ",".join(map(str, RESETS)), timeout=600)
     assert proc.returncode == 0, proc.stderr
     events = [json.loads(line) for line in (base / "out/events.jsonl").read_text().splitlines()]
     return base / "incidents", events, proc
+
+
+@pytest.fixture(scope="module")
+def recorded(synthetic_model, tmp_path_factory):
+    """The recorded incidents, built once for both test workers (their tests only read them)."""
+    return built_once(tmp_path_factory, "incidents-recorded",
+                      lambda base: _replay_recording(base, synthetic_model))
 
 
 def _causes(event: dict) -> set[str]:

@@ -22,6 +22,7 @@ from monitor.replay import ReplaySettings, replay
 from monitor.scene import DEMO_CAMERA, DemoScene, FrameTruth, write_video
 from monitor.zones import Cell, check_persons, load_cell
 from tests.helpers import assert_one_line_error, run_monitor
+from tests.shared import built_once, run_root
 from tests.videos import faststart
 
 # The demo walk sampled at 7.5 fps (`monitor demo` writes 15 fps): same path, camera and zones,
@@ -79,31 +80,39 @@ def _full_box(floor_m: tuple[float, float], height_m: float = 1.75) -> list[floa
 
 @pytest.fixture(scope="session")
 def demo(tmp_path_factory: pytest.TempPathFactory) -> Demo:
-    scene = DemoScene(fps=DEMO_FPS)
-    video = tmp_path_factory.mktemp("demo") / "demo-scene.mp4"
-    truths = write_video(video, scene.frames(), scene.fps)
+    def build(folder: Path) -> tuple[Path, list[FrameTruth]]:
+        scene = DemoScene(fps=DEMO_FPS)
+        video = folder / "demo-scene.mp4"
+        return video, write_video(video, scene.frames(), scene.fps)
+
+    video, truths = built_once(tmp_path_factory, "replay-demo", build)
     return Demo(video, truths, load_cell(demo_cell_path()))
 
 
 @pytest.fixture(scope="session")
 def cli_replay(demo: Demo, synthetic_model: Path, tmp_path_factory: pytest.TempPathFactory):
     """`monitor replay` as a user runs it."""
-    out = tmp_path_factory.mktemp("replay-cli")
-    proc = run_monitor("replay", demo.video, "--zones", demo_cell_path(), "--model",
-                       synthetic_model, "--out", out, "--reset-at", str(RESET_AT[0]),
-                       "--reset-at", str(RESET_AT[1]), timeout=600)  # a hang guard only
+    def build(out: Path) -> subprocess.CompletedProcess:
+        return run_monitor("replay", demo.video, "--zones", demo_cell_path(), "--model",
+                           synthetic_model, "--out", out, "--reset-at", str(RESET_AT[0]),
+                           "--reset-at", str(RESET_AT[1]), timeout=600)  # a hang guard only
+
+    proc = built_once(tmp_path_factory, "replay-cli", build)
     assert proc.returncode == 0, proc.stderr
-    return out, proc
+    return run_root(tmp_path_factory) / "built-replay-cli", proc
 
 
 @pytest.fixture(scope="session")
 def steps(demo: Demo, detector, tmp_path_factory: pytest.TempPathFactory):
     """The same replay in-process, keeping every step (not only the changes in events.jsonl)."""
-    out = tmp_path_factory.mktemp("replay-steps")
-    results: list[StepResult] = []
-    settings = ReplaySettings(out_dir=out, reset_at=RESET_AT, annotate=False, progress=False)
-    summary = replay(demo.video, detector, demo.cell, settings, publish=results.append)
-    return out, results, summary
+    def build(out: Path):
+        results: list[StepResult] = []
+        settings = ReplaySettings(out_dir=out, reset_at=RESET_AT, annotate=False,
+                                  progress=False)
+        summary = replay(demo.video, detector, demo.cell, settings, publish=results.append)
+        return out, results, summary
+
+    return built_once(tmp_path_factory, "replay-steps", build)
 
 
 def commands(out: Path) -> list[dict]:
