@@ -13,17 +13,20 @@ import math
 import pytest
 
 from monitor.cli import main
-from monitor.commission.truth import read_truth
-from monitor.commission.walk import CORNER_M
+from monitor.commission.floor import zone_floors
+from monitor.commission.truth import TruthFrame, read_truth
+from monitor.commission.walk import CORNER_M, StepSample, analyse
 from monitor.commission.walk_scene import (
     HIDDEN_CORNER,
     ZONES_FILE,
     corner_walk,
     late_detection_walk,
+    walk_zone_data,
     write_walk_scene,
     zone_corners,
 )
 from monitor.scenarios import PROTECTIVE
+from monitor.zones import parse_cell
 from tests.helpers import one_error_line
 
 ZONE = "robot-protective"
@@ -123,9 +126,11 @@ def test_a_corner_hidden_behind_a_cabinet_is_reported(hidden):
     blind = {tuple(p) for p in zone["blind_spots"]}
     assert (-0.875, 0.875) in blind  # the crouch's own floor cell
     x, y = c["corner_m"]
+    assert c["frames_seen"] > 0  # standing up there, their head shows over the cabinet
     assert (f"corner ({x:g}, {y:g}) m: the person was seen in {c['frames_seen']} of the "
-            f"{c['frames_near']} frames" in html) or \
-        (f"corner ({x:g}, {y:g}) m: no person seen" in html)
+            f"{c['frames_near']} frames they were there") in html
+    # the crouch is an entry the monitor held stopped (the lost person's hold), no gap in it
+    assert all(e["stop_s"] is not None for e in zone["entries"])
 
 
 @pytest.mark.slow
@@ -162,3 +167,30 @@ def test_a_truth_of_another_video_is_one_line(tmp_path, synthetic_model, capsys)
     assert "bad.json: frame 0: needs time_s and floor_m" in one_error_line(capsys)
     assert main([*base, str(tmp_path / "nope.json")]) == 2
     assert "nope.json: no such ground-truth file" in one_error_line(capsys)
+
+
+def test_the_truth_starts_an_entry_before_its_first_detection():
+    """The analysis alone, 0.2 s frames: the person truly steps in at 0.4 s, is missed there
+    and detected inside at 0.6 s with the STOP: one frame interval to STOP with the truth, 0
+    without (the entry is then the detection); the corner near them counts the frames."""
+    floors = zone_floors(parse_cell(walk_zone_data(corner_walk(visits=(0,))[0])))
+    outside, inside = (-1.7, -1.7), (-0.875, -0.875)
+    s, truth = [], []
+    for k in range(8):
+        t = k * 0.2
+        where = outside if k < 2 or k >= 6 else inside
+        truth.append(TruthFrame(t, (where,)))
+        if k == 2:  # missed
+            s.append(StepSample(t, True, "RUN", ()))
+        elif where == inside:
+            s.append(StepSample(t, True, "STOP", (ZONE,), (ZONE,), 1, ((-0.9, -0.9),)))
+        else:
+            s.append(StepSample(t, True, "RUN", (), (), 1, ((-1.7, -1.7),)))
+    with_truth = analyse(s, floors, truth=truth).zone(ZONE)
+    (e,) = with_truth.entries
+    assert (e.entry_s, e.detected_s, e.stop_s) == pytest.approx((0.4, 0.6, 0.6))
+    assert e.time_to_stop_s == pytest.approx(0.2) and e.frames_inside == 4
+    near_left = with_truth.corners[0]
+    assert (near_left.frames_near, near_left.frames_seen) == (4, 3)
+    (e,) = analyse(s, floors).zone(ZONE).entries
+    assert (e.entry_s, e.time_to_stop_s) == pytest.approx((0.6, 0.0))
