@@ -129,7 +129,7 @@ def cmd_walk(args: argparse.Namespace) -> int:
         times = ", ".join("no STOP" if e.time_to_stop_s is None else f"{e.time_to_stop_s:.2f} s"
                           for e in z.entries) or "none"
         corners = (f"; corners seen {sum(c.seen for c in z.corners)}/{len(z.corners)}"
-                   if z.corners else "")
+                   if z.corners and z.kind == "protective" else "")
         print(f"{z.kind} {z.zone_id}: {cover}; entries {len(z.entries)} (to "
               f"{'STOP' if z.kind == 'protective' else 'SLOW'}: {times}); gaps {len(z.gaps)}"
               f"{corners}")
