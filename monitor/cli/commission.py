@@ -50,6 +50,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--cell-size", type=float, default=0.25, metavar="M",
                    help="floor cell size in metres")
     p.add_argument("--no-video", action="store_true", help="no annotated.mp4 (faster)")
+    p.add_argument("--truth", type=Path, metavar="FILE", help="the video's ground truth (the "
+                   "truth.json of a generated walk): entries then count from the first frame "
+                   "a person truly stands in the zone, detected or not")
     p.set_defaults(func=cmd_walk)
 
     p = sub.add_parser(
@@ -102,6 +105,10 @@ def cmd_walk(args: argparse.Namespace) -> int:
         raise InputError(f"--record {args.record:g}: must be within [1, 3600] s")
     if not 1.0 <= args.fps <= 60.0:
         raise InputError(f"--fps {args.fps:g}: must be within [1, 60]")
+    if args.truth is not None and args.video is None:
+        raise InputError("--truth: only with --video (a recording has no ground truth)")
+    if args.truth is not None and not args.truth.is_file():
+        raise InputError(f"{args.truth}: no such ground-truth file")
     config = load_config(args.config)
     zones = args.zones or zones_file_of(config)
     if zones is None:
@@ -115,14 +122,17 @@ def cmd_walk(args: argparse.Namespace) -> int:
                               policy=config.policy, health=config.health,
                               tick_s=config.service.tick_s,
                               allow_no_protective=config.zones.allow_no_protective)
-    result, pictures = walk_video(video, detector, cell, settings, args.cell_size)
+    result, pictures = walk_video(video, detector, cell, settings, args.cell_size, args.truth)
     for z in result.zones:
         cover = (f"{z.seen_cells}/{z.cells} floor cells seen, {len(z.blind_spots)} blind"
                  if z.cells else "image zone (no floor)")
         times = ", ".join("no STOP" if e.time_to_stop_s is None else f"{e.time_to_stop_s:.2f} s"
                           for e in z.entries) or "none"
+        corners = (f"; corners seen {sum(c.seen for c in z.corners)}/{len(z.corners)}"
+                   if z.corners and z.kind == "protective" else "")
         print(f"{z.kind} {z.zone_id}: {cover}; entries {len(z.entries)} (to "
-              f"{'STOP' if z.kind == 'protective' else 'SLOW'}: {times}); gaps {len(z.gaps)}")
+              f"{'STOP' if z.kind == 'protective' else 'SLOW'}: {times}); gaps {len(z.gaps)}"
+              f"{corners}")
     print(f"outputs: {args.out}/ (walk.json, {', '.join(sorted(pictures.values()))})")
     return 0
 

@@ -12,14 +12,15 @@ Floor inside an occluder's footprint is no cell (nobody stands in a bench). Pure
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from monitor.occlusion import points_in_volume, standable
-from monitor.zones import Cell, volume_outline_m
+from monitor.zones import BoxZone, Cell, ExtrudeZone, volume_outline_m
 from monitor.zones.masks import zone_regions_px
 from monitor.zones.visibility import hidden_feet
+from monitor.zones.volumes import box_corners
 
 CELL_M = 0.25  # floor cell size of the walk test (a foot print, about)
 ALARM_KINDS = ("protective", "warning")
@@ -39,6 +40,9 @@ class ZoneFloor:
     index: np.ndarray  # (K, 2) int: row, col
     centres_m: np.ndarray  # (K, 2)
     visible: np.ndarray  # (K,) bool
+    # the corners of the zone's floor outline (a box's four, a polygon's points; none for a
+    # cylinder or mesh): where the walk test has the integrator crouch
+    corners_m: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
 
     def cell_of(self, xy_m: np.ndarray) -> np.ndarray:
         """(N,) index into the zone's cells of each floor point; -1 outside the zone."""
@@ -74,8 +78,17 @@ def zone_floors(cell: Cell, cell_m: float = CELL_M) -> list[ZoneFloor]:
         keep &= standable(occluders, cell.meshes, centres)
         index, centres = index[keep], centres[keep]
         out.append(ZoneFloor(z.id, z.kind, cell_m, (float(lo[0]), float(lo[1])), (rows, cols),
-                             index, centres, visible_cells(cell, centres)))
+                             index, centres, visible_cells(cell, centres), corners_of(z)))
     return out
+
+
+def corners_of(z) -> np.ndarray:
+    """(C, 2) metres: the floor corners of a box or extruded polygon zone; none otherwise."""
+    if isinstance(z, BoxZone):
+        return np.asarray(box_corners(z), float)[:4, :2]
+    if isinstance(z, ExtrudeZone):
+        return np.asarray(z.points_m, float).reshape(-1, 2)
+    return np.zeros((0, 2))
 
 
 def visible_cells(cell: Cell, centres_m: np.ndarray) -> np.ndarray:

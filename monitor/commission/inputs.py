@@ -199,6 +199,15 @@ def _warnings(config: MonitorConfig, cell: Cell | None, status: dict | None,
                 if z.get("kind") == "protective" and e.get("stop_s") is None:
                     out.append(f"zone {z['zone_id']}: entry at {e['entry_s']} s without a "
                                "STOP")
+            for c in z.get("corners", []) if z.get("kind") == "protective" else []:
+                x, y = c["corner_m"]
+                if not c.get("frames_seen"):
+                    out.append(f"zone {z['zone_id']}: corner ({x:g}, {y:g}) m: no person seen "
+                               "there in the walk (crouch there)")
+                elif c.get("frames_near") and c["frames_seen"] < c["frames_near"]:
+                    out.append(f"zone {z['zone_id']}: corner ({x:g}, {y:g}) m: the person was "
+                               f"seen in {c['frames_seen']} of the {c['frames_near']} frames "
+                               "they were there")
     if not sidecar_path(model_path).is_file():
         out.append("the model has no measured envelope (monitor model envelope)")
     return out

@@ -196,7 +196,9 @@ def _walk(w: dict | None) -> str:
         return _section("walk", "Walk test", "<p class=\"warn\">No walk test given.</p>")
     head = _table([("video", w.get("video")), ("camera", w.get("camera")),
                    ("duration (s)", w.get("duration_s")), ("frames", w.get("frames")),
-                   ("floor cell (m)", w.get("cell_m")), ("zone set", w.get("zones_hash"))])
+                   ("floor cell (m)", w.get("cell_m")), ("zone set", w.get("zones_hash")),
+                   ("entries counted from", f"ground truth ({w['truth']}) and detections"
+                    if w.get("truth") else "detections")])
     body = [head]
     for z in w.get("zones", []):
         cover = _table([("floor cells", z["cells"]),
@@ -206,16 +208,23 @@ def _walk(w: dict | None) -> str:
                         ("blind spots (cell centres, m)", len(z["blind_spots"])),
                         ("gaps in detection", len(z["gaps"]))])
         entries = _table([(k + 1, e["entry_s"], e["exit_s"], e["stop_s"], e["time_to_stop_s"],
-                           e["frames_inside"]) for k, e in enumerate(z["entries"])],
+                           e["frames_inside"], e.get("detected_s"))
+                          for k, e in enumerate(z["entries"])],
                          ("entry", "in at (s)", "out at (s)", "STOP at (s)", "time to STOP (s)",
-                          "frames inside")) if z["entries"] else "<p>No entry.</p>"
+                          "frames inside", "first detected in (s)")) \
+            if z["entries"] else "<p>No entry.</p>"
+        corners = _table([(f"({c['corner_m'][0]:g}, {c['corner_m'][1]:g})", c["blind_cells"],
+                           "-" if c["frames_near"] is None else c["frames_near"],
+                           c["frames_seen"]) for c in z.get("corners", [])],
+                         ("corner (m)", "blind cells within 0.5 m", "frames there (truth)",
+                          "frames seen there")) if z.get("corners") else ""
         blind = (f"<p>Blind spots: {escape(_points(z['blind_spots']))}</p>"
                  if z["blind_spots"] else "")
         gaps = _table([(g["from_s"], g["to_s"], g["duration_s"], g["frames_missed"])
                        for g in z["gaps"]], ("from (s)", "to (s)", "length (s)",
                                              "frames missed")) if z["gaps"] else ""
         body += [f'<h3 id="walk-{escape(z["zone_id"])}">{escape(z["kind"])} zone '
-                 f'{escape(z["zone_id"])}</h3>', cover, entries, blind, gaps]
+                 f'{escape(z["zone_id"])}</h3>', cover, entries, corners, blind, gaps]
     body += _figures(w.get("pictures") or {})
     return _section("walk", "Walk test", *[b for b in body if b])
 

@@ -6,11 +6,25 @@ in detection. Pure (``WalkRecorder`` only collects what the pipeline decided).
   unmasked person's box in some frame; **visible cells**: the cells a camera can see a person
   in at all (``zones.visibility``); **blind spots**: the zone's cells no camera sees.
 * **entry**: the first frame in which the person is in the zone: a zone hit of the zone check,
-  or a detected foot point on the zone's floor, whichever comes first, after a frame without.
-  Its **time to STOP** is the time from that frame to the first decision (frame or timer tick)
-  whose command is STOP and names the zone (a warning zone: SLOW naming it, or any STOP);
-  ``None`` when none came before the person left. An entry while an earlier STOP still holds
-  counts from the first decision that names this zone.
+  a detected foot point on the zone's floor, or, with the walk's ground truth
+  (``monitor.commission.truth``: a generated walk), a person truly standing on the zone's
+  floor, whichever comes first, after a frame without. Its **time to STOP** is the video time
+  from that frame to the first decision (frame or timer tick) whose command is STOP and names
+  the zone (a warning zone: SLOW naming it, or any STOP); ``None`` when none came before the
+  person left. Without ground truth the entry is the first detection in the zone, and since
+  the policy stops on the first step that shows the cause, that is 0 unless the zone check
+  needed more than the detection; with it, a detector that misses the person in their first
+  frame inside shows one frame interval. An entry while an earlier STOP still holds counts
+  from the first decision that names this zone. **detected at**: the entry's first frame with
+  the person detected in the zone (``None``: never, the person was inside unseen).
+* **corners** (of a box or polygon zone's floor, where the walk has the integrator crouch):
+  the zone cells within ``CORNER_M`` of each that no camera sees, and the frames the person
+  was *seen at* it. With ground truth: of the frames a person truly stood on the zone's floor
+  within ``CORNER_M`` of the corner (``frames_near``), those in which the zone check found a
+  seen (not lost) person in the zone or a detected foot point lay within ``CORNER_M`` of the
+  corner; a corner visited but never seen is one where a crouching person cannot cause a STOP.
+  Without: the frames with a detected foot point within ``CORNER_M`` of it (``frames_near``
+  None).
 * **gap**: frames between two detections of a person (from the first detection to the last)
   with nobody detected, longer than 1.5 frame intervals; it belongs to the zones the person
   was last seen in.
@@ -26,10 +40,12 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from monitor.commission.floor import ZoneFloor, feet_on_floor
+from monitor.commission.truth import TruthFrame, aligned
 from monitor.policy import SLOW, STOP
 from monitor.zones import Cell
 
 GAP_FACTOR = 1.5  # a gap is longer than this many frame intervals
+CORNER_M = 0.5  # "at a corner": within this distance of it (two 0.25 m floor cells)
 
 
 @dataclass(frozen=True)
@@ -52,6 +68,19 @@ class Entry:
     stop_s: float | None
     time_to_stop_s: float | None
     frames_inside: int
+    detected_s: float | None = None  # first frame of the entry with a detection in the zone
+
+
+@dataclass(frozen=True)
+class Corner:
+    corner_m: tuple[float, float]
+    blind_cells: int  # zone cells within CORNER_M no camera sees
+    frames_near: int | None  # ground truth: frames a person stood there (None: no truth)
+    frames_seen: int  # frames a person was seen there
+
+    @property
+    def seen(self) -> bool:
+        return self.frames_seen > 0
 
 
 @dataclass(frozen=True)
@@ -74,6 +103,7 @@ class ZoneWalk:
     unvisited: tuple[tuple[float, float], ...]  # visible cells the walk never saw a person in
     entries: tuple[Entry, ...]
     gaps: tuple[Gap, ...]
+    corners: tuple[Corner, ...] = ()
 
     @property
     def visible_fraction(self) -> float | None:
@@ -93,14 +123,17 @@ class WalkResult:
     zones: tuple[ZoneWalk, ...]
     gaps: tuple[Gap, ...]
     seen_m: tuple[tuple[float, float], ...] = field(default=(), repr=False)
+    by_truth: bool = False  # entries counted from the ground truth too
 
     def to_dict(self) -> dict:
         """JSON of the result (numbers rounded: the same walk gives the same text)."""
         return _rounded({
-            "duration_s": self.duration_s, "frames": self.frames,
+            "duration_s": self.duration_s, "frames": self.frames, "by_truth": self.by_truth,
             "frame_interval_s": self.frame_interval_s, "cell_m": self.cell_m,
             "zones": [{**asdict(z), "visible_fraction": z.visible_fraction,
-                       "seen_fraction": z.seen_fraction} for z in self.zones],
+                       "seen_fraction": z.seen_fraction,
+                       "corners": [{**asdict(c), "seen": c.seen} for c in z.corners]}
+                      for z in self.zones],
             "gaps": [asdict(g) for g in self.gaps],
             "seen_m": list(self.seen_m)})
 
@@ -135,30 +168,43 @@ class WalkRecorder:
 
 
 def analyse(samples: Sequence[StepSample], floors: Sequence[ZoneFloor],
-            alarm_zones: Sequence[tuple[str, str]] = ()) -> WalkResult:
+            alarm_zones: Sequence[tuple[str, str]] = (),
+            truth: Sequence[TruthFrame] | None = None, truth_name: str = "truth") -> WalkResult:
     """The walk's result. ``floors``: the volume zones' floor grids; ``alarm_zones``: (id,
-    kind) of image-polygon protective/warning zones (entries only, no floor)."""
+    kind) of image-polygon protective/warning zones (entries only, no floor); ``truth``: the
+    ground truth of each frame (a generated walk), which starts an entry at the first frame a
+    person truly stands on a zone's floor (``InputError`` naming ``truth_name`` when it is
+    another video's)."""
     frames = [s for s in samples if s.frame]
     times = [s.time_s for s in frames]
     interval = statistics.median(np.diff(times)) if len(times) >= 2 else 0.0
+    if truth is not None:
+        truth = aligned(truth, times, interval, truth_name)
     gaps = _gaps(frames, interval)
     seen = np.array([p for s in frames for p in s.feet_m], float).reshape(-1, 2)
     zones = []
     for f in floors:
-        inside = [(bool(s.feet_m) and bool((f.cell_of(np.array(s.feet_m)) >= 0).any()))
-                  or f.zone_id in s.hit_zones for s in frames]
-        zones.append(_zone(samples, frames, inside, f.zone_id, f.kind, gaps, f))
+        detected = [(bool(s.feet_m) and bool((f.cell_of(np.array(s.feet_m)) >= 0).any()))
+                    or f.zone_id in s.hit_zones for s in frames]
+        truly = [bool(t.floor_m) and bool((f.cell_of(np.array(t.floor_m)) >= 0).any())
+                 for t in truth] if truth is not None else [False] * len(frames)
+        zones.append(_zone(samples, frames, detected, truly, f.zone_id, f.kind, gaps, f,
+                           truth))
     for zone_id, kind in alarm_zones:
-        inside = [zone_id in s.hit_zones for s in frames]
-        zones.append(_zone(samples, frames, inside, zone_id, kind, gaps, None))
+        detected = [zone_id in s.hit_zones for s in frames]
+        zones.append(_zone(samples, frames, detected, [False] * len(frames), zone_id, kind,
+                           gaps, None))
     duration = (times[-1] - times[0] + interval) if times else 0.0
     return WalkResult(duration, len(frames), interval, floors[0].cell_m if floors else 0.0,
-                      tuple(zones), gaps, tuple(map(tuple, seen.tolist())))
+                      tuple(zones), gaps, tuple(map(tuple, seen.tolist())),
+                      by_truth=truth is not None)
 
 
-def _zone(samples: Sequence[StepSample], frames: Sequence[StepSample], inside: list[bool],
-          zone_id: str, kind: str, gaps: tuple[Gap, ...], floor: ZoneFloor | None) -> ZoneWalk:
-    entries = _entries(samples, frames, inside, zone_id, kind)
+def _zone(samples: Sequence[StepSample], frames: Sequence[StepSample], detected: list[bool],
+          truly: list[bool], zone_id: str, kind: str, gaps: tuple[Gap, ...],
+          floor: ZoneFloor | None, truth: Sequence[TruthFrame] | None = None) -> ZoneWalk:
+    inside = [a or b for a, b in zip(detected, truly, strict=True)]
+    entries = _entries(samples, frames, inside, detected, zone_id, kind)
     own_gaps = tuple(g for g in gaps if _gap_in(g, frames, inside))
     if floor is None:
         return ZoneWalk(zone_id, kind, 0, 0, 0, (), (), entries, own_gaps)
@@ -168,12 +214,37 @@ def _zone(samples: Sequence[StepSample], frames: Sequence[StepSample], inside: l
         seen[k[k >= 0]] = True
     blind = floor.centres_m[~floor.visible]
     unvisited = floor.centres_m[floor.visible & ~seen]
+    corners = tuple(_corner(c, floor, frames, truth) for c in floor.corners_m)
     return ZoneWalk(zone_id, kind, len(floor.centres_m), int(floor.visible.sum()),
-                    int(seen.sum()), _points(blind), _points(unvisited), entries, own_gaps)
+                    int(seen.sum()), _points(blind), _points(unvisited), entries, own_gaps,
+                    corners)
+
+
+def _corner(corner: np.ndarray, floor: ZoneFloor, frames: Sequence[StepSample],
+            truth: Sequence[TruthFrame] | None) -> Corner:
+    near_cells = np.hypot(*(floor.centres_m - corner).T) <= CORNER_M
+    blind = int((near_cells & ~floor.visible).sum())
+
+    def close(points) -> bool:
+        p = np.array(points, float).reshape(-1, 2)
+        return bool(len(p)) and bool((np.hypot(*(p - corner).T) <= CORNER_M).any())
+
+    def on_floor_close(points) -> bool:
+        p = np.array(points, float).reshape(-1, 2)
+        p = p[floor.cell_of(p) >= 0]
+        return close(p)
+
+    if truth is None:
+        seen = sum(close(s.feet_m) for s in frames)
+        return Corner(_points(corner[None])[0], blind, None, seen)
+    near = [on_floor_close(t.floor_m) for t in truth]
+    seen = sum(n and (floor.zone_id in s.hit_zones or close(s.feet_m))
+               for n, s in zip(near, frames, strict=True))
+    return Corner(_points(corner[None])[0], blind, sum(near), seen)
 
 
 def _entries(samples: Sequence[StepSample], frames: Sequence[StepSample], inside: list[bool],
-             zone_id: str, kind: str) -> tuple[Entry, ...]:
+             detected: list[bool], zone_id: str, kind: str) -> tuple[Entry, ...]:
     out = []
     k = 0
     while k < len(frames):
@@ -188,7 +259,9 @@ def _entries(samples: Sequence[StepSample], frames: Sequence[StepSample], inside
         stop = next((s.time_s for s in samples if s.time_s >= t_in - 1e-9
                      and (t_out is None or s.time_s < t_out) and _answers(s, zone_id, kind)),
                     None)
-        out.append(Entry(t_in, t_out, stop, None if stop is None else stop - t_in, k - start))
+        seen = next((frames[i].time_s for i in range(start, k) if detected[i]), None)
+        out.append(Entry(t_in, t_out, stop, None if stop is None else stop - t_in, k - start,
+                         seen))
     return tuple(out)
 
 

@@ -20,6 +20,7 @@ import numpy as np
 
 from monitor.commission.floor import CELL_M, ZoneFloor, zone_floors
 from monitor.commission.pictures import camera_picture, floor_picture
+from monitor.commission.truth import read_truth
 from monitor.commission.walk import WalkRecorder, WalkResult, analyse
 from monitor.errors import InputError
 from monitor.replay import ReplaySettings, replay
@@ -30,9 +31,12 @@ WALK_FILE = "walk.json"
 
 
 def walk_video(video: str | Path, detector, cell: Cell, settings: ReplaySettings,
-               cell_m: float = CELL_M) -> tuple[WalkResult, dict[str, str]]:
+               cell_m: float = CELL_M, truth: Path | None = None
+               ) -> tuple[WalkResult, dict[str, str]]:
     """Replay ``video`` with the walk recorder; (result, {picture name: file name}) and the
-    files in ``settings.out_dir``."""
+    files in ``settings.out_dir``. ``truth``: the video's ground truth (``truth.json`` of a
+    generated walk), read before the replay so that a bad file fails at once."""
+    frames = read_truth(truth) if truth is not None else None
     camera_id = choose_camera(cell.cameras, settings.camera_id, cell.label)
     policy = dataclasses.replace(settings.policy, restart_interlock="auto")
     settings = dataclasses.replace(settings, policy=policy, camera_id=camera_id)
@@ -41,10 +45,11 @@ def walk_video(video: str | Path, detector, cell: Cell, settings: ReplaySettings
     floors = zone_floors(cell, cell_m)
     alarm_images = [(z.id, z.kind) for z in cell.zones
                     if z.enabled and z.kind in ("protective", "warning") and not z.is_volume]
-    result = analyse(recorder.samples, floors, alarm_images)
+    result = analyse(recorder.samples, floors, alarm_images, frames, str(truth))
     out = settings.out_dir
     pictures = write_pictures(out, cell, floors, result, {camera_id: first_frame(video)})
     data = {"video": Path(video).name, "camera": camera_id, "zones_hash": cell.config_hash,
+            "truth": Path(truth).name if truth is not None else None,
             **result.to_dict(), "pictures": pictures}
     (out / WALK_FILE).write_text(json.dumps(data, indent=1, sort_keys=True) + "\n")
     return result, pictures

@@ -51,7 +51,9 @@ class Walker:
     """A person: ``path`` of (time s, x m, y m) points, linear in between, held at the ends;
     ``height_m`` standing height; ``posture`` standing / kneeling / crouching (the figure's
     height is the standing height times ``POSTURE_HEIGHT``); ``running`` doubles the stride.
-    ``appear_s``/``leave_s`` bound when the person is in the scene."""
+    ``appear_s``/``leave_s`` bound when the person is in the scene. ``poses``: (from s, to s,
+    posture) spans in which the person takes another posture (a walker who crouches at the
+    corners of a zone); ``posture`` holds outside them."""
 
     path: tuple[tuple[float, float, float], ...]
     height_m: float = 1.75
@@ -60,6 +62,7 @@ class Walker:
     appear_s: float = 0.0
     leave_s: float = math.inf
     floor_z_m: float = 0.0  # the surface the person stands on (a platform's height)
+    poses: tuple[tuple[float, float, str], ...] = ()
 
     def position_at(self, t: float) -> tuple[float, float]:
         return path_position(self.path, t)
@@ -71,6 +74,12 @@ class Walker:
     @property
     def figure_height_m(self) -> float:
         return self.height_m * POSTURE_HEIGHT[self.posture]
+
+    def posture_at(self, t: float) -> str:
+        return next((p for t0, t1, p in self.poses if t0 <= t <= t1), self.posture)
+
+    def figure_height_at(self, t: float) -> float:
+        return self.height_m * POSTURE_HEIGHT[self.posture_at(t)]
 
 
 @dataclass(frozen=True)
@@ -189,8 +198,9 @@ class CellScene:
                     continue
                 figures[k] = fig
                 mask = np.zeros(shape, np.uint8)
-                draw_posed(mask, fig, self.walkers[k].posture, colours=((255,),) * 4)
-                draw_posed(img, fig, self.walkers[k].posture)
+                posture = self.walkers[k].posture_at(t)
+                draw_posed(mask, fig, posture, colours=((255,),) * 4)
+                draw_posed(img, fig, posture)
                 owner[mask > 0] = k
             elif kind == "block":
                 drawn = _draw_block(img, cam, self.blocks[k])
@@ -208,6 +218,7 @@ class CellScene:
         persons = []
         for k in present:
             w = self.walkers[k]
+            posture = w.posture_at(t)
             x, y = w.position_at(t)
             fig = figures.get(k)
             full = None
@@ -215,13 +226,13 @@ class CellScene:
             frac = 0.0
             if fig is not None:
                 mask = np.zeros(shape, np.uint8)
-                draw_posed(mask, fig, w.posture, colours=((255,),) * 4)
+                draw_posed(mask, fig, posture, colours=((255,),) * 4)
                 whole = mask > 0
                 full = box_of(whole)
                 vis = owner == k
                 box = box_of(vis)
                 frac = float(vis.sum()) / max(1, int(whole.sum()))
-            persons.append(PersonState(k, (float(x), float(y)), w.figure_height_m, w.posture,
+            persons.append(PersonState(k, (float(x), float(y)), w.figure_height_at(t), posture,
                                        frac, box, full))
         return img, CellFrameTruth(index, t, tuple(persons))
 
@@ -230,12 +241,12 @@ class CellScene:
         cam = self.camera
         x, y = w.position_at(t)
         z = w.floor_z_m
-        feet, head = cam.project(np.array([[x, y, z], [x, y, z + w.figure_height_m]]))
+        feet, head = cam.project(np.array([[x, y, z], [x, y, z + w.figure_height_at(t)]]))
         height_px = float(feet[1] - head[1])
         if height_px <= 2:
             return None
         speed = w.speed_at(t)
-        moving = speed > 0.05 and w.posture == "standing"
+        moving = speed > 0.05 and w.posture_at(t) == "standing"
         # one stride cycle per 1.4 m walking, 2.2 m running; a longer swing when running
         cycle = 2.2 if w.running else 1.4
         travelled = _distance_along(w, t)
