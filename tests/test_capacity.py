@@ -241,12 +241,13 @@ def test_monitor_run_refuses_a_config_the_host_cannot_serve_and_starts_with_lowe
     assert_one_line_error(run_monitor("run", "--config", config, "--duration", "2"),
                           "this host cannot watch the cell in time", "ask for 120 frames/s")
     # the same cell at a frame every 2 s per camera, with limits that allow that rate: starts
-    # (limits this loose leave room for a machine 20 times slower than a quiet one; the pure
-    # tests above check the arithmetic at the defaults)
+    # (limits this loose leave room for ~2 s a frame: the suite beside a mutation run measured
+    # 0.93 s a frame, an 11 s p99 gap between decisions and a 2.07 s p99 step; the pure tests
+    # above check the arithmetic at the defaults)
     config = four_camera_config(tmp_path, synthetic_model, 0.5,
-                                "stall_timeout = 2.0\n"
-                                "[policy]\nframe_timeout = 6.0\nmax_frame_age = 5.0\n"
-                                "[health]\nlost_after_s = 5.0\n")
+                                "stall_timeout = 5.0\n"
+                                "[policy]\nframe_timeout = 20.0\nmax_frame_age = 15.0\n"
+                                "[health]\nlost_after_s = 15.0\n")
     started = run_monitor("run", "--config", config, "--duration", "3")
     assert started.returncode == 0, started.stderr[-2000:]
     assert "capacity: " in started.stderr and "cam3 0.5 fps" in started.stderr

@@ -69,7 +69,10 @@ def _config(tmp: Path, role: str, camera: Camera, video: Path, zones: Path, rout
         'realtime = true\nmax_fps = 5.0\n'
         f'[model]\nallow_test_model = true\npath = "{model}"\n'
         f'[zones]\nfile = "{zones}"\n'
-        '[policy]\nframe_timeout = 1.0\nmax_frame_age = 1.0\n'
+        # loose frame limits: at a load of 6 a step took 0.97 s and a frame gap 2.1 s, which
+        # latched frame_late / monitor_stalled STOPs that only an operator's reset ends (this
+        # test is about hand-over, not frame age: tests/test_stall.py, tests/test_driver.py)
+        '[policy]\nframe_timeout = 3.0\nmax_frame_age = 3.0\n'
         f'[service]\n{CAPACITY}'
         f'[bus]\ncell = "{CELL}"\nrole = "{role}"\ninstance = "{role}"\n'
         f'signing_key = "{tmp / (role + ".key")}"\n'
@@ -117,8 +120,11 @@ def test_a_person_leaving_one_cameras_view_into_the_others_zone_keeps_stop(
         v = consumer.wait(lambda v: "handed over" in v.reason, 60,
                           "monitor-b's handed-over hold", b)
         assert v.state == "STOP", v
-        assert "monitor-b: STOP" in v.reason and "of monitor-a left its view toward b-stop" \
-            in v.reason, v.reason
+        # left at A's edge; or, when a loaded host dropped the frames at the edge, lost near
+        # b-stop: either is monitor-b's handed-over hold
+        assert "monitor-b: STOP" in v.reason and (
+            "of monitor-a left its view toward b-stop" in v.reason
+            or "of monitor-a was lost near b-stop" in v.reason), v.reason
         # camera B sees nobody near the point: the hold stays (never a RUN) until an
         # operator confirms the cell clear; extra STOPs (a stall under load) are allowed
         end = time.monotonic() + 4.0
