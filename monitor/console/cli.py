@@ -51,10 +51,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    "(default: none)")
     p.set_defaults(func=cmd_console)
     sub = p.add_subparsers(dest="console_command", metavar="ACTION", required=False)
-    pw = sub.add_parser("passwd", help="set an operator's console password (read from the "
-                        "terminal, or one line on stdin)")
+    pw = sub.add_parser("passwd", help="set a console user's password and level (the "
+                        "password from the terminal, or one line on stdin)",
+                        description="Add or change one user of the console's passwords file. "
+                        "Levels: viewer (may view), operator (also edits zone polygons), admin "
+                        "(also mute settings, zone set rules, volumes); docs/console.md. No "
+                        "level grants a reset: that is the monitor's operators file.")
     pw.add_argument("file", type=Path, help="passwords file (created mode 0600)")
-    pw.add_argument("operator", help="operator name")
+    pw.add_argument("operator", metavar="NAME", help="user name")
+    pw.add_argument("--level", choices=("viewer", "operator", "admin"),
+                    help="what the user may do (default: the user's level in the file; a new "
+                    "user: operator)")
     pw.set_defaults(func=cmd_passwd)
 
 
@@ -67,8 +74,8 @@ def cmd_passwd(args: argparse.Namespace) -> int:
             raise ConfigError("the two passwords differ: nothing written")
     else:
         password = sys.stdin.readline().rstrip("\n")
-    set_password(args.file, args.operator, password)
-    print(f"password of {args.operator} set in {args.file}")
+    level = set_password(args.file, args.operator, password, args.level)
+    print(f"password of {args.operator} ({level}) set in {args.file}")
     return 0
 
 
