@@ -10,7 +10,9 @@ Routes: ``/`` live view, ``/incidents`` list and playback, ``/zones`` zone edito
 ``/api/incidents/{id}/clip[?camera=]``, ``/api/incidents/{id}/thumb.jpg[?camera=]``,
 ``/api/zones``, ``/api/zones/{camera}/image.jpg``
 (read-only, no login);
-``PUT /api/zones/{id}`` (an operator's credential; audited, accepted or refused).
+``PUT /api/zones/{id}`` (an operator's credential; audited, accepted or refused);
+user levels and the setup page: ``setup_routes.py``. Off loopback every ``GET`` of ``/api/``
+needs a login (``sessions.py``).
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ import anyio.to_thread
 import cv2
 from starlette.applications import Starlette
 from starlette.concurrency import run_in_threadpool
+from starlette.middleware import Middleware
 from starlette.requests import Request
 from starlette.responses import FileResponse, JSONResponse, Response
 from starlette.routing import Mount, Route
@@ -40,6 +43,8 @@ from monitor.console.edits import ZoneEditIncidents
 from monitor.console.incidents import IncidentFilters, IncidentSource
 from monitor.console.live import LiveRenderer, LiveState, reference_image
 from monitor.console.logins import Lockout, LoginGuard
+from monitor.console.sessions import Sessions, ViewGate
+from monitor.console.setup_routes import forbidden, setup_routes
 from monitor.console.zones_api import ZoneEditor
 from monitor.errors import ConfigError
 from monitor.types import Alert
@@ -74,6 +79,9 @@ class Console:
     edits: ZoneEditIncidents | None = None  # --incidents DIR: each edit is an incident too
     logins: LoginGuard = field(default_factory=LoginGuard)
     on_alert: Callable[[Alert], None] | None = None  # the console's own alerts (lock-outs)
+    view_login: bool = False  # viewing needs a login (off loopback): sessions.py
+    sessions: Sessions = field(default_factory=Sessions)
+    reset_operators: Path | None = None  # the monitor's operators file, shown read-only
 
 
 class LoginChecks:
@@ -256,6 +264,10 @@ def build_app(console: Console) -> Starlette:
             headers = {"retry-after": "60"} if status in (429, 503) else {}
             return JSONResponse({"error": why}, status_code=status,
                                 headers={**_SECURITY_HEADERS, **headers})
+        refused = await forbidden(console, operator, "edit_zone", client, zone_id,
+                                  _SECURITY_HEADERS)
+        if refused is not None:
+            return refused
         zone = bounded(zone_id, 80)
 
         def refuse(status: int, result: str, error: str) -> dict:
@@ -314,6 +326,9 @@ def build_app(console: Console) -> Starlette:
         Route("/api/zones", zones),
         Route("/api/zones/{camera}/image.jpg", zone_image),
         Route("/api/zones/{id}", save_zone, methods=["PUT"]),
+        *setup_routes(console, login, edit_incident, read_body, _SECURITY_HEADERS, STATIC),
         Mount("/static", StaticFiles(directory=STATIC), name="static"),
     ]
-    return Starlette(routes=routes)
+    return Starlette(routes=routes, middleware=[
+        Middleware(ViewGate, required=console.view_login, sessions=console.sessions,
+                   operators=console.operators, headers=_SECURITY_HEADERS)])

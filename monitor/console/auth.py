@@ -4,9 +4,10 @@ Credentials: a name and a password, checked against a passwords file written by 
 console passwd FILE NAME [--level viewer|operator|admin]``: one
 ``name:level:scrypt$n$r$p$salt$hash`` line per user, mode 0600. A line without a level
 (``name:scrypt$...``, the format before levels) is an ``operator``, the rights it had: an
-upgrade takes no right away. A level that is not one of ``viewer``, ``operator``, ``admin`` (a forged or garbled line) stops the console's start with
-the line's number; a file broken while the console runs lets nobody in (not even to view where
-viewing needs a login) until it is fixed. What each level may do: ``monitor/console/levels.py``.
+upgrade takes no right away. A level that is not one of ``viewer``, ``operator``, ``admin`` (a
+forged or garbled line) stops the console's start with the line's number; a file broken while
+the console runs lets nobody in (not even to view where viewing needs a login) until it is
+fixed. What each level may do: ``monitor/console/levels.py``.
 
 The browser sends the credentials with each edit (an ``Authorization: Basic`` header set by the
 page's script, never remembered by the browser), so a page of another site cannot make the
