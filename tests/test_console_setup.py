@@ -126,6 +126,10 @@ def test_a_mute_edit_uses_the_cli_validation_and_is_a_draft(cell_dir):
     ]:
         r = client.put("/api/setup/mute/robot-protective", headers=ADMIN, json=body)
         assert r.status_code == 422 and words in r.json()["error"], r.text
+    r = client.put("/api/setup/mute/" + "z" * 300, headers=ADMIN, json={"remove": True})
+    assert r.status_code == 400 and "zone id 'zzzzzzzzzzzzzzzzzzzz... (300 characters)'" in \
+        r.json()["error"]
+    assert _audit(cell_dir)[-1]["result"] == "bad_request"
     r = client.put("/api/setup/mute/no-such-zone", headers=ADMIN, json={"remove": True})
     assert r.status_code == 422 and "no zone 'no-such-zone'" in r.json()["error"]
     for body in ({"max_s": "60"}, {"operators": "anna"}, {"unmutable": 1},

@@ -95,7 +95,7 @@ def setup_routes(console: Any, login: Login, edit_incident: Callable[[dict], str
                                   headers={**headers, **extra})
 
     async def edit(request: Request, action: str, target: str, fields: tuple[str, ...],
-                   run: Callable[[dict], Any]) -> Response:
+                   run: Callable[[dict], Any], zone_id: bool = True) -> Response:
         name, refused = await credentialed(request, target)
         if refused is not None:
             return refused
@@ -112,6 +112,8 @@ def setup_routes(console: Any, login: Login, edit_incident: Callable[[dict], str
                                 status_code=status, headers=headers)
 
         try:
+            if zone_id:
+                check_zone_id(target)
             if "json" not in request.headers.get("content-type", ""):
                 raise BadRequest("the body must be JSON (content-type: application/json)")
             body = parse_edit_body(await read_body(request), fields, TEXT)
@@ -138,23 +140,15 @@ def setup_routes(console: Any, login: Login, edit_incident: Callable[[dict], str
 
     async def save_mute(request: Request) -> Response:
         zone = request.path_params["zone"]
-        try:
-            check_zone_id(zone)
-        except BadRequest as exc:
-            return JSONResponse({"error": str(exc)}, status_code=400, headers=headers)
         return await edit(request, "edit_mute", zone, MUTE_FIELDS,
                           lambda body: setup.save_mute(zone, body))
 
     async def save_rules(request: Request) -> Response:
         return await edit(request, "edit_sets", "(zone set rules)", RULES_FIELDS,
-                          setup.save_rules)
+                          setup.save_rules, zone_id=False)
 
     async def save_volume(request: Request) -> Response:
         zone = request.path_params["zone"]
-        try:
-            check_zone_id(zone)
-        except BadRequest as exc:
-            return JSONResponse({"error": str(exc)}, status_code=400, headers=headers)
         return await edit(request, "edit_volume", zone, VOLUME_FIELDS,
                           lambda body: setup.save_box(zone, body))
 
