@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import base64
 import binascii
+import hashlib
 import os
 import stat
 from dataclasses import dataclass
@@ -80,6 +81,12 @@ def verify(public: Ed25519PublicKey, key_expr: str, payload: bytes,
 def public_key_text(public: Ed25519PublicKey) -> str:
     raw = public.public_bytes(serialization.Encoding.Raw, serialization.PublicFormat.Raw)
     return PUBLIC_PREFIX + base64.b64encode(raw).decode()
+
+
+def key_fingerprint(text: str) -> str:
+    """A short fingerprint of a public key text ``ed25519:<base64>`` (SHA-256 of the text,
+    first 16 hex digits): the commissioning report and the console show the same one."""
+    return "sha256:" + hashlib.sha256(text.strip().encode()).hexdigest()[:16]
 
 
 def parse_public_key(text: str, where: str = "public key") -> Ed25519PublicKey:

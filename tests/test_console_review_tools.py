@@ -24,6 +24,7 @@ import uvicorn
 from starlette.testclient import TestClient
 
 from monitor.console.app import build_app
+from monitor.console.auth import set_password
 from monitor.console.incidents import RecorderIncidents
 from monitor.console.review import (
     GROUP_WINDOW_S,
@@ -132,6 +133,23 @@ def review(tmp_path_factory):
     ids = review_incidents(console.incidents.directory)
     with TestClient(build_app(console)) as client:
         yield client, console, ids
+
+
+def test_a_viewer_may_not_mark_reviewed_and_the_403_names_the_level(review):
+    client, console, ids = review
+    set_password(console.operators.path, "vera", "vera-password-1", "viewer")
+    marks = console.incidents.directory / MARKS_FILE
+    before = marks.read_bytes() if marks.exists() else None
+    r = client.post(f"/api/incidents/{ids['scene']}/reviewed",
+                    headers=basic("vera", "vera-password-1"))
+    assert r.status_code == 403, r.text
+    assert r.json()["error"] == ("viewer 'vera' may not mark an incident reviewed: it needs "
+                                 "the operator or admin level")
+    assert (marks.read_bytes() if marks.exists() else None) == before
+    assert ids["scene"] not in [row["id"] for row in
+                                client.get("/api/incidents?reviewed=1").json()["incidents"]]
+    last = json.loads(console.audit.path.read_text().splitlines()[-1])
+    assert (last["result"], last["operator"], last["level"]) == ("forbidden", "vera", "viewer")
 
 
 def test_the_list_filters_by_kind_and_camera_and_offers_them(review):

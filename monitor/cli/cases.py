@@ -15,6 +15,7 @@ from monitor.cases.receiver import case_key, request_case
 from monitor.cases.requests import case_payload
 from monitor.cli.zone_files import read_zone_data, write_zone_data
 from monitor.errors import ConfigError
+from monitor.zones.settings import parse_moves, set_rules
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -112,32 +113,9 @@ def cmd_set_add(args: argparse.Namespace) -> int:
 
 
 def cmd_set_rules(args: argparse.Namespace) -> int:
-    if sum((bool(args.allow), args.any, args.none)) > 1:
-        raise ConfigError("zones set rules: give one of --allow, --any or --none")
-    if args.selector_ttl is not None and args.no_selector_ttl:
-        raise ConfigError("zones set rules: give --selector-ttl or --no-selector-ttl, not both")
     data = read_zone_data(args.file)
-    if args.allow:
-        moves = []
-        for text in args.allow:
-            a, sep, b = text.partition(":")
-            if not sep or not a.strip() or not b.strip():
-                raise ConfigError(f"zones set rules: --allow {text!r}: expected FROM:TO "
-                                  "(two set ids)")
-            moves.append([a.strip(), b.strip()])
-        data["transitions"] = moves
-    elif args.any:
-        data.pop("transitions", None)
-    elif args.none:
-        data["transitions"] = []
-    if args.switch_over is not None:
-        data["switch_over_s"] = args.switch_over
-    if args.default_set is not None:
-        data["default_set"] = args.default_set
-    if args.selector_ttl is not None:
-        data["selector_ttl_s"] = args.selector_ttl
-    elif args.no_selector_ttl:
-        data.pop("selector_ttl_s", None)
+    set_rules(data, parse_moves(args.allow) if args.allow else None, args.any, args.none,
+              args.switch_over, args.default_set, args.selector_ttl, args.no_selector_ttl)
     write_zone_data(data, args.file)  # validates first: a fault writes nothing
     return cmd_set_list(args)
 

@@ -8,7 +8,7 @@ import argparse
 from pathlib import Path
 
 from monitor.cli.zone_files import read_zone_data, write_zone_data
-from monitor.errors import ConfigError
+from monitor.zones.settings import describe_mute, find_zone, set_mute
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -38,54 +38,15 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def cmd_mute(args: argparse.Namespace) -> int:
     data = read_zone_data(args.file)
-    zone = next((z for z in data.get("zones") or []
-                 if isinstance(z, dict) and z.get("id") == args.id), None)
-    if zone is None:
-        raise ConfigError(f"{args.file}: no zone '{args.id}'")
-    allow = [v is not None for v in (args.operators, args.max_s, args.as_, args.speed_scale)]
-    if sum((any(allow), args.unmutable, args.remove)) > 1:
-        raise ConfigError("zones mute: give either --operators/--max-s (allow), --unmutable or "
-                          "--remove")
-    if not any(allow) and not args.unmutable and not args.remove:
+    zone = find_zone(data, args.id, str(args.file))
+    operators = args.operators.split(",") if args.operators is not None else None
+    if not set_mute(zone, operators, args.max_s, args.as_, args.speed_scale, args.unmutable,
+                    args.remove):
         print(f"{args.id}: {describe(zone)}")
         return 0
-    if args.unmutable:
-        zone.pop("mute", None)
-        zone["unmutable"] = True
-    elif args.remove:
-        zone.pop("mute", None)
-        zone.pop("unmutable", None)
-    else:
-        mute = dict(zone.get("mute") or {})
-        if args.operators is not None:
-            mute["operators"] = [o.strip() for o in args.operators.split(",") if o.strip()]
-        if args.max_s is not None:
-            mute["max_s"] = args.max_s
-        if args.as_ is not None:
-            mute["as"] = args.as_
-        if args.speed_scale is not None:
-            mute["speed_scale"] = args.speed_scale
-        missing = [f"--{k.replace('_', '-')}" for k in ("operators", "max_s") if k not in mute]
-        if missing:
-            raise ConfigError(f"zones mute: {args.id} has no mute rule yet: give "
-                              f"{' and '.join(missing)}")
-        zone.pop("unmutable", None)
-        zone["mute"] = mute
     cell = write_zone_data(data, args.file)  # validates first: a fault writes nothing
     print(f"{args.id}: {describe(zone)}; config hash {cell.config_hash}")
     return 0
 
 
-def describe(zone: dict) -> str:
-    """The zone's mute rule in one line, as written in the file."""
-    mute = zone.get("mute")
-    if mute:
-        what = "checked as nothing" if mute.get("as") == "none" else \
-            f"checked as a warning zone (speed {mute['speed_scale']:g})" \
-            if mute.get("speed_scale") is not None else "checked as a warning zone"
-        return (f"may be muted by {', '.join(mute.get('operators') or [])} for at most "
-                f"{mute.get('max_s'):g} s, {what}")
-    if zone.get("unmutable"):
-        return "never muted (unmutable)"
-    return "no mute rule: " + ("never muted" if zone.get("kind") == "protective"
-                               else "cannot be muted")
+describe = describe_mute  # the zone's mute rule in one line (monitor.zones.settings)

@@ -8,7 +8,6 @@ reaction time) come from a saved ``monitor status --json`` answer of the running
 from __future__ import annotations
 
 import base64
-import hashlib
 import json
 from pathlib import Path
 
@@ -32,7 +31,7 @@ from monitor.errors import InputError
 from monitor.geometry import SeparationParams
 from monitor.reaction import needed_separation_m
 from monitor.service_setup import reaction_budget, zones_file_of
-from monitor.signing import load_operators, load_private_key, public_key_text
+from monitor.signing import key_fingerprint, load_operators, load_private_key, public_key_text
 from monitor.zones import Cell, load_cell
 
 
@@ -123,7 +122,7 @@ def _zones(cell: Cell | None, zones_file: str | None, base: Path | None) -> dict
 
 def _key_id(text: str) -> str:
     """A short fingerprint of a public key text (SHA-256, first 16 hex digits)."""
-    return "sha256:" + hashlib.sha256(text.encode()).hexdigest()[:16]
+    return key_fingerprint(text)
 
 
 def _keys(config: MonitorConfig, base: Path | None) -> dict:

@@ -12,9 +12,11 @@ zone editor (pages); ``/api/state``, ``/api/live/{camera}.jpg``,
 ``/api/incidents/facets``, ``/api/incidents.csv[?filters]``,
 ``/api/incidents/{id}/clip[?camera=]``, ``/api/incidents/{id}/thumb.jpg[?camera=]``,
 ``/api/incidents/{id}/export`` (a zip), ``/api/zones``, ``/api/zones/{camera}/image.jpg``
-(read-only, no login); ``PUT /api/zones/{id}`` and ``POST /api/incidents/{id}/reviewed`` (an
-operator's credential; audited, accepted or refused). The incident review's routes are in
-``review_api.py``.
+(read-only; no login on loopback); ``PUT /api/zones/{id}`` and
+``POST /api/incidents/{id}/reviewed`` (an operator's credential; audited, accepted or
+refused). The incident review's routes are in ``review_api.py``.
+User levels and the setup page: ``setup_routes.py``; off loopback every ``GET`` of
+``/api/`` needs a login (``sessions.py``).
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ import anyio.to_thread
 import cv2
 from starlette.applications import Starlette
 from starlette.concurrency import run_in_threadpool
+from starlette.middleware import Middleware
 from starlette.requests import Request
 from starlette.responses import FileResponse, JSONResponse, Response
 from starlette.routing import Mount, Route
@@ -46,6 +49,8 @@ from monitor.console.live import LiveRenderer, LiveState, reference_image
 from monitor.console.logins import Lockout, LoginGuard
 from monitor.console.responses import SECURITY_HEADERS, json_response
 from monitor.console.review_api import review_routes
+from monitor.console.sessions import Sessions, ViewGate
+from monitor.console.setup_routes import forbidden, setup_routes
 from monitor.console.zones_api import ZoneEditor
 from monitor.errors import ConfigError
 from monitor.types import Alert
@@ -72,6 +77,9 @@ class Console:
     edits: ZoneEditIncidents | None = None  # --incidents DIR: each edit is an incident too
     logins: LoginGuard = field(default_factory=LoginGuard)
     on_alert: Callable[[Alert], None] | None = None  # the console's own alerts (lock-outs)
+    view_login: bool = False  # viewing needs a login (off loopback): sessions.py
+    sessions: Sessions = field(default_factory=Sessions)
+    reset_operators: Path | None = None  # the monitor's operators file, shown read-only
 
 
 class LoginChecks:
@@ -238,6 +246,10 @@ def build_app(console: Console) -> Starlette:
             headers = {"retry-after": "60"} if status in (429, 503) else {}
             return JSONResponse({"error": why}, status_code=status,
                                 headers={**SECURITY_HEADERS, **headers})
+        refused = await forbidden(console, operator, "edit_zone", client, zone_id,
+                                  SECURITY_HEADERS)
+        if refused is not None:
+            return refused
         zone = bounded(zone_id, 80)
 
         def refuse(status: int, result: str, error: str) -> dict:
@@ -296,6 +308,9 @@ def build_app(console: Console) -> Starlette:
         Route("/api/zones", zones),
         Route("/api/zones/{camera}/image.jpg", zone_image),
         Route("/api/zones/{id}", save_zone, methods=["PUT"]),
+        *setup_routes(console, login, edit_incident, read_body, SECURITY_HEADERS, STATIC),
         Mount("/static", StaticFiles(directory=STATIC), name="static"),
     ]
-    return Starlette(routes=routes)
+    return Starlette(routes=routes, middleware=[
+        Middleware(ViewGate, required=console.view_login, sessions=console.sessions,
+                   operators=console.operators, headers=SECURITY_HEADERS)])

@@ -1,15 +1,24 @@
-"""Who may edit through the console, where it may listen, and the audit trail of edits.
+"""Who may do what through the console, where it may listen, and the credentials it checks.
 
-Credentials: an operator name and a password, checked against a passwords file written by
-``monitor console passwd FILE OPERATOR`` (one ``name:scrypt$n$r$p$salt$hash`` line per operator,
-mode 0600). The browser sends them with each edit (an ``Authorization: Basic`` header set by
-the page's script, never remembered by the browser), so a page of another site cannot make the
+Credentials: a name and a password, checked against a passwords file written by ``monitor
+console passwd FILE NAME [--level viewer|operator|admin]``: one
+``name:level:scrypt$n$r$p$salt$hash`` line per user, mode 0600. A line without a level
+(``name:scrypt$...``, the format before levels) is an ``operator``, the rights it had: an
+upgrade takes no right away. A level that is not one of ``viewer``, ``operator``, ``admin`` (a
+forged or garbled line) stops the console's start with the line's number; a file broken while
+the console runs lets nobody in (not even to view where viewing needs a login) until it is
+fixed. What each level may do: ``monitor/console/levels.py``.
+
+The browser sends the credentials with each edit (an ``Authorization: Basic`` header set by the
+page's script, never remembered by the browser), so a page of another site cannot make the
 browser edit a zone. Why passwords rather than the operators' Ed25519 reset keys: a browser
 cannot use a key file without an extension or WebCrypto key import, and a key held by the
-console server would sign for whoever reaches it. Read-only pages need no login.
+console server would sign for whoever reaches it. The console never grants a reset: the
+operators file of signed resets stays the one source of truth for that.
 
 Listening: loopback by default; any other address needs TLS (certificate and key) and a
-passwords file, or the console refuses to start.
+passwords file, or the console refuses to start; there, viewing needs a login too
+(``monitor/console/sessions.py``).
 """
 
 from __future__ import annotations
@@ -24,8 +33,10 @@ import os
 import re
 import secrets
 import threading
+from dataclasses import dataclass
 from pathlib import Path
 
+from monitor.console.levels import DEFAULT_LEVEL, LevelError, parse_level
 from monitor.errors import ConfigError
 
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$")
@@ -52,37 +63,68 @@ def _verify(password: str, stored: str) -> bool:
     return hmac.compare_digest(got.hex(), digest)
 
 
-def read_passwords(path: str | Path) -> dict[str, str]:
-    """operator -> stored hash; ConfigError (one line) on a bad file."""
+@dataclass(frozen=True)
+class Entry:
+    """One user of the passwords file: the level and the stored scrypt hash."""
+
+    level: str
+    stored: str
+
+
+def read_entries(path: str | Path) -> dict[str, Entry]:
+    """name -> Entry; ConfigError (one line naming the line) on a bad file."""
     p = Path(path)
     try:
         lines = p.read_text(encoding="utf-8").splitlines()
     except FileNotFoundError:
         raise ConfigError(f"{p}: passwords file not found (make one: monitor console passwd "
-                          f"{p} OPERATOR)") from None
+                          f"{p} NAME --level admin)") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise ConfigError(f"{p}: cannot read the passwords file: {exc}") from None
-    out = {}
+    out: dict[str, Entry] = {}
     for k, line in enumerate(lines, 1):
         if not line.strip() or line.lstrip().startswith("#"):
             continue
-        name, sep, stored = line.strip().partition(":")
-        if not sep or not _NAME.match(name) or not stored.startswith("scrypt$"):
-            raise ConfigError(f"{p}:{k}: not an 'operator:scrypt$...' line")
-        out[name] = stored
+        name, sep, rest = line.strip().partition(":")
+        level = DEFAULT_LEVEL  # the format before levels: an operator, as it was
+        if sep and not rest.startswith("scrypt$"):
+            text, sep, rest = rest.partition(":")
+            try:
+                level = parse_level(text)
+            except LevelError as exc:
+                raise ConfigError(f"{p}:{k}: {exc}") from None
+        if not sep or not _NAME.match(name) or not rest.startswith("scrypt$"):
+            raise ConfigError(f"{p}:{k}: not a 'name:level:scrypt$...' line")
+        if name in out:
+            raise ConfigError(f"{p}:{k}: {name!r} is listed twice")
+        out[name] = Entry(level, rest)
     return out
 
 
-def set_password(path: str | Path, operator: str, password: str) -> None:
-    """Add or replace one operator's line (file mode 0600, written atomically)."""
+def read_passwords(path: str | Path) -> dict[str, str]:
+    """name -> stored hash; ConfigError (one line) on a bad file."""
+    return {name: e.stored for name, e in read_entries(path).items()}
+
+
+def set_password(path: str | Path, operator: str, password: str,
+                 level: str | None = None) -> str:
+    """Add or replace one user's line (file mode 0600, written atomically); ``level`` None
+    keeps the user's level (a new user: operator). Every line is written with its level.
+    Returns the level written."""
     if not _NAME.match(operator):
-        raise ConfigError(f"operator {operator!r}: letters, digits, _ . - only")
+        raise ConfigError(f"name {operator!r}: letters, digits, _ . - only")
     if len(password) < MIN_PASSWORD:
         raise ConfigError(f"password too short: at least {MIN_PASSWORD} characters")
+    try:
+        level = parse_level(level) if level is not None else None
+    except LevelError as exc:
+        raise ConfigError(str(exc)) from None
     p = Path(path)
-    entries = read_passwords(p) if p.exists() else {}
-    entries[operator] = hash_password(password)
-    text = "".join(f"{name}:{stored}\n" for name, stored in entries.items())
+    entries = read_entries(p) if p.exists() else {}
+    old = entries.get(operator)
+    level = level or (old.level if old else DEFAULT_LEVEL)
+    entries[operator] = Entry(level, hash_password(password))
+    text = "".join(f"{name}:{e.level}:{e.stored}\n" for name, e in entries.items())
     tmp = p.with_name(f".{p.name}.{secrets.token_hex(4)}.tmp")
     fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
     try:
@@ -91,6 +133,7 @@ def set_password(path: str | Path, operator: str, password: str) -> None:
         os.replace(tmp, p)
     finally:
         tmp.unlink(missing_ok=True)
+    return level
 
 
 class Operators:
@@ -99,17 +142,18 @@ class Operators:
 
     def __init__(self, path: str | Path | None) -> None:
         self.path = Path(path) if path is not None else None
-        self._cache: tuple[float, dict[str, str]] = (-1.0, {})
+        self._cache: tuple[float, dict[str, Entry]] = (-1.0, {})
         self._lock = threading.Lock()
         if self.path is not None:
-            read_passwords(self.path)  # a bad file stops the start, with its line
+            read_entries(self.path)  # a bad file stops the start, with its line
 
     @property
     def enabled(self) -> bool:
         return self.path is not None
 
-    def _entries(self) -> dict[str, str]:
-        assert self.path is not None
+    def _entries(self) -> dict[str, Entry]:
+        if self.path is None:
+            return {}
         try:
             mtime = self.path.stat().st_mtime
         except OSError:
@@ -117,7 +161,7 @@ class Operators:
         with self._lock:
             if mtime != self._cache[0]:
                 try:
-                    self._cache = (mtime, read_passwords(self.path))
+                    self._cache = (mtime, read_entries(self.path))
                 except ConfigError:
                     self._cache = (mtime, {})  # broken: nobody may edit
             return self._cache[1]
@@ -127,10 +171,16 @@ class Operators:
         event loop."""
         if self.path is None or not _NAME.match(name):
             return False  # not a name an operator can have: no hash to compare with
-        stored = self._entries().get(name)
+        entry = self._entries().get(name)
         # an unknown name costs the same scrypt as a known one (no probing of names)
-        ok = _verify(password, stored or _dummy_hash())
-        return ok and stored is not None
+        ok = _verify(password, entry.stored if entry else _dummy_hash())
+        return ok and entry is not None
+
+    def level(self, name: str) -> str | None:
+        """``name``'s level in the file as it is now (None: not in it, or the file is
+        broken or gone: that user may do nothing)."""
+        entry = self._entries().get(name)
+        return entry.level if entry else None
 
     def check(self, authorization: str | None) -> str | None:
         """The operator named by a valid ``Basic`` header, else None (blocking, as

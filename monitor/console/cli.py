@@ -41,8 +41,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="a camera's reference image for the live view and the editor "
                    "(repeatable; default: a grey canvas)")
     p.add_argument("--passwords", type=Path, metavar="FILE",
-                   help="operator passwords (monitor console passwd); without it the console "
-                   "is read-only (default: none)")
+                   help="users and their levels (monitor console passwd); without it the "
+                   "console is read-only (default: none)")
+    p.add_argument("--operators", dest="reset_operators", type=Path, metavar="FILE",
+                   help="the monitor's operators file (bus.operators_file): the setup page "
+                   "lists who may reset, read-only (default: none, not shown)")
     p.add_argument("--audit", type=Path, metavar="FILE",
                    help="audit log of edits, JSON lines (default: ZONEFILE.audit.jsonl)")
     p.add_argument("--https-cert", metavar="PEM", help="TLS certificate of the console "
@@ -51,10 +54,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    "(default: none)")
     p.set_defaults(func=cmd_console)
     sub = p.add_subparsers(dest="console_command", metavar="ACTION", required=False)
-    pw = sub.add_parser("passwd", help="set an operator's console password (read from the "
-                        "terminal, or one line on stdin)")
+    pw = sub.add_parser("passwd", help="set a console user's password and level (the "
+                        "password from the terminal, or one line on stdin)",
+                        description="Add or change one user of the console's passwords file. "
+                        "Levels: viewer (may view), operator (also edits zone polygons), admin "
+                        "(also mute settings, zone set rules, volumes); docs/console.md. No "
+                        "level grants a reset: that is the monitor's operators file.")
     pw.add_argument("file", type=Path, help="passwords file (created mode 0600)")
-    pw.add_argument("operator", help="operator name")
+    pw.add_argument("operator", metavar="NAME", help="user name")
+    pw.add_argument("--level", choices=("viewer", "operator", "admin"),
+                    help="what the user may do (default: the user's level in the file; a new "
+                    "user: operator)")
     pw.set_defaults(func=cmd_passwd)
 
 
@@ -67,8 +77,8 @@ def cmd_passwd(args: argparse.Namespace) -> int:
             raise ConfigError("the two passwords differ: nothing written")
     else:
         password = sys.stdin.readline().rstrip("\n")
-    set_password(args.file, args.operator, password)
-    print(f"password of {args.operator} set in {args.file}")
+    level = set_password(args.file, args.operator, password, args.level)
+    print(f"password of {args.operator} ({level}) set in {args.file}")
     return 0
 
 
@@ -86,7 +96,7 @@ def _references(items: list[str]) -> dict[str, Path]:
 
 def cmd_console(args: argparse.Namespace) -> int:
     from monitor.console.audit import AuditLog
-    from monitor.console.auth import Operators, require_safe_listen
+    from monitor.console.auth import Operators, is_loopback, require_safe_listen
     from monitor.pose import parse_host_port
 
     if args.zones is None:
@@ -110,6 +120,8 @@ def cmd_console(args: argparse.Namespace) -> int:
     operators = Operators(args.passwords)
     references = _references(args.reference)
     audit = AuditLog(args.audit or args.zones.with_name(args.zones.name + ".audit.jsonl"))
+    # off loopback viewing needs a login too (the live picture shows people): sessions.py
+    args.view_login = not is_loopback(host)
     return _serve(args, host, port, tls, operators, references, audit)
 
 
@@ -145,7 +157,8 @@ def _serve(args, host: str, port: int, tls: bool, operators, references, audit) 
                       else NoIncidents(), operators=operators, audit=audit,
                       references=references,
                       edits=ZoneEditIncidents(args.incidents, bus.cell) if args.incidents
-                      else None)
+                      else None, view_login=args.view_login,
+                      reset_operators=args.reset_operators)
     def on_alert(alert) -> None:  # a lock-out: on the live page and in the console's log
         live.add_alert(alert)
         print(f"monitor console: alert {alert.kind}: {alert.message}", file=sys.stderr,

@@ -73,9 +73,11 @@ def check_zone_id(zone_id: str) -> str:
     return zone_id
 
 
-def parse_edit_body(raw: bytes) -> dict:
-    """The editor's JSON object: only ``FIELDS``, texts of at most ``MAX_TEXT`` characters,
-    finite numbers within ``MAX_NUMBER``, nested at most ``MAX_DEPTH`` deep."""
+def parse_edit_body(raw: bytes, fields: tuple[str, ...] = FIELDS,
+                    text_fields: tuple[str, ...] = TEXT_FIELDS) -> dict:
+    """The editor's JSON object: only ``fields``, ``text_fields`` texts of at most ``MAX_TEXT``
+    characters, finite numbers within ``MAX_NUMBER``, nested at most ``MAX_DEPTH`` deep (the
+    setup page's edits name their own fields, ``monitor/console/setup_api.py``)."""
     if len(raw) > MAX_BODY:
         raise BadRequest(f"the body is {len(raw)} bytes: at most {MAX_BODY}")
     try:
@@ -91,11 +93,11 @@ def parse_edit_body(raw: bytes) -> dict:
         raise BadRequest("the body is not a JSON object")
     if _depth(body) > MAX_DEPTH:
         raise BadRequest(f"the JSON is nested too deeply (at most {MAX_DEPTH} levels)")
-    unknown = sorted(set(body) - set(FIELDS))
+    unknown = sorted(set(body) - set(fields))
     if unknown:
         raise BadRequest(f"unknown field {_short(unknown[0])!r} (the fields: "
-                         f"{', '.join(FIELDS)})")
-    for name in TEXT_FIELDS:
+                         f"{', '.join(fields)})")
+    for name in text_fields:
         value = body.get(name)
         if value is None:
             continue

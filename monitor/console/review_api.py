@@ -33,6 +33,7 @@ from monitor.console.review import (
     parse_filters,
     to_csv,
 )
+from monitor.console.setup_routes import forbidden
 
 if TYPE_CHECKING:
     from monitor.console.app import Console
@@ -97,6 +98,10 @@ def review_routes(console: Console, login: Login) -> list[Route]:
                 result="refused", error=why))
             headers = {"retry-after": "60"} if status in (429, 503) else {}
             return json_response({"error": why}, status, headers)
+        refused = await forbidden(console, operator, "mark_reviewed", client, raw_id,
+                                  SECURITY_HEADERS)
+        if refused is not None:  # a viewer: 403 naming the level needed, audited
+            return refused
         try:
             incident_id = check_incident_id(raw_id)
         except BadFilter as exc:

@@ -40,7 +40,7 @@ class ZoneEditor:
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
-        self._lock = threading.Lock()
+        self.lock = threading.Lock()  # every save of the file, by any editor
         self._cached: tuple[str, zn.Cell] | None = None
         self.cell()  # a broken zone file stops the console's start, with its one line
 
@@ -81,7 +81,7 @@ class ZoneEditor:
         (camera, kind, points_px, optional name, speed_scale, base). Returns the new cell,
         whether the zone is new, and the config hash before. ConfigError: nothing written."""
         points = _points(body.get("points_px"))
-        with self._lock:
+        with self.lock:
             base = body.get("base")
             if base is not None and base != file_sha(self.path):
                 raise ConfigError(f"{self.path}: the zone file changed since this page loaded "

@@ -26,6 +26,8 @@ async function pollState() {
   } catch (err) {
     s = { state: "STOP", reason: "console not reachable" };
   }
+  // refused (a login needed off loopback: /setup): never shown as anything but STOP
+  if (!s.state) s = { state: "STOP", reason: s.error || "no state" };
   const banner = $("banner");
   banner.className = s.state;
   banner.textContent = s.state + (s.state === "SLOW" ? " " + s.speed_scale : "") +
