@@ -42,6 +42,8 @@ LEGACY = "olga"  # a line in the format before levels: name:scrypt$...
 RIGHTS = [  # (level, action, allowed): every pair, written out
     ("viewer", "view", True), ("viewer", "edit_zone", False), ("viewer", "edit_mute", False),
     ("viewer", "edit_sets", False), ("viewer", "edit_volume", False),
+    ("viewer", "mark_reviewed", False), ("operator", "mark_reviewed", True),
+    ("admin", "mark_reviewed", True),
     ("operator", "view", True), ("operator", "edit_zone", True),
     ("operator", "edit_mute", False), ("operator", "edit_sets", False),
     ("operator", "edit_volume", False),
