@@ -47,8 +47,13 @@ class Figure:
         grey = cv2.cvtColor(case.image, cv2.COLOR_BGR2GRAY)
         # the person: pixels unlike the image's most common colour (the built-in figure stands
         # on plain grey); a user's crop without such a background is pasted whole
-        values, counts = np.unique(case.image.reshape(-1, 3), axis=0, return_counts=True)
-        common = values[counts.argmax()]
+        # each BGR pixel packed into one integer: a 1-D unique is ~20x faster than rows
+        # (axis=0), which took 0.6 s of every `monitor run` start
+        flat = case.image.reshape(-1, 3).astype(np.uint32)
+        packed = (flat[:, 0] << 16) | (flat[:, 1] << 8) | flat[:, 2]
+        values, counts = np.unique(packed, return_counts=True)
+        top = int(values[counts.argmax()])
+        common = np.array([top >> 16, (top >> 8) & 0xFF, top & 0xFF], case.image.dtype)
         mask = (crop != common).any(axis=2)
         if counts.max() < 0.3 * grey.size or not mask.any():
             mask = np.ones(crop.shape[:2], bool)
