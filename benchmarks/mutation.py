@@ -204,6 +204,11 @@ EQUIVALENT: dict[str, str] = {
     "monitor.adapters.ros2.x_speed_override__mutmut_9":
         "0.0 < scale vs <=: a scale of 0 gives 0.0 either way (the scale itself or the "
         "fallback; -0.0 == 0.0)",
+    # the driver (monitor/driver.py)
+    **{f"monitor.driver.xǁDriverǁstep__mutmut_{n}":
+       "start read from the clock (or 1.0) without stall detection: it is read only by "
+       "_stall_gap, which returns None then, and inside 'if stall_after_s is not None'"
+       for n in (8, 10)},
     # the OPC UA values (monitor/adapters/opcua.py)
     "monitor.adapters.opcua.x_write_order__mutmut_31":
         "old values without a SpeedScale read as scale 1 instead of 0: the server always has "
@@ -266,14 +271,22 @@ def run_target(target: Target, mutmut: str, show_survivors: bool, keep: bool,
         _configure(work, target)
         env = {**os.environ, "POLICY_PROPERTY_EXAMPLES": examples}
         t0 = time.perf_counter()
-        subprocess.run([mutmut, "run", "--max-children", "2", *target.names], cwd=work, env=env,
-                       stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, check=False)
+        with open(work / "mutmut.log", "w") as log:
+            subprocess.run([mutmut, "run", "--max-children", "2", *target.names], cwd=work,
+                           env=env, stdout=log, stderr=subprocess.STDOUT, check=False)
         seconds = time.perf_counter() - t0
         results = {n: s for n, s in _results(work, mutmut).items()
                    if re.search(target.functions, n)
                    and (not target.names or any(fnmatch.fnmatchcase(n, p) for p in target.names))}
         counts = {"mutants": len(results), "killed": 0, "survived": 0, "equivalent": 0,
                   "no tests": 0, "timeout": 0, "other": 0, "seconds": round(seconds)}
+        if results and all(status == "not checked" for status in results.values()):
+            # mutmut stopped before any mutant (its stats or clean test run failed): say why
+            tail = (work / "mutmut.log").read_text(errors="replace").replace("\r", "\n")
+            lines = [ln for ln in tail.splitlines()
+                     if ln.strip() and not re.search("[\u2800-\u28ff]", ln)]  # no spinners
+            print(f"  {target.name}: mutmut checked no mutant; the end of its output:")
+            print("    " + "\n    ".join(lines[-25:]))
         survivors = []
         for name, status in sorted(results.items()):
             if status == "survived" and name in EQUIVALENT:
