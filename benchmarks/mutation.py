@@ -78,6 +78,44 @@ TARGETS = {
                       "monitor.health.camera.xǁCameraHealthǁ_check_blinded*",
                       "monitor.health.camera.xǁCameraHealthǁ_check_frozen*",
                       "monitor.health.camera.xǁCameraHealthǁ_check_moved*")),
+        # the robot-side adapters: what a PLC / OPC UA client / ROS node reads (pure functions;
+        # the servers around them are tested on the wire, far too slowly to run per mutant)
+        Target("modbus", ("monitor/adapters/modbus_map.py",),
+               ("tests/test_adapter_stale_limits.py", "tests/test_adapter_decisions.py"),
+               names=("monitor.adapters.modbus_map.x_render*",
+                      "monitor.adapters.modbus_map.x__ms*",
+                      "monitor.adapters.modbus_map.x__set_bits*",
+                      "monitor.adapters.modbus_map.x__fault_bits*",
+                      "monitor.adapters.modbus_map.x_check_write*")),
+        Target("opcua_values", ("monitor/adapters/opcua.py",),
+               ("tests/test_adapter_stale_limits.py", "tests/test_adapter_decisions.py",
+                "tests/test_adapter_opcua.py::"
+                "test_the_state_is_written_first_when_safer_and_last_when_less_safe"),
+               names=("monitor.adapters.opcua.x_values_of*",
+                      "monitor.adapters.opcua.x_stop_values*",
+                      "monitor.adapters.opcua.x_stale*",
+                      "monitor.adapters.opcua.x_next_values*",
+                      "monitor.adapters.opcua.x_initial_values*",
+                      "monitor.adapters.opcua.x_write_order*")),
+        # the verdict -> snapshot override every adapter shows, and the ROS 2 speed override
+        Target("adapter_override", ("monitor/adapters/snapshot.py", "monitor/adapters/ros2.py"),
+               ("tests/test_adapter_stale_limits.py", "tests/test_adapter_decisions.py",
+                "tests/test_adapters_core.py::"
+                "test_a_verdict_that_cannot_be_is_a_stop_snapshot_never_run",
+                "tests/test_adapters_core.py::"
+                "test_an_overriding_verdict_says_nothing_about_cameras_or_zones",
+                "tests/test_adapters_ros2.py::"
+                "test_the_override_is_zero_for_anything_but_a_valid_run_or_slow"),
+               names=("monitor.adapters.snapshot.x_snapshot_of*",
+                      "monitor.adapters.snapshot.x__reasons*",
+                      "monitor.adapters.snapshot.x__zone_sets*",
+                      "monitor.adapters.ros2.x_speed_override*")),
+        # the driver's own fault decisions: frame_late, the stall gap, frames from before a gap
+        Target("driver", ("monitor/driver.py",),
+               ("tests/test_driver.py", "tests/test_driver_decisions.py", "-m", "not slow"),
+               names=("monitor.driver.xǁDriverǁ_late_fault*",
+                      "monitor.driver.xǁDriverǁ_stall_gap*",
+                      "monitor.driver.xǁDriverǁstep__*")),
     )
 }
 
@@ -159,6 +197,23 @@ EQUIVALENT: dict[str, str] = {
         "break vs continue on a camera without a tracker: every camera gets one in __init__",
     "monitor.boxes.x_merge_boxes__mutmut_12":
         "reshape(None) of the empty 1-D score array is the same (0,) array",
+    # the Modbus register map (monitor/adapters/modbus_map.py)
+    "monitor.adapters.modbus_map.x__set_bits__mutmut_12":
+        "table[:16] vs [:15]: the 16th set's own bit would be 15, the 'other' bit it gets",
+    # the ROS 2 speed override (monitor/adapters/ros2.py)
+    "monitor.adapters.ros2.x_speed_override__mutmut_9":
+        "0.0 < scale vs <=: a scale of 0 gives 0.0 either way (the scale itself or the "
+        "fallback; -0.0 == 0.0)",
+    # the driver (monitor/driver.py)
+    **{f"monitor.driver.xǁDriverǁstep__mutmut_{n}":
+       "start read from the clock (or 1.0) without stall detection: it is read only by "
+       "_stall_gap, which returns None then, and inside 'if stall_after_s is not None'"
+       for n in (8, 10)},
+    # the OPC UA values (monitor/adapters/opcua.py)
+    "monitor.adapters.opcua.x_write_order__mutmut_31":
+        "old values without a SpeedScale read as scale 1 instead of 0: the server always has "
+        "one (initial_values), and without one the State default 0 decides unless the new "
+        "State is 0 too, which is always a STOP at scale 0.0 (stop_values, snapshot_of)",
 }
 
 _SKIP = {".git", ".venv", "mutants", "__pycache__", ".pytest_cache", ".hypothesis",
@@ -189,7 +244,9 @@ def _configure(dest: Path, target: Target) -> None:
         'also_copy = ["zones/", "models/"]\n'
         f"only_mutate = {_toml_list(target.files)}\n"
         f"pytest_add_cli_args_test_selection = {_toml_list(target.tests)}\n"
-        'pytest_add_cli_args = ["-x", "-q", "-p", "no:cacheprovider"]\n'
+        # one process: the suite's addopts start xdist workers, whose coverage of the mutated
+        # functions mutmut's stats run never sees (it then finds no test for any mutant)
+        'pytest_add_cli_args = ["-n", "0", "-x", "-q", "-p", "no:cacheprovider"]\n'
         "use_git_change_detection = false\n"
     )
     (dest / "pyproject.toml").write_text(text)
@@ -214,14 +271,22 @@ def run_target(target: Target, mutmut: str, show_survivors: bool, keep: bool,
         _configure(work, target)
         env = {**os.environ, "POLICY_PROPERTY_EXAMPLES": examples}
         t0 = time.perf_counter()
-        subprocess.run([mutmut, "run", "--max-children", "2", *target.names], cwd=work, env=env,
-                       stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, check=False)
+        with open(work / "mutmut.log", "w") as log:
+            subprocess.run([mutmut, "run", "--max-children", "2", *target.names], cwd=work,
+                           env=env, stdout=log, stderr=subprocess.STDOUT, check=False)
         seconds = time.perf_counter() - t0
         results = {n: s for n, s in _results(work, mutmut).items()
                    if re.search(target.functions, n)
                    and (not target.names or any(fnmatch.fnmatchcase(n, p) for p in target.names))}
         counts = {"mutants": len(results), "killed": 0, "survived": 0, "equivalent": 0,
                   "no tests": 0, "timeout": 0, "other": 0, "seconds": round(seconds)}
+        if results and all(status == "not checked" for status in results.values()):
+            # mutmut stopped before any mutant (its stats or clean test run failed): say why
+            tail = (work / "mutmut.log").read_text(errors="replace").replace("\r", "\n")
+            lines = [ln for ln in tail.splitlines()
+                     if ln.strip() and not re.search("[\u2800-\u28ff]", ln)]  # no spinners
+            print(f"  {target.name}: mutmut checked no mutant; the end of its output:")
+            print("    " + "\n    ".join(lines[-25:]))
         survivors = []
         for name, status in sorted(results.items()):
             if status == "survived" and name in EQUIVALENT:

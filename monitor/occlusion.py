@@ -369,7 +369,7 @@ def occluder_outline_px(points_m: np.ndarray, model: geo.CameraModel) -> np.ndar
 class PolygonSegments:
     """Edges of several image polygons, stacked, for vertical-segment tests."""
 
-    inside: geo._PolygonEdges  # the even-odd point test of the same polygons
+    inside: geo.PolygonEdges  # the even-odd point test of the same polygons
     ax: np.ndarray
     ay: np.ndarray
     bx: np.ndarray
@@ -381,11 +381,11 @@ class PolygonSegments:
         ps = [np.asarray(p, float).reshape(-1, 2) for p in polygons]
         if not ps:
             z = np.zeros(0)
-            return cls(geo._PolygonEdges.build([]), z, z, z, z, np.zeros(0, dtype=np.intp))
+            return cls(geo.PolygonEdges.build([]), z, z, z, z, np.zeros(0, dtype=np.intp))
         a = np.concatenate(ps)
         b = np.concatenate([np.roll(p, -1, axis=0) for p in ps])
         starts = np.cumsum([0] + [len(p) for p in ps[:-1]]).astype(np.intp)
-        return cls(geo._PolygonEdges.build(ps), a[:, 0], a[:, 1], b[:, 0], b[:, 1], starts)
+        return cls(geo.PolygonEdges.build(ps), a[:, 0], a[:, 1], b[:, 0], b[:, 1], starts)
 
     @property
     def count(self) -> int:

@@ -271,10 +271,10 @@ class SelfTestFails(Detector):
     """The real detector whose self-test reports a fault (as h5's self_test does on a model
     that no longer finds the reference person)."""
 
-    calls = 0
+    calls = 0  # per detector: a class-wide count would carry over a second run in one process
 
     def self_test(self):
-        type(self).calls += 1
+        self.calls += 1
         return Fault("detector_self_test", "reference person not found", True, "detector")
 
 
@@ -285,7 +285,7 @@ def test_self_test_runs_at_start_and_every_period_and_its_fault_stops(
     driver = Driver(Pipeline(detector, "cam0", POLICY, None), [rec], self_test_period_s=1.0)
     for k, t in enumerate((0.0, 0.5, 1.0)):
         driver.step(frame_at(empty_cell_image, k, t), t)
-    assert SelfTestFails.calls == 2  # at 0.0 and at 1.0
+    assert detector.calls == 2  # at 0.0 and at 1.0
     assert all("detector_self_test" in {f.name for f in s.result.faults} for s in rec.steps)
     assert rec.steps[-1].result.command.state == STOP
 

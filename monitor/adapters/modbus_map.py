@@ -153,7 +153,7 @@ def render(snap: SafetySnapshot | None, now: float, st: AdapterState) -> list[in
     if snap is None or snap.seq is None:
         status |= 1 << 4
     if stale:
-        status |= 1 << 0
+        status |= 1  # bit 0
     if snap is not None and not stale:
         regs[0] = STATE_CODE[snap.state]
         regs[1] = round(snap.speed_scale * 1000) if snap.state != "STOP" else 0

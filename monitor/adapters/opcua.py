@@ -92,7 +92,7 @@ def node_id(name: str) -> str:
 def values_of(snap: SafetySnapshot, camera_ids: tuple[str, ...]) -> dict[str, Any]:
     """The variable values showing ``snap`` (pure)."""
     overridden = snap.reason_code in OVERRIDES
-    cams = [bool(snap.cameras.get(c, False)) and not overridden for c in camera_ids]
+    cams = [bool(snap.cameras.get(c)) and not overridden for c in camera_ids]
     info = f"{snap.state}: {snap.reason_code or 'clear'}" + (f": {snap.reason}"
                                                              if snap.reason else "")
     return {

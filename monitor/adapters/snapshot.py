@@ -65,7 +65,7 @@ class Output(Protocol):
 
 
 def _reasons(command: dict | None) -> list[dict]:
-    items = (command or {}).get("reasons", [])
+    items = (command or {}).get("reasons")
     return [r for r in items if isinstance(r, dict)] if isinstance(items, list) else []
 
 
@@ -75,15 +75,15 @@ def snapshot_of(verdict: Verdict, now: float, wall: float, counter: int,
     verified command arrived (same clock); ``cameras``: the camera ids to report ok bits for
     (a camera is not ok while a reason of the command names it as a fault's source, or while
     the verdict is an override: then nothing is known)."""
+    # an override knows nothing of the command's reasons: no reason code, zone or zone sets
     cmd = verdict.command if not verdict.code else None
     reasons = _reasons(cmd)
     first = next((r for r in reasons if r.get("code") not in NOTE_CODES), {})
     overridden = bool(verdict.code)
     scale = float(verdict.speed_scale)
-    if verdict.state not in STATE_CODE or not math.isfinite(scale) or not 0.0 <= scale <= 1.0:
-        state, scale = "STOP", 0.0  # cannot happen with a validated command; never RUN
-    else:
-        state = verdict.state
+    state = verdict.state
+    if state not in STATE_CODE or not math.isfinite(scale) or not 0.0 <= scale <= 1.0:
+        state = "STOP"  # cannot happen with a validated command; never RUN (scale 0 below)
     faults = tuple(str(r.get("fault")) for r in reasons if r.get("fault"))
     sources = {str(r.get("source")) for r in reasons if r.get("fault") and r.get("source")}
     age = None if received is None or verdict.command is None else (now - received) * 1000.0
@@ -94,14 +94,14 @@ def snapshot_of(verdict: Verdict, now: float, wall: float, counter: int,
         reset_possible=bool(body.get("reset_possible")) and not overridden,
         reason_code=verdict.code or str(first.get("code", "")),
         reason=verdict.reason or "; ".join(str(r.get("message", "")) for r in reasons),
-        zone_id=None if overridden else (str(first["zone_id"]) if first.get("zone_id") else None),
+        zone_id=str(first["zone_id"]) if first.get("zone_id") else None,
         seq=verdict.seq, age_ms=age, counter=counter, mono=now, wall=wall, faults=faults,
         cameras={c: (not overridden and c not in sources) for c in cameras},
         cell=str(body.get("cell", "")), instance=str(body.get("instance", "")),
         zone_hash=str(body.get("config_hash", "")),
-        zone_sets=() if overridden else _zone_sets(cmd))
+        zone_sets=_zone_sets(cmd))
 
 
 def _zone_sets(command: dict | None) -> tuple[str, ...]:
-    sets = (command or {}).get("zone_sets", [])
+    sets = (command or {}).get("zone_sets")
     return tuple(str(s) for s in sets) if isinstance(sets, list) else ()

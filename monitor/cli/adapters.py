@@ -84,7 +84,7 @@ def register_bridges(bsub, add_zenoh_args) -> None:
 
 def cmd_bridge(args: argparse.Namespace) -> int:
     from monitor.bus import BusKeys, default_instance, open_session
-    from monitor.cli.watch import _watchdog
+    from monitor.cli.watch import make_watchdog
     from monitor.cli.zenoh_args import bus_config
 
     name = f"monitor bridge {args.bridge_kind}"
@@ -99,7 +99,7 @@ def cmd_bridge(args: argparse.Namespace) -> int:
     with StopSignals(name=name) as stop:
         bus = bus_config(args, instance=args.instance or default_instance(args.bridge_kind))
         keys = BusKeys.of(bus.key_prefix)
-        dog = _watchdog(args, bus, keys)
+        dog = make_watchdog(args, bus, keys)
         inbox = Inbox(args.inbox)
         try:
             session = call_interruptible(lambda: open_session(bus), stop)

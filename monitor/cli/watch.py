@@ -68,8 +68,9 @@ def _emit(args, event: dict, text: str) -> None:
         print(f"{_fmt_time()} {text}", flush=True)
 
 
-def _watchdog(args: argparse.Namespace, bus: BusConfig, keys: BusKeys
-              ) -> CommandWatchdog | CellWatchdog:
+def make_watchdog(args: argparse.Namespace, bus: BusConfig, keys: BusKeys
+                  ) -> CommandWatchdog | CellWatchdog:
+    """The consumer rule from the watch options (shared by bridges and the console)."""
     public_keys = tuple(load_public_key(p) for p in args.monitor_key)
     if getattr(args, "expect", None):  # several monitors on the cell (docs/consumer.md)
         return _cell_watchdog(args, bus, public_keys)
@@ -110,7 +111,7 @@ def cmd_watch(args: argparse.Namespace) -> int:
     with StopSignals(name="monitor watch") as stop:
         bus = bus_config(args, instance=args.instance or default_instance("watch"))
         keys = BusKeys.of(bus.key_prefix)
-        dog = _watchdog(args, bus, keys)
+        dog = make_watchdog(args, bus, keys)
         if args.inbox < 1:
             raise ConfigError(f"--inbox {args.inbox}: must be at least 1")
         inbox = Inbox(args.inbox)

@@ -130,7 +130,7 @@ def _serve(args, host: str, port: int, tls: bool, operators, references, audit) 
 
     from monitor.adapters.follower import Follower, subscribe
     from monitor.bus import BusKeys, default_instance, open_session
-    from monitor.cli.watch import _watchdog
+    from monitor.cli.watch import make_watchdog
     from monitor.cli.zenoh_args import bus_config as _bus_config
     from monitor.console.app import Console, build_app
     from monitor.console.edits import ZoneEditIncidents
@@ -147,7 +147,7 @@ def _serve(args, host: str, port: int, tls: bool, operators, references, audit) 
         raise ConfigError(f"--reference: no camera {sorted(unknown)[0]!r} in {args.zones}")
     bus = _bus_config(args, instance=args.instance or default_instance("console"))
     keys = BusKeys.of(bus.key_prefix)
-    dog = _watchdog(args, bus, keys)
+    dog = make_watchdog(args, bus, keys)
     # live pictures count only when signed with a pinned monitor key (as commands do)
     live = LiveState(preview_keys=tuple(load_public_key(p) for p in args.monitor_key),
                      require_signed=not args.unauthenticated, preview_key=keys.preview)

@@ -26,8 +26,6 @@ from monitor.geometry.calibration import (
 )
 from monitor.geometry.camera import (
     CameraModel,
-    _apply,
-    _normaliser,
     apply_homography,
     fit_homography,
     look_at,
@@ -36,9 +34,7 @@ from monitor.geometry.camera import (
 from monitor.geometry.distortion import distortion_fault
 from monitor.geometry.errors import GeometryError
 from monitor.geometry.polygons import (
-    _first_self_intersection,
-    _orient,
-    _PolygonEdges,
+    PolygonEdges,
     clip_polygon_to_rect,
     is_convex,
     points_in_polygon,
@@ -83,15 +79,11 @@ __all__ = [
     "CameraModel",
     "GeometryError",
     "PersonModel",
+    "PolygonEdges",
     "ReactionBudget",
     "SeparationParams",
     "ToolCalibration",
     "ToolPose",
-    "_PolygonEdges",
-    "_apply",
-    "_first_self_intersection",
-    "_normaliser",
-    "_orient",
     "apply_homography",
     "calibrate_tool",
     "clip_polygon_to_rect",

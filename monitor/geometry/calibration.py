@@ -47,7 +47,8 @@ def _nearest_rotation(m: np.ndarray) -> np.ndarray:
     return u @ np.diag([1.0, 1.0, d]) @ vt
 
 
-def _inverse(t: np.ndarray) -> np.ndarray:
+def invert_rigid(t: np.ndarray) -> np.ndarray:
+    """The inverse of a 4x4 rigid transform (rotation transposed, no general inversion)."""
     out = np.eye(4)
     out[:3, :3] = t[:3, :3].T
     out[:3, 3] = -t[:3, :3].T @ t[:3, 3]
@@ -99,8 +100,8 @@ def calibrate_tool(flange_poses: list[np.ndarray] | np.ndarray,
     pairs = (itertools.combinations(range(n), 2) if n <= 30
              else ((i, (i + k) % n) for i in range(n) for k in range(1, 11)))
     for i, j in pairs:
-        aij = _inverse(a[i]) @ a[j]
-        bij = _inverse(b[i]) @ b[j]
+        aij = invert_rigid(a[i]) @ a[j]
+        bij = invert_rigid(b[i]) @ b[j]
         al, be = rotation_vector(aij[:3, :3]), rotation_vector(bij[:3, :3])
         spread = max(spread, float(np.degrees(np.linalg.norm(al))))
         if np.degrees(np.linalg.norm(al)) < MIN_ROTATION_DEG:
@@ -129,7 +130,7 @@ def calibrate_tool(flange_poses: list[np.ndarray] | np.ndarray,
     x = np.eye(4)
     x[:3, :3] = rx
     x[:3, 3] = tx
-    ys = np.array([a[i] @ x @ _inverse(b[i]) for i in range(len(a))])
+    ys = np.array([a[i] @ x @ invert_rigid(b[i]) for i in range(len(a))])
     y = np.eye(4)
     y[:3, :3] = _nearest_rotation(ys[:, :3, :3].sum(axis=0))
     y[:3, 3] = ys[:, :3, 3].mean(axis=0)

@@ -26,8 +26,8 @@ import numpy as np
 
 from monitor.geometry.calibration import (
     ToolCalibration,
-    _inverse,
     calibrate_tool,
+    invert_rigid,
     rotation_angle_deg,
 )
 from monitor.geometry.errors import GeometryError
@@ -84,7 +84,7 @@ def assess_tool_calibration(flange_poses: list[np.ndarray] | np.ndarray, cal: To
     """Replay ``flange_poses`` with tracker poses exact for ``cal`` plus ``noise``."""
     a = np.asarray(flange_poses, dtype=float).reshape(-1, 4, 4)
     x, y = cal.flange_T_tracker, cal.cell_T_reference
-    exact = [_inverse(y) @ ai @ x for ai in a]
+    exact = [invert_rigid(y) @ ai @ x for ai in a]
     rng = np.random.default_rng(seed)
     errs = np.full((trials, 4), math.inf)
     worst = np.zeros((trials, 2))

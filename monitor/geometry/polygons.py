@@ -29,12 +29,12 @@ def points_in_polygon(points: np.ndarray, polygon: np.ndarray) -> np.ndarray:
 def points_in_polygons(points: np.ndarray, polygons: Sequence[np.ndarray]) -> np.ndarray:
     """Even-odd rule for many polygons at once, one vectorised pass; (N, Z) bool."""
     pts = np.asarray(points, dtype=float).reshape(-1, 2)
-    edges = _PolygonEdges.build(polygons)
+    edges = PolygonEdges.build(polygons)
     return edges.contains(pts)
 
 
 @dataclass(frozen=True)
-class _PolygonEdges:
+class PolygonEdges:
     """All edges of several polygons, stacked, so that a point test is one numpy pass."""
 
     x0: np.ndarray
@@ -46,7 +46,7 @@ class _PolygonEdges:
     count: int
 
     @classmethod
-    def build(cls, polygons: Sequence[np.ndarray]) -> _PolygonEdges:
+    def build(cls, polygons: Sequence[np.ndarray]) -> PolygonEdges:
         if not polygons:
             z = np.zeros(0)
             return cls(z, z, z, z, z, np.zeros(0, dtype=np.intp), 0)

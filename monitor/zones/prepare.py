@@ -46,7 +46,7 @@ class _ImageZones:
     scales: tuple[float, ...]
     anchors: tuple[str, ...]
     point_cols: np.ndarray  # zones decided by one anchor point
-    point_edges: geo._PolygonEdges
+    point_edges: geo.PolygonEdges
     point_segments: PolygonSegments  # the same polygons, for feet ranges
     uses_centre: np.ndarray  # per point zone: anchor is the box centre
     area_cols: np.ndarray  # zones decided by overlap area
@@ -202,7 +202,7 @@ def _prepare_image_zones(zs: list[PolygonZone], cam: CameraSpec) -> _ImageZones:
         scales=tuple(zone_scale(z) for z in zs),
         anchors=tuple(z.anchor for z in zs),
         point_cols=np.array(point, dtype=np.intp),
-        point_edges=geo._PolygonEdges.build([np.array(zs[k].points_px) for k in point]),
+        point_edges=geo.PolygonEdges.build([np.array(zs[k].points_px) for k in point]),
         point_segments=PolygonSegments.build([np.array(zs[k].points_px) for k in point]),
         uses_centre=np.array([zs[k].anchor == "centre" for k in point], dtype=bool),
         area_cols=np.array(area, dtype=np.intp),
