@@ -10,10 +10,11 @@ import numpy as np
 import pytest
 
 from monitor.config import demo_cell_path
-from monitor.driver import LATE_FAULT, STALL_FAULT, Driver, Step
+from monitor.driver import LATE_FAULT, STALL_FAULT, Driver, Step, StepInputs
 from monitor.pipeline import Pipeline
-from monitor.policy import PolicyConfig
+from monitor.policy import PolicyConfig, ResetRequest
 from monitor.scene import DemoScene
+from monitor.types import Fault
 from monitor.zones import load_cell
 from tests.test_driver import Clock, FreezingClock, Recorder, frame_at
 
@@ -94,3 +95,42 @@ def test_a_frame_grabbed_exactly_when_a_stall_was_seen_is_processed(detector, im
     assert driver.step(frame_at(image, 1, seen - 2**-10), clock.t).frame is None
     clock.t += 0.0625
     assert driver.step(frame_at(image, 2, seen), clock.t).frame is not None
+
+
+# --- what a step hands on to the pipeline (mutation survivors of ``Driver.step``) -------------
+
+FAULT = Fault("test_fault", "a fault handed in by the service", True, "cam0")
+
+
+@pytest.mark.parametrize("tick", [False, True], ids=["frame", "tick"])
+def test_a_fault_handed_in_reaches_the_decision_on_a_frame_and_on_a_tick(detector, image, tick):
+    clock = Clock()
+    driver = Driver(Pipeline(detector, "cam0", POLICY, load_cell(demo_cell_path())),
+                    [Recorder()], stall_after_s=0.5, clock=clock)
+    first = driver.step(frame_at(image, 0, clock.t), clock.t)
+    assert "test_fault" not in fault_names(first)  # none handed in: none decided on
+    clock.t += 0.0625
+    frame = None if tick else frame_at(image, 1, clock.t)
+    step = driver.step(frame, clock.t, StepInputs(extra_faults=(FAULT,)))
+    assert step.result.command.state == "STOP"
+    assert "test_fault" in fault_names(step), step.result.command.describe()
+
+
+def fault_names(step: Step) -> set[str]:
+    """The faults named in the step's command."""
+    return {r.fault for r in step.result.command.reasons if r.code == "fault"}
+
+
+@pytest.mark.parametrize("tick", [False, True], ids=["frame", "tick"])
+def test_a_reset_handed_in_is_judged_on_a_frame_and_on_a_tick(detector, image, tick):
+    clock = Clock()
+    driver = Driver(Pipeline(detector, "cam0", POLICY, load_cell(demo_cell_path())),
+                    [Recorder()], stall_after_s=0.5, clock=clock)
+    first = driver.step(frame_at(image, 0, clock.t), clock.t)
+    assert first.result.command.reset is None  # none asked: none judged
+    clock.t += 0.0625
+    frame = None if tick else frame_at(image, 1, clock.t)
+    step = driver.step(frame, clock.t, StepInputs(reset=ResetRequest("op", clock.t,
+                                                                     request_id="r-1")))
+    outcome = step.result.command.reset
+    assert outcome is not None and outcome.request_id == "r-1", step.result.command
