@@ -8,14 +8,23 @@ import functools
 import json
 import shutil
 import tempfile
+import threading
+import time
 from pathlib import Path
 
 import cv2
 import numpy as np
+import uvicorn
 
-from monitor.console.auth import set_password
+from monitor.console.app import Console, build_app
+from monitor.console.audit import AuditLog
+from monitor.console.auth import Operators, set_password
+from monitor.console.incidents import NoIncidents
+from monitor.console.live import LiveRenderer, LiveState
+from monitor.console.zones_api import ZoneEditor
 from monitor.incidents import IncidentIndex
 from monitor.incidents.store import RECORD, IncidentStore
+from tests.helpers import free_port
 
 ROOT = Path(__file__).resolve().parents[1]
 OPERATOR, PASSWORD = "anna", "correct horse battery"
@@ -133,13 +142,8 @@ def basic(name: str, password: str) -> dict:
 def make_console(tmp: Path, with_passwords: bool = True, **options):
     """The real app's ``Console`` over a zone file, a real recorder data dir (zone edits are
     incidents there) and a passwords file; ``options``: other ``Console`` fields."""
-    from monitor.console.app import Console
-    from monitor.console.audit import AuditLog
-    from monitor.console.auth import Operators
     from monitor.console.edits import ZoneEditIncidents
     from monitor.console.incidents import RecorderIncidents
-    from monitor.console.live import LiveRenderer, LiveState
-    from monitor.console.zones_api import ZoneEditor
 
     cell = zone_file(tmp)
     editor = ZoneEditor(cell)
@@ -150,6 +154,40 @@ def make_console(tmp: Path, with_passwords: bool = True, **options):
     return Console("c", live, LiveRenderer(live, editor.cell, {}), editor,
                    RecorderIncidents(incidents), references={},
                    edits=ZoneEditIncidents(incidents, "c"), **fields)
+
+
+def plain_console(d: Path, **options):
+    """A ``Console`` over ``d/cell.yaml`` and the passwords file ``d/pw`` without a recorder;
+    its audit log is ``d/audit.jsonl``."""
+    editor = ZoneEditor(d / "cell.yaml")
+    live = LiveState()
+    return Console("c", live, LiveRenderer(live, editor.cell, {}), editor, NoIncidents(),
+                   Operators(d / "pw"), AuditLog(d / "audit.jsonl"), {}, **options)
+
+
+def audit_lines(d: Path) -> list[dict]:
+    """The audit log of a ``plain_console`` over ``d``."""
+    return [json.loads(line) for line in (d / "audit.jsonl").read_text().splitlines()]
+
+
+@contextlib.contextmanager
+def serving(console):
+    """The app in a real uvicorn on 127.0.0.1 (its own thread); yields the base URL."""
+    port = free_port()
+    server = uvicorn.Server(uvicorn.Config(build_app(console), host="127.0.0.1", port=port,
+                                           log_level="warning", timeout_graceful_shutdown=1))
+    thread = threading.Thread(target=server.run, daemon=True)
+    thread.start()
+    deadline = time.monotonic() + 30.0
+    while not server.started:
+        assert time.monotonic() < deadline, "uvicorn did not start within 30 s"
+        assert thread.is_alive(), "uvicorn exited at start"
+        time.sleep(0.02)
+    try:
+        yield f"http://127.0.0.1:{port}"
+    finally:
+        server.should_exit = True
+        thread.join(30.0)
 
 
 CHROMIUM = Path("/usr/bin/chromium")

@@ -16,18 +16,14 @@ import pytest
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
 from starlette.testclient import TestClient
 
-from monitor.console.app import Console, build_app
-from monitor.console.audit import AuditLog
+from monitor.console.app import build_app
 from monitor.console.auth import Operators, hash_password, read_entries, set_password
-from monitor.console.incidents import NoIncidents
 from monitor.console.levels import ACTIONS, LEVELS, NEVER, may, parse_level, refusal, table
-from monitor.console.live import LiveRenderer, LiveState
 from monitor.console.sessions import COOKIE, Sessions
-from monitor.console.zones_api import ZoneEditor
 from monitor.errors import ConfigError
 from monitor.signing import key_fingerprint, public_key_text
 from monitor.zones import load_cell
-from tests.console_kit import basic, zone_file
+from tests.console_kit import audit_lines, basic, plain_console, zone_file
 
 SQUARE = [[900, 150], [1200, 150], [1200, 400], [900, 400]]
 POLYGON = {"camera": "cam0", "kind": "protective", "points_px": SQUARE}
@@ -156,19 +152,8 @@ def cell_dir(tmp_path, hashes):
     return tmp_path
 
 
-def _console(d, **options) -> Console:
-    editor = ZoneEditor(d / "cell.yaml")
-    live = LiveState()
-    return Console("c", live, LiveRenderer(live, editor.cell, {}), editor, NoIncidents(),
-                   Operators(d / "pw"), AuditLog(d / "audit.jsonl"), {}, **options)
-
-
-def _audit(d) -> list[dict]:
-    return [json.loads(line) for line in (d / "audit.jsonl").read_text().splitlines()]
-
-
 def test_each_level_edits_what_it_may_and_a_refusal_is_a_403_naming_the_level(cell_dir):
-    client = TestClient(build_app(_console(cell_dir)))
+    client = TestClient(build_app(plain_console(cell_dir)))
     cell = cell_dir / "cell.yaml"
     before = cell.read_bytes()
     r = client.put("/api/zones/aisle", json=POLYGON, headers=basic("vera", PASSWORD))
@@ -182,11 +167,11 @@ def test_each_level_edits_what_it_may_and_a_refusal_is_a_403_naming_the_level(ce
                    headers=basic("vera", PASSWORD))
     assert r.status_code == 403
     assert cell.read_bytes() == before
-    forbidden = [e for e in _audit(cell_dir) if e["result"] == "forbidden"]
+    forbidden = [e for e in audit_lines(cell_dir) if e["result"] == "forbidden"]
     assert [(e["operator"], e["level"], e["edit"]) for e in forbidden] == [
         ("vera", "viewer", "edit_zone"), ("otto", "operator", "edit_mute"),
         ("vera", "viewer", "edit_sets")]
-    assert all(PASSWORD not in json.dumps(e) for e in _audit(cell_dir))
+    assert all(PASSWORD not in json.dumps(e) for e in audit_lines(cell_dir))
     # an operator edits a polygon as before levels; so does the line without a level
     assert client.put("/api/zones/aisle", json=POLYGON,
                       headers=basic("otto", PASSWORD)).status_code == 200
@@ -199,14 +184,14 @@ def test_each_level_edits_what_it_may_and_a_refusal_is_a_403_naming_the_level(ce
                    headers=basic("ada", PASSWORD))
     assert r.status_code == 200, r.text
     assert load_cell(cell).zone("robot-protective").mute.max_s == 60
-    assert [e["result"] for e in _audit(cell_dir)][-3:] == ["saved", "forbidden", "saved"]
+    assert [e["result"] for e in audit_lines(cell_dir)][-3:] == ["saved", "forbidden", "saved"]
     # a wrong password is a 401 (whoever reaches the port), not a 403
     assert client.put("/api/zones/aisle", json=POLYGON,
                       headers=basic("ada", "wrong password")).status_code == 401
 
 
 def test_a_level_forged_into_the_file_while_running_lets_nobody_in(cell_dir, hashes):
-    client = TestClient(build_app(_console(cell_dir)))
+    client = TestClient(build_app(plain_console(cell_dir)))
     pw = cell_dir / "pw"
     _write_passwords(pw, hashes, f"eve:superuser:{hashes['ada']}\n")
     st = pw.stat()
@@ -228,7 +213,7 @@ def test_a_level_forged_into_the_file_while_running_lets_nobody_in(cell_dir, has
 
 def test_viewing_off_loopback_needs_a_login_and_a_removed_user_is_refused_at_once(
         cell_dir, hashes):
-    client = TestClient(build_app(_console(cell_dir, view_login=True)))
+    client = TestClient(build_app(plain_console(cell_dir, view_login=True)))
     r = client.get("/api/state")
     assert r.status_code == 401 and "needs a login" in r.json()["error"]
     for url in ("/api/zones", "/api/incidents", "/api/setup", "/api/access",
@@ -259,7 +244,8 @@ def test_viewing_off_loopback_needs_a_login_and_a_removed_user_is_refused_at_onc
     assert client.get("/api/state").status_code == 200
     client.post("/api/logout")
     assert client.get("/api/state").status_code == 401
-    assert [e["operator"] for e in _audit(cell_dir) if e["event"] == "login"] == ["vera", "ada"]
+    logins = [e["operator"] for e in audit_lines(cell_dir) if e["event"] == "login"]
+    assert logins == ["vera", "ada"]
 
 
 def test_on_loopback_viewing_stays_open():
@@ -277,7 +263,7 @@ def test_who_may_reset_is_the_operators_file_shown_read_only(cell_dir):
     ops = cell_dir / "operators"
     ops.write_text("# who may reset\n" + "".join(f"{n} {k}\n" for n, k in keys.items()))
     os.chmod(ops, 0o644)
-    client = TestClient(build_app(_console(cell_dir, reset_operators=ops)))
+    client = TestClient(build_app(plain_console(cell_dir, reset_operators=ops)))
     body = client.get("/api/access").json()
     assert body["reset"] == {"file": str(ops), "error": None, "operators": [
         {"name": n, "fingerprint": key_fingerprint(k)} for n, k in sorted(keys.items())]}
@@ -290,5 +276,5 @@ def test_who_may_reset_is_the_operators_file_shown_read_only(cell_dir):
     os.chmod(ops, 0o666)  # writable by others: refused as the monitor refuses it
     body = client.get("/api/access").json()
     assert body["reset"]["operators"] == [] and "mode 0666" in body["reset"]["error"]
-    none = TestClient(build_app(_console(cell_dir))).get("/api/access").json()
+    none = TestClient(build_app(plain_console(cell_dir))).get("/api/access").json()
     assert "--operators FILE" in none["reset"]["error"]

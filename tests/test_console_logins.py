@@ -6,19 +6,16 @@ the lock-out ends) and raise one alert; guesses from one client at many names lo
 
 from __future__ import annotations
 
-import contextlib
 import json
 import statistics
 import threading
 import time
 
 import httpx
-import uvicorn
 
-from monitor.console.app import LOCKOUT_ALERT, build_app
+from monitor.console.app import LOCKOUT_ALERT
 from monitor.console.logins import LoginGuard, LoginLimits
-from tests.console_kit import OPERATOR, PASSWORD, basic, make_console
-from tests.helpers import free_port
+from tests.console_kit import OPERATOR, PASSWORD, basic, make_console, serving
 
 SQUARE = [[900, 150], [1200, 150], [1200, 400], [900, 400]]
 GUESSERS = 16  # at once: with scrypt on the event loop, a state request waited for them all
@@ -31,26 +28,6 @@ class Clock:
 
     def __call__(self) -> float:
         return self.now
-
-
-@contextlib.contextmanager
-def serving(console):
-    """The app in a real uvicorn on 127.0.0.1 (its own thread); yields the base URL."""
-    port = free_port()
-    server = uvicorn.Server(uvicorn.Config(build_app(console), host="127.0.0.1", port=port,
-                                           log_level="warning", timeout_graceful_shutdown=1))
-    thread = threading.Thread(target=server.run, daemon=True)
-    thread.start()
-    deadline = time.monotonic() + 30.0
-    while not server.started:
-        assert time.monotonic() < deadline, "uvicorn did not start within 30 s"
-        assert thread.is_alive(), "uvicorn exited at start"
-        time.sleep(0.02)
-    try:
-        yield f"http://127.0.0.1:{port}"
-    finally:
-        server.should_exit = True
-        thread.join(30.0)
 
 
 def test_100_wrong_passwords_lock_the_operator_out_until_the_lockout_ends(tmp_path):

@@ -6,30 +6,31 @@ login, the zone sets, a floor plan of the volumes, a box corner changed and save
 
 from __future__ import annotations
 
-import contextlib
-import json
 import os
 import subprocess
 import sys
 import tempfile
-import threading
 import time
 from pathlib import Path
 
 import pytest
-import uvicorn
 from starlette.testclient import TestClient
 
 from monitor import zones as zn
-from monitor.console.app import Console, build_app
-from monitor.console.audit import AuditLog
-from monitor.console.auth import Operators, hash_password
-from monitor.console.incidents import NoIncidents
-from monitor.console.live import LiveRenderer, LiveState
-from monitor.console.zones_api import ZoneEditor, file_sha
+from monitor.console.app import build_app
+from monitor.console.auth import hash_password
+from monitor.console.zones_api import file_sha
 from monitor.zones import load_cell
-from tests.console_kit import CHROMIUM, ROOT, basic, chromium, zone_file
-from tests.helpers import free_port
+from tests.console_kit import (
+    CHROMIUM,
+    ROOT,
+    audit_lines,
+    basic,
+    chromium,
+    plain_console,
+    serving,
+    zone_file,
+)
 
 PASSWORD = "a long console password"
 USERS = {"vera": "viewer", "otto": "operator", "ada": "admin"}
@@ -61,22 +62,11 @@ def cell_dir(tmp_path, password_lines):
     return tmp_path
 
 
-def _console(d, **options) -> Console:
-    editor = ZoneEditor(d / "cell.yaml")
-    live = LiveState()
-    return Console("c", live, LiveRenderer(live, editor.cell, {}), editor, NoIncidents(),
-                   Operators(d / "pw"), AuditLog(d / "audit.jsonl"), {}, **options)
-
-
-def _audit(d) -> list[dict]:
-    return [json.loads(line) for line in (d / "audit.jsonl").read_text().splitlines()]
-
-
 ADMIN = basic("ada", PASSWORD)
 
 
 def test_the_setup_shows_sets_rules_mutes_and_volumes(cell_dir):
-    client = TestClient(build_app(_console(cell_dir)))
+    client = TestClient(build_app(plain_console(cell_dir)))
     d = client.get("/api/setup").json()
     assert [(s["id"], s["default"], s["speed_scale"]) for s in d["sets"]] == [
         ("normal", True, None), ("teach", False, 0.2)]
@@ -96,7 +86,7 @@ def test_the_setup_shows_sets_rules_mutes_and_volumes(cell_dir):
 
 
 def test_a_mute_edit_uses_the_cli_validation_and_is_a_draft(cell_dir):
-    client = TestClient(build_app(_console(cell_dir)))
+    client = TestClient(build_app(plain_console(cell_dir)))
     cell = cell_dir / "cell.yaml"
     r = client.put("/api/setup/mute/robot-protective", headers=ADMIN,
                    json={"operators": ["anna", "bert"], "max_s": 120, "as": "warning",
@@ -129,7 +119,7 @@ def test_a_mute_edit_uses_the_cli_validation_and_is_a_draft(cell_dir):
     r = client.put("/api/setup/mute/" + "z" * 300, headers=ADMIN, json={"remove": True})
     assert r.status_code == 400 and "zone id 'zzzzzzzzzzzzzzzzzzzz... (300 characters)'" in \
         r.json()["error"]
-    assert _audit(cell_dir)[-1]["result"] == "bad_request"
+    assert audit_lines(cell_dir)[-1]["result"] == "bad_request"
     r = client.put("/api/setup/mute/no-such-zone", headers=ADMIN, json={"remove": True})
     assert r.status_code == 422 and "no zone 'no-such-zone'" in r.json()["error"]
     for body in ({"max_s": "60"}, {"operators": "anna"}, {"unmutable": 1},
@@ -139,13 +129,13 @@ def test_a_mute_edit_uses_the_cli_validation_and_is_a_draft(cell_dir):
     assert cell.read_bytes() == before
     r = client.put("/api/setup/mute/robot-protective", headers=ADMIN, json={"unmutable": True})
     assert r.status_code == 200 and load_cell(cell).zone("robot-protective").unmutable
-    results = [(e["edit"], e["result"]) for e in _audit(cell_dir)]
+    results = [(e["edit"], e["result"]) for e in audit_lines(cell_dir)]
     assert results[0] == ("edit_mute", "saved") and results[-1] == ("edit_mute", "saved")
     assert ("edit_mute", "invalid") in results and ("edit_mute", "bad_request") in results
 
 
 def test_set_rules_are_edited_with_the_zone_file_rules(cell_dir):
-    client = TestClient(build_app(_console(cell_dir)))
+    client = TestClient(build_app(plain_console(cell_dir)))
     cell = cell_dir / "cell.yaml"
     r = client.put("/api/setup/rules", headers=ADMIN,
                    json={"allow": [["normal", "teach"]], "switch_over_s": 2.5,
@@ -171,7 +161,7 @@ def test_set_rules_are_edited_with_the_zone_file_rules(cell_dir):
 
 
 def test_box_corners_are_edited_in_metres_and_bad_corners_are_refused(cell_dir):
-    client = TestClient(build_app(_console(cell_dir)))
+    client = TestClient(build_app(plain_console(cell_dir)))
     cell = cell_dir / "cell.yaml"
     r = client.put("/api/setup/volume/robot-protective", headers=ADMIN,
                    json={"min_m": [-1.2, -0.8, 0], "max_m": [1.5, 1.0, 2.0]})
@@ -206,31 +196,11 @@ def test_box_corners_are_edited_in_metres_and_bad_corners_are_refused(cell_dir):
                    json={"min_m": [0, 0, 0], "max_m": [1, 1, 1]})
     assert r.status_code == 403 and "needs the admin level" in r.json()["error"]
     assert cell.read_bytes() == before
-    invalid = [e for e in _audit(cell_dir) if e["result"] in ("invalid", "bad_request")]
+    invalid = [e for e in audit_lines(cell_dir) if e["result"] in ("invalid", "bad_request")]
     assert len(invalid) == 9 and all(e["edit"] == "edit_volume" for e in invalid)
 
 
 # --- the page in a real browser -------------------------------------------------------------
-
-@contextlib.contextmanager
-def serving(console):
-    """The app in a real uvicorn on 127.0.0.1 (its own thread); yields the base URL."""
-    port = free_port()
-    server = uvicorn.Server(uvicorn.Config(build_app(console), host="127.0.0.1", port=port,
-                                           log_level="warning", timeout_graceful_shutdown=1))
-    thread = threading.Thread(target=server.run, daemon=True)
-    thread.start()
-    deadline = time.monotonic() + 30.0
-    while not server.started:
-        assert time.monotonic() < deadline, "uvicorn did not start within 30 s"
-        assert thread.is_alive(), "uvicorn exited at start"
-        time.sleep(0.02)
-    try:
-        yield f"http://127.0.0.1:{port}"
-    finally:
-        server.should_exit = True
-        thread.join(30.0)
-
 
 def _wait(driver, condition, what: str, ceiling: float = 30.0):
     deadline = time.monotonic() + ceiling
@@ -249,7 +219,7 @@ def test_the_setup_page_in_a_browser_logs_in_shows_sets_and_a_floor_plan_and_sav
     from selenium.webdriver.common.by import By
 
     cell = cell_dir / "cell.yaml"
-    console = _console(cell_dir, view_login=True)  # as off loopback: viewing needs a login
+    console = plain_console(cell_dir, view_login=True)  # as off loopback: viewing needs a login
     with serving(console) as url, chromium(cell_dir / "profile") as driver:
         driver.get(url + "/setup")
         _wait(driver, lambda d: "needs a login" in d.find_element(By.ID, "message").text,
