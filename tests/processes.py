@@ -34,6 +34,21 @@ CAPACITY = 'capacity_check = "warn"\n'
 LOAD_TOLERANT_AGE = "max_frame_age = 1.0\n"
 
 
+# One inference thread in every monitor a test starts: the suite's two workers already keep both
+# cores busy, and a second onnxruntime thread each only adds waiting (synthetic model, 2-core
+# Xeon: 85 ms of CPU a frame on one thread, 123 ms on two). Tests about threads set their own.
+ONE_THREAD = "threads = 1\n"
+
+
+def one_inference_thread(config: str) -> str:
+    """A monitor.toml text with ``[detector] threads = 1`` unless it sets its own threads."""
+    if "threads =" in config:
+        return config
+    if "[detector]\n" in config:
+        return config.replace("[detector]\n", "[detector]\n" + ONE_THREAD, 1)
+    return config + "\n[detector]\n" + ONE_THREAD
+
+
 def _load_tolerant(extra: str) -> str:
     """``extra`` with ``[policy] max_frame_age = 1.0`` unless it sets its own."""
     if "max_frame_age" in extra:
@@ -85,13 +100,13 @@ class Service:
         (tmp / "operators").write_text(f"tester {public}\n")
         self.config = tmp / "monitor.toml"
         extra = _load_tolerant(extra)
-        self.config.write_text(
+        self.config.write_text(one_inference_thread(
             f'[camera]\nsource = "{camera}"\n{camera_lines}'
             f'[model]\npath = "{model}"\n'
             + ("allow_test_model = true\n" if allow_test_model else "")
             + f'[bus]\ncell = "t5"\ninstance = "svc-test"\noperators_file = "operators"\n'
             f'listen = ["tcp/127.0.0.1:{self.bus_port}"]\n'
-            f'[service]\nmetrics_port = {self.metrics_port}\n{CAPACITY}' + extra)
+            f'[service]\nmetrics_port = {self.metrics_port}\n{CAPACITY}' + extra))
         self.stderr_path = tmp / "service.log"
         self.commands: list[dict] = []
         self.detections: list[dict] = []
@@ -210,13 +225,13 @@ def write_config(tmp: Path, model: Path, extra: str = "") -> tuple[Path, int]:
     video = empty_cell_video(tmp / "empty-cell.mp4")
     port = free_port()
     config = tmp / "monitor.toml"
-    config.write_text(
+    config.write_text(one_inference_thread(
         f'[camera]\nsource = "{video}"\nloop = true\nrealtime = true\n'
         f'[model]\npath = "{model}"\n'
         f'[zones]\nfile = "{demo_cell_path()}"\n'
         f'[service]\n{CAPACITY}'
         f'[bus]\ncell = "t6"\ninstance = "shutdown-test"\n'
-        f'listen = ["tcp/127.0.0.1:{port}"]\n' + extra)
+        f'listen = ["tcp/127.0.0.1:{port}"]\n' + extra))
     return config, port
 
 

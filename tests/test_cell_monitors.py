@@ -19,7 +19,7 @@ from monitor.bus import BusKeys
 from monitor.signing import load_public_key, new_key_pair
 from tests.cameras import MjpegCamera, demo_jpegs
 from tests.helpers import free_port
-from tests.processes import CAPACITY, CellConsumer, Monitor, wait_for
+from tests.processes import CAPACITY, CellConsumer, Monitor, one_inference_thread, wait_for
 
 CELL = "tc"
 PREFIX = f"workcell/{CELL}/"
@@ -31,7 +31,7 @@ def _config(tmp: Path, role: str, camera: str, router: int, instance: str | None
     if not key.exists():
         new_key_pair(key)
     config = tmp / f"{instance or role}.toml"
-    config.write_text(
+    config.write_text(one_inference_thread(
         # 4 frames a second: three monitors, a router and the cameras share 2 cores here
         f'[camera]\nsource = "{camera}"\nmax_fps = 4.0\n'
         '[model]\nallow_test_model = true\npath = "MODEL"\n'
@@ -40,7 +40,7 @@ def _config(tmp: Path, role: str, camera: str, router: int, instance: str | None
         f'[service]\n{CAPACITY}'
         f'[bus]\ncell = "{CELL}"\nrole = "{role}"\ninstance = "{instance or role}"\n'
         f'signing_key = "{key}"\noperators_file = "operators"\n'
-        f'connect = ["tcp/127.0.0.1:{router}"]\n')
+        f'connect = ["tcp/127.0.0.1:{router}"]\n'))
     return config
 
 

@@ -28,15 +28,16 @@ from monitor.commission.walk_scene import (
 from monitor.scenarios import PROTECTIVE
 from monitor.zones import parse_cell
 from tests.helpers import one_error_line
+from tests.processes import one_inference_thread
 
 ZONE = "robot-protective"
 
 
 def _walk(tmp, model, scene, missed=frozenset(), truth=True):
     truths = write_walk_scene(tmp, scene, missed)
-    (tmp / "monitor.toml").write_text(
+    (tmp / "monitor.toml").write_text(one_inference_thread(
         f'[camera]\nid = "cam0"\nsource = "walk.mp4"\n[model]\npath = "{model}"\n'
-        f'[zones]\nfile = "{ZONES_FILE}"\n')
+        f'[zones]\nfile = "{ZONES_FILE}"\n'))
     args = ["commission", "walk", "--video", str(tmp / "walk.mp4"), "--config",
             str(tmp / "monitor.toml"), "--out", str(tmp / "walk"), "--no-video"]
     assert main([*args, "--truth", str(tmp / "truth.json")] if truth else args) == 0

@@ -21,6 +21,7 @@ from monitor.scene import cell as scene_cell
 from monitor.scene import write_video
 from monitor.zones import parse_cell, write_cell_data
 from tests.helpers import one_error_line
+from tests.processes import one_inference_thread
 
 CABINET = scene_cell.Block("cabinet", (-1.0, -1.5, 0.0), (-0.1, -1.1, 1.9))
 BEHIND_CABINET = (-0.625, -0.875)  # a protective floor cell right behind it
@@ -52,9 +53,9 @@ def walked(tmp_path_factory, synthetic_model):
     scene = _scene()
     truth = write_video(tmp / "walk.mp4", scene.frames(), scene.fps)
     write_cell_data(_zone_data(scene), tmp / "cell.yaml")
-    (tmp / "monitor.toml").write_text(
+    (tmp / "monitor.toml").write_text(one_inference_thread(
         f'[camera]\nid = "cam0"\nsource = "walk.mp4"\n[model]\npath = "{synthetic_model}"\n'
-        '[zones]\nfile = "cell.yaml"\n')
+        '[zones]\nfile = "cell.yaml"\n'))
     assert main(["commission", "walk", "--video", str(tmp / "walk.mp4"), "--config",
                  str(tmp / "monitor.toml"), "--out", str(tmp / "walk"), "--no-video"]) == 0
     assert main(["commission", "report", "--config", str(tmp / "monitor.toml"), "--walk",

@@ -22,7 +22,7 @@ from monitor.scene import Camera
 from monitor.scene.cell import SCENE_CAMERA, CellScene, Walker, camera_calibration
 from monitor.signing import load_public_key, new_key_pair
 from tests.helpers import free_port
-from tests.processes import CAPACITY, CellConsumer, Monitor
+from tests.processes import CAPACITY, CellConsumer, Monitor, one_inference_thread
 
 CELL = "tho"
 # camera B looks at the floor beyond camera A's right edge, where monitor-b's zone is
@@ -64,7 +64,7 @@ def _config(tmp: Path, role: str, camera: Camera, video: Path, zones: Path, rout
     handover = (f'[handover]\npeers = {{ "{peer}" = "{tmp / (peer + ".key.pub")}" }}\n'
                 if peer else "")
     config = tmp / f"{role}.toml"
-    config.write_text(
+    config.write_text(one_inference_thread(
         f'[camera]\nid = "{camera.camera_id}"\nsource = "{video}"\nloop = true\n'
         'realtime = true\nmax_fps = 5.0\n'
         f'[model]\nallow_test_model = true\npath = "{model}"\n'
@@ -76,7 +76,7 @@ def _config(tmp: Path, role: str, camera: Camera, video: Path, zones: Path, rout
         f'[service]\n{CAPACITY}'
         f'[bus]\ncell = "{CELL}"\nrole = "{role}"\ninstance = "{role}"\n'
         f'signing_key = "{tmp / (role + ".key")}"\n'
-        f'connect = ["tcp/127.0.0.1:{router}"]\n' + handover)
+        f'connect = ["tcp/127.0.0.1:{router}"]\n' + handover))
     return config
 
 

@@ -37,6 +37,7 @@ from monitor.scene import DemoScene, write_video
 from monitor.types import Alert, Fault, FrameInfo
 from monitor.zones import load_cell
 from tests.helpers import run_monitor
+from tests.processes import one_inference_thread
 from tests.shared import built_once
 
 PRE_S, POST_S, TICK_S = 1.5, 1.0, 0.05
@@ -53,7 +54,8 @@ def _replay_recording(base: Path, model: Path
     scene = DemoScene(fps=5.0, duration_s=8.0, path=PATH)
     write_video(video, scene.frames(), scene.fps)
     config = base / "monitor.toml"
-    config.write_text(f"[recorder]\nenabled = true\npre_s = {PRE_S}\npost_s = {POST_S}\n")
+    config.write_text(one_inference_thread(
+        f"[recorder]\nenabled = true\npre_s = {PRE_S}\npost_s = {POST_S}\n"))
     proc = run_monitor("replay", video, "--zones", demo_cell_path(), "--model",
                        model, "--config", config, "--out", base / "out",
                        "--incidents", base / "incidents", "--no-video",

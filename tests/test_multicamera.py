@@ -235,8 +235,8 @@ def test_service_with_two_cameras(tmp_path, synthetic_model, batch):
         '[camera]\nsource = "synthetic:demo"\n',
         '[[camera]]\nid = "cam0"\nsource = "synthetic:demo"\n'
         '[[camera]]\nid = "cam1"\nsource = "synthetic:demo"\n')
-    svc.config.write_text(text + f'[zones]\nfile = "{cell}"\n'
-                          f'[detector]\nbatch_cameras = {str(batch).lower()}\n')
+    svc.config.write_text(text.replace("[detector]\n", "[detector]\nbatch_cameras = "
+                                       f"{str(batch).lower()}\n") + f'[zones]\nfile = "{cell}"\n')
     with svc:
         svc.next_command(0, lambda c: codes(c) - {"startup", "clearing"} or
                          c["state"] != "STOP", 60, "a decision after start-up")

@@ -22,6 +22,7 @@ from monitor.replay import ReplaySettings, replay
 from monitor.scene import DEMO_CAMERA, DemoScene, FrameTruth, write_video
 from monitor.zones import Cell, check_persons, load_cell
 from tests.helpers import assert_one_line_error, run_monitor
+from tests.processes import one_inference_thread
 from tests.shared import built_once, run_root
 from tests.videos import faststart
 
@@ -93,8 +94,13 @@ def demo(tmp_path_factory: pytest.TempPathFactory) -> Demo:
 def cli_replay(demo: Demo, synthetic_model: Path, tmp_path_factory: pytest.TempPathFactory):
     """`monitor replay` as a user runs it."""
     def build(out: Path) -> subprocess.CompletedProcess:
+        # a config with one inference thread only (tests.processes.ONE_THREAD: the other worker
+        # has the second core); every other setting is the built-in default
+        config = out.with_suffix(".toml")  # beside the outputs, not among them
+        config.write_text(one_inference_thread(""))
         return run_monitor("replay", demo.video, "--zones", demo_cell_path(), "--model",
-                           synthetic_model, "--out", out, "--reset-at", str(RESET_AT[0]),
+                           synthetic_model, "--config", config, "--out", out, "--reset-at",
+                           str(RESET_AT[0]),
                            "--reset-at", str(RESET_AT[1]), timeout=600)  # a hang guard only
 
     proc = built_once(tmp_path_factory, "replay-cli", build)

@@ -70,16 +70,12 @@ def _project_lines(model: geo.CameraModel, lines: list[np.ndarray], samples: int
         t = np.linspace(0, 1, samples)[:, None]
         pts = np.concatenate([a + t * (b - a) for a, b in itertools.pairwise(line)])
         px, front = model.project(pts)
-        run: list[np.ndarray] = []
-        for p, ok in zip(px, front, strict=True):
-            if ok and np.all(np.isfinite(p)) and np.all(np.abs(p) < 1e6):
-                run.append(p)
-            elif run:
-                if len(run) > 1:
-                    out.append(np.array(run))
-                run = []
-        if len(run) > 1:
-            out.append(np.array(run))
+        px = np.asarray(px, dtype=float).reshape(-1, 2)
+        with np.errstate(invalid="ignore"):
+            ok = np.asarray(front, dtype=bool) & (np.abs(px) < 1e6).all(axis=1)
+        # runs of consecutive drawable points (a NaN fails the bound too); one point is no line
+        edges = np.flatnonzero(np.diff(np.r_[0, ok.astype(np.int8), 0]))
+        out += [px[a:b] for a, b in zip(edges[::2], edges[1::2], strict=True) if b - a > 1]
     return out
 
 
