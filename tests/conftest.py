@@ -39,7 +39,15 @@ def _isolated_home(tmp_path_factory: pytest.TempPathFactory, monkeypatch: pytest
 
 def pytest_configure(config: pytest.Config) -> None:
     """Files the tests write get the usual 0644/0755: a umask of 002 (group-writable files)
-    would make the monitor refuse the operators and public key files they write."""
+    would make the monitor refuse the operators and public key files they write.
+
+    Bytecode is written even where PYTHONDONTWRITEBYTECODE is set (as on some CI hosts): the
+    suite starts `monitor` in a few hundred fresh processes, and each would otherwise compile
+    the package from source again (0.55 s of CPU a start, measured), as would each worker its
+    assertion-rewritten test modules."""
     import os
+    import sys
 
     os.umask(0o022)
+    sys.dont_write_bytecode = False
+    os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
