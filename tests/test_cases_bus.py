@@ -22,7 +22,13 @@ from monitor.scene import DemoScene, Figure, draw_figure
 from monitor.signing import load_private_key, new_key_pair
 from monitor.types import FrameInfo
 from monitor.zones import load_cell, parse_cell
-from tests.helpers import assert_one_line_error, free_port, run_monitor, wait_for
+from tests.helpers import (
+    assert_one_line_error,
+    free_port,
+    run_here,
+    run_monitor,
+    wait_for,
+)
 
 POLICY = PolicyConfig(clear_time=0.5, restart_interlock="auto")
 
@@ -147,7 +153,7 @@ def test_an_unsigned_packet_on_safety_case_neither_stops_nor_latches(tmp_path, d
         assert pipe.state.latched_by is None
 
 
-@pytest.mark.slow  # six monitor processes
+@pytest.mark.slow  # two `monitor case select` processes against a bus in this one
 def test_cli_zone_sets_and_a_signed_case_select(tmp_path):
     data = yaml.safe_load(demo_cell_path().read_text())
     data["zones"] = [
@@ -157,15 +163,15 @@ def test_cli_zone_sets_and_a_signed_case_select(tmp_path):
          "min_m": [1.0, -1.6, 0.0], "max_m": [2.6, 0.4, 2.2]}]
     cell_file = tmp_path / "cell.yaml"
     cell_file.write_text(yaml.safe_dump(data))
-    assert run_monitor("zones", "set", "add", cell_file, "A", "--zones", "station-a"
-                       ).returncode == 0
-    assert run_monitor("zones", "set", "add", cell_file, "B", "--zones", "station-b",
-                       "--speed-scale", "0.2").returncode == 0
-    bad = run_monitor("zones", "set", "add", cell_file, "C", "--zones", "nowhere")
+    assert run_here("zones", "set", "add", cell_file, "A", "--zones", "station-a"
+                    ).returncode == 0
+    assert run_here("zones", "set", "add", cell_file, "B", "--zones", "station-b",
+                    "--speed-scale", "0.2").returncode == 0
+    bad = run_here("zones", "set", "add", cell_file, "C", "--zones", "nowhere")
     assert_one_line_error(bad, "no zone 'nowhere'")
-    listed = run_monitor("zones", "set", "list", cell_file).stdout
+    listed = run_here("zones", "set", "list", cell_file).stdout
     assert "* A: station-a" in listed and "B: station-b  speed<=0.2" in listed
-    assert "id: B" in run_monitor("zones", "set", "show", cell_file, "B").stdout
+    assert "id: B" in run_here("zones", "set", "show", cell_file, "B").stdout
     cell = load_cell(cell_file)
     assert cell.spec.default_set == "A"
 

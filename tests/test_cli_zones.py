@@ -15,7 +15,7 @@ import pytest
 from monitor import cli
 from monitor import geometry as geo
 from monitor import zones as zn
-from tests.helpers import run_monitor
+from tests.helpers import run_here, run_monitor
 
 DEMO = Path(__file__).resolve().parents[1] / "zones" / "demo-cell.yaml"
 ROOT = Path(__file__).resolve().parents[1]
@@ -271,11 +271,11 @@ def test_zones_add_takes_the_points_after_an_option_too(tmp_path):
     cell = tmp_path / "cell.yaml"
     cell.write_bytes(DEMO.read_bytes())
     pts = "10,10 200,10 200,200 10,200"
-    first = run_monitor("zones", "add", cell, "late", "--kind", "protective", pts)
+    first = run_here("zones", "add", cell, "late", "--kind", "protective", pts)
     assert first.returncode == 0, first.stderr
-    assert run_monitor("zones", "add", cell, "early", pts, "--kind", "protective").returncode == 0
-    shown = run_monitor("zones", "show", cell, "late").stdout
+    assert run_here("zones", "add", cell, "early", pts, "--kind", "protective").returncode == 0
+    shown = run_here("zones", "show", cell, "late").stdout
     assert "200" in shown
     # a second leftover is still refused in one line
-    bad = run_monitor("zones", "add", cell, "twice", "--kind", "protective", pts, pts)
+    bad = run_here("zones", "add", cell, "twice", "--kind", "protective", pts, pts)
     assert bad.returncode == 2 and "unrecognized arguments" in bad.stderr

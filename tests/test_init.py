@@ -16,13 +16,14 @@ import pytest
 
 from monitor.config import load_config
 from monitor.signing import load_operators, load_private_key
-from tests.helpers import free_port, run_monitor
+from tests.helpers import free_port, run_here, run_monitor
 
 POLY = "40,40 600,40 600,440 40,440"
 
 
-def ok(*args: object, cwd: Path | None = None, timeout: float = 120) -> str:
-    res = run_monitor(*args, cwd=cwd, timeout=timeout)
+def ok(*args: object, cwd: Path | None = None) -> str:
+    """A file command (init, zones, docs) in this process; ``monitor run`` gets its own."""
+    res = run_here(*args, cwd=cwd)
     assert res.returncode == 0, res.stderr[-3000:]
     assert "Traceback" not in res.stderr
     return res.stdout
@@ -101,7 +102,7 @@ def test_init_writes_the_kit_with_private_keys_and_refuses_to_overwrite(tmp_path
     assert "ExecStart=" in (kit / "workcell-monitor.service").read_text()
 
     before = {p: p.read_bytes() for p in kit.rglob("*") if p.is_file()}
-    again = run_monitor("init", kit, "--camera", f"cam0={video}")
+    again = run_here("init", kit, "--camera", f"cam0={video}")
     one_line_error(again, "exists", "--force")
     assert {p: p.read_bytes() for p in kit.rglob("*") if p.is_file()} == before
     ok("init", kit, "--camera", f"cam0={video}", "--force")
@@ -109,7 +110,7 @@ def test_init_writes_the_kit_with_private_keys_and_refuses_to_overwrite(tmp_path
 
 
 def test_init_with_a_live_camera_leaves_the_model_to_the_integrator(tmp_path):
-    res = run_monitor("init", tmp_path / "a", "--camera", "cam0=rtsp://10.0.0.21/stream1")
+    res = run_here("init", tmp_path / "a", "--camera", "cam0=rtsp://10.0.0.21/stream1")
     one_line_error(res, "--size")
     assert not (tmp_path / "a").exists()
     out = ok("init", tmp_path / "b", "--camera", "cam0=rtsp://10.0.0.21/stream1", "--size",
@@ -142,7 +143,7 @@ def test_docs_lists_and_prints_the_shipped_documents():
         assert re.search(rf"^{name}\s", listing, re.MULTILINE), listing
     assert ok("docs", "security").startswith("# ")
     assert "monitor zones camera" in ok("docs", "zones")
-    one_line_error(run_monitor("docs", "nope"), "no document 'nope'", "consumer")
+    one_line_error(run_here("docs", "nope"), "no document 'nope'", "consumer")
 
 
 def test_run_help_points_to_monitor_init_not_to_a_checkout_file():

@@ -18,7 +18,7 @@ from monitor.policy import PolicyConfig
 from monitor.resets import latch_of_status, signed_reset
 from monitor.zones import load_cell
 from tests.cameras import MjpegCamera, demo_jpegs
-from tests.helpers import assert_one_line_error, free_port, run_monitor
+from tests.helpers import assert_one_line_error, free_port, run_here, run_monitor
 from tests.processes import Service, codes, wait_for
 
 POLICY = PolicyConfig()
@@ -226,13 +226,13 @@ def test_the_test_model_on_a_live_camera_refuses_to_start(tmp_path, synthetic_mo
 
 
 def test_model_info_names_the_synthetic_model_a_test_model(synthetic_model, tmp_path):
-    info = run_monitor("model", "info", "--model", synthetic_model)
+    info = run_here("model", "info", "--model", synthetic_model)
     assert info.returncode == 0, info.stderr
     line = [x for x in info.stdout.splitlines() if x.startswith("test_model")]
     assert line and "TEST model" in line[0] and "never a real person" in line[0]
     from tests.onnx_models import yolov8_like  # any other model: no such line
 
-    other = run_monitor("model", "info", "--model", yolov8_like(tmp_path / "other.onnx"))
+    other = run_here("model", "info", "--model", yolov8_like(tmp_path / "other.onnx"))
     assert other.returncode == 0 and "layout" in other.stdout, other.stderr
     assert not [x for x in other.stdout.splitlines() if x.startswith("test_model")]
 
