@@ -40,22 +40,25 @@ LOAD_TOLERANT_AGE = "max_frame_age = 1.0\n"
 ONE_THREAD = "threads = 1\n"
 
 
+def with_default(config: str, section: str, line: str) -> str:
+    """A monitor.toml text with ``line`` (``key = value``) in ``[section]``, unless the text
+    sets that key itself (a test about it keeps its own value)."""
+    key = line.split("=", 1)[0].strip()
+    if f"{key} =" in config:
+        return config
+    if f"[{section}]\n" in config:
+        return config.replace(f"[{section}]\n", f"[{section}]\n{line}", 1)
+    return config + f"\n[{section}]\n{line}"
+
+
 def one_inference_thread(config: str) -> str:
     """A monitor.toml text with ``[detector] threads = 1`` unless it sets its own threads."""
-    if "threads =" in config:
-        return config
-    if "[detector]\n" in config:
-        return config.replace("[detector]\n", "[detector]\n" + ONE_THREAD, 1)
-    return config + "\n[detector]\n" + ONE_THREAD
+    return with_default(config, "detector", ONE_THREAD)
 
 
 def _load_tolerant(extra: str) -> str:
     """``extra`` with ``[policy] max_frame_age = 1.0`` unless it sets its own."""
-    if "max_frame_age" in extra:
-        return extra
-    if "[policy]\n" in extra:
-        return extra.replace("[policy]\n", "[policy]\n" + LOAD_TOLERANT_AGE, 1)
-    return extra + "\n[policy]\n" + LOAD_TOLERANT_AGE
+    return with_default(extra, "policy", LOAD_TOLERANT_AGE)
 
 
 def wait_for(cond: Callable[[], object], timeout: float, what: str, proc=None):

@@ -49,9 +49,7 @@ def marker_video(path: Path) -> Path:
 def slow_model(tmp: Path, base: Path, seconds: float) -> Path:
     """The synthetic model, slow by about ``seconds`` on marked frames on this machine."""
     probe = slow_on_marker(base, tmp / "probe.onnx", 100)
-    opts = ort.SessionOptions()
-    opts.intra_op_num_threads = 1  # as the test's monitor runs it (tests.processes.ONE_THREAD)
-    session = ort.InferenceSession(str(probe), opts, providers=["CPUExecutionProvider"])
+    session = ort.InferenceSession(str(probe), providers=["CPUExecutionProvider"])
     side = session.get_inputs()[0].shape[2]
     plain = np.full((1, 3, side, side), 0.45, np.float32)
     marked = plain.copy()
