@@ -110,7 +110,11 @@ def test_slow_inference_between_stall_timeout_and_frame_timeout_stops_then_recov
     model = slow_model(tmp_path, synthetic_model, 1.2)
     video = marker_video(tmp_path / "marked.mp4")
     with Service(tmp_path, model, str(video), ZONES + "[policy]\nframe_timeout = 3.0\n"
-                 'restart_interlock = "auto"\nmax_frame_age = 0.3\n',
+                 'restart_interlock = "auto"\nmax_frame_age = 0.3\n'
+                 # the default two threads, as slow_model measured: the slow step must land
+                 # between stall_timeout and frame_timeout (one thread under the suite's load
+                 # overshot frame_timeout once in 6 runs)
+                 "[detector]\nthreads = 2\n",
                  camera_lines="loop = true\nrealtime = true\n") as svc:
         start = svc.next_command(0, lambda c: c["state"] == "RUN", 60, "RUN")[0]
         window = _wait_slow_step(svc, STALL_TIMEOUT + 0.3, 30)
