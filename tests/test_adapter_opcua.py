@@ -7,8 +7,10 @@ users."""
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import datetime as dt
+import gc
 import math
 import multiprocessing
 import os
@@ -31,6 +33,7 @@ from monitor.adapters.opcua import (  # noqa: E402
     VARIABLES,
     OpcUaOutput,
     OpcUaSettings,
+    init_without_collections,
     initial_values,
     node_id,
     values_of,
@@ -169,6 +172,30 @@ def test_the_state_is_written_first_when_safer_and_last_when_less_safe():
     assert initial_values(("cam0",))["CamerasOk"] == [False]
     assert stop["SafetyStateManagement.VisionSafetyTriggered"] is True
     assert run["SafetyStateManagement.VisionSafetyTriggered"] is False
+
+
+@pytest.mark.parametrize("collecting", [True, False])
+def test_the_address_space_is_built_without_collections_and_kept_out_of_later_ones(collecting):
+    """asyncua's standard address space (~480k objects) is built with the collector paused
+    and then frozen, so no later full collection pauses the server's thread to scan it; the
+    collector's own setting is left as it was."""
+    was = gc.isenabled()
+    (gc.enable if collecting else gc.disable)()
+    try:
+        before = gc.get_freeze_count()
+        seen: list[bool] = []
+
+        class Probe(asyncua.Server):
+            async def init(self, shelf_file=None) -> None:
+                seen.append(gc.isenabled())
+                await super().init(shelf_file)
+
+        asyncio.run(init_without_collections(Probe()))
+        assert seen == [False]
+        assert gc.get_freeze_count() - before > 100_000
+        assert gc.isenabled() is collecting
+    finally:
+        (gc.enable if was else gc.disable)()
 
 
 def test_the_server_shows_stop_itself_when_the_adapter_loop_stops_handing_over():

@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
+import gc
 import ipaddress
 import logging
 import threading
@@ -450,7 +451,7 @@ class OpcUaOutput:
         s = self.settings
         server = GuardedServer(user_manager=_Users(s.users, s.anonymous),
                                handshake_s=s.handshake_s)
-        await server.init()
+        await init_without_collections(server)
         server.set_endpoint(s.endpoint)
         server.set_server_name("workcell-monitor safety status (non-safety)")
         await server.set_application_uri(APPLICATION_URI)
@@ -494,6 +495,26 @@ class OpcUaOutput:
                 ua.Variant(ua.LocalizedText(v.description), ua.VariantType.LocalizedText)))
             nodes[v.name] = (var.nodeid, vtype)
         return server, nodes
+
+
+async def init_without_collections(server) -> None:
+    """``server.init()`` with the cyclic garbage collector paused, then its objects frozen.
+
+    The standard address space is about half a million Python objects that live as long as the
+    server. Built with the collector running, it costs 3.2 s of CPU on a 2-core EPYC (the
+    collector scans the growing heap again and again), paused 1.9 s. Left in the collector's
+    generations, every later full collection scans them again: a 0.3-0.5 s pause of the server's
+    thread, longer than the 250 ms stale limit, at a moment nobody chose. ``gc.freeze`` moves
+    them (and whatever else lives by then) out of all future collections.
+    """
+    was_enabled = gc.isenabled()
+    gc.disable()
+    try:
+        await server.init()
+    finally:
+        gc.freeze()
+        if was_enabled:
+            gc.enable()
 
 
 async def _shutdown(server) -> None:
