@@ -51,7 +51,7 @@ from monitor.models import synthetic
 from monitor.bus import BusConfig, SafetyBus, open_session
 from monitor.config import MonitorConfig, demo_cell_path
 from monitor.detector import Detector, DetectorConfig, letterbox
-from monitor.driver import Driver
+from monitor.driver import Driver, settle_heap
 from monitor.frames import LatestFrameGrabber, PacedSource, VideoFileReader
 from monitor.health import CameraHealth, HealthConfig
 from monitor.metrics import Metrics
@@ -251,6 +251,7 @@ def latency(video: Path, detector: Detector, cell: Cell, seconds: float) -> dict
             sink = ServiceSink(bus, Metrics(0, "127.0.0.1"), [grabber])
             feed = LiveFeed([grabber], bus, None, config.service.tick_s, stop,
                             seconds + 0.5, sink.alert)
+            settle_heap()  # as the service does before its loop
             Driver(pipeline, [sink], stall_after_s=config.policy.frame_timeout).run(feed, stop)
         finally:
             stop.set()

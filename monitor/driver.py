@@ -23,6 +23,7 @@ alert and a log line. Replay never measures wall time, so its events stay determ
 from __future__ import annotations
 
 import dataclasses
+import gc
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -34,6 +35,21 @@ from monitor.muting import MuteRequest
 from monitor.pipeline import Pipeline, StepResult
 from monitor.policy import ResetRequest
 from monitor.types import Fault
+
+
+def settle_heap() -> int:
+    """Collect once, then freeze every object alive now out of all later collections; returns
+    how many are frozen.
+
+    The service calls it once before its loop: what start-up built (modules, the model session,
+    zones, config: about 108k objects for the default config) lives as long as the service.
+    Left in the collector's generations, each full collection scans them again: about 90 ms of
+    the decision thread at a moment nobody chose, straight into the worst-case reaction time.
+    """
+    gc.collect()
+    gc.freeze()
+    return gc.get_freeze_count()
+
 
 STALL_FAULT = "monitor_stalled"
 LATE_FAULT = "frame_late"  # a step so slow that its frame was too old once decided

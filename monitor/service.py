@@ -26,7 +26,7 @@ from monitor.cases.receiver import CaseReceiver
 from monitor.commissioned import fingerprint
 from monitor.commissioned import status_of as commissioned_status
 from monitor.config import MonitorConfig, load_config
-from monitor.driver import Driver, protective_warning
+from monitor.driver import Driver, protective_warning, settle_heap
 from monitor.geometry import describe_separation
 from monitor.health.build import inplace_check, protective_regions
 from monitor.metrics import Metrics
@@ -242,6 +242,7 @@ def _serve(config: MonitorConfig, pipeline: Pipeline, bus: SafetyBus, expected: 
         if len(grabbers) > 1:
             event("batching the cameras' frames" if batch else "cameras' frames run in turn",
                   cameras=len(grabbers))
+        event("start-up objects frozen out of garbage collection", objects=settle_heap())
         driver.run(feed, stop, batch=batch)
     finally:
         stop.set()

@@ -6,11 +6,14 @@ demo cell; the clock is the driver's injected one (binary-exact times)."""
 
 from __future__ import annotations
 
+import gc
+import weakref
+
 import numpy as np
 import pytest
 
 from monitor.config import demo_cell_path
-from monitor.driver import LATE_FAULT, STALL_FAULT, Driver, Step, StepInputs
+from monitor.driver import LATE_FAULT, STALL_FAULT, Driver, Step, StepInputs, settle_heap
 from monitor.pipeline import Pipeline
 from monitor.policy import PolicyConfig, ResetRequest
 from monitor.scene import DemoScene
@@ -134,3 +137,27 @@ def test_a_reset_handed_in_is_judged_on_a_frame_and_on_a_tick(detector, image, t
                                                                      request_id="r-1")))
     outcome = step.result.command.reset
     assert outcome is not None and outcome.request_id == "r-1", step.result.command
+
+
+class _Node:
+    def __init__(self) -> None:
+        self.me = self  # a cycle: only the collector frees it
+
+
+def test_settle_heap_collects_garbage_first_then_freezes_what_lives():
+    """The service's loop starts on a settled heap: start-up's garbage is freed (not frozen
+    for good) and what lives is out of every later collection."""
+    was = gc.isenabled()
+    gc.disable()  # nothing collects the cycle below before settle_heap does
+    try:
+        garbage, kept = _Node(), _Node()
+        dead = weakref.ref(garbage)
+        del garbage
+        frozen = settle_heap()
+        assert dead() is None  # collected, not frozen
+        assert frozen == gc.get_freeze_count() and frozen > 1000
+        assert not any(o is kept for o in gc.get_objects())  # frozen: no collection scans it
+    finally:
+        gc.unfreeze()
+        if was:
+            gc.enable()

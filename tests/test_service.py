@@ -77,6 +77,10 @@ def test_sigterm_after_commands_over_zenoh_status_and_metrics(tmp_path, syntheti
         log = [json.loads(line) for line in svc.stderr_path.read_text().splitlines()]
     events = [e["event"] for e in log]
     assert "camera lost" not in events and events.count("camera connected") == 1
+    # the loop started on a settled heap: start-up's objects are out of every later collection
+    frozen = next(e for e in log if e["event"] == "start-up objects frozen out of garbage "
+                  "collection")
+    assert frozen["objects"] > 50_000
     seqs = [c["seq"] for c in svc.commands]
     assert seqs == sorted(set(seqs)) and len(seqs) >= 10  # heartbeats and changes, in order
     assert {c["boot"] for c in svc.commands} == {run["boot"]}
