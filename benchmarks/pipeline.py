@@ -251,7 +251,8 @@ def latency(video: Path, detector: Detector, cell: Cell, seconds: float) -> dict
             sink = ServiceSink(bus, Metrics(0, "127.0.0.1"), [grabber])
             feed = LiveFeed([grabber], bus, None, config.service.tick_s, stop,
                             seconds + 0.5, sink.alert)
-            settle_heap()  # as the service does before its loop
+            settle_heap()  # as the service does before its loop (that one collection is
+            pauses.clear()  # start-up, not a pause of the loop)
             Driver(pipeline, [sink], stall_after_s=config.policy.frame_timeout).run(feed, stop)
         finally:
             stop.set()

@@ -38,6 +38,10 @@ LOAD_TOLERANT_AGE = "max_frame_age = 1.0\n"
 # cores busy, and a second onnxruntime thread each only adds waiting (synthetic model, 2-core
 # Xeon: 85 ms of CPU a frame on one thread, 123 ms on two). Tests about threads set their own.
 ONE_THREAD = "threads = 1\n"
+# At most 5 frames a second in every one-camera monitor a test starts, unless the test sets its
+# own: a looped 15 fps video otherwise runs inference as fast as one thread allows (~12 frames
+# a second, a whole core) for nothing a test checks, beside the other worker's tests.
+TEST_FPS = "max_fps = 5\n"
 
 
 def with_default(config: str, section: str, line: str) -> str:
@@ -54,6 +58,14 @@ def with_default(config: str, section: str, line: str) -> str:
 def one_inference_thread(config: str) -> str:
     """A monitor.toml text with ``[detector] threads = 1`` unless it sets its own threads."""
     return with_default(config, "detector", ONE_THREAD)
+
+
+def capped_rate(config: str) -> str:
+    """A monitor.toml text whose one ``[camera]`` is processed at most ``TEST_FPS`` times a
+    second, unless it sets its own ``max_fps`` (configs with ``[[cameras]]`` are left alone)."""
+    if "[camera]\n" not in config or "[[cameras]]" in config:
+        return config
+    return with_default(config, "camera", TEST_FPS)
 
 
 def _load_tolerant(extra: str) -> str:
@@ -103,13 +115,13 @@ class Service:
         (tmp / "operators").write_text(f"tester {public}\n")
         self.config = tmp / "monitor.toml"
         extra = _load_tolerant(extra)
-        self.config.write_text(one_inference_thread(
+        self.config.write_text(capped_rate(one_inference_thread(
             f'[camera]\nsource = "{camera}"\n{camera_lines}'
             f'[model]\npath = "{model}"\n'
             + ("allow_test_model = true\n" if allow_test_model else "")
             + f'[bus]\ncell = "t5"\ninstance = "svc-test"\noperators_file = "operators"\n'
             f'listen = ["tcp/127.0.0.1:{self.bus_port}"]\n'
-            f'[service]\nmetrics_port = {self.metrics_port}\n{CAPACITY}' + extra))
+            f'[service]\nmetrics_port = {self.metrics_port}\n{CAPACITY}' + extra)))
         self.stderr_path = tmp / "service.log"
         self.commands: list[dict] = []
         self.detections: list[dict] = []
@@ -228,13 +240,13 @@ def write_config(tmp: Path, model: Path, extra: str = "") -> tuple[Path, int]:
     video = empty_cell_video(tmp / "empty-cell.mp4")
     port = free_port()
     config = tmp / "monitor.toml"
-    config.write_text(one_inference_thread(
+    config.write_text(capped_rate(one_inference_thread(
         f'[camera]\nsource = "{video}"\nloop = true\nrealtime = true\n'
         f'[model]\npath = "{model}"\n'
         f'[zones]\nfile = "{demo_cell_path()}"\n'
         f'[service]\n{CAPACITY}'
         f'[bus]\ncell = "t6"\ninstance = "shutdown-test"\n'
-        f'listen = ["tcp/127.0.0.1:{port}"]\n' + extra))
+        f'listen = ["tcp/127.0.0.1:{port}"]\n' + extra)))
     return config, port
 
 
