@@ -62,8 +62,8 @@ def one_inference_thread(config: str) -> str:
 
 def capped_rate(config: str) -> str:
     """A monitor.toml text whose one ``[camera]`` is processed at most ``TEST_FPS`` times a
-    second, unless it sets its own ``max_fps`` (configs with ``[[cameras]]`` are left alone)."""
-    if "[camera]\n" not in config or "[[cameras]]" in config:
+    second, unless it sets its own ``max_fps`` (configs with ``[[camera]]`` are left alone)."""
+    if "[camera]\n" not in config or "[[camera" in config:
         return config
     return with_default(config, "camera", TEST_FPS)
 

@@ -18,7 +18,7 @@ from monitor.policy import PolicyConfig
 from monitor.scene import DemoScene, Figure, draw_figure
 from monitor.types import FrameInfo
 from monitor.zones import load_cell
-from tests.processes import Service, codes, wait_for
+from tests.processes import TEST_FPS, Service, codes, wait_for
 
 POLICY = PolicyConfig(clear_time=0.3, restart_interlock="auto", max_frame_age=0.3)
 
@@ -231,7 +231,7 @@ def test_config_names_several_cameras():
 def test_service_with_two_cameras(tmp_path, synthetic_model, batch):
     cell = two_camera_cell(tmp_path)
     svc = Service(tmp_path, synthetic_model, "synthetic:demo")
-    text = svc.config.read_text().replace(
+    text = svc.config.read_text().replace(TEST_FPS, "", 1).replace(  # as fast as they come
         '[camera]\nsource = "synthetic:demo"\n',
         '[[camera]]\nid = "cam0"\nsource = "synthetic:demo"\n'
         '[[camera]]\nid = "cam1"\nsource = "synthetic:demo"\n')

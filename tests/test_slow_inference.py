@@ -115,7 +115,8 @@ def test_slow_inference_between_stall_timeout_and_frame_timeout_stops_then_recov
                  # between stall_timeout and frame_timeout (one thread under the suite's load
                  # overshot frame_timeout once in 6 runs)
                  "[detector]\nthreads = 2\n",
-                 camera_lines="loop = true\nrealtime = true\n") as svc:
+                 # every frame of the video (no test cap): a marked frame is never skipped
+                 camera_lines=f"loop = true\nrealtime = true\nmax_fps = {FPS}\n") as svc:
         start = svc.next_command(0, lambda c: c["state"] == "RUN", 60, "RUN")[0]
         window = _wait_slow_step(svc, STALL_TIMEOUT + 0.3, 30)
         inside = assert_stop_during(svc, window)
