@@ -14,7 +14,7 @@ import pytest
 
 from monitor.bus import BusConfig, BusKeys, open_session
 from monitor.signing import load_public_key, new_key_pair, verify
-from tests.helpers import assert_one_line_error, free_port
+from tests.helpers import assert_one_line_error, free_port, run_here
 
 ROLES = ("monitor-a", "monitor-b")
 ZONES = Path(__file__).resolve().parents[1] / "zones" / "demo-cell.yaml"
@@ -150,7 +150,6 @@ def test_a_role_that_is_no_role_name_is_refused_before_anything_is_sent():
     for command in (["status"], ["mute", "z", "--for", "1s", "--operator", "anna"],
                     ["zones", "apply", "--operator", "anna"]):
         for role, says in (("safety/x", "key chunk"), ("status", "is not a role name")):
-            out = subprocess.run([sys.executable, "-m", "monitor", *command, "--role", role],
-                                 capture_output=True, text=True, timeout=60)
+            out = run_here(*command, "--role", role)
             assert out.returncode == 2 and "Traceback" not in out.stderr, out.stderr
             assert "--role" in out.stderr and says in out.stderr, out.stderr

@@ -17,7 +17,7 @@ from monitor import zones as zn
 from monitor.config import demo_cell_path
 from monitor.errors import ConfigError
 from monitor.scene import DEMO_CAMERA
-from tests.helpers import assert_one_line_error, free_port, run_monitor
+from tests.helpers import assert_one_line_error, free_port, run_here, run_monitor
 
 ROOT = Path(__file__).resolve().parents[1]
 DEMO = ROOT / "zones" / "demo-cell.yaml"
@@ -165,7 +165,7 @@ def test_monitor_run_refuses_a_partly_unseen_protective_zone(tmp_path, synthetic
     config = tmp_path / "monitor.toml"
     config.write_text(f'[model]\npath = "{synthetic_model}"\n[zones]\nfile = "{cell}"\n'
                       f'[bus]\nlisten = ["tcp/127.0.0.1:{free_port()}"]\n')
-    assert_one_line_error(run_monitor("run", "--config", config, "--duration", "1"),
+    assert_one_line_error(run_here("run", "--config", config, "--duration", "1"),
                           "cell.yaml", "zone 'robot-protective'", "m²", "seen by no camera")
 
 

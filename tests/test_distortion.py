@@ -13,7 +13,7 @@ from monitor import cli
 from monitor import geometry as geo
 from monitor import zones as zn
 from monitor.errors import ConfigError
-from tests.helpers import assert_one_line_error, run_monitor
+from tests.helpers import assert_one_line_error, run_here
 
 DEMO = Path(__file__).resolve().parents[1] / "zones" / "demo-cell.yaml"
 K = np.array([[900.0, 0.0, 640.0], [0.0, 900.0, 360.0], [0.0, 0.0, 1.0]])
@@ -134,5 +134,5 @@ def test_monitor_run_refuses_a_folding_lens(tmp_path, synthetic_model):
     cell = demo_with_distortion(tmp_path, FOLDING)
     config = tmp_path / "monitor.toml"
     config.write_text(f'[model]\npath = "{synthetic_model}"\n[zones]\nfile = "{cell}"\n')
-    assert_one_line_error(run_monitor("run", "--config", config, "--duration", "1"),
+    assert_one_line_error(run_here("run", "--config", config, "--duration", "1"),
                           "camera 'cam0'", "folds back")

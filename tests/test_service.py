@@ -18,7 +18,7 @@ from monitor.policy import PolicyConfig
 from monitor.resets import latch_of_status, signed_reset
 from monitor.zones import load_cell
 from tests.cameras import MjpegCamera, demo_jpegs
-from tests.helpers import assert_one_line_error, free_port, run_here, run_monitor
+from tests.helpers import assert_one_line_error, free_port, run_here
 from tests.processes import Service, codes, wait_for
 
 POLICY = PolicyConfig()
@@ -196,7 +196,7 @@ def test_bad_config_refuses_to_start_with_one_line(tmp_path, synthetic_model, te
     config = tmp_path / "monitor.toml"
     config.write_text(f'[model]\npath = "{synthetic_model}"\n'
                       + text.format(cell=demo_cell_path()))
-    proc = run_monitor("run", "--config", config, "--duration", "1")
+    proc = run_here("run", "--config", config, "--duration", "1")
     assert_one_line_error(proc, *needles)
 
 
@@ -206,12 +206,12 @@ def test_no_protective_zone_refuses_to_start_unless_allowed(tmp_path, synthetic_
                                                          "kind: protective\n    enabled: false"))
     config = tmp_path / "monitor.toml"
     config.write_text(f'[model]\npath = "{synthetic_model}"\n[zones]\nfile = "{cell}"\n')
-    assert_one_line_error(run_monitor("run", "--config", config, "--duration", "1"),
+    assert_one_line_error(run_here("run", "--config", config, "--duration", "1"),
                           "no-protective.yaml has no enabled protective zone",
                           "allow_no_protective = true")
     config.write_text(f'[model]\npath = "{synthetic_model}"\n'
                       '[camera]\nsource = "nowhere.mp4"\n')  # another camera, no zone file
-    assert_one_line_error(run_monitor("run", "--config", config, "--duration", "1"),
+    assert_one_line_error(run_here("run", "--config", config, "--duration", "1"),
                           "no zone file is given")
 
 
@@ -225,7 +225,7 @@ def test_the_test_model_on_a_live_camera_refuses_to_start(tmp_path, synthetic_mo
     config.write_text(f'[model]\npath = "{synthetic_model}"\n[camera]\nsource = "{source}"\n'
                       f'[zones]\nfile = "{demo_cell_path()}"\n'
                       f'[bus]\nlisten = ["tcp/127.0.0.1:{free_port()}"]\n')
-    assert_one_line_error(run_monitor("run", "--config", config, "--duration", "1"),
+    assert_one_line_error(run_here("run", "--config", config, "--duration", "1"),
                           "synthetic test model", "camera cam0", "allow_test_model = true")
 
 
@@ -242,7 +242,7 @@ def test_model_info_names_the_synthetic_model_a_test_model(synthetic_model, tmp_
 
 
 def test_missing_config_file_and_taken_metrics_port(tmp_path, synthetic_model):
-    assert_one_line_error(run_monitor("run", "--config", tmp_path / "absent.toml"),
+    assert_one_line_error(run_here("run", "--config", tmp_path / "absent.toml"),
                           "absent.toml", "no such config file")
     with socket.socket() as taken:
         taken.bind(("127.0.0.1", 0))
@@ -251,5 +251,5 @@ def test_missing_config_file_and_taken_metrics_port(tmp_path, synthetic_model):
         config.write_text(f'[model]\npath = "{synthetic_model}"\n'
                           f'[bus]\nlisten = ["tcp/127.0.0.1:{free_port()}"]\n'
                           f'[service]\nmetrics_port = {taken.getsockname()[1]}\n')
-        assert_one_line_error(run_monitor("run", "--config", config, "--duration", "1"),
+        assert_one_line_error(run_here("run", "--config", config, "--duration", "1"),
                               "service.metrics_port", str(taken.getsockname()[1]))
