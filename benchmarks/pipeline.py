@@ -218,7 +218,8 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def latency(video: Path, detector: Detector, cell: Cell, seconds: float) -> dict:
+def latency(video: Path, detector: Detector, cell: Cell, seconds: float,
+            settle: bool = True) -> dict:
     config = MonitorConfig()
     health = CameraHealth(config.health, "cam0", None, watch_regions(cell, "cam0"))
     pipeline = _TimedPipeline(detector, "cam0", config.policy, cell, health)
@@ -251,8 +252,9 @@ def latency(video: Path, detector: Detector, cell: Cell, seconds: float) -> dict
             sink = ServiceSink(bus, Metrics(0, "127.0.0.1"), [grabber])
             feed = LiveFeed([grabber], bus, None, config.service.tick_s, stop,
                             seconds + 0.5, sink.alert)
-            settle_heap()  # as the service does before its loop (that one collection is
-            pauses.clear()  # start-up, not a pause of the loop)
+            if settle:  # as the service does before its loop (that one collection is
+                settle_heap()  # start-up, not a pause of the loop)
+                pauses.clear()
             Driver(pipeline, [sink], stall_after_s=config.policy.frame_timeout).run(feed, stop)
         finally:
             stop.set()
@@ -273,6 +275,9 @@ def main() -> int:
     parser.add_argument("--threads", type=int, default=2, help="onnxruntime intra-op threads")
     parser.add_argument("--fps", type=float, default=15.0,
                         help="the camera's frame rate (the video is rendered and paced at it)")
+    parser.add_argument("--no-settle-heap", action="store_true",
+                        help="start the live pass without the service's settle_heap (to see "
+                        "the garbage collection pauses it saves)")
     parser.add_argument("--int8", action="store_true",
                         help="the synthetic model's int8 file (as `monitor model build --int8`)")
     args = parser.parse_args()
@@ -296,7 +301,7 @@ def main() -> int:
         t = throughput_inline(video, detector, cell)
         th = throughput_threaded(video, detector, cell)
         dr = throughput_driver(video, detector, cell)
-        lat = latency(video, detector, cell, args.seconds)
+        lat = latency(video, detector, cell, args.seconds, settle=not args.no_settle_heap)
 
     bare_ms, whole_ms = sum(t["bare"]) / n, sum(t["whole"]) / n
     print(f"1080p video, {n} frames ({args.seconds:g} s, {args.fps:g} fps), model input 416 "
