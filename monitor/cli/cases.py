@@ -11,7 +11,6 @@ from pathlib import Path
 import yaml
 
 from monitor import zones as zn
-from monitor.cases.receiver import case_key, request_case
 from monitor.cases.requests import case_payload
 from monitor.cli.zone_files import read_zone_data, write_zone_data
 from monitor.errors import ConfigError
@@ -148,7 +147,9 @@ def cmd_set_show(args: argparse.Namespace) -> int:
 
 
 def cmd_select(args: argparse.Namespace) -> int:
+    # the bus side (Zenoh, signing) only here: `monitor zones list` registers these commands too
     from monitor.bus import default_instance, open_session
+    from monitor.cases.receiver import case_key, request_case
     from monitor.cli.keys import KEY_DIR
     from monitor.cli.zenoh_args import bounded as _bounded
     from monitor.cli.zenoh_args import bus_config as _bus_config

@@ -14,7 +14,8 @@ import time
 from monitor.bus import default_instance, open_session
 from monitor.cli.keys import KEY_DIR
 from monitor.cli.operator import first_status, operator_key_path
-from monitor.cli.roles import add_role_arg, no_answer, role_keys
+from monitor.cli.role_arg import add_role_arg
+from monitor.cli.roles import no_answer, role_keys
 from monitor.cli.zenoh_args import add_zenoh_args as _add_zenoh_args
 from monitor.cli.zenoh_args import bounded as _bounded
 from monitor.cli.zenoh_args import bus_config as _bus_config

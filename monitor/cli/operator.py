@@ -14,7 +14,8 @@ import zenoh
 
 from monitor.bus import BusKeys, default_instance, open_session
 from monitor.cli.keys import KEY_DIR
-from monitor.cli.roles import add_role_arg, no_answer, role_keys
+from monitor.cli.role_arg import add_role_arg
+from monitor.cli.roles import no_answer, role_keys
 from monitor.cli.status_text import status_text
 from monitor.cli.zenoh_args import (
     add_zenoh_args,

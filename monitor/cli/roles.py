@@ -7,7 +7,6 @@ on a cell with roles the role-less keys are silent, so the error names the roles
 
 from __future__ import annotations
 
-import argparse
 import queue
 import time
 
@@ -18,26 +17,6 @@ from monitor.cli.zenoh_args import nothing_found_hint
 from monitor.errors import ConfigError
 
 ROLES_LOOKUP_S = 1.0  # s to ask which roles answer, after the asked key stayed silent
-
-
-def parse_role(text: str) -> str:
-    """A role as the monitor's ``[bus] role`` allows it; argparse's error otherwise."""
-    try:
-        return checked_role(text) if text else ""
-    except ValueError as exc:
-        raise argparse.ArgumentTypeError(str(exc)) from None
-
-
-def add_role_arg(p: argparse.ArgumentParser, *, many: bool, what: str) -> None:
-    """``--role ROLE`` (repeatable when ``many``) on a command; ``what`` says what it does."""
-    if many:
-        p.add_argument("--role", action="append", default=[], metavar="ROLE", type=parse_role,
-                       help=f"a monitor of the cell by its [bus] role (repeatable); {what} "
-                       "(default: the cell's only monitor)")
-    else:
-        p.add_argument("--role", default="", metavar="ROLE", type=parse_role,
-                       help=f"the monitor of the cell with this [bus] role; {what} "
-                       "(default: the cell's only monitor)")
 
 
 def role_keys(bus: BusConfig, role: str = "") -> BusKeys:

@@ -11,7 +11,7 @@ import argparse
 import json
 import sys
 
-from monitor.bus import MODES, BusConfig
+from monitor.busconfig import MODES, BusConfig
 from monitor.errors import ConfigError
 from monitor.signals import close_bounded
 

@@ -20,7 +20,6 @@ import yaml
 from monitor import zones as zn
 from monitor.cli.zone_files import document_defaults, plural, read_zone_data, write_zone_data
 from monitor.errors import ConfigError
-from monitor.frames import source_kind
 from monitor.zones.cameras import choose_camera, zone_file_hint
 
 HEADER = "workcell-monitor zone file (format: zones/README.md). Edit with 'monitor zones'."
@@ -83,6 +82,14 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     for action in actions.choices.values():
         document_defaults(action, "not set")
+
+
+def source_kind(spec: str) -> str:
+    """``monitor.frames.source_kind``, imported on first use: the frames package loads the
+    video readers and the demo scene, which `monitor zones list` does not need."""
+    from monitor.frames import source_kind as kind
+
+    return kind(spec)
 
 
 def parse_size(text: str) -> tuple[int, int]:

@@ -31,11 +31,7 @@ from monitor.cli.zone_files import (
 )
 from monitor.cli.zones_apply import register as register_apply
 from monitor.errors import ConfigError, InputError
-from monitor.tracks import TrackerConfig
-from monitor.whereabouts import FootGrid
 from monitor.zones.cameras import choose_camera, zone_file_hint
-from monitor.zones.masks import zone_regions_px
-from monitor.zones.visibility import hidden_feet
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -494,6 +490,12 @@ def cmd_preview(args: argparse.Namespace) -> int:
 def _draw_hidden(image: np.ndarray, cell: zn.Cell, camera: str) -> int:
     """Hatch the foot positions where this camera cannot see a person (behind an occluder,
     in a mask): the cells a lost person's area never loses by this camera's view."""
+    # the tracker's grid only for a preview: `monitor zones list` starts without it
+    from monitor.tracks import TrackerConfig
+    from monitor.whereabouts import FootGrid
+    from monitor.zones.masks import zone_regions_px
+    from monitor.zones.visibility import hidden_feet
+
     h, w = image.shape[:2]
     grid = FootGrid.of(w, h, TrackerConfig().cells_across)
     masks = [p for _, p in zone_regions_px(cell, camera, ("mask",))]

@@ -19,7 +19,7 @@ from monitor.errors import ConfigError
 
 def register(sub: argparse._SubParsersAction) -> None:
     from monitor.cli.keys import KEY_DIR
-    from monitor.cli.roles import add_role_arg
+    from monitor.cli.role_arg import add_role_arg
     from monitor.cli.zenoh_args import add_zenoh_args as _add_zenoh_args
 
     p = sub.add_parser(
