@@ -55,12 +55,13 @@ def slow_model(tmp: Path, base: Path, seconds: float) -> Path:
     marked = plain.copy()
     marked[:, :, side // 2 - 40:side // 2 + 40, side // 2 - 40:side // 2 + 40] = \
         np.array([0.0, 1.0, 0.0], np.float32)[:, None, None]
-    times = {}
-    for name, x in (("plain", plain), ("marked", marked)) * 2:  # the first pair warms up
+    times: dict[str, list[float]] = {"plain": [], "marked": []}
+    for name, x in (("plain", plain), ("marked", marked)) * 4:  # the first pair warms up
         start = time.monotonic()
         session.run(None, {"images": x})
-        times[name] = time.monotonic() - start
-    per_iteration = max(times["marked"] - times["plain"], 0.01) / 100
+        times[name].append(time.monotonic() - start)
+    # the quickest of the timed runs: load only ever makes a run slower, never faster
+    per_iteration = max(min(times["marked"][1:]) - min(times["plain"][1:]), 0.01) / 100
     return slow_on_marker(base, tmp / "slow.onnx", int(seconds / per_iteration))
 
 
@@ -107,9 +108,12 @@ def _wait_slow_step(svc: Service, gap_s: float, timeout: float) -> tuple[float, 
 @pytest.mark.slow
 def test_slow_inference_between_stall_timeout_and_frame_timeout_stops_then_recovers(
         tmp_path, synthetic_model):
-    model = slow_model(tmp_path, synthetic_model, 1.2)
+    # 1.5 s on a quiet machine: over stall_timeout + 0.3 even if the probe ran under load,
+    # under frame_timeout (8 s) even when the suite's load makes the step five times slower
+    # (a 3 s frame_timeout was overshot once under the full suite)
+    model = slow_model(tmp_path, synthetic_model, 1.5)
     video = marker_video(tmp_path / "marked.mp4")
-    with Service(tmp_path, model, str(video), ZONES + "[policy]\nframe_timeout = 3.0\n"
+    with Service(tmp_path, model, str(video), ZONES + "[policy]\nframe_timeout = 8.0\n"
                  'restart_interlock = "auto"\nmax_frame_age = 0.3\n'
                  # the default two threads, as slow_model measured: the slow step must land
                  # between stall_timeout and frame_timeout (one thread under the suite's load
