@@ -30,7 +30,7 @@ from monitor.zones.check import placement
 from monitor.zones.draw import (
     COLOURS_BGR,
     LEGEND_KINDS,
-    ShadowCache,
+    ZoneDrawCache,
     ZoneLabel,
     draw_legend,
     draw_zones_labelled,
@@ -129,7 +129,7 @@ class Annotator:
         self.foot_band_px = foot_band_px
         self.hold_s = hold_s
         self.recent: list[tuple[float, str]] = []
-        self.shadows = ShadowCache()
+        self.zone_cache = ZoneDrawCache()
 
     def step(self, result: StepResult, image: np.ndarray | None
              ) -> tuple[np.ndarray, Drawn] | None:
@@ -140,13 +140,13 @@ class Annotator:
             return None
         shown = tuple(x for _, x in self.recent[-MAX_EVENT_ROWS:])
         return annotate(image, result, self.cell, self.camera_id, self.watch, shown,
-                        self.foot_band_px, self.shadows)
+                        self.foot_band_px, self.zone_cache)
 
 
 def annotate(image: np.ndarray, result: StepResult, cell: Cell | None, camera_id: str,
              watch: list, events: tuple[str, ...] = (),
              foot_band_px: tuple[float, float] = (0.0, 0.0),
-             shadows: ShadowCache | None = None, when: TimeText | None = None
+             zone_cache: ZoneDrawCache | None = None, when: TimeText | None = None
              ) -> tuple[np.ndarray, Drawn]:
     """The frame with everything drawn on (see the module docstring), and what was drawn.
     ``when``: times as text (header, description); None: seconds of the video."""
@@ -156,7 +156,7 @@ def annotate(image: np.ndarray, result: StepResult, cell: Cell | None, camera_id
     hits = {x.zone_id for x in result.zone_report.hits} if result.zone_report else set()
     if cell is not None:
         out, labels = draw_zones_labelled(image, cell, camera_id, hits, reserved,
-                                          shadows=shadows)
+                                          cache=zone_cache)
     else:
         out, labels = image.copy(), []
     faults: tuple[str, ...] = ()

@@ -25,11 +25,15 @@ from monitor.zones.draw import (
     COLOURS_BGR,
     LEGEND_KINDS,
     LEGEND_TOP_PX,
+    ZoneDrawCache,
     draw_zones,
     draw_zones_labelled,
     legend_rect,
 )
 from monitor.zones.labels import intersects, place_labels
+from tests.test_floors import demo_data, with_platform
+from tests.test_moving_zones import cell_with, cylinder, following, pose
+from tests.test_occlusion import with_bench
 
 # --- label placement (pure) -----------------------------------------------------------------
 
@@ -295,3 +299,33 @@ def test_a_burst_of_alerts_shows_the_newest_rows_only():
                                                 frame)
     assert drawn.events == tuple(f"alert kind_{k}: message {k}"
                                  for k in range(7 - MAX_EVENT_ROWS, 7))
+
+
+def test_a_kept_zone_drawing_draws_every_frame_as_a_fresh_one_would():
+    # the cache keeps the shapes, the shadow and the label places between frames: the hits,
+    # the header rows, the tool's pose, the image size and the cell (a zone swap) still change
+    # what is drawn, frame by frame
+    cells = [parse_cell(with_platform(0.5)),
+             parse_cell(with_bench(demo_data(), 2.2, y=(-2.0, -1.6), x=(-0.5, 0.5),
+                                   zone_id="cabinet")),
+             cell_with(following(cylinder())), _overlapping_cell()]
+    frame = np.random.default_rng(3).integers(0, 255, (720, 1280, 3), dtype=np.uint8)
+    cache = ZoneDrawCache()
+    seen = set()
+    # each cell at two sizes, three frames each, then the first cell again (a swap back)
+    for n, (cell, image, j) in enumerate(itertools.product(
+            [*cells, cells[0]], (frame, frame[::2, ::2]), range(3))):
+        hits = [z.id for z in cell.zones][:2] if j % 2 else []
+        # a header band, or the top half of the image: labels move away from it
+        reserved = [(0, 0, image.shape[1], HEADER_PX if j < 2 else image.shape[0] // 2)]
+        tool = pose(-1.0 + 0.4 * j, -2.0) if j % 2 else None
+        kept, kept_labels = draw_zones_labelled(image, cell, "cam0", hits, reserved, tool, cache)
+        fresh, fresh_labels = draw_zones_labelled(image, cell, "cam0", hits, reserved, tool)
+        assert np.array_equal(kept, fresh), f"frame {n}"
+        assert kept_labels == fresh_labels, f"frame {n}"
+        seen.add(kept.tobytes())
+    assert len(seen) >= 22  # the frames drew different things
+    # the zone that follows the tool is drawn where the tool is, never where it was kept
+    here, there = (draw_zones_labelled(frame, cells[2], "cam0", (), (), pose(x, -2.0), cache)[0]
+                   for x in (-1.0, 0.2))
+    assert not np.array_equal(here, there)

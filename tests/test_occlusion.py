@@ -348,17 +348,18 @@ def test_fast_projection_equals_opencv():
     assert (front == want_front).all()
 
 
-def test_the_shadow_cache_follows_the_cell_it_was_given():
+def test_the_zone_drawing_cache_keeps_the_shadow_of_the_cell_it_was_given():
     # a zone swap brings a new Cell: its shadow, never the old one, even at the same size
-    from monitor.zones.draw import ShadowCache, shadow_image
+    from monitor.zones.draw import ZoneDrawCache, shadow_image
 
     bench = zn.parse_cell(with_bench(demo_data(), 2.2, y=(-2.0, -1.6), x=(-0.5, 0.5),
                                      zone_id="cabinet"))
     plain = zn.load_cell(DEMO)
-    cache = ShadowCache()
-    first = cache.get(bench, "cam0", 640, 360)
-    assert cache.get(bench, "cam0", 640, 360) is first  # kept between frames
+    cache = ZoneDrawCache()
+    first = cache.shadow(bench, "cam0", 640, 360)
+    assert cache.shadow(bench, "cam0", 640, 360) is first  # kept between frames
     assert np.array_equal(first, shadow_image(bench, "cam0", 640, 360))
-    assert np.array_equal(cache.get(plain, "cam0", 640, 360), shadow_image(plain, "cam0", 640, 360))
-    assert not np.array_equal(cache.get(plain, "cam0", 640, 360), first)
-    assert cache.get(bench, "cam0", 320, 180).shape == (180, 320)
+    assert np.array_equal(cache.shadow(plain, "cam0", 640, 360),
+                          shadow_image(plain, "cam0", 640, 360))
+    assert not np.array_equal(cache.shadow(plain, "cam0", 640, 360), first)
+    assert cache.shadow(bench, "cam0", 320, 180).shape == (180, 320)

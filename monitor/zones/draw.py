@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import itertools
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -156,7 +156,7 @@ class ZoneLabel:
 def draw_zones_labelled(frame_bgr: np.ndarray, cell: Cell, camera_id: str,
                         hit_zone_ids: Iterable[str] = (), reserved: Sequence[Rect] = (),
                         tool_pose: geo.ToolPose | None = None,
-                        shadows: ShadowCache | None = None
+                        cache: ZoneDrawCache | None = None
                         ) -> tuple[np.ndarray, list[ZoneLabel]]:
     """A copy of the frame with the camera's zones drawn and labelled, and the labels drawn.
 
@@ -167,7 +167,8 @@ def draw_zones_labelled(frame_bgr: np.ndarray, cell: Cell, camera_id: str,
     (``monitor.zones.labels``): the most important zones' labels are placed first. A frame of
     another size than the camera is drawn scaled. Zones that follow the tool are drawn at
     ``tool_pose`` (a tracker pose, not grown), or at their maximum volume without one.
-    ``shadows`` keeps the shadow image from frame to frame (it is the slowest part to draw).
+    ``cache`` keeps what does not change from frame to frame (the projected shapes, the
+    shadow, the label places): a video's frames are drawn the same, only faster.
     """
     cam = cell.cameras.get(camera_id)
     if cam is None:
@@ -175,101 +176,170 @@ def draw_zones_labelled(frame_bgr: np.ndarray, cell: Cell, camera_id: str,
     img = np.ascontiguousarray(frame_bgr).copy()
     if img.ndim == 2:
         img = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
-    sx, sy = img.shape[1] / cam.width, img.shape[0] / cam.height
-    scale = np.array([sx, sy])
+    cache = cache if cache is not None else ZoneDrawCache()
+    cache.use(cell, camera_id, img.shape[1], img.shape[0])
+    scale = np.array([img.shape[1] / cam.width, img.shape[0] / cam.height])
     hit = set(hit_zone_ids)
     model = cell.camera_models.get(camera_id)
-    fills = img.copy()
-    outlines: list[tuple[list[np.ndarray], tuple[int, int, int], int, str]] = []
+    shapes: list[ZoneShape] = []
     # most important last, so that protective zones stay visible on top of warning areas
     order = {"watch": 0, "mask": 1, "occluder": 2, "warning": 3, "protective": 4}
     for z in sorted(cell.zones, key=lambda z: order[z.kind]):
-        if not z.enabled:
+        if not z.enabled or (isinstance(z, PolygonZone) and z.camera != camera_id) \
+                or (not isinstance(z, PolygonZone) and model is None):
             continue
-        colour = COLOURS_BGR[z.kind]
-        thick = 4 if z.id in hit else 2
-        if isinstance(z, PolygonZone):
-            if z.camera != camera_id:
-                continue
-            poly = np.array(z.points_px) * scale
-            cv2.fillPoly(fills, [_i32(poly)], colour, lineType=cv2.LINE_AA, shift=4)
-            outlines.append(([poly], colour, thick, z.id))
-        elif model is not None:
-            shape, at = z, None
-            if follows_tool(z):  # at the pose; without one (stale) at its maximum size
-                at = cell_from_zone(cell.spec, tool_pose) if tool_pose is not None else None
-                shape = z if at is not None else max_zone(z)
-            outline = volume_outline_m(shape, cell)
-            if at is not None:
-                outline = [transform_points(at, ln) for ln in outline]
-            projected = _project_lines(model, outline)
-            lines = [ln * scale for ln in projected]
-            if not lines:
-                continue
-            region = _volume_floor_px(shape, cell, model) if at is None else \
-                cv2.convexHull(np.concatenate(projected).astype(np.float32)).reshape(-1, 2)
-            if region is not None:
-                cv2.fillPoly(fills, [_i32(region * scale)], colour, lineType=cv2.LINE_AA,
-                             shift=4)
-            outlines.append((lines, colour, thick, z.id))
+        if follows_tool(z) and tool_pose is not None:  # moves with the tool: every frame
+            shape = _zone_shape(z, cell, model, scale, tool_pose)
+        else:
+            shape = cache.shape(z.id, lambda z=z: _zone_shape(z, cell, model, scale, None))
+        if shape is not None:
+            shapes.append(shape)
     if model is not None:
-        outlines += _draw_floors(fills, cell, model, scale)
-        shadow = (shadows or ShadowCache()).get(cell, camera_id, img.shape[1], img.shape[0])
-        if shadow is not None:
-            fills[shadow] = SHADOW_BGR
+        shapes += cache.shape(_FLOORS, lambda: _floor_shapes(cell, model, scale))
+    fills = img.copy()
+    for shape in shapes:
+        if shape.fill is not None:
+            cv2.fillPoly(fills, [shape.fill], shape.colour, lineType=cv2.LINE_AA, shift=4)
+    if model is not None:
+        cache.paint_shadow(fills)
     cv2.addWeighted(fills, 0.35, img, 0.65, 0, dst=img)
-    for polys, colour, thick, _ in outlines:
-        closed = len(polys) == 1
-        cv2.polylines(img, [_i32(p) for p in polys], closed, colour, thick, cv2.LINE_AA, 4)
+    outlined = [s for s in shapes if s.lines]
+    for shape in outlined:
+        thick = 4 if shape.label in hit else 2
+        cv2.polylines(img, shape.lines_i32, len(shape.lines) == 1, shape.colour, thick,
+                      cv2.LINE_AA, 4)
     # labels last, over every outline; placed from the most important (drawn last) down
-    texts = [(f"{zid}{' HIT' if zid in hit else ''}", polys, colour)
-             for polys, colour, _, zid in reversed(outlines)]
-    sizes = [_label_size(t) for t, _, _ in texts]
-    anchors = [_label_anchor(polys, size) for (_, polys, _), size in zip(texts, sizes,
-                                                                         strict=True)]
-    rects = place_labels(anchors, sizes, img.shape[1], img.shape[0], reserved)
+    texts = [(f"{s.label}{' HIT' if s.label in hit else ''}", s) for s in reversed(outlined)]
+    sizes = [_label_size(t) for t, _ in texts]
+    anchors = [_label_anchor(s.lines, size) for (_, s), size in zip(texts, sizes, strict=True)]
+    key = (tuple(t for t, _ in texts), tuple(anchors), tuple(map(tuple, reserved)))
+    rects = cache.label_places(key, lambda: place_labels(anchors, sizes, img.shape[1],
+                                                         img.shape[0], reserved))
     labels = []
-    for (text, _, colour), rect in zip(texts, rects, strict=True):
+    for (text, shape), rect in zip(texts, rects, strict=True):
         if rect is not None:
-            _draw_label(img, text, rect, colour)
-            labels.append(ZoneLabel(text, rect, colour))
+            _draw_label(img, text, rect, shape.colour)
+            labels.append(ZoneLabel(text, rect, shape.colour))
     return img, labels
 
 
-def _draw_floors(fills: np.ndarray, cell: Cell, model: geo.CameraModel, scale: np.ndarray
-                 ) -> list[tuple[list[np.ndarray], tuple[int, int, int], int, str]]:
-    """Fill each floor region's standing surface (at its height; a homography sees only the
-    cell floor, so there the footprint) and return its wireframe from the cell floor up or
-    down to it, labelled with the height."""
+@dataclass(frozen=True)
+class ZoneShape:
+    """A zone (or floor region) as drawn in one image: its translucent fill (fixed-point
+    pixels, or None), its outline polylines (pixels and fixed-point), colour and label."""
+
+    label: str
+    colour: tuple[int, int, int]
+    fill: np.ndarray | None
+    lines: list[np.ndarray]
+    lines_i32: list[np.ndarray]
+
+
+def _shape(label: str, colour: tuple[int, int, int], fill: np.ndarray | None,
+           lines: list[np.ndarray]) -> ZoneShape:
+    return ZoneShape(label, colour, None if fill is None else _i32(fill), lines,
+                     [_i32(p) for p in lines])
+
+
+def _zone_shape(z: Any, cell: Cell, model: geo.CameraModel | None, scale: np.ndarray,
+                tool_pose: geo.ToolPose | None) -> ZoneShape | None:
+    """An enabled zone the camera sees, in the image's pixels; None when out of view."""
+    colour = COLOURS_BGR[z.kind]
+    if isinstance(z, PolygonZone):
+        poly = np.array(z.points_px) * scale
+        return _shape(z.id, colour, poly, [poly])
+    if model is None:
+        return None
+    shape, at = z, None
+    if follows_tool(z):  # at the pose; without one (stale) at its maximum size
+        at = cell_from_zone(cell.spec, tool_pose) if tool_pose is not None else None
+        shape = z if at is not None else max_zone(z)
+    outline = volume_outline_m(shape, cell)
+    if at is not None:
+        outline = [transform_points(at, ln) for ln in outline]
+    projected = _project_lines(model, outline)
+    if not projected:
+        return None
+    region = _volume_floor_px(shape, cell, model) if at is None else \
+        cv2.convexHull(np.concatenate(projected).astype(np.float32)).reshape(-1, 2)
+    return _shape(z.id, colour, None if region is None else region * scale,
+                  [ln * scale for ln in projected])
+
+
+def _floor_shapes(cell: Cell, model: geo.CameraModel, scale: np.ndarray) -> list[ZoneShape]:
+    """Each floor region's standing surface (at its height; a homography sees only the
+    cell floor, so there the footprint) and its wireframe from the cell floor up or down to
+    it, labelled with the height (a surface without a drawable wireframe: filled only)."""
     out = []
     for f in cell.spec.floors:
         base = np.asarray(f.points_m, float)
         h = f.height_m if model.can_project_3d else 0.0
         lines = [ln * scale for ln in _project_lines(model, _prism_lines(base, 0.0, h))]
         top = _project_lines(model, _prism_lines(base, h, h)[:1], samples=8)
-        if len(top) == 1:
-            cv2.fillPoly(fills, [_i32(top[0] * scale)], FLOOR_BGR, lineType=cv2.LINE_AA,
-                         shift=4)
-        if lines:
-            out.append((lines, FLOOR_BGR, 2, f"{f.id} {f.height_m:+g} m"))
+        fill = top[0] * scale if len(top) == 1 else None
+        if lines or fill is not None:
+            out.append(_shape(f"{f.id} {f.height_m:+g} m", FLOOR_BGR, fill, lines))
     return out
 
 
-class ShadowCache:
-    """The shadow image of the last cell, camera and size asked for. A shadow depends only on
-    the cell's occluders and calibration, which do not change between frames (a zone swap
-    brings a new Cell); the cell is kept, so a new one can never be taken for it."""
+_FLOORS = object()  # the cache's key for the floor regions' shapes
+_MAX_LABEL_LAYOUTS = 64  # label layouts kept (hits and header rows vary between frames)
+
+
+class ZoneDrawCache:
+    """What drawing one camera's zones keeps from frame to frame: the projected shapes of the
+    zones that do not move, the shadow behind the occluders and the label places last
+    computed. They depend only on the cell (its zones, occluders and calibration), the camera
+    and the image size; a zone swap brings a new Cell, and the cell is kept, so a new one is
+    never taken for it. Projecting the shapes and placing the labels was most of the drawing;
+    the shadow is painted with one masked copy (a boolean index of a 1280x720 image took
+    tens of milliseconds)."""
 
     def __init__(self) -> None:
         self._key: tuple[Cell, str, int, int] | None = None
-        self._image: np.ndarray | None = None
+        self._shapes: dict[object, Any] = {}
+        self._labels: dict[tuple, list] = {}
+        self._shadow: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._shadow_done = False
 
-    def get(self, cell: Cell, camera_id: str, width: int, height: int) -> np.ndarray | None:
+    def use(self, cell: Cell, camera_id: str, width: int, height: int) -> None:
+        """Draw for this cell, camera and image size from now on (forgets any other's)."""
         key = (cell, camera_id, width, height)
         if self._key is None or self._key[0] is not cell or self._key[1:] != key[1:]:
-            self._image = shadow_image(cell, camera_id, width, height)
             self._key = key
-        return self._image
+            self._shapes, self._labels = {}, {}
+            self._shadow, self._shadow_done = None, False
+
+    def shape(self, key: object, make: Callable[[], Any]) -> Any:
+        if key not in self._shapes:
+            self._shapes[key] = make()
+        return self._shapes[key]
+
+    def label_places(self, key: tuple, make: Callable[[], list]) -> list:
+        if key not in self._labels:
+            if len(self._labels) >= _MAX_LABEL_LAYOUTS:
+                self._labels.clear()
+            self._labels[key] = make()
+        return self._labels[key]
+
+    def shadow(self, cell: Cell, camera_id: str, width: int, height: int
+               ) -> np.ndarray | None:
+        """(height, width) bool: the camera's shadow image (``shadow_image``), kept."""
+        self.use(cell, camera_id, width, height)
+        if not self._shadow_done:
+            mask = shadow_image(cell, camera_id, width, height)
+            if mask is not None:
+                colour = np.empty((height, width, 3), np.uint8)
+                colour[:] = SHADOW_BGR
+                self._shadow = (mask, mask.astype(np.uint8), colour)
+            self._shadow_done = True
+        return None if self._shadow is None else self._shadow[0]
+
+    def paint_shadow(self, fills: np.ndarray) -> None:
+        """Paint the shadow of the cell, camera and size last used onto ``fills``."""
+        if self._key is not None and self.shadow(*self._key) is not None:
+            assert self._shadow is not None
+            cv2.copyTo(self._shadow[2], self._shadow[1], fills)
 
 
 def shadow_image(cell: Cell, camera_id: str, width: int, height: int, step_px: int = 8
