@@ -101,10 +101,13 @@ def main() -> int:
             print(f"run {run}: exit {code}, {found}, {wall:.0f} s, load {load:.2f}"
                   + ("" if summary else ", NO SUMMARY (pytest went down)"), flush=True)
             if proc.returncode != 0:
-                failing = [line for line in proc.stdout.splitlines()
-                           if line.startswith(("FAILED", "ERROR", "E   ", "INTERNALERROR> E"))
-                           or "node down" in line or "crashed" in line]
-                print("\n".join(failing[:40]), flush=True)
+                lines = proc.stdout.splitlines()
+                # the names first (pytest's short summary), then the crashes and the first
+                # assertion lines
+                names = [x for x in lines if x.startswith(("FAILED", "ERROR"))]
+                details = [x for x in lines if x.startswith(("E   ", "INTERNALERROR> E"))
+                           or "node down" in x or "crashed" in x]
+                print("\n".join(names + details[:40]), flush=True)
             print("ten slowest tests:\n  " + "\n  ".join(slowest(proc.stdout) or ["(none)"]),
                   flush=True)
             print(f"tests that needed over half of a wait ({len(tight)}):", flush=True)

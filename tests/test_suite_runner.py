@@ -36,7 +36,7 @@ def test_killed_and_hung_workers_fail_their_own_tests_and_the_run_completes(tmp_
         "ini_options"]
     for name, text in FILES.items():
         (tmp_path / name).write_text(text)
-    # the project's runner options; a short timeout stands in for the 180 s
+    # the project's runner options; a short timeout stands in for the 480 s
     (tmp_path / "pytest.ini").write_text(
         f"[pytest]\naddopts = {options['addopts']}\ntimeout = 3\n"
         f"timeout_method = {options['timeout_method']}\n")
