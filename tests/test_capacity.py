@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 import tomllib
 
 import pytest
@@ -192,7 +193,9 @@ def test_the_start_up_check_of_a_config_refuses_a_lost_after_s_the_rate_cannot_m
     with pytest.raises(ConfigError) as refused:
         check_capacity(config, detector, {}, "refuse")
     message = str(refused.value)
-    assert "\n" not in message and "cam0 and cam1 at a predicted 0.9 fps per camera" in message
+    # the cameras' 0.9 fps, or less on a host too loaded to reach even that
+    predicted = re.search(r"cam0 and cam1 at a predicted ([\d.]+) fps per camera", message)
+    assert "\n" not in message and predicted and float(predicted.group(1)) <= 0.9, message
     assert "exceeds health.lost_after_s 1.00 s (camera_lost would STOP)" in message
     fits = parse_config(tomllib.loads(text + "[health]\nlost_after_s = 4.0\n"))
     verdict = check_capacity(fits, detector, {}, "refuse")
@@ -240,17 +243,18 @@ def test_monitor_run_refuses_a_config_the_host_cannot_serve_and_starts_with_lowe
     config = four_camera_config(tmp_path, synthetic_model, 30)
     assert_one_line_error(run_monitor("run", "--config", config, "--duration", "2"),
                           "this host cannot watch the cell in time", "ask for 120 frames/s")
-    # the same cell at a frame every 2 s per camera, with limits that allow that rate: starts
-    # (limits this loose leave room for ~2 s a frame: the suite beside a mutation run measured
-    # 0.93 s a frame, an 11 s p99 gap between decisions and a 2.07 s p99 step; the pure tests
-    # above check the arithmetic at the defaults)
-    config = four_camera_config(tmp_path, synthetic_model, 0.5,
+    # the same cell at a frame every 3.3 s per camera, with limits that allow that rate: starts
+    # (limits this loose leave room for ~3 s a frame: the suite beside a mutation run measured
+    # 0.93 s a frame, an 11 s p99 gap between decisions and a 2.07 s p99 step, and at a load of
+    # 8 on 2 cores 0.54 s a frame refused 4 x 0.5 fps; the pure tests above check the
+    # arithmetic at the defaults)
+    config = four_camera_config(tmp_path, synthetic_model, 0.3,
                                 "stall_timeout = 5.0\n"
                                 "[policy]\nframe_timeout = 20.0\nmax_frame_age = 15.0\n"
                                 "[health]\nlost_after_s = 15.0\n")
     started = run_monitor("run", "--config", config, "--duration", "3")
     assert started.returncode == 0, started.stderr[-2000:]
-    assert "capacity: " in started.stderr and "cam3 0.5 fps" in started.stderr
+    assert "capacity: " in started.stderr and "cam3 0.3 fps" in started.stderr
     # the command line overrides the config's mode: the refused config starts with a warning
     config = four_camera_config(tmp_path, synthetic_model, 30)
     warned = run_monitor("run", "--config", config, "--duration", "2", "--capacity-check",
