@@ -246,7 +246,7 @@ def test_service_with_two_cameras(tmp_path, synthetic_model, batch):
         # both cameras' frames reach the decisions, batched or in turn
         wait_for(lambda: {d["frame"]["camera_id"] for d in list(svc.detections)}
                  >= {"cam0", "cam1"}, 30, "detections of both cameras", svc)
-        assert svc.stop(signal.SIGTERM) == 0
+        svc.assert_stops_cleanly(signal.SIGTERM)
     log = svc.stderr_path.read_text()
     assert ("batching the cameras' frames" in log) is batch
     assert ("cameras' frames run in turn" in log) is not batch

@@ -72,7 +72,7 @@ def test_sigterm_after_commands_over_zenoh_status_and_metrics(tmp_path, syntheti
         # heartbeats (10 Hz) and changes: wait for ten of them rather than hoping the steps
         # above took long enough (they do not on a fast machine, and under load they may not)
         wait_for(lambda: len(svc.commands) >= 10, 30, "ten commands", svc)
-        assert svc.stop(signal.SIGTERM) == 0
+        svc.assert_stops_cleanly(signal.SIGTERM)
         assert wait_for(lambda: svc.alive == [True, False], 30, "the token to vanish")
         log = [json.loads(line) for line in svc.stderr_path.read_text().splitlines()]
     events = [e["event"] for e in log]
