@@ -122,7 +122,10 @@ def test_camera_loss_stops_at_once_then_frames_reset_and_clear_time_give_run(
         # the last frame processed before the STOP, on the service's clock (as the command's)
         last = max(d["frame"]["capture_time"] for d in list(svc.detections)
                    if d["frame"]["capture_time"] <= stop["mono"])
-        assert stop["mono"] - last <= POLICY.frame_timeout
+        # within frame_timeout of it, and a tick (0.05 s) plus the scheduling of a loaded host
+        # late at most (a load of 8 on 2 cores: 0.51 s; the policy's own bound is exact in
+        # tests/test_pipeline.py, without processes)
+        assert stop["mono"] - last <= POLICY.frame_timeout + 0.25
         lost = [r for r in stop["reasons"] if r.get("fault") == "camera_lost"]
         assert lost and "stream lost" in lost[0]["message"] and camera.url in lost[0]["message"]
         assert stop["latched"]
