@@ -109,11 +109,18 @@ def test_an_adapter_started_before_any_monitor_reads_stop_no_command(keys):
     proc = start_adapter(free_port(), mport, public)
     plc = Plc(mport)
     try:
-        seen = [r for _ in range(10) if (r := plc.read()) is not None and not time.sleep(0.02)]
+        # at least 10 reads, and on until the heartbeat moved (a loaded host ticks late)
+        seen: list = []
+        deadline = time.monotonic() + 10.0
+        while time.monotonic() < deadline and (len(seen) < 10
+                                                or len({r[HEARTBEAT] for r in seen}) < 2):
+            if (r := plc.read()) is not None:
+                seen.append(r)
+            time.sleep(0.02)
     finally:
         plc.close()
         stop_process(proc)
-    assert len(seen) == 10 and all(r[STATE] == STOP and r[SCALE] == 0 for r in seen)
+    assert len(seen) >= 10 and all(r[STATE] == STOP and r[SCALE] == 0 for r in seen)
     assert all(r[REASON] == mm.REASON_CODES["no_command"] and r[STATUS] & 0b10000
                for r in seen)
     assert len({r[HEARTBEAT] for r in seen}) > 1  # alive, and saying STOP
