@@ -114,7 +114,9 @@ def test_slow_inference_between_stall_timeout_and_frame_timeout_stops_then_recov
     model = slow_model(tmp_path, synthetic_model, 1.5)
     video = marker_video(tmp_path / "marked.mp4")
     with Service(tmp_path, model, str(video), ZONES + "[policy]\nframe_timeout = 8.0\n"
-                 'restart_interlock = "auto"\nmax_frame_age = 0.3\n'
+                 # max_frame_age 0.6 s: over a plain step at a load of 8 (0.38 s), under the
+                 # slow step (over 0.8 s): only the slow step's frame is late
+                 'restart_interlock = "auto"\nmax_frame_age = 0.6\n'
                  # the default two threads, as slow_model measured: the slow step must land
                  # between stall_timeout and frame_timeout (one thread under the suite's load
                  # overshot frame_timeout once in 6 runs)
