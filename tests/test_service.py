@@ -95,13 +95,22 @@ def test_sigterm_after_commands_over_zenoh_status_and_metrics(tmp_path, syntheti
 
 
 
+# The camera-loss test's frame_timeout and max_frame_age: twice the default 0.5 s, so that a
+# loaded host's scheduling gaps (a load of 8 on 2 cores: 0.5-0.9 s) do not latch a STOP again
+# and again; the loss itself is named at once by the grabber ("stream lost")
+FRAME_TIMEOUT = 1.0
+
+
 @pytest.mark.slow
 def test_camera_loss_stops_at_once_then_frames_reset_and_clear_time_give_run(
         tmp_path, synthetic_model):
     with MjpegCamera(demo_jpegs()) as camera, \
             Service(tmp_path, synthetic_model, camera.url,  # no zone file: none apply
-                    "[zones]\nallow_no_protective = true\n", allow_test_model=True) as svc:
-        i_run, _ = svc.next_command(0, lambda c: c["state"] == "RUN", 60, "RUN")
+                    "[zones]\nallow_no_protective = true\n"
+                    f"[policy]\nframe_timeout = {FRAME_TIMEOUT}\nmax_frame_age = {FRAME_TIMEOUT}\n",
+                    allow_test_model=True) as svc:
+        # a loaded host may latch a stall before the first RUN: reset as an operator would
+        svc.reach(0, lambda c: c["state"] == "RUN", 60, "RUN")
         wait_for(lambda: len(svc.detections) >= 3, 30, "detections", svc)
         status = svc.status()  # said at start and in status: no person can cause a STOP here
         assert status["protective_zone"] is False and "allow_no_protective" in status["warning"]
@@ -116,8 +125,9 @@ def test_camera_loss_stops_at_once_then_frames_reset_and_clear_time_give_run(
         assert "no zone file: persons cannot cause STOP" in log
         assert "camera lost" not in log and "camera connected" in log  # no false loss at start
 
+        i_loss = len(svc.commands)  # a load stall before the loss is not this STOP
         camera.online.clear()
-        i_stop, stop = svc.next_command(i_run, lambda c: c["state"] == "STOP", 30, "STOP")
+        i_stop, stop = svc.next_command(i_loss, lambda c: c["state"] == "STOP", 30, "STOP")
         time.sleep(0.2)  # detections go out after the command of their step
         # the last frame processed before the STOP, on the service's clock (as the command's)
         last = max(d["frame"]["capture_time"] for d in list(svc.detections)
@@ -125,8 +135,12 @@ def test_camera_loss_stops_at_once_then_frames_reset_and_clear_time_give_run(
         # within frame_timeout of it, and a tick (0.05 s) plus the scheduling of a loaded host
         # late at most (a load of 8 on 2 cores: 0.51 s; the policy's own bound is exact in
         # tests/test_pipeline.py, without processes)
-        assert stop["mono"] - last <= POLICY.frame_timeout + 0.25
-        lost = [r for r in stop["reasons"] if r.get("fault") == "camera_lost"]
+        assert stop["mono"] - last <= FRAME_TIMEOUT + 0.25
+        # the loss is named: at once by the grabber ("stream lost"), maybe in a later STOP
+        # when a loaded host's frame_timeout came first
+        _, named = svc.next_command(i_stop, lambda c: any(
+            r.get("fault") == "camera_lost" for r in c["reasons"]), 10, "camera_lost named")
+        lost = [r for r in named["reasons"] if r.get("fault") == "camera_lost"]
         assert lost and "stream lost" in lost[0]["message"] and camera.url in lost[0]["message"]
         assert stop["latched"]
 
@@ -145,7 +159,7 @@ def test_camera_loss_stops_at_once_then_frames_reset_and_clear_time_give_run(
                         attachment=signed_reset(svc.operator, svc.keys.reset, payload))
         _, outcome = svc.next_command(i_reset, lambda c: "reset" in c, 30, "the reset outcome")
         assert outcome["reset"]["accepted"], outcome["reset"]
-        i_run2, run = svc.next_command(i_reset, lambda c: c["state"] == "RUN", 30, "RUN again")
+        i_run2, run = svc.reach(i_reset, lambda c: c["state"] == "RUN", 30, "RUN again")
         assert all(c["state"] == "STOP" for c in svc.commands[i_stop:i_run2])
         # the last STOP cause was seen at most one tick before the first frame came back
         assert run["mono"] - back >= POLICY.clear_time - 2 * TICK_S

@@ -60,7 +60,15 @@ async function pollState() {
 function refreshImages() {
   for (const c of liveCameras) {
     const img = $("live-" + c);
-    if (img) img.src = "/api/live/" + encodeURIComponent(c) + ".jpg?t=" + Date.now();
+    if (!img) continue;
+    // the next picture is asked for once this one has arrived or failed: a new src cancels
+    // the load under way, so on a loaded host or a slow link (an answer slower than the
+    // 700 ms period) the picture would never show; a request hung for 10 s is given up
+    const since = Number(img.dataset.asked || 0);
+    if (since && Date.now() - since < 10000) continue;
+    img.onload = img.onerror = () => { img.dataset.asked = ""; };
+    img.dataset.asked = String(Date.now());
+    img.src = "/api/live/" + encodeURIComponent(c) + ".jpg?t=" + Date.now();
   }
 }
 
