@@ -25,8 +25,8 @@ def synthetic_model(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def detector(synthetic_model: Path):
     from monitor.detector import Detector, DetectorConfig
 
-    # one inference thread: the suite's two workers share two cores, and two threads each
-    # make four that wait on each other (measured: ~17 % fewer frames per second in all)
+    # one inference thread: the suite's three workers share two cores, and two threads each
+    # make more that wait on each other (measured: ~17 % fewer frames per second in all)
     return Detector(synthetic_model, DetectorConfig(threads=1))
 
 

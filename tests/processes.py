@@ -35,13 +35,13 @@ CAPACITY = 'capacity_check = "off"\n'
 LOAD_TOLERANT_AGE = "max_frame_age = 1.0\n"
 
 
-# One inference thread in every monitor a test starts: the suite's two workers already keep both
+# One inference thread in every monitor a test starts: the suite's three workers already keep both
 # cores busy, and a second onnxruntime thread each only adds waiting (synthetic model, 2-core
 # Xeon: 85 ms of CPU a frame on one thread, 123 ms on two). Tests about threads set their own.
 ONE_THREAD = "threads = 1\n"
 # At most 5 frames a second in every one-camera monitor a test starts, unless the test sets its
 # own: a looped 15 fps video otherwise runs inference as fast as one thread allows (~12 frames
-# a second, a whole core) for nothing a test checks, beside the other worker's tests.
+# a second, a whole core) for nothing a test checks, beside the other workers' tests.
 TEST_FPS = "max_fps = 5\n"
 
 

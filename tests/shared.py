@@ -1,10 +1,10 @@
 """Heavy fixtures built once per test run, not once per xdist worker.
 
-Why: the suite runs on two workers that steal tests from each other, so a session or module
-fixture used by tests on both workers (a replay of the demo scene, a recorded incident, a
+Why: the suite runs on three workers that steal tests from each other, so a session or module
+fixture used by tests on several workers (a replay of the demo scene, a recorded incident, a
 model's envelope) is otherwise built twice, each build taking 10-60 s of a core on a 2-core
 host. The first worker to ask builds it under a file lock in the run's shared temp folder
-(the pattern pytest-xdist documents); the other one waits for the lock and reads the result.
+(the pattern pytest-xdist documents); the others wait for the lock and reads the result.
 A build that raises leaves nothing behind, so the next asker builds again and fails the same
 way in its own tests.
 """
@@ -45,7 +45,7 @@ def built_once(tmp_path_factory: pytest.TempPathFactory, name: str,
             value = build(folder)
             partial = result.with_suffix(".partial")
             partial.write_bytes(pickle.dumps(value))
-            partial.replace(result)  # never a half-written result for the other worker
+            partial.replace(result)  # never a half-written result for another worker
             return value
         finally:
             fcntl.flock(lock, fcntl.LOCK_UN)

@@ -98,8 +98,8 @@ def demo(tmp_path_factory: pytest.TempPathFactory) -> Demo:
 def cli_replay(demo: Demo, synthetic_model: Path, tmp_path_factory: pytest.TempPathFactory):
     """`monitor replay` as a user runs it."""
     def build(out: Path) -> subprocess.CompletedProcess:
-        # a config with one inference thread only (tests.processes.ONE_THREAD: the other worker
-        # has the second core); every other setting is the built-in default
+        # a config with one inference thread only (tests.processes.ONE_THREAD: the other workers
+        # share the cores); every other setting is the built-in default
         config = out.with_suffix(".toml")  # beside the outputs, not among them
         config.write_text(one_inference_thread(""))
         return run_monitor("replay", demo.video, "--zones", demo_cell_path(), "--model",
