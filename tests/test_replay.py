@@ -26,9 +26,12 @@ from tests.processes import one_inference_thread
 from tests.shared import built_once, run_root
 from tests.videos import faststart
 
-# The demo walk sampled at 7.5 fps (`monitor demo` writes 15 fps): same path, camera and zones,
-# half the frames, so the two replays of this file stay within the suite's time budget.
-DEMO_FPS = 7.5
+# The demo walk sampled at 5 fps (`monitor demo` writes 15 fps): same path, camera and zones,
+# a third of the frames, so the two replays of this file stay within the suite's time budget
+# (each frame is one inference, ~80 ms of a core; the walk lasts 24 s: 120 frames).
+DEMO_FPS = 5.0
+# the short clips of the bad-input tests
+CLIP_FPS = 7.5
 # 8 s: the person stands inside the protective zone (the walk pauses there 7..10 s): refused.
 # 18 s: the person left the view at ~17 s: accepted.
 RESET_AT = (8.0, 18.0)
@@ -43,9 +46,10 @@ EARLY_FRAMES = math.ceil(0.3 * DEMO_FPS)
 # SLOW may come earlier than the warning zone's ground truth: a person entering at the image's
 # side edge shows as a sliver too short for a person, and such a box is placed from the head
 # over the whole height range (its feet may be hidden, docs/occlusion.md). Earlier is the safe
-# direction. Measured: the first sliver of the walker at the image's left edge (frame 11) is
-# placed from the head and SLOWs 15 frames (2.0 s) before the true feet reach the zone; frames
-# 0-10 are empty, and a SLOW there (from nothing) still fails this test.
+# direction. Measured at 7.5 fps: the first sliver of the walker at the image's left edge
+# (1.5 s) is placed from the head and SLOWs 2.0 s before the true feet reach the zone (at 5 fps
+# the frames miss that sliver: SLOW 0.2 s early); the first 1.5 s are empty, and a SLOW there
+# (from nothing) still fails this test.
 EARLY_SLOW_FRAMES = math.ceil(2.0 * DEMO_FPS)
 CLEAR_TIME = PolicyConfig().clear_time
 # Ctrl-C or SIGTERM to a replay: its files finished and the process gone within this long. The
@@ -191,7 +195,7 @@ def test_slow_in_the_warning_zone_then_stop_at_the_first_frame_in_the_protective
 def test_every_frame_decides_at_once_and_run_needs_reset_and_clear_time(steps):
     _, all_steps, _ = steps
     results = [r for r in all_steps if r.frame is not None]  # ticks between frames: no zones
-    assert len(all_steps) > len(results)  # 7.5 fps: two ticks (tick_s 0.05 s) between frames
+    assert len(all_steps) > len(results)  # 5 fps: three ticks (tick_s 0.05 s) between frames
     kinds = [{h.kind for h in r.zone_report.hits} for r in results]
     for r, k in zip(results, kinds, strict=True):  # no debounce towards the safe side
         if "protective" in k:
@@ -244,9 +248,9 @@ def test_annotated_video_has_every_frame(demo, cli_replay):
 
 
 def _clip(path: Path, frames: int, size: tuple[int, int] = (1280, 720)) -> Path:
-    scene = DemoScene(fps=DEMO_FPS)
+    scene = DemoScene(fps=CLIP_FPS)
     clip = ((cv2.resize(img, size), t) for img, t in itertools.islice(scene.frames(), frames))
-    write_video(path, clip, DEMO_FPS)
+    write_video(path, clip, CLIP_FPS)
     return path
 
 
@@ -271,7 +275,7 @@ def _unknown_codec(tmp: Path) -> Path:
 
 def _zero_frames(tmp: Path) -> Path:
     path = tmp / "empty.mp4"
-    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), DEMO_FPS, (1280, 720))
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), CLIP_FPS, (1280, 720))
     writer.release()
     return path
 
@@ -309,7 +313,7 @@ def test_truncated_video_is_processed_up_to_the_break_then_reported(tmp_path, sy
     read = summary["frames"]
     assert 0 < read < 20
     line = assert_one_line_error(proc, "cut.mp4", "truncated", f"broke at frame {read}",
-                                 f"t={read / DEMO_FPS:.3f} s", "of 20")
+                                 f"t={read / CLIP_FPS:.3f} s", "of 20")
     assert summary["truncated"] == line.removeprefix("monitor: error: ")
     assert "truncated" in proc.stdout  # the summary table is printed first
     assert len((out / "events.jsonl").read_text().splitlines()) >= 1
