@@ -494,6 +494,8 @@ class SafetyBus:
                 "put_errors": dict(self._counters["errors"]),
                 "resets_invalid": self._resets.invalid, "resets_refused": self._resets.refused,
                 "mutes_accepted": self._mutes.accepted, "mutes_refused": self._mutes.refused,
+                # operators' queries waiting for the pipeline's answer (a stalled loop: > 0)
+                "resets_waiting": len(self._resets.pending), "mutes_waiting": self._mutes.waiting,
                 "commands_foreign": self.foreign_commands(),
                 "alerts_held": self._limiter.held(),
                 "fps": None,  # set by the service with update_status(fps=...)

@@ -4,9 +4,12 @@ A reset arrives as a query (or a put) signed by an operator key; the desk checks
 ``monitor.resets.ResetGate`` bound to this boot and the latch published now. Refused requests
 are answered at once and alerted (``drain_alerts``); verified ones wait for the pipeline
 (``poll``), their queries until the policy's outcome is published (``answer``) or
-``answer_s`` has passed (``expire``). Every answer names the request it answers (its SHA-256),
-the monitor's instance and boot, and is signed with the monitor's key (``monitor.answers``):
-``monitor reset --monitor-key`` believes nothing else.
+``answer_s`` has passed (``expire``). A request the pipeline has not taken by then is dropped
+with that answer: a reset answered "not decided" is never decided later (it would release a
+latch its operator was told still holds). Of several waiting at one step the newest is taken;
+the older ones are answered "superseded" at once. Every answer names the request it answers
+(its SHA-256), the monitor's instance and boot, and is signed with the monitor's key
+(``monitor.answers``): ``monitor reset --monitor-key`` believes nothing else.
 """
 
 from __future__ import annotations
@@ -28,6 +31,9 @@ from monitor.signing import Signer
 from monitor.types import Alert
 
 SCHEMA_VERSION = 1
+# a taken request whose outcome never came (a stalled step's decision is discarded, and the
+# stall latches anew) is answered this long after its deadline: never decided by then
+TAKEN_GRACE_S = 10.0
 RESET_ANSWER_SCHEMA = f"workcell.safety.reset-answer/{SCHEMA_VERSION}"
 
 
@@ -51,17 +57,23 @@ class ResetDesk:
         self._queue: collections.deque[ResetRequest] = collections.deque(maxlen=16)
         # request id -> (query, deadline, the request's digest)
         self.pending: dict[str, tuple[zenoh.Query | None, float, str]] = {}
+        self.taken: set[str] = set()  # handed to the pipeline: its outcome answers them
         self.invalid = 0
         self.refused = 0
         self.last_reset: dict | None = None  # written with the bus's lock held
         self._alerts: collections.deque[Alert] = collections.deque(maxlen=16)
 
     def poll(self) -> list[ResetRequest]:
-        """Verified reset requests received since the last call (oldest first)."""
+        """The newest verified reset request received since the last call (a list of one, or
+        empty); older ones are answered "superseded" and never decided."""
         with self._lock:
             out = list(self._queue)
             self._queue.clear()
-        return out
+            if out:
+                self.taken.add(out[-1].request_id)
+        for old in out[:-1]:
+            self.answer(old.request_id, False, "superseded by a newer request", "bus")
+        return out[-1:]
 
     def on_query(self, query: zenoh.Query, boot: str, latch: Callable[[], str | None]) -> None:
         payload = query.payload.to_bytes() if query.payload is not None else b""
@@ -121,19 +133,27 @@ class ResetDesk:
         """Answer that request's query (if it is still waiting) and finalise it."""
         with self._lock:
             query, _, digest = self.pending.pop(request_id, (None, 0.0, ""))
+            self.taken.discard(request_id)
         if query is not None:
             self._reply(query, None, {"accepted": accepted, "stage": stage,
                                       "reason": message, "request_id": request_id,
                                       "state": state}, digest)
 
     def expire(self) -> None:
-        """Answer queries the policy has not decided on within ``answer_s``."""
+        """Answer queries the pipeline has not taken within ``answer_s`` and drop their
+        requests (never decided later); a taken one waits for its outcome, up to
+        ``TAKEN_GRACE_S`` more."""
         now = self._clock()
         with self._lock:
-            late = [rid for rid, (_, deadline, _) in self.pending.items() if now > deadline]
+            late = [rid for rid, (_, deadline, _) in self.pending.items()
+                    if now > deadline + (TAKEN_GRACE_S if rid in self.taken else 0.0)]
+            gone = set(late)
+            kept = [r for r in self._queue if r.request_id not in gone]
+            self._queue.clear()
+            self._queue.extend(kept)
         for rid in late:
             self.answer(rid, False, "the monitor did not decide on this request in time "
-                        "(superseded by a newer request, or the pipeline is stalled)", "bus")
+                        "(the pipeline is stalled)", "bus")
 
     def answer_all(self, why: str) -> None:
         with self._lock:

@@ -134,7 +134,11 @@ def _operator_of(payload: bytes) -> str | None:
 class MuteDesk:
     """The bus's side of muting: verified requests wait here for the pipeline
     (``poll``), their queries until it has judged them (``answer``) or ``answer_s`` passed;
-    requests refused here are answered at once and alerted (``drain_alerts``). Thread-safe."""
+    requests refused here are answered at once and alerted (``drain_alerts``). Thread-safe.
+
+    A request the pipeline has not taken within ``answer_s`` is answered "not judged" and
+    dropped: it is never applied later (an operator told REFUSED must not find the zone muted).
+    One it has taken is answered with its judgement, however late."""
 
     def __init__(self, gate: MuteGate, answer_s: float = 2.0) -> None:
         self.gate = gate
@@ -142,6 +146,7 @@ class MuteDesk:
         self._lock = threading.Lock()
         self._queue: collections.deque[MuteRequest] = collections.deque(maxlen=16)
         self._pending: dict[str, tuple[object, float]] = {}
+        self._taken: set[str] = set()  # handed to the pipeline, its answer to come
         self._alerts: collections.deque[Alert] = collections.deque(maxlen=16)
         self.refused = 0
         self.accepted = 0
@@ -169,11 +174,18 @@ class MuteDesk:
             if query is not None:
                 self._pending[req.request_id] = (query, now + self.answer_s)
 
+    @property
+    def waiting(self) -> int:
+        """Queries waiting for the pipeline's judgement now."""
+        with self._lock:
+            return len(self._pending)
+
     def poll(self) -> tuple[MuteRequest, ...]:
         """Verified requests since the last call (oldest first), for the pipeline."""
         with self._lock:
             out = tuple(self._queue)
             self._queue.clear()
+            self._taken.update(r.request_id for r in out if r.request_id in self._pending)
         return out
 
     def answer(self, outcome: MuteOutcome) -> None:
@@ -185,6 +197,7 @@ class MuteDesk:
             else:
                 self.refused += 1
             query, _ = self._pending.pop(outcome.request.request_id, (None, 0.0))
+            self._taken.discard(outcome.request.request_id)
         body = {"accepted": outcome.accepted, "stage": "pipeline", "reason": outcome.reason,
                 "request_id": outcome.request.request_id, "zone": outcome.request.zone}
         if mute is not None:
@@ -193,10 +206,16 @@ class MuteDesk:
         reply(query, self.gate.key_expr, body)
 
     def expire(self, now: float) -> None:
-        """Answer queries the pipeline has not judged within ``answer_s``."""
+        """Answer queries the pipeline has not taken within ``answer_s``, and drop their
+        requests: what was answered "not judged" is never judged later."""
         with self._lock:
-            late = [rid for rid, (_, deadline) in self._pending.items() if now > deadline]
+            late = [rid for rid, (_, deadline) in self._pending.items()
+                    if now > deadline and rid not in self._taken]
             queries = [self._pending.pop(rid)[0] for rid in late]
+            gone = set(late)
+            kept = [r for r in self._queue if r.request_id not in gone]
+            self._queue.clear()
+            self._queue.extend(kept)
         for rid, query in zip(late, queries, strict=True):
             reply(query, self.gate.key_expr, {
                 "accepted": False, "stage": "bus", "request_id": rid,
@@ -206,6 +225,7 @@ class MuteDesk:
         with self._lock:
             pending = list(self._pending.items())
             self._pending.clear()
+            self._taken.clear()
         for rid, (query, _) in pending:
             reply(query, self.gate.key_expr, {"accepted": False, "stage": "bus",
                                                "request_id": rid, "reason": why})

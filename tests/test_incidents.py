@@ -353,8 +353,11 @@ def test_the_service_records_the_demo_stop_and_answers_the_incidents_query(
             assert body["schema"] == "workcell.safety.incidents/1" and body["cell"] == "t5"
             return [r for r in body["incidents"] if r["complete"]]
 
-        # the recorder works at low priority: on a loaded machine its clip takes a while
-        rows = wait_for(incidents, 120, "a complete STOP incident", svc)
+        # the recorder works at low priority: on a loaded machine its clip takes a while. The
+        # demo's STOP for its protective zone: a loaded host may have stopped for a stall
+        # first, an incident too, with no frames before it (the stall discards them)
+        rows = wait_for(lambda: [r for r in incidents() if "protective" in r["describe"]], 120,
+                        "a complete STOP incident for the protective zone", svc)
         url = f"http://127.0.0.1:{svc.metrics_port}/metrics"
         def metrics() -> str | None:
             text = urllib.request.urlopen(url, timeout=3).read().decode()

@@ -46,11 +46,17 @@ def test_monitor_mute_against_a_running_monitor(tmp_path, synthetic_model):
                          {r["code"] for r in c["reasons"]}, 60, "a decision after start-up")
 
         def mute(zone: str, *args: str, operator: str = "anna") -> subprocess.CompletedProcess:
-            return subprocess.run(
-                [sys.executable, "-m", "monitor", "mute", zone, *args, "--operator", operator,
-                 "--key", str(keys[operator][0]), "--cell", "t5",
-                 "--connect", f"tcp/127.0.0.1:{svc.bus_port}", "--timeout", "10"],
-                capture_output=True, text=True, timeout=60)
+            # a loaded host's loop may not take the request within the bus's 2 s: refused
+            # then, and dropped (tests/test_bus_late_answers.py); the operator sends it again
+            for _ in range(5):
+                proc = subprocess.run(
+                    [sys.executable, "-m", "monitor", "mute", zone, *args, "--operator",
+                     operator, "--key", str(keys[operator][0]), "--cell", "t5",
+                     "--connect", f"tcp/127.0.0.1:{svc.bus_port}", "--timeout", "10"],
+                    capture_output=True, text=True, timeout=60)
+                if "did not judge this request in time" not in proc.stdout:
+                    break
+            return proc
 
         too_long = mute("robot-protective", "--for", "121s")
         assert too_long.returncode == 1, too_long.stderr
