@@ -209,17 +209,22 @@ class Service:
             for i in range(start, len(self.commands)):
                 if pred(self.commands[i]):
                     return i, self.commands[i]
-            last = self.commands[-1] if self.commands else {}
-            if last.get("latched") and last.get("reset_possible"):
-                boot, latch = latch_of_status(self.status())
-                if latch and latch not in sent:
-                    sent.add(latch)
-                    payload = reset_payload("tester", f"load-{len(sent)}", cell="t5", boot=boot,
-                                            latch=latch)
-                    self.session.put(self.keys.reset, payload, attachment=signed_reset(
-                        self.operator, self.keys.reset, payload))
+            self.release_latch(sent)
             return None
         return wait_for(find, timeout, what, self)
+
+    def release_latch(self, sent: set[str]) -> None:
+        """Reset the latched STOP once the monitor says a reset is possible, as an operator
+        would (once per latch: ``sent`` keeps the latches already reset)."""
+        last = self.commands[-1] if self.commands else {}
+        if last.get("latched") and last.get("reset_possible"):
+            boot, latch = latch_of_status(self.status())
+            if latch and latch not in sent:
+                sent.add(latch)
+                payload = reset_payload("tester", f"load-{len(sent)}", cell="t5", boot=boot,
+                                        latch=latch)
+                self.session.put(self.keys.reset, payload, attachment=signed_reset(
+                    self.operator, self.keys.reset, payload))
 
     def status(self) -> dict:
         replies = list(self.session.get(self.keys.status, timeout=3.0))

@@ -129,19 +129,20 @@ def test_two_monitors_one_cell_run_only_together_and_every_fault_is_named(
             recover("RUN after the duplicate left")
 
             # --- one monitor's own STOP is the cell's; a reset goes to both latched -------
-            n_seen = len(consumer.seen)
             cam_b.online.clear()
             # monitor-b's own STOP is named; on a loaded machine monitor-a may STOP too (a
             # stall, a late duplicate check), named as well, and monitor-b's first STOP may be
-            # a stall ("pipeline handed in no command") before its camera's loss: never a RUN
+            # a stall ("pipeline handed in no command") before its camera's loss
             consumer.wait(lambda v: v.state == "STOP" and "monitor-b:" in v.reason
                           and "camera" in v.reason.split("monitor-b:", 1)[1], 30,
                           "monitor-b's STOP naming its camera", b)
-            assert all(state == "STOP" for state, _ in consumer.seen[n_seen:]), \
-                consumer.seen[n_seen:]
+            named = len(consumer.seen) - 1
             cam_a.online.clear()
             consumer.wait(lambda v: "monitor-a:" in v.reason and "monitor-b:" in v.reason,
                           30, "STOP from both", a)
+            # from monitor-b's STOP on: never a RUN
+            assert all(state == "STOP" for state, _ in consumer.seen[named:]), \
+                consumer.seen[named:]
             refused = _reset(tmp_path, router_port)  # the cameras are still away
             assert refused.returncode == 1, refused.stdout + refused.stderr
             assert "monitor-a: reset by tester REFUSED" in refused.stdout
@@ -165,9 +166,11 @@ def test_two_monitors_one_cell_run_only_together_and_every_fault_is_named(
             # --- a frozen monitor, then a killed one: STOP, named ------------------------
             b.proc.send_signal(signal.SIGSTOP)
             try:
-                v = consumer.wait(lambda v: v.state == "STOP", 30, "STOP, b frozen")
-                assert v.reason.startswith("monitor-b: silence"), v
-                assert "monitor-a" not in v.reason
+                # b's silence is named (a loaded machine may stall monitor-a too, named
+                # as well; b's last RUN holds until its ttl runs out)
+                v = consumer.wait(lambda v: "monitor-b: silence" in v.reason, 30,
+                                  "STOP, b frozen")
+                assert v.state == "STOP"
             finally:
                 b.proc.send_signal(signal.SIGCONT)
             a.proc.kill()
