@@ -69,7 +69,7 @@ class ResetDesk:
         with self._lock:
             out = list(self._queue)
             self._queue.clear()
-            if out:
+            if out and out[-1].request_id in self.pending:  # a query waits for its outcome
                 self.taken.add(out[-1].request_id)
         for old in out[:-1]:
             self.answer(old.request_id, False, "superseded by a newer request", "bus")
