@@ -45,7 +45,10 @@ def service(tmp_path_factory, synthetic_model):
     write_video(video, scene.frames(), scene.fps)
     cell = tmp / "cell.yaml"
     shutil.copy(demo_cell_path(), cell)
-    svc = Service(tmp, synthetic_model, str(video), f'[zones]\nfile = "{cell}"\n',
+    # frame_timeout 1 s: at a load of 8 the default 0.5 s latched a stall STOP again and again
+    # (this test is about zone swaps, not frame age: tests/test_stall.py)
+    svc = Service(tmp, synthetic_model, str(video),
+                  f'[zones]\nfile = "{cell}"\n[policy]\nframe_timeout = 1.0\n',
                   camera_lines="loop = true\nrealtime = true\n")
     with svc:
         alerts: list[dict] = []
