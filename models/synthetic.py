@@ -154,7 +154,6 @@ def build_model(p: SyntheticWeights | None = None, input_size: int = INPUT_SIZE,
     """
     if input_size % 32 or input_size < 64:
         raise ValueError(f"input size {input_size} is not a multiple of 32 (>= 64)")
-    g13, g26 = input_size // 32, input_size // 16
     p = p or SyntheticWeights()
     weights = build_weights(p)
     nodes: list[onnx.NodeProto] = []
@@ -202,18 +201,21 @@ def build_model(p: SyntheticWeights | None = None, input_size: int = INPUT_SIZE,
     nodes.append(helper.make_node("Identity", [head26], ["output_26"], name="out26"))
     graph = helper.make_graph(
         nodes, "tiny_yolov3_synthetic",
+        # height and width are dynamic (multiples of 32): a 16:9 frame runs at 416x288, not
+        # in the full square (imgsz below; monitor.detector.preprocess.fitted_input)
         [helper.make_tensor_value_info("images", TensorProto.FLOAT,
-                                       ["batch", 3, input_size, input_size])],
+                                       ["batch", 3, "height", "width"])],
         [helper.make_tensor_value_info("output_13", TensorProto.FLOAT,
-                                       ["batch", 255, g13, g13]),
+                                       ["batch", 255, "height/32", "width/32"]),
          helper.make_tensor_value_info("output_26", TensorProto.FLOAT,
-                                       ["batch", 255, g26, g26])],
+                                       ["batch", 255, "height/16", "width/16"])],
         inits)
     model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 13)],
                               producer_name="workcell-monitor", producer_version="1")
     model.ir_version = 8
     meta = {
         "layout": "darknet",
+        "imgsz": str(input_size),  # the full input; smaller rectangles run too
         "anchors": json.dumps(ANCHORS),
         "masks": json.dumps(MASKS),
         "names": json.dumps(dict(enumerate(COCO_NAMES))),

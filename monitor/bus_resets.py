@@ -147,10 +147,11 @@ class ResetDesk:
         with self._lock:
             late = [rid for rid, (_, deadline, _) in self.pending.items()
                     if now > deadline + (TAKEN_GRACE_S if rid in self.taken else 0.0)]
-            gone = set(late)
-            kept = [r for r in self._queue if r.request_id not in gone]
-            self._queue.clear()
-            self._queue.extend(kept)
+            if late:  # every heartbeat calls this: rebuild the queue only when it changes
+                gone = set(late)
+                kept = [r for r in self._queue if r.request_id not in gone]
+                self._queue.clear()
+                self._queue.extend(kept)
         for rid in late:
             self.answer(rid, False, "the monitor did not decide on this request in time "
                         "(the pipeline is stalled)", "bus")

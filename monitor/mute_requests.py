@@ -212,10 +212,11 @@ class MuteDesk:
             late = [rid for rid, (_, deadline) in self._pending.items()
                     if now > deadline and rid not in self._taken]
             queries = [self._pending.pop(rid)[0] for rid in late]
-            gone = set(late)
-            kept = [r for r in self._queue if r.request_id not in gone]
-            self._queue.clear()
-            self._queue.extend(kept)
+            if late:  # every heartbeat calls this: rebuild the queue only when it changes
+                gone = set(late)
+                kept = [r for r in self._queue if r.request_id not in gone]
+                self._queue.clear()
+                self._queue.extend(kept)
         for rid, query in zip(late, queries, strict=True):
             reply(query, self.gate.key_expr, {
                 "accepted": False, "stage": "bus", "request_id": rid,

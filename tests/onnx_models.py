@@ -218,17 +218,17 @@ def slow_on_marker(base: Path, path: Path, iterations: int, size: int = 512) -> 
     The detections are the base model's either way (the marker adds exactly 0)."""
     model = onnx.load(base)
     g = model.graph
-    side = g.input[0].type.tensor_type.shape.dim[2].dim_value
-    lo, hi = side // 2 - 30, side // 2 + 30
 
     def const(name: str, value) -> onnx.TensorProto:
         return numpy_helper.from_array(np.asarray(value), name)
 
     rng = np.random.default_rng(0)
     g.initializer.extend([
-        const("mk.starts", np.array([lo, lo], np.int64)),
-        const("mk.ends", np.array([hi, hi], np.int64)),
         const("mk.axes", np.array([2, 3], np.int64)),
+        const("mk.hw_from", np.array([2], np.int64)),
+        const("mk.hw_to", np.array([4], np.int64)),
+        const("mk.two", np.array(2, np.int64)),
+        const("mk.half", np.array(30, np.int64)),
         const("mk.weights", np.array([[[[-1.0]], [[1.0]], [[-1.0]]]], np.float32)),
         const("mk.threshold", np.array(0.8, np.float32)),
         const("mk.trips", np.array(iterations, np.int64)),
@@ -255,8 +255,14 @@ def slow_on_marker(base: Path, path: Path, iterations: int, size: int = 512) -> 
     fast = helper.make_graph(
         [helper.make_node("Identity", ["mk.zero"], ["mk.fast_zero"])],
         "fast", [], [helper.make_tensor_value_info("mk.fast_zero", TensorProto.FLOAT, [])])
-    # green minus red minus blue, averaged over the centre: 1 for pure green, <= 0 otherwise
+    # green minus red minus blue, averaged over the centre (60x60 at the middle of whatever
+    # input size the frame runs at): 1 for pure green, <= 0 otherwise
     g.node.extend([
+        helper.make_node("Shape", ["images"], ["mk.shape"]),
+        helper.make_node("Slice", ["mk.shape", "mk.hw_from", "mk.hw_to"], ["mk.hw"]),
+        helper.make_node("Div", ["mk.hw", "mk.two"], ["mk.centre"]),
+        helper.make_node("Sub", ["mk.centre", "mk.half"], ["mk.starts"]),
+        helper.make_node("Add", ["mk.centre", "mk.half"], ["mk.ends"]),
         helper.make_node("Slice", ["images", "mk.starts", "mk.ends", "mk.axes"], ["mk.patch"]),
         helper.make_node("Conv", ["mk.patch", "mk.weights"], ["mk.green"]),
         helper.make_node("ReduceMean", ["mk.green"], ["mk.mean"], keepdims=0),

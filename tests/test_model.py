@@ -13,7 +13,7 @@ from monitor.accuracy import Accuracy, cell_tolerance_px, score_frame
 from monitor.scene import WORKWEAR_BGR, Figure, draw_figure, random_frames
 
 # The bytes of the default build; change only together with models/README.md.
-EXPECTED_SHA256 = "cbe1e0a3ffb9eafee713d5d9b968ef6c21dfed732df1dada3e10865dcdd6ad89"
+EXPECTED_SHA256 = "9b0fa13cf5ccb14834e90969fffd3f446781de9fc4aa26325148f6bcb0302ee3"
 
 
 def test_build_is_deterministic_and_matches_the_model_card(tmp_path, synthetic_model):
@@ -32,10 +32,14 @@ def test_graph_is_the_seeds_layer_table(synthetic_model):
     def dims(value_info):
         return [d.dim_param or d.dim_value for d in value_info.type.tensor_type.shape.dim]
 
-    # a dynamic batch dimension: frames of several cameras run as one batch
+    # a dynamic batch dimension: frames of several cameras run as one batch; dynamic height
+    # and width: a 16:9 frame runs at 416x288 (the full input is the imgsz metadata)
     outs = {o.name: dims(o) for o in model.graph.output}
-    assert outs == {"output_13": ["batch", 255, 13, 13], "output_26": ["batch", 255, 26, 26]}
-    assert dims(model.graph.input[0]) == ["batch", 3, 416, 416]
+    assert outs == {"output_13": ["batch", 255, "height/32", "width/32"],
+                    "output_26": ["batch", 255, "height/16", "width/16"]}
+    assert dims(model.graph.input[0]) == ["batch", 3, "height", "width"]
+    meta = {p.key: p.value for p in model.metadata_props}
+    assert meta["imgsz"] == "416"
 
 
 def test_one_figure_gives_one_box_around_it(detector):

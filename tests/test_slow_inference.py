@@ -50,10 +50,10 @@ def slow_model(tmp: Path, base: Path, seconds: float) -> Path:
     """The synthetic model, slow by about ``seconds`` on marked frames on this machine."""
     probe = slow_on_marker(base, tmp / "probe.onnx", 100)
     session = ort.InferenceSession(str(probe), providers=["CPUExecutionProvider"])
-    side = session.get_inputs()[0].shape[2]
-    plain = np.full((1, 3, side, side), 0.45, np.float32)
+    h, w = 288, 416  # the input a 1280x720 frame runs at (a rectangular input)
+    plain = np.full((1, 3, h, w), 0.45, np.float32)
     marked = plain.copy()
-    marked[:, :, side // 2 - 40:side // 2 + 40, side // 2 - 40:side // 2 + 40] = \
+    marked[:, :, h // 2 - 40:h // 2 + 40, w // 2 - 40:w // 2 + 40] = \
         np.array([0.0, 1.0, 0.0], np.float32)[:, None, None]
     times: dict[str, list[float]] = {"plain": [], "marked": []}
     for name, x in (("plain", plain), ("marked", marked)) * 4:  # the first pair warms up

@@ -27,7 +27,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -105,9 +105,13 @@ class Detector:
         self.self_test_case = self._self_test_case()
         self._self_test_letterbox: Letterboxer | None = None
         self._batch_letterbox: list[Letterboxer] = []  # detect_batch: one canvas per slot
-        self.output_shapes: OutputShapes | None = None  # found by the warm-up run
+        # output shapes per input size: found by the warm-up at the full input, derived from
+        # those for the other sizes of a rectangular input (layout.rect: one per frame shape)
+        self._shapes: dict[tuple[int, int], OutputShapes] = {}
+        self._layouts: dict[tuple[int, int], ModelLayout] = {}
         # Warm-up: the first run allocates; do it now, not on the first real frame.
         self.detect(np.full((self.layout.input_height, self.layout.input_width, 3), 114, np.uint8))
+        self.output_shapes = self._shapes[(self.layout.input_width, self.layout.input_height)]
 
     def _self_test_case(self) -> SelfTestCase | None:
         cfg = self.config
@@ -135,7 +139,7 @@ class Detector:
 
         def detect(image: np.ndarray) -> Persons:
             tensor, box = letterboxer(image)
-            outputs = self.run_raw(tensor, image.shape[:2])
+            outputs = self.run_raw(tensor, image.shape[:2], box)
             return self.postprocess(outputs, box, image.shape[:2], None)[0]
 
         return check_self_test(self.self_test_case, detect, self.config.self_test_min_iou)
@@ -143,8 +147,7 @@ class Detector:
     def finest_stride_px(self) -> float:
         """Input pixels per cell of the finest output grid (16 for tiny-YOLOv3 at 416)."""
         if self.layout.kind == "darknet":
-            grids = [o.shape[1] if self.layout.heads_nhwc else o.shape[2]
-                     for o in self.session.get_outputs()]
+            grids = [s[1] if self.layout.heads_nhwc else s[2] for s in self.output_shapes.shapes]
             return self.layout.input_height / max(grids)
         return float(min(self.layout.strides))
 
@@ -153,19 +156,38 @@ class Detector:
         scale = min(self.layout.input_width / frame_width, self.layout.input_height / frame_height)
         return self.config.foot_uncertainty_cells * self.finest_stride_px() / scale
 
-    def run_raw(self, tensor: np.ndarray, frame_hw: tuple[int, int]) -> list[np.ndarray]:
+    def run_raw(self, tensor: np.ndarray, frame_hw: tuple[int, int],
+                box: Letterbox) -> list[np.ndarray]:
         feeds = {self.layout.input_name: tensor}
         if self.layout.kind == "zoo":
             feeds["image_shape"] = np.array([frame_hw], np.float32)
         outputs = self.session.run(self.output_names, feeds)
-        self._check_shapes(outputs, 1)
+        self._check_shapes(outputs, 1, box)
         return outputs
 
-    def _check_shapes(self, outputs: list[np.ndarray], batch: int) -> None:
-        """Every run's outputs in the shapes of the warm-up run (monitor.detector.shapes)."""
-        if self.output_shapes is None:
-            self.output_shapes = OutputShapes.found(self.layout, self.output_names, outputs)
-        self.output_shapes.check(outputs, batch)
+    def _check_shapes(self, outputs: list[np.ndarray], batch: int, box: Letterbox) -> None:
+        """Every run's outputs in the shapes of the warm-up run, scaled to this run's input
+        size (monitor.detector.shapes)."""
+        size = (box.input_width, box.input_height)
+        found = self._shapes.get(size)
+        if found is None:
+            if not self._shapes:  # the warm-up, at the full input
+                found = OutputShapes.found(self.layout, self.output_names, outputs)
+            else:
+                load = self._shapes[(self.layout.input_width, self.layout.input_height)]
+                found = load.at_input(self.layout, self._layout_at(box))
+            self._shapes[size] = found
+        found.check(outputs, batch)
+
+    def _layout_at(self, box: Letterbox) -> ModelLayout:
+        """The layout at the input size this frame ran at (decoding needs the grid strides)."""
+        size = (box.input_width, box.input_height)
+        layout = self._layouts.get(size)
+        if layout is None:
+            layout = self._layouts[size] = (
+                self.layout if size == (self.layout.input_width, self.layout.input_height)
+                else replace(self.layout, input_width=size[0], input_height=size[1]))
+        return layout
 
     def detect_timed(self, image_bgr: np.ndarray, frame: FrameInfo | None = None,
                      pre_merge: PreMerge | None = None) -> Detection:
@@ -176,7 +198,7 @@ class Detector:
         t0 = time.perf_counter()
         tensor, box = self._letterbox(image_bgr)
         t1 = time.perf_counter()
-        outputs = self.run_raw(tensor, image_bgr.shape[:2])
+        outputs = self.run_raw(tensor, image_bgr.shape[:2], box)
         t2 = time.perf_counter()
         persons, candidates, overflow = self.postprocess(outputs, box, image_bgr.shape[:2], frame,
                                                          pre_merge)
@@ -215,10 +237,13 @@ class Detector:
         while len(self._batch_letterbox) < len(images):
             self._batch_letterbox.append(Letterboxer(self.layout))
         prepared = [lb(im) for lb, im in zip(self._batch_letterbox, images, strict=False)]
+        if len({t.shape for t, _ in prepared}) > 1:  # frames of other shapes: inputs differ
+            return [self.detect_timed(im, fr, pm)
+                    for im, fr, pm in zip(images, frames, masks, strict=True)]
         tensor = np.concatenate([t for t, _ in prepared])
         t1 = time.perf_counter()
         outputs = self.session.run(self.output_names, {self.layout.input_name: tensor})
-        self._check_shapes(outputs, len(images))
+        self._check_shapes(outputs, len(images), prepared[0][1])
         t2 = time.perf_counter()
         share = (t2 - t1) * 1e3 / len(images)
         pre = (t1 - t0) * 1e3 / len(images)
@@ -241,7 +266,7 @@ class Detector:
                     ) -> tuple[Persons, int, bool]:
         """Decode, threshold, pre-merge mask, cap, NMS, merge, undo the letterbox. Pure given
         the outputs."""
-        cfg, layout = self.config, self.layout
+        cfg, layout = self.config, self._layout_at(box)
         check_finite(outputs, self.output_names)
         boxes, scores = decode(outputs, layout, cfg.score_threshold)
         keep = scores >= cfg.score_threshold

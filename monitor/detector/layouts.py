@@ -9,7 +9,7 @@ from __future__ import annotations
 import ast
 import contextlib
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -51,6 +51,9 @@ class ModelLayout:
     strides: tuple[int, ...] = (8, 16, 32)
     names: dict[int, str] = field(default_factory=dict)
     person_classes: tuple[int, ...] = ()  # empty: (person_class,)
+    # The input's height and width are dynamic: a frame runs at the smallest input that holds
+    # it at the full input's scale (monitor.detector.preprocess.fitted_input).
+    rect: bool = False
 
     @property
     def persons(self) -> tuple[int, ...]:
@@ -221,8 +224,9 @@ def inspect_model(session, config: DetectorConfig) -> tuple[ModelLayout, str | N
             if not shape:
                 raise ModelError(f"model output {out.name!r} is a scalar (no shape declared, "
                                  f"none in a probe run): no known output layout: {found}")
+    rect = config.rectangular_input and not _static(shp[1:3] if nhwc else shp[2:4])
     base = dict(input_name=image.name, input_width=iw, input_height=ih, input_nhwc=nhwc,
-                names=names)
+                names=names, rect=rect)
 
     if kind == "darknet" or (kind is None and len(outputs) in (2, 3)
                              and all(len(s) == 4 for s in shapes)):
@@ -249,8 +253,6 @@ def inspect_model(session, config: DetectorConfig) -> tuple[ModelLayout, str | N
     if max(persons) >= layout.num_classes:
         raise ConfigError(f"detector.person_classes: class {max(persons)} does not exist (the "
                           f"model has classes 0..{layout.num_classes - 1})")
-    from dataclasses import replace
-
     return replace(layout, person_class=persons[0], person_classes=persons), warning
 
 

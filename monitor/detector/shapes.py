@@ -6,6 +6,11 @@ export that behaves differently on some frames) would otherwise be decoded as be
 rows reads as "no persons", a batch of two as the first batch only. A shape that is not the one
 found at load is a ``DetectorError`` naming both (the pipeline's detector fault, STOP).
 
+A model with a dynamic input runs each frame shape at its own input size (a rectangular input,
+``ModelLayout.rect``): there the grids follow the input, and :meth:`OutputShapes.at_input`
+derives the shapes to expect from the ones found at load, so a frame shape never met before is
+checked as strictly as the first.
+
 What may change from run to run: the batch (dimension 0, it must equal the frames sent), the
 number of detections of an end-to-end export (K of ``(batch, K, 6)``) and of the ONNX-zoo
 selected indices. Every other dimension is fixed by the input size and must stay as found.
@@ -14,11 +19,11 @@ selected indices. Every other dimension is fixed by the input size and must stay
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from monitor.detector.layouts import ModelLayout
+from monitor.detector.layouts import ModelLayout, grid_cells
 from monitor.errors import DetectorError
 
 
@@ -49,6 +54,27 @@ class OutputShapes:
         out = cls(layout.kind, tuple(names), shapes, variable)
         out.check(outputs, 1)
         return out
+
+    def at_input(self, load: ModelLayout, layout: ModelLayout) -> OutputShapes:
+        """The shapes expected at ``layout``'s input size, found at ``load``'s: a darknet
+        head's grid and the rows (columns for yolov8) of a single output scale with the input;
+        an end-to-end export's detections are counted anyway."""
+        if (layout.input_width, layout.input_height) == (load.input_width, load.input_height):
+            return self
+        shapes = []
+        for shape in self.shapes:
+            s = list(shape)
+            if self.kind == "darknet" and len(s) == 4:
+                hy, wx = (1, 2) if load.heads_nhwc else (2, 3)
+                s[hy] = shape[hy] * layout.input_height // load.input_height
+                s[wx] = shape[wx] * layout.input_width // load.input_width
+            elif self.kind in ("yolov5", "yolov8", "yolox") and len(s) == 3:
+                dim = 2 if self.kind == "yolov8" else 1
+                now = grid_cells(layout.input_height, layout.input_width, load.strides)
+                s[dim] = shape[dim] * now // grid_cells(load.input_height, load.input_width,
+                                                        load.strides)
+            shapes.append(tuple(s))
+        return replace(self, shapes=tuple(shapes))
 
     def check(self, outputs: Sequence[np.ndarray], batch: int) -> None:
         """DetectorError unless ``outputs`` of a run on ``batch`` frames have the shapes found
