@@ -207,12 +207,24 @@ def test_dynamic_axes_yolov8_is_probed(tmp_path):
     path = const_model(tmp_path / "m.onnx", {"output0": cols},
                        inputs={"images": ["batch", 3, "height", "width"]},
                        declared={"output0": ["batch", "channels", "anchors"]})
-    # the constant outputs are boxes in the full square: a rectangular input would move them
     detector = _detector(path, rectangular_input=False)
     assert detector.layout.kind == "yolov8" and not detector.layout.rect
     assert (detector.layout.input_width, detector.layout.input_height) == (INPUT, INPUT)
     np.testing.assert_allclose(_found(detector), PERSONS, atol=1.0)
-    assert _detector(path).layout.rect  # by default a dynamic input runs rectangular
+
+
+def test_a_dynamic_input_whose_outputs_do_not_follow_it_runs_in_the_square(tmp_path, caplog):
+    # declared dynamic, but the outputs stay the square's whatever the input (as a graph with a
+    # fixed reshape inside): the rectangle would read them with the wrong grid, so the model
+    # runs every frame in the full square, as its warm-up did, and says so
+    cols = np.ascontiguousarray(np.delete(rows_v5(), 4, axis=2).transpose(0, 2, 1))
+    path = const_model(tmp_path / "m.onnx", {"output0": cols},
+                       inputs={"images": ["batch", 3, "height", "width"]},
+                       declared={"output0": ["batch", "channels", "anchors"]})
+    detector = _detector(path)
+    assert not detector.layout.rect
+    assert "declares a dynamic input size but fails at a smaller one" in caplog.text
+    np.testing.assert_allclose(_found(detector), PERSONS, atol=1.0)
 
 
 def test_an_output_declared_without_a_shape_is_probed(tmp_path):

@@ -112,6 +112,28 @@ class Detector:
         # Warm-up: the first run allocates; do it now, not on the first real frame.
         self.detect(np.full((self.layout.input_height, self.layout.input_width, 3), 114, np.uint8))
         self.output_shapes = self._shapes[(self.layout.input_width, self.layout.input_height)]
+        if self.layout.rect:
+            self._try_rectangular_input()
+
+    def _try_rectangular_input(self) -> None:
+        """A model that declares a dynamic input size but cannot run at a smaller input, or
+        whose outputs do not follow it (a fixed reshape inside), runs every frame in the full
+        square, as it did in the warm-up, with a warning."""
+        layout = self.layout
+        probe = np.full((layout.input_height // 2, layout.input_width, 3), 114, np.uint8)
+        try:
+            self.detect(probe)
+            return
+        except Exception as exc:  # onnxruntime's own errors, or DetectorError from the shapes
+            why = str(exc).splitlines()[0][:200]
+        log.warning("%s: declares a dynamic input size but fails at a smaller one (%s): every "
+                    "frame runs in the full %dx%d input", self.model_path.name, why,
+                    layout.input_width, layout.input_height)
+        self.layout = replace(layout, rect=False)
+        self._letterbox = Letterboxer(self.layout)
+        full = (layout.input_width, layout.input_height)
+        self._shapes = {full: self.output_shapes}
+        self._layouts = {}
 
     def _self_test_case(self) -> SelfTestCase | None:
         cfg = self.config
