@@ -3,6 +3,7 @@ data dir (a replay with the recorder on: H.264 clips, SQLite index), an operator
 
 from __future__ import annotations
 
+import atexit
 import contextlib
 import functools
 import json
@@ -63,6 +64,8 @@ def _recorded() -> Path:
     from monitor.zones import load_cell
 
     base = Path(tempfile.mkdtemp(prefix="console-incidents-"))
+    # the worker's own copy (a 35 MB model, clips): gone when the worker exits, not left in /tmp
+    atexit.register(shutil.rmtree, base, True)
     video = base / "walk-in.mp4"
     scene = DemoScene(fps=5.0, duration_s=2.4,
                       path=((0.0, -2.6, -0.3), (1.2, -0.4, -0.3), (9.0, -0.4, -0.3)))
