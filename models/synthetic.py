@@ -274,10 +274,28 @@ def default_model_path() -> Path:
     return base / "models" / "tiny-yolov3-synthetic.onnx"
 
 
+# Default builds of earlier versions, size in bytes -> SHA-256: one found at the default place
+# is built anew, so an upgrade runs this version's model (the 2026-11-28 build had a fixed
+# 416x416 input: every frame ran in the full square, a third slower for 16:9 frames).
+OLDER_BUILDS = {35_402_492: "cbe1e0a3ffb9eafee713d5d9b968ef6c21dfed732df1dada3e10865dcdd6ad89"}
+
+
+def is_older_build(path: str | Path) -> bool:
+    """The file is an earlier version's default build (its size is compared first: no other
+    file is read)."""
+    try:
+        sha = OLDER_BUILDS.get(Path(path).stat().st_size)
+        return sha is not None and hashlib.sha256(Path(path).read_bytes()).hexdigest() == sha
+    except OSError:
+        return False
+
+
 def ensure_model(path: str | Path | None = None) -> Path:
-    """The default synthetic model, built when absent (takes about a second)."""
+    """The synthetic model, built when absent (takes about a second); at the default place
+    also when it is an earlier version's build. A model at a path of the user's is never
+    replaced."""
     target = Path(path) if path else default_model_path()
-    if not target.is_file():
+    if not target.is_file() or (path is None and is_older_build(target)):
         write_model(target)
     return target
 

@@ -22,6 +22,45 @@ def test_build_is_deterministic_and_matches_the_model_card(tmp_path, synthetic_m
     assert first == again == EXPECTED_SHA256
 
 
+def _square_only_build() -> bytes:
+    """The 2026-11-28 default build, remade from today's: a fixed 416x416 input, no imgsz."""
+    model = synthetic.build_model()
+    g = model.graph
+    for value, dims in ((g.input[0], (416, 416)), (g.output[0], (13, 13)),
+                        (g.output[1], (26, 26))):
+        for d, v in zip(value.type.tensor_type.shape.dim[2:], dims, strict=True):
+            d.ClearField("dim_param")
+            d.dim_value = v
+    keep = [p for p in model.metadata_props if p.key != "imgsz"]
+    del model.metadata_props[:]
+    model.metadata_props.extend(keep)
+    return model.SerializeToString(deterministic=True)
+
+
+def test_an_earlier_default_build_in_the_cache_is_built_anew(tmp_path, monkeypatch):
+    # an upgrade must run this version's model, not the square-only one left in the cache;
+    # a copy of it at a path of the user's is never touched
+    old = _square_only_build()
+    assert synthetic.OLDER_BUILDS[len(old)] == hashlib.sha256(old).hexdigest()
+    monkeypatch.setenv("WORKCELL_MONITOR_HOME", str(tmp_path / "home"))
+    cached = synthetic.default_model_path()
+    cached.parent.mkdir(parents=True)
+    cached.write_bytes(old)
+    mine = tmp_path / "mine.onnx"
+    mine.write_bytes(old)
+    same_size = tmp_path / "same-size.onnx"  # another file of that size: kept, not rebuilt
+    same_size.write_bytes(b"x" * len(old))
+    assert synthetic.is_older_build(cached) and not synthetic.is_older_build(same_size)
+    assert synthetic.ensure_model() == cached
+    assert hashlib.sha256(cached.read_bytes()).hexdigest() == EXPECTED_SHA256
+    assert synthetic.ensure_model(mine) == mine and mine.read_bytes() == old
+    cached.write_bytes(old)  # the CLI's path (with its progress line) does the same
+    from monitor.cli.run import ensure_model
+
+    assert ensure_model() == cached
+    assert hashlib.sha256(cached.read_bytes()).hexdigest() == EXPECTED_SHA256
+
+
 def test_graph_is_the_seeds_layer_table(synthetic_model):
     model = onnx.load(str(synthetic_model))
     params = sum(int(np.prod(t.dims)) for t in model.graph.initializer)

@@ -213,12 +213,14 @@ def ensure_model(path: Path | None = None) -> Path:
     from monitor.progress import Steps
 
     target = Path(path) if path else synthetic.default_model_path()
-    if target.is_file():
+    older = path is None and synthetic.is_older_build(target)
+    if target.is_file() and not older:
         return target
     steps = Steps(["fp32 model"], "model build")
-    steps.start("building the synthetic model")
+    steps.start("building the synthetic model" + (" (replacing an earlier version's build)"
+                                                  if older else ""))
     try:
-        return synthetic.ensure_model(target)
+        return synthetic.ensure_model(path)
     finally:
         steps.done()
 
