@@ -23,7 +23,10 @@ from tests.onnx_models import slow_on_marker
 from tests.processes import Service, codes, summary_of, wait_for
 
 FPS = 15
-LOOP_FRAMES = 60  # 4 s of the empty cell, looped
+# 8 s of the empty cell, looped: after the slow step (1.5 s quiet, up to 3.6 s measured under
+# the suite's own load) the cell must stay clear for the 1 s clearing time before the next
+# marker comes round (a 4 s loop left 0.4 s under load: no RUN again)
+LOOP_FRAMES = 120
 MARKED = range(36, 44)  # 0.5 s of marker: a loaded loop cannot skip it; one slow step
 STALL_TIMEOUT = 0.5  # bus.stall_timeout (default)
 PERIOD = 0.1  # 1 / bus.heartbeat_hz (default)
