@@ -70,6 +70,7 @@ def test_model_build_and_info(tmp_path):
     info = run("model", "info", "--model", str(out))
     assert info.returncode == 0
     assert "darknet" in info.stdout and "8849182" in info.stdout and "416x416" in info.stdout
+    assert "16:9 at 416x288" in info.stdout  # the rectangular input (docs/models.md)
 
 
 @pytest.mark.parametrize("case", ["missing-model", "corrupt-model", "unknown-layout",

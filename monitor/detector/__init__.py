@@ -53,7 +53,7 @@ from monitor.detector.layouts import (
     ModelLayout,
     inspect_model,
 )
-from monitor.detector.preprocess import Letterbox, Letterboxer, letterbox
+from monitor.detector.preprocess import Letterbox, Letterboxer, fitted_input, letterbox
 from monitor.detector.selftest import SelfTestCase, builtin_case, load_case
 from monitor.detector.selftest import check as check_self_test
 from monitor.detector.session import open_session
@@ -332,7 +332,9 @@ def describe(detector: Detector) -> dict:
         "model": str(detector.model_path),
         **({"test_model": TEST_MODEL_NOTE} if detector.test_model else {}),
         "layout": layout.kind,
-        "input": f"{layout.input_width}x{layout.input_height}",
+        "input": f"{layout.input_width}x{layout.input_height}" + (
+            " (dynamic: each frame runs in the smallest rectangle that holds it, 16:9 at "
+            f"{'x'.join(map(str, fitted_input(layout, 1280, 720)))})" if layout.rect else ""),
         "input_order": ("NHWC" if layout.input_nhwc else "NCHW")
         + (" RGB" if layout.rgb else " BGR"),
         "classes": layout.num_classes,
