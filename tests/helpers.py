@@ -105,6 +105,23 @@ def wait_for(cond: Callable[[], T], timeout: float = WAIT_CEILING,
     raise AssertionError(f"did not arrive within {timeout:g} s: {name}{detail}")
 
 
+def put_until(put_round: Callable[[], None], arrived: Callable[[], T],
+              what: str | Callable[[], object], every: float = 0.5,
+              timeout: float = WAIT_CEILING) -> T:
+    """Run ``put_round`` now and every ``every`` s until ``arrived()``: a new subscription
+    reaches the other clients through the router a moment after it is declared (longer on a
+    loaded host), and a put made before that goes nowhere. Puts that must be refused belong in
+    the same round, so they are repeated as often as the allowed ones."""
+    last = [-every]
+
+    def cond() -> T:
+        if time.monotonic() - last[0] >= every:
+            put_round()
+            last[0] = time.monotonic()
+        return arrived()
+    return wait_for(cond, timeout=timeout, what=what)
+
+
 def assert_one_line(exc: BaseException, *needles: str) -> None:
     text = str(exc)
     assert "\n" not in text and text.strip() == text and text

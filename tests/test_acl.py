@@ -18,7 +18,7 @@ from monitor.cases import sets as cs
 from monitor.cases.receiver import CaseReceiver, request_case
 from monitor.cases.requests import case_payload
 from monitor.signing import load_private_key, new_key_pair
-from tests.helpers import free_port, wait_for
+from tests.helpers import free_port, put_until, wait_for
 from tests.tls import secure_router
 
 DEPLOY = Path(__file__).resolve().parents[1] / "deploy" / "zenoh"
@@ -99,18 +99,8 @@ def test_only_the_listed_users_put_on_each_key(cell, role):
         def put_round() -> None:
             for _name, key, user in order:
                 s[user].put(key, user)
-        # a round is repeated (every 0.5 s) until every allowed put arrived: the subscription
-        # reaches each client through the router a moment after it is declared (longer on a
-        # loaded host), and a put before that goes nowhere. The denied ones are repeated as often.
-        rounds = [0.0]
-
-        def arrived() -> bool:
-            if time.monotonic() - rounds[-1] > 0.5:
-                put_round()
-                rounds.append(time.monotonic())
-            return expected <= seen
-        wait_for(arrived, what=lambda: f"allowed puts that never arrived: "
-                                       f"{sorted(expected - seen)}")
+        put_until(put_round, lambda: expected <= seen,
+                  what=lambda: f"allowed puts that never arrived: {sorted(expected - seen)}")
         put_round()
         time.sleep(0.3)  # the denied ones had longer than the allowed ones to arrive
         mine = {(k, u) for k, u in seen if k in dict(puts).values()}
