@@ -78,7 +78,7 @@ class PacedFeed:
         self.k = 0
         self.fault_every_s = fault_every_s
 
-    def next(self):
+    def next(self, idle: bool = False):  # frames at their pace: no ticks for checks
         due = self.start + self.k * self.period
         now = time.monotonic()
         if now >= self.end:

@@ -91,9 +91,11 @@ class Sink(Protocol):
 
 class Feed(Protocol):
     """Where frames and time come from. ``next()`` returns ``(frame or None, now)`` or None
-    when the feed has ended; ``inputs(now)`` the resets, pose and faults of that moment."""
+    when the feed has ended; ``inputs(now)`` the resets, pose and faults of that moment.
+    ``idle=True``: a check is due, so a live feed returns a tick at once when no frame is
+    waiting (the check then runs in the gap before the next frame, not in front of it)."""
 
-    def next(self) -> tuple[Frame | None, float] | None: ...
+    def next(self, idle: bool = False) -> tuple[Frame | None, float] | None: ...
 
     def inputs(self, now: float) -> StepInputs: ...
 
@@ -163,6 +165,7 @@ class Driver:
         self._armed = False  # stall detection starts after the first frame (warm-up excluded)
         self._discard_before: float | None = None
         self._index = -1
+        self._last_now: float | None = None  # the newest step's time (for checks_due)
         self._reset_possible = False
         self.stalls = 0
         self.steps = 0
@@ -171,7 +174,9 @@ class Driver:
         """Step until the feed ends or ``stop`` is set. ``batch``: take every camera's frame
         that is ready together from ``feed.next_batch()`` and detect them as one batch."""
         while not stop.is_set():
-            item = feed.next_batch() if batch else feed.next()  # type: ignore[attr-defined]
+            idle = self.checks_due(self._last_now)
+            item = (feed.next_batch(idle=idle) if batch  # type: ignore[attr-defined]
+                    else feed.next(idle=idle))
             if item is None or stop.is_set():
                 break
             frames, now = item
@@ -199,7 +204,9 @@ class Driver:
             return [self.step(frames[0] if frames else None, now, inputs)]
         for f in frames[1:]:
             self._newest[f.info.camera_id] = f
-        faults = inputs.extra_faults + self._run_self_test(now) + self._run_inplace(frames[0], now)
+        faults = (inputs.extra_faults + self._run_self_test(now, True)
+                  + self._run_inplace(frames[0], now))
+        self._last_now = now
         results = self.pipeline.process_batch(
             [(f.image, f.info) for f in frames], now, tool_pose=inputs.tool_pose,
             tool_speed_mps=inputs.tool_speed_mps, pose_time=inputs.pose_time,
@@ -235,7 +242,9 @@ class Driver:
         if frame is not None and self._discard_before is not None \
                 and frame.info.capture_time < self._discard_before:
             frame = None  # grabbed before the monitor froze: it shows a past cell
-        faults = inputs.extra_faults + self._run_self_test(now) + self._run_inplace(frame, now)
+        faults = (inputs.extra_faults + self._run_self_test(now, frame is not None)
+                  + self._run_inplace(frame, now))
+        self._last_now = now
         if frame is not None:
             result = self.pipeline.process(
                 frame.image, frame.info, now, tool_pose=inputs.tool_pose,
@@ -316,16 +325,32 @@ class Driver:
             result = self._with_detections(result, processed)
         return self._emit(result, frame if processed is not None else None, stalled_s=gap)
 
-    def _run_self_test(self, now: float) -> tuple[Fault, ...]:
+    def checks_due(self, now: float | None) -> bool:
+        """The self-test or a camera's in-place check is due (each is one more inference):
+        the loop asks the feed for a tick while no frame waits, so it runs in the gap."""
+        if now is None:
+            return False
+        if self.self_test is not None and self._next_self_test is not None \
+                and now >= self._next_self_test:
+            return True
+        return self.inplace is not None and any(self.inplace.due(c, now) for c in self._newest)
+
+    def _run_self_test(self, now: float, frame_step: bool) -> tuple[Fault, ...]:
+        """At the first step, then on a timer tick once due; on a frame step only when a whole
+        period overdue (a camera so fast the loop never idles): a frame never waits for it
+        while the loop has a gap to run it in."""
         if self.self_test is None:
             return ()
-        if self._next_self_test is None or now >= self._next_self_test:
+        period = self.self_test_period_s
+        due = self._next_self_test is None or now >= self._next_self_test
+        overdue = self._next_self_test is None or (
+            now >= self._next_self_test + (period if period and period > 0 else 0.0))
+        if (due and not frame_step) or overdue:
             try:
                 self._self_test_fault = self.self_test()
             except Exception as exc:  # a self-test that cannot run is a failed one
                 self._self_test_fault = Fault("detector_self_test", f"self-test raised {exc}",
                                               True, "detector")
-            period = self.self_test_period_s
             self._next_self_test = now + period if period and period > 0 else float("inf")
         return (self._self_test_fault,) if self._self_test_fault is not None else ()
 

@@ -154,7 +154,8 @@ class VideoFeed:
         self.first_time: float | None = None
         self.started = time.perf_counter()
 
-    def next(self) -> tuple[Frame | None, float] | None:
+    def next(self, idle: bool = False) -> tuple[Frame | None, float] | None:
+        # ``idle`` is for live feeds: here the ticks come every tick_s of video time anyway
         if self.queued is None:
             frame = next(self.reader, None)
             if frame is None:

@@ -58,24 +58,28 @@ class LiveFeed:
         self.unknown_speed = (prepared.separation.robot_speed_default_mps
                               if prepared is not None else 0.0)
 
-    def next(self):
+    def next(self, idle: bool = False):
+        """The next frame of the camera whose turn it is, or a tick (None) after waiting up to
+        ``wait``; ``idle`` (a check is due): a tick at once when no frame is waiting."""
         if self.end is not None and time.monotonic() >= self.end:
             return None
         grabber = self.grabbers[self.turn % len(self.grabbers)]
         self.turn += 1
         if not self._due(grabber.camera_id):  # [camera] max_fps: this camera waits its turn
-            self.stop.wait(self.wait)
+            if not idle:
+                self.stop.wait(self.wait)
             return None, time.monotonic()
-        frame = grabber.get(timeout=self.wait)
+        frame = grabber.get(timeout=0.0 if idle else self.wait)
         if frame is not None:
             self.last_taken[grabber.camera_id] = time.monotonic()
         elif not grabber.alive:  # the source ended: get() no longer waits
             self.stop.wait(self.wait)
         return frame, time.monotonic()
 
-    def next_batch(self):
+    def next_batch(self, idle: bool = False):
         """Every camera's newest frame that is ready now (waiting, bounded, only for the camera
-        whose turn it is): ``(frames, now)``, frames possibly empty (a timer tick)."""
+        whose turn it is; not at all when ``idle``): ``(frames, now)``, frames possibly empty
+        (a timer tick)."""
         if self.end is not None and time.monotonic() >= self.end:
             return None
         n = len(self.grabbers)
@@ -86,12 +90,12 @@ class LiveFeed:
             grabber = self.grabbers[(first + k) % n]
             if not self._due(grabber.camera_id):
                 continue
-            frame = grabber.get(timeout=0.0 if waited else self.wait)
+            frame = grabber.get(timeout=0.0 if waited or idle else self.wait)
             waited = True
             if frame is not None:
                 frames.append(frame)
                 self.last_taken[grabber.camera_id] = time.monotonic()
-        if not frames and (not waited or not any(g.alive for g in self.grabbers)):
+        if not frames and not idle and (not waited or not any(g.alive for g in self.grabbers)):
             # every camera throttled by max_fps, or every source ended (get() no longer waits)
             self.stop.wait(self.wait)
         return frames, time.monotonic()

@@ -113,7 +113,7 @@ class ListFeed:
                      if info.camera_id != "cam2" or r <= silent_after]
             self.items.append((ready, frames[0][1].capture_time + 0.02))
 
-    def next_batch(self):
+    def next_batch(self, idle: bool = False):
         return self.items.pop(0) if self.items else None
 
     def inputs(self, now: float) -> StepInputs:

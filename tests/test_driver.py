@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import itertools
 import json
+import threading
 from pathlib import Path
 
 import cv2
@@ -25,11 +26,12 @@ from monitor.driver import (
     require_protective_zone,
 )
 from monitor.errors import ConfigError
-from monitor.frames import Frame
+from monitor.frames import Frame, LatestFrameGrabber, open_source
 from monitor.pipeline import Pipeline
 from monitor.policy import STOP, PolicyConfig, ResetRequest
 from monitor.replay import ReplaySettings, VideoFeed, replay
 from monitor.scene import DemoScene
+from monitor.service_loop import LiveFeed
 from monitor.types import Fault, FrameInfo
 from monitor.zones import load_cell
 
@@ -278,16 +280,80 @@ class SelfTestFails(Detector):
         return Fault("detector_self_test", "reference person not found", True, "detector")
 
 
-def test_self_test_runs_at_start_and_every_period_and_its_fault_stops(
+def test_self_test_runs_at_start_then_in_the_gaps_and_its_fault_stops(
         synthetic_model, empty_cell_image):
+    """At the first step (a frame's), then on the first timer tick once due, and on a frame
+    step only when a whole period overdue: a frame never waits for the self-test's inference
+    while the loop has a gap to run it in. Its fault holds the STOP at every step."""
     detector = SelfTestFails(synthetic_model)
     rec = Recorder()
     driver = Driver(Pipeline(detector, "cam0", POLICY, None), [rec], self_test_period_s=1.0)
-    for k, t in enumerate((0.0, 0.5, 1.0)):
-        driver.step(frame_at(empty_cell_image, k, t), t)
-    assert detector.calls == 2  # at 0.0 and at 1.0
+    calls = []
+    assert not driver.checks_due(None)  # before any step: the first step runs it anyway
+    for k, (t, is_frame) in enumerate([(0.0, True), (0.5, True), (1.0, True), (1.1, False),
+                                        (1.6, True), (2.2, True), (2.5, True), (3.1, True),
+                                        (3.2, False)]):
+        driver.step(frame_at(empty_cell_image, k, t) if is_frame else None, t)
+        calls.append(detector.calls)
+        if t == 1.6:  # the next is due at 2.1 (the tick at 1.1 + 1 s): the feed is told then
+            assert not driver.checks_due(2.09) and driver.checks_due(2.1)
+    # 0.0 start; 1.0 a frame step, due but not overdue: waits; 1.1 the tick: runs (next 2.1);
+    # 2.2 and 2.5 frame steps, due, not overdue; 3.1 a whole period overdue: runs on the frame
+    assert calls == [1, 1, 1, 2, 2, 2, 2, 3, 3]
     assert all("detector_self_test" in {f.name for f in s.result.faults} for s in rec.steps)
     assert rec.steps[-1].result.command.state == STOP
+
+
+class CountsSelfTests(Detector):
+    """The real detector; its self-test passes and notes whether it ran in a frame's step or
+    in a timer tick (``at``: the recorder's step count when it ran, that step is the next)."""
+
+    def __init__(self, *args, recorder, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self.recorder = recorder
+        self.at: list[int] = []
+
+    def self_test(self):
+        self.at.append(len(self.recorder.steps))
+        return None
+
+
+class FeedWithoutBus(LiveFeed):
+    """The service's live feed (real grabber, real waits) with no resets, pose or bus."""
+
+    def inputs(self, now: float) -> StepInputs:
+        return StepInputs()
+
+
+def test_the_live_loop_runs_the_self_test_in_the_gap_before_the_next_frame(
+        synthetic_model, empty_cell_image, tmp_path):
+    """A 5 fps camera and a loop whose own ticks (every 0.5 s without a frame) never come:
+    the self-test still runs in a tick of its own, taken while no frame waits, never in a
+    frame's step in front of its inference (before, it ran in a frame's step every time)."""
+    video = tmp_path / "five-fps.mp4"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"mp4v"), 5.0,
+                             (empty_cell_image.shape[1], empty_cell_image.shape[0]))
+    for _ in range(20):  # 4 s
+        writer.write(empty_cell_image)
+    writer.release()
+    rec = Recorder()
+    detector = CountsSelfTests(synthetic_model, recorder=rec)
+    stop = threading.Event()
+    grabber = LatestFrameGrabber(open_source(str(video), "cam0", realtime=True, stop=stop),
+                                 stop=stop).start()
+    try:
+        feed = FeedWithoutBus([grabber], None, None, 0.5, stop, 3.5, alert=None)
+        Driver(Pipeline(detector, "cam0", POLICY, None), [rec],
+               self_test_period_s=0.4).run(feed, stop)
+    finally:
+        stop.set()
+        grabber.stop(timeout=2.0)
+    frames = sum(s.frame is not None for s in rec.steps)
+    in_ticks = [k for k in detector.at[1:] if rec.steps[k].frame is None]
+    assert frames >= 8, f"{frames} frames in 3.5 s of a 5 fps video"
+    # ~7 periods; a frame step runs it only a whole period overdue (the loop never idled)
+    assert len(detector.at) >= 4 and len(in_ticks) >= 2, (
+        f"self-tests at steps {detector.at}, {len(in_ticks)} of them in a tick")
 
 
 def test_reset_outcomes_raise_alerts_in_replay_too(detector, empty_cell_image):
