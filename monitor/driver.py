@@ -341,17 +341,16 @@ class Driver:
         while the loop has a gap to run it in."""
         if self.self_test is None:
             return ()
-        period = self.self_test_period_s
+        period = self.self_test_period_s or 0.0  # 0 or None: only at start (next is inf)
         due = self._next_self_test is None or now >= self._next_self_test
-        overdue = self._next_self_test is None or (
-            now >= self._next_self_test + (period if period and period > 0 else 0.0))
+        overdue = self._next_self_test is None or now >= self._next_self_test + period
         if (due and not frame_step) or overdue:
             try:
                 self._self_test_fault = self.self_test()
             except Exception as exc:  # a self-test that cannot run is a failed one
                 self._self_test_fault = Fault("detector_self_test", f"self-test raised {exc}",
                                               True, "detector")
-            self._next_self_test = now + period if period and period > 0 else float("inf")
+            self._next_self_test = now + period if period > 0 else float("inf")
         return (self._self_test_fault,) if self._self_test_fault is not None else ()
 
     def _run_inplace(self, frame: Frame | None, now: float) -> tuple[Fault, ...]:
