@@ -43,8 +43,8 @@ def _p99(values: list[float]) -> float:
 
 
 def _signed_bus(tmp: Path):
-    from monitor.bus import BusConfig, SafetyBus
-    from monitor.signing import new_key_pair
+    from monitor.bus.session import BusConfig, SafetyBus
+    from monitor.wire.signing import new_key_pair
 
     private, public, _ = new_key_pair(tmp / "monitor.key")
     port = _free_port()

@@ -29,9 +29,9 @@ def opcua_row(changes: int = 200, mode: str = "subscription", tick: float = 0.02
     from asyncua import Client, ua
 
     from monitor.adapters.opcua import NAMESPACE, node_id
-    from monitor.bus import BusConfig, SafetyBus
+    from monitor.bus.session import BusConfig, SafetyBus
     from monitor.policy import Command, Reason
-    from monitor.signing import new_key_pair
+    from monitor.wire.signing import new_key_pair
     from tests.helpers import free_port
 
     tmp = Path(tempfile.mkdtemp(prefix="opcua-bench-"))

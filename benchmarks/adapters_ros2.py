@@ -38,9 +38,9 @@ def _free_port() -> int:
 
 def ros2_row(changes: int = 200, tick: float = 0.02) -> dict:
     from monitor.adapters import ros2_wire as wire
-    from monitor.bus import BusConfig, SafetyBus, open_session
+    from monitor.bus.session import BusConfig, SafetyBus, open_session
     from monitor.policy import Command
-    from monitor.signing import new_key_pair
+    from monitor.wire.signing import new_key_pair
 
     with tempfile.TemporaryDirectory() as tmp:
         private, public, _ = new_key_pair(Path(tmp) / "monitor.key")

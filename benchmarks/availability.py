@@ -16,8 +16,8 @@ import time
 
 from monitor.models import synthetic
 
-from monitor import scenarios as sc
 from monitor.detector import Detector
+from monitor.replay import scenarios as sc
 
 
 def main(names: list[str]) -> int:

@@ -28,7 +28,7 @@ def _raw_publisher(port: int, n_commands: int, cmd_hz: float) -> None:
     """Baseline: a bare Zenoh publisher with the same QoS and a similar JSON payload."""
     import zenoh
 
-    from monitor.bus import BusConfig, BusKeys, open_session
+    from monitor.bus.session import BusConfig, BusKeys, open_session
 
     cfg = BusConfig(cell="bench", instance="raw", listen=(f"tcp/127.0.0.1:{port}",))
     with open_session(cfg) as session:
@@ -52,7 +52,7 @@ def _publisher(port: int, n_commands: int, cmd_hz: float, det_hz: float, n_boxes
                key: str | None = None) -> None:
     import numpy as np
 
-    from monitor.bus import BusConfig, SafetyBus
+    from monitor.bus.session import BusConfig, SafetyBus
     from monitor.policy import Command, Reason
     from monitor.types import FrameInfo, Persons, ZoneHit, ZoneReport
 
@@ -97,8 +97,8 @@ def run(n_commands: int, det_hz: float, n_boxes: int, raw: bool = False,
         key: str | None = None) -> dict:
     import zenoh
 
-    from monitor.bus import BusConfig, BusKeys, open_session
-    from monitor.signing import load_public_key, verify
+    from monitor.bus.session import BusConfig, BusKeys, open_session
+    from monitor.wire.signing import load_public_key, verify
 
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -155,7 +155,7 @@ def signing_cost(n: int = 5000) -> tuple[float, float]:
     """µs to sign and to verify one typical command payload (median of ``n``)."""
     from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
 
-    from monitor.signing import Signer, verify
+    from monitor.wire.signing import Signer, verify
 
     signer = Signer(Ed25519PrivateKey.generate())
     public = signer.key.public_key()
@@ -187,7 +187,7 @@ def main() -> None:
     args = parser.parse_args()
     import tempfile
 
-    from monitor.signing import new_key_pair
+    from monitor.wire.signing import new_key_pair
 
     sign_us, verify_us = signing_cost()
     print("| Ed25519 per command payload | median µs |")

@@ -34,9 +34,8 @@ import cv2
 import yaml
 from monitor.models import synthetic
 
-from monitor import quantize
 from monitor.config import demo_cell_path
-from monitor.detector import Detector, DetectorConfig
+from monitor.detector import Detector, DetectorConfig, quantize
 from monitor.health import CameraHealth, HealthConfig
 from monitor.pipeline import Pipeline
 from monitor.policy import PolicyConfig

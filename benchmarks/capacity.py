@@ -3,14 +3,14 @@
 Run: python benchmarks/capacity.py [--seconds S] [--fps F] [--threads T]
 
 For 1, 2 and 4 generated 1080p cameras paced at --fps (their configured ``max_fps``), fp32 and
-int8: what ``monitor.capacity`` predicts at start (processed fps per camera, worst frame age at
-a decision, the verdict at the default limits: frame_timeout 0.5 s, max_frame_age 0.3 s,
+int8: what ``monitor.service.capacity`` predicts at start (processed fps per camera, worst frame age
+at a decision, the verdict at the default limits: frame_timeout 0.5 s, max_frame_age 0.3 s,
 stall_timeout 0.5 s), beside what the service's loop measures (``benchmarks/cameras.py``'s
 ``run_one``, cameras in turn: processed fps, capture-to-command latency). A prediction is good
 when the measured fps is at least the predicted one and the measured p99 latency stays under
 the predicted latency (the frame age bound adds a whole capture interval to it: the newest
 frame waits that long for the next one). The decode time of one frame is printed too: the
-constants of ``monitor/capacity.py`` come from these figures on a quiet host.
+constants of ``monitor/service/capacity.py`` come from these figures on a quiet host.
 """
 
 from __future__ import annotations
@@ -29,8 +29,8 @@ sys.path.insert(0, str(HERE))
 import cv2  # noqa: E402
 from cameras import make_inputs, run_one  # noqa: E402
 
-from monitor.capacity import CameraDemand, Limits, assess, measure_detect_s  # noqa: E402
 from monitor.detector import Detector, DetectorConfig  # noqa: E402
+from monitor.service.capacity import CameraDemand, Limits, assess, measure_detect_s  # noqa: E402
 
 DEFAULT_LIMITS = Limits(frame_timeout=0.5, max_frame_age=0.3, stall_timeout=0.5,
                         lost_after_s=1.0)

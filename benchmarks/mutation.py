@@ -45,7 +45,7 @@ TARGETS = {
     t.name: t for t in (
         Target("policy", ("monitor/policy/*",),
                ("tests/test_policy.py", "tests/test_policy_properties.py")),
-        Target("watchdog", ("monitor/bus.py",),
+        Target("watchdog", ("monitor/bus/session.py",),
                ("tests/test_safety_mutants.py", "-k", "watchdog"), r"CommandWatchdog"),
         Target("zone_check", ("monitor/zones/check.py", "monitor/zones/volumes.py"),
                ("tests/test_zones.py", "tests/test_zone_merge.py", "tests/test_mesh_zones.py",
@@ -66,7 +66,7 @@ TARGETS = {
                       "monitor.pipeline.evidence.x_policy_inputs*",
                       "monitor.pipeline.evidence.xǁZonesApplyingǁfault*",
                       "monitor.pipeline.holds.x_confirm_clear*")),
-        Target("detector_decode", ("monitor/boxes.py",),
+        Target("detector_decode", ("monitor/geometry/boxes.py",),
                ("tests/test_boxes.py", "tests/test_boxes_edges.py",
                 "tests/test_safety_mutants.py", "-m", "not slow")),
         # the fault decisions (the STOP faults and their timers), not the drawing and scene code
@@ -121,28 +121,28 @@ TARGETS = {
 
 # mutant name -> why no test can tell it from the original (the behaviour is the same)
 EQUIVALENT: dict[str, str] = {
-    **{f"monitor.bus.xǁCommandWatchdogǁ__init____mutmut_{n}":
+    **{f"monitor.bus.session.xǁCommandWatchdogǁ__init____mutmut_{n}":
        "received/boot/seq_error start as '' instead of None: each is set before it is read, or "
        "read only for truth (both falsy)" for n in (6, 7, 8)},
-    **{f"monitor.bus.xǁCommandWatchdogǁon_command__mutmut_{n}":
+    **{f"monitor.bus.session.xǁCommandWatchdogǁon_command__mutmut_{n}":
        "the text of a ValueError that is caught and counted as 'invalid' is never seen"
        for n in (7, 8, 9, 43, 44, 45)},
-    **{f"monitor.bus.xǁCommandWatchdogǁon_liveliness__mutmut_{n}":
+    **{f"monitor.bus.session.xǁCommandWatchdogǁon_liveliness__mutmut_{n}":
        "rsplit('/') / rsplit('/', 2) / [+1] of rsplit('/', 1): all give the key's last "
        "segment" for n in (5, 8, 9)},
-    # detector post-processing (monitor/boxes.py)
-    "monitor.boxes.x_iou_matrix__mutmut_17":
+    # detector post-processing (monitor/geometry/boxes.py)
+    "monitor.geometry.boxes.x_iou_matrix__mutmut_17":
         "union >= 0 vs > 0: a union of 0 means both boxes are empty, so inter is 0 and 0/1e-12 "
         "is the same 0.0",
-    "monitor.boxes.x_ios_matrix__mutmut_19":
+    "monitor.geometry.boxes.x_ios_matrix__mutmut_19":
         "smaller >= 0 vs > 0: the intersection is never larger than the smaller box, so it is "
         "0 and 0/1e-12 is the same 0.0",
-    "monitor.boxes.x_connected_groups__mutmut_5":
+    "monitor.geometry.boxes.x_connected_groups__mutmut_5":
         "an early return for one box gives arange(1) = [0], exactly what the loop computes",
-    "monitor.boxes.x_nms__mutmut_16": "numpy reads sort kinds case-insensitively: 'STABLE' is "
-                                      "'stable'",
-    "monitor.boxes.x_merge_boxes__mutmut_124": "numpy reads sort kinds case-insensitively: "
-                                               "'STABLE' is 'stable'",
+    "monitor.geometry.boxes.x_nms__mutmut_16":
+        "numpy reads sort kinds case-insensitively: 'STABLE' is 'stable'",
+    "monitor.geometry.boxes.x_merge_boxes__mutmut_124":
+        "numpy reads sort kinds case-insensitively: 'STABLE' is 'stable'",
     # camera health fault decisions (monitor/health/camera.py)
     "monitor.health.camera.xǁ_Timerǁupdate__mutmut_4":
         "the 'not holding' sentinel -1.0 vs -2.0: only compared with limits >= 0",
@@ -195,7 +195,7 @@ EQUIVALENT: dict[str, str] = {
         "step has a frame (frame_time set), and a tick has none",
     "monitor.pipeline.holds.x_confirm_clear__mutmut_11":
         "break vs continue on a camera without a tracker: every camera gets one in __init__",
-    "monitor.boxes.x_merge_boxes__mutmut_12":
+    "monitor.geometry.boxes.x_merge_boxes__mutmut_12":
         "reshape(None) of the empty 1-D score array is the same (0,) array",
     # the Modbus register map (monitor/adapters/modbus_map.py)
     "monitor.adapters.modbus_map.x__set_bits__mutmut_12":

@@ -54,19 +54,19 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from monitor.models import synthetic
 
-from monitor.bus import BusConfig, SafetyBus, open_session
+from monitor.bus.session import BusConfig, SafetyBus, open_session
 from monitor.config import MonitorConfig, demo_cell_path
 from monitor.detector import Detector, DetectorConfig, letterbox
 from monitor.driver import Driver, settle_heap
 from monitor.frames import LatestFrameGrabber, PacedSource, VideoFileReader
 from monitor.health import CameraHealth, HealthConfig
 from monitor.health.build import inplace_check
-from monitor.metrics import Metrics
 from monitor.pipeline import Pipeline
 from monitor.policy import PolicyConfig
-from monitor.replay import ReplaySummary, SummarySink, VideoFeed
+from monitor.replay.video import ReplaySummary, SummarySink, VideoFeed
 from monitor.scene import DemoScene, write_video
-from monitor.service_loop import LiveFeed, ServiceSink
+from monitor.service.loop import LiveFeed, ServiceSink
+from monitor.service.metrics import Metrics
 from monitor.zones import Cell, parse_cell, read_cell_data, watch_regions
 
 SIZE = (1920, 1080)
@@ -320,7 +320,7 @@ def main() -> int:
         model = tmp / "tiny-yolov3-synthetic.onnx"  # this version's build, not a cached one
         synthetic.write_model(model)
         if args.int8:
-            from monitor import quantize
+            from monitor.detector import quantize
             from monitor.scene import random_frames
 
             calib = [f for f, _ in random_frames(8, seed=1000, size=SIZE)]

@@ -10,7 +10,7 @@ returned from publishing the step's command - the frame's capture stamp (a sink 
 it takes the time). Two modes, alternated round by round so both see the same machine load:
 
 - off: no preview sink (``[preview] fps = 0``);
-- viewer: the preview sink (``monitor.preview.start_preview``, last of the sinks as in the
+- viewer: the preview sink (``monitor.bus.preview.start_preview``, last of the sinks as in the
   service) and a viewer session in this process that verifies and decodes every picture, as the
   console does (in-process: its CPU and the GIL compete with the loop, a harsher case than a
   console in its own process).
@@ -39,17 +39,17 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from monitor.models import synthetic
 from pipeline import SIZE, cell_1080p, free_port, make_video, pct
 
-from monitor.bus import BusConfig, SafetyBus, open_session
+from monitor.bus.preview import PreviewConfig, read_preview, start_preview
+from monitor.bus.session import BusConfig, SafetyBus, open_session
 from monitor.config import MonitorConfig
 from monitor.detector import Detector, DetectorConfig
 from monitor.driver import Driver
 from monitor.frames import LatestFrameGrabber, PacedSource, VideoFileReader
 from monitor.health import CameraHealth
-from monitor.metrics import Metrics
 from monitor.pipeline import Pipeline
-from monitor.preview import PreviewConfig, read_preview, start_preview
-from monitor.service_loop import LiveFeed, ServiceSink
-from monitor.signing import load_public_key, new_key_pair
+from monitor.service.loop import LiveFeed, ServiceSink
+from monitor.service.metrics import Metrics
+from monitor.wire.signing import load_public_key, new_key_pair
 from monitor.zones import watch_regions
 
 

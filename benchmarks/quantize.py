@@ -26,10 +26,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from monitor.models import synthetic
 
-from monitor import quantize
-from monitor.accuracy import Accuracy, cell_tolerance_px, score_frame
-from monitor.detector import Detector, DetectorConfig, letterbox, open_session
+from monitor.detector import Detector, DetectorConfig, letterbox, open_session, quantize
 from monitor.scene import random_frames
+from monitor.scene.accuracy import Accuracy, cell_tolerance_px, score_frame
 
 
 def speed(tmp: Path, repeats: int) -> None:

@@ -65,7 +65,7 @@ def _publishers(port: int, monitors: list[tuple[int, int]], key: str, fps: float
     """Run many SafetyBus monitors in this process with one frame loop for all of them."""
     import numpy as np
 
-    from monitor.bus import BusConfig, SafetyBus
+    from monitor.bus.session import BusConfig, SafetyBus
     from monitor.policy import Command, Reason
     from monitor.types import FrameInfo, Persons, ZoneHit, ZoneReport
 
@@ -104,15 +104,15 @@ def _publishers(port: int, monitors: list[tuple[int, int]], key: str, fps: float
     finally:
         # the frame loop has ended: the heartbeats' "stalled" STOPs while the others close are
         # expected here (in the window they are counted by the consumer)
-        logging.getLogger("monitor.bus").setLevel(logging.ERROR)
+        logging.getLogger("monitor.bus.session").setLevel(logging.ERROR)
         for bus in buses:
             bus.close()
 
 
 def _consumer(port: int, n_cells: int, public_key: str, ready, window, out) -> None:
     """One session per cell (its controller) + one dashboard session; results into ``out``."""
-    from monitor.bus import BusConfig, open_session
-    from monitor.signing import load_public_key, verify
+    from monitor.bus.session import BusConfig, open_session
+    from monitor.wire.signing import load_public_key, verify
 
     public = load_public_key(public_key)
     lock = threading.Lock()
@@ -261,7 +261,7 @@ def main() -> None:
     parser.add_argument("--publishers", type=int, default=2,
                         help="child processes the monitors are batched into (default 2)")
     args = parser.parse_args()
-    from monitor.signing import new_key_pair
+    from monitor.wire.signing import new_key_pair
 
     key = str(new_key_pair(Path(tempfile.mkdtemp(prefix="bench-scale-")) / "monitor.key")[0])
     started = time.monotonic()

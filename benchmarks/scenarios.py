@@ -1,5 +1,5 @@
 """The scenario suite at 10 fps, the clear-view walks behind the zone, and the synthetic
-model's box-bottom error that sizes the foot band (monitor/occlusion.py).
+model's box-bottom error that sizes the foot band (monitor/geometry/occlusion.py).
 
 Run: .venv/bin/python benchmarks/scenarios.py [--fps 10] [--skip-error]
 Prints two tables: (1) box bottom minus true feet (pixels and grid cells) for persons in clear
@@ -15,8 +15,8 @@ import time
 import numpy as np
 from monitor.models import synthetic
 
-from monitor import scenarios as sc
 from monitor.detector import Detector
+from monitor.replay import scenarios as sc
 from monitor.scene import DemoScene, random_frames
 from monitor.types import FrameInfo
 

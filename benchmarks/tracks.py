@@ -12,7 +12,7 @@ import time
 import numpy as np
 
 from monitor.config import demo_cell_path
-from monitor.tracks import PersonTracker
+from monitor.tracking.tracks import PersonTracker
 from monitor.types import FrameInfo, Persons
 from monitor.zones import check_persons, load_cell
 from monitor.zones.masks import MaskRule

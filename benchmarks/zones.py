@@ -9,7 +9,7 @@ of them inside some zone, so the narrow phase (FCL) really runs.
 Occlusion rows: every person is placed as a range of floor positions (foot band 0..49 px, the
 synthetic model's one grid cell at 1280x720), and with 4 occluders (benches, a cabinet) a third
 of the boxes are cut short (legs hidden), so they are placed from the head over 1.0..2.0 m and
-swept along a segment of the floor (monitor/occlusion.py).
+swept along a segment of the floor (monitor/geometry/occlusion.py).
 
 Zone stage rows: what the pipeline runs per camera frame after detection - the zone check above
 plus the person tracker (``PersonTracker.update``: supervision's ByteTrack, then our holds of
@@ -26,7 +26,7 @@ import numpy as np
 
 from monitor import geometry as geo
 from monitor import zones as zn
-from monitor.tracks import PersonTracker
+from monitor.tracking.tracks import PersonTracker
 from monitor.types import FrameInfo, Persons
 
 WIDTH, HEIGHT = 1280, 720

@@ -17,7 +17,7 @@ How the weights work (input: RGB in [0, 1], NCHW 1x3x416x416, Darknet letterbox)
    as leaky(k x) - leaky(k x - 1), and the last 1x1 conv ANDs them into the objectness logit.
 4. Box outputs are constant: tx = ty = 0 puts the box on the cell centre, tw and th make it a
    cell wide plus a small margin. A person is the union of the cells it covers (see
-   ``monitor.boxes.merge_touching``). The 13x13 head never fires (objectness bias -20).
+   ``monitor.geometry.boxes.merge_touching``). The 13x13 head never fires (objectness bias -20).
 
 All other weights are zero: the graph still has exactly the thesis' 8,849,182 parameters and costs
 the same inference time as a trained tiny-YOLOv3.
@@ -302,7 +302,7 @@ def ensure_model(path: str | Path | None = None) -> Path:
 
 def int8_ranges(p: SyntheticWeights | None = None) -> dict[str, tuple[float, int]]:
     """uint8 (scale, zero point) of the activations whose range the weights fix, for static
-    quantization (``monitor.quantize.QuantizeOptions.ranges``); the rest is calibrated.
+    quantization (``monitor.detector.quantize.QuantizeOptions.ranges``); the rest is calibrated.
 
     The gates are differences leaky(v) - leaky(v - 1) of two channels in one tensor. With
     1 / scale and 0.1 / scale whole numbers, both channels round by the same amount and the

@@ -28,20 +28,20 @@ from pydantic import (
     model_validator,
 )
 
-from monitor.alerts import AlertLimits
-from monitor.bus import BusConfig
-from monitor.cell_persons import CellPersonsConfig
+from monitor.bus.preview import PreviewConfig
+from monitor.bus.session import BusConfig
 from monitor.detector import DetectorConfig
 from monitor.errors import ConfigError
-from monitor.handover import HandoverConfig
+from monitor.geometry.reaction import ReactionConfig
 from monitor.health import HealthConfig
 from monitor.incidents.settings import RecorderConfig
 from monitor.policy import PolicyConfig
-from monitor.pose_time import TrackerClockConfig
-from monitor.preview import PreviewConfig
-from monitor.reaction import ReactionConfig
+from monitor.pose.tracker_noise import TrackerConfig
+from monitor.pose.tracker_time import TrackerClockConfig
 from monitor.schema import Bool, ConfigPath, Float, Int, Text, describe, section
-from monitor.tracker_noise import TrackerConfig
+from monitor.tracking.cell_persons import CellPersonsConfig
+from monitor.tracking.handover import HandoverConfig
+from monitor.wire.alerts import AlertLimits
 
 DEMO_SOURCE = "synthetic:demo"
 DEMO_LISTEN = ("tcp/127.0.0.1:7447",)
@@ -104,8 +104,8 @@ class ServiceConfig:
     # policy timers are evaluated at least this often without frames
     tick_s: Annotated[Float, Field(gt=0, le=1.0)] = 0.05
     # At start the detector is timed on each camera's frame size and compared with the policy's
-    # and the bus's limits (monitor/capacity.py): "refuse" a host that cannot watch the cell in
-    # time, "warn" only, or "off".
+    # and the bus's limits (monitor/service/capacity.py): "refuse" a host that cannot watch the cell
+    # in time, "warn" only, or "off".
     capacity_check: Literal["refuse", "warn", "off"] = "refuse"
 
 

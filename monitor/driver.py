@@ -30,8 +30,8 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Protocol
 
+from monitor.cases.muting import MuteRequest
 from monitor.frames import Frame
-from monitor.muting import MuteRequest
 from monitor.pipeline import Pipeline, StepResult
 from monitor.policy import ResetRequest
 from monitor.types import Fault
@@ -370,7 +370,7 @@ class Driver:
     def _emit(self, result: StepResult, frame: Frame | None,
               stalled_s: float | None = None) -> Step:
         if result.command.reset is not None:
-            from monitor.alerts import RESET_SOURCE, reset_alert
+            from monitor.wire.alerts import RESET_SOURCE, reset_alert
 
             # the operator's act, not a camera's finding (the operator is in the details)
             alert = reset_alert(result.command.reset, RESET_SOURCE, result.now)

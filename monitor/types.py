@@ -67,8 +67,8 @@ class ZoneHit:
     track_id: int | None = None  # persistent person id across frames (None: not tracked)
     lost: bool = False  # held by a track lost inside the zone: not seen in this frame
     lost_since: float | None = None  # when that track was last seen (s, same clock as frames)
-    # the person's id in the cell, as reasons name it (monitor.cell_persons): one id for one
-    # person on every camera, "cam1:4" on an uncalibrated camera of several; None: track_id
+    # the person's id in the cell, as reasons name it (monitor.tracking.cell_persons): one id for
+    # one person on every camera, "cam1:4" on an uncalibrated camera of several; None: track_id
     who: int | str | None = None
     note: str = ""  # a lost hit's own words (a hold handed over by another monitor)
 

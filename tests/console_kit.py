@@ -59,7 +59,7 @@ def _recorded() -> Path:
 
     from monitor.detector import Detector
     from monitor.incidents import RecorderConfig
-    from monitor.replay import ReplaySettings, replay
+    from monitor.replay.video import ReplaySettings, replay
     from monitor.scene import DemoScene, write_video
     from monitor.zones import load_cell
 

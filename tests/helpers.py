@@ -160,7 +160,7 @@ def one_error_line(capsys) -> str:
 def protective_walk(fps: float):
     """A basic walk into the protective zone (2 x 2 m around the robot), a pause, and out:
     (scene, cell) of the generated cell scene (tests of the model's envelope)."""
-    from monitor import scenarios as sc
+    from monitor.replay import scenarios as sc
     from monitor.scene import cell as scene_cell
     from monitor.zones import parse_cell
 

@@ -16,13 +16,13 @@ import cv2
 import zenoh
 
 from monitor.adapters.follower import Follower
-from monitor.bus import BusConfig, BusKeys, open_session
-from monitor.cell_consumer import CellWatchdog, subscribe_cell
+from monitor.bus.session import BusConfig, BusKeys, open_session
 from monitor.config import demo_cell_path
-from monitor.consumer import Verdict
-from monitor.inbox import Inbox
-from monitor.resets import latch_of_status, reset_payload, signed_reset
 from monitor.scene import DemoScene
+from monitor.wire.cell_consumer import CellWatchdog, subscribe_cell
+from monitor.wire.consumer import Verdict
+from monitor.wire.inbox import Inbox
+from monitor.wire.resets import latch_of_status, reset_payload, signed_reset
 from tests.helpers import free_port, note_wait
 
 # The tests run beside other tests and load (benchmarks/suite_under_load.py), and a slow CI
@@ -109,7 +109,7 @@ class Service:
         self.bus_port, self.metrics_port = free_port(), free_port()
         self.keys = BusKeys.of("workcell/t5/")
         # a real operator key: the monitor refuses unsigned resets from a config file
-        from monitor.signing import load_private_key, new_key_pair
+        from monitor.wire.signing import load_private_key, new_key_pair
 
         private, _, public = new_key_pair(tmp / "tester.key")
         self.operator = load_private_key(private)

@@ -13,11 +13,11 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from monitor.bus import BusConfig, BusKeys, SafetyBus, open_session
+from monitor.bus.session import BusConfig, BusKeys, SafetyBus, open_session
 from monitor.cases import sets as cs
 from monitor.cases.receiver import CaseReceiver, request_case
 from monitor.cases.requests import case_payload
-from monitor.signing import load_private_key, new_key_pair
+from monitor.wire.signing import load_private_key, new_key_pair
 from tests.helpers import free_port, put_until, wait_for
 from tests.tls import secure_router
 
@@ -33,7 +33,7 @@ ACCESS = {
     "alert": ({"monitor", "otus-bridge"}, set(), set()),  # the bridge: the cell's key only
     "detections": ({"monitor"}, set(), set()),
     "holds": ({"monitor"}, set(), set()),
-    "preview": ({"monitor"}, set(), set()),  # the console's live pictures (monitor.preview)
+    "preview": ({"monitor"}, set(), set()),  # the console's live pictures (monitor.bus.preview)
     "pose": ({"otus-bridge"}, set(), set()),
     "status": (set(), {"*"}, {"monitor"}),
     "reset": ({"operator1"}, {"operator1"}, {"monitor"}),

@@ -17,7 +17,7 @@ import zenoh
 from monitor.adapters import ros2_wire as wire
 from monitor.adapters.ros2 import Ros2Output, Ros2Settings
 from monitor.adapters.snapshot import SafetySnapshot
-from monitor.bus import BusConfig, open_session
+from monitor.bus.session import BusConfig, open_session
 from tests.helpers import free_port, put_until, wait_for
 from tests.tls import secure_router
 

@@ -12,7 +12,7 @@ from monitor.adapters import modbus_map as mm
 from monitor.adapters import opcua as ua
 from monitor.adapters import ros2
 from monitor.adapters.snapshot import SafetySnapshot, snapshot_of
-from monitor.consumer import Verdict
+from monitor.wire.consumer import Verdict
 
 NOW = 1000.0
 

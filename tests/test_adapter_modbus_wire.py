@@ -16,7 +16,7 @@ pytest.importorskip("pymodbus")
 from monitor.adapters import modbus_map as mm
 from monitor.adapters.modbus import ModbusOutput
 from monitor.adapters.snapshot import snapshot_of
-from monitor.consumer import Verdict
+from monitor.wire.consumer import Verdict
 from tests.helpers import free_port
 
 WATCHDOG = mm.ADDRESS["plc_watchdog"]

@@ -41,10 +41,10 @@ from monitor.adapters.opcua import (  # noqa: E402
 )
 from monitor.adapters.opcua_users import user_line  # noqa: E402
 from monitor.adapters.snapshot import snapshot_of  # noqa: E402
-from monitor.bus import BusConfig, SafetyBus  # noqa: E402
-from monitor.consumer import Verdict  # noqa: E402
+from monitor.bus.session import BusConfig, SafetyBus  # noqa: E402
 from monitor.policy import Command, Reason  # noqa: E402
-from monitor.signing import new_key_pair  # noqa: E402
+from monitor.wire.consumer import Verdict  # noqa: E402
+from monitor.wire.signing import new_key_pair  # noqa: E402
 from tests.helpers import assert_one_line_error, free_port, run_monitor, wait_for  # noqa: E402
 from tests.opcua_kit import ConnectedClient as Client  # noqa: E402
 from tests.opcua_kit import connected as _connected  # noqa: E402
@@ -142,7 +142,7 @@ def keys(tmp_path):
 
 def _monitor_main(port: int, cell: str, key: str) -> None:
     """A monitor process: signed RUN every 50 ms until killed."""
-    from monitor.bus import BusConfig, SafetyBus
+    from monitor.bus.session import BusConfig, SafetyBus
     from monitor.policy import Command
 
     cfg = BusConfig(cell=cell, instance="mon-op", listen=(f"tcp/127.0.0.1:{port}",),
@@ -278,9 +278,9 @@ def _forge(cell: str, zport: int, stop: threading.Event, tmp_path: Path) -> None
     """Unsigned RUN, and RUN signed by a key nobody pinned, with seqs far ahead."""
     import json
 
-    from monitor.bus import BusKeys, open_session
-    from monitor.consumer import COMMAND_SCHEMA
-    from monitor.signing import load_private_key
+    from monitor.bus.session import BusKeys, open_session
+    from monitor.wire.consumer import COMMAND_SCHEMA
+    from monitor.wire.signing import load_private_key
 
     forger = load_private_key(new_key_pair(tmp_path / "forger.key")[0])
     key = BusKeys.of(f"workcell/{cell}/").command

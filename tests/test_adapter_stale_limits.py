@@ -13,7 +13,7 @@ import pytest
 from monitor.adapters import modbus_map as mm
 from monitor.adapters.opcua import initial_values, next_values, stale
 from monitor.adapters.snapshot import SafetySnapshot, snapshot_of
-from monitor.consumer import Verdict
+from monitor.wire.consumer import Verdict
 
 NOW = 1000.0
 MARGIN = 0.002  # s either side of the limit: far above float error, far below the limit

@@ -13,9 +13,9 @@ import pytest
 
 pytest.importorskip("pymodbus")
 
-from monitor.bus import BusConfig, SafetyBus
+from monitor.bus.session import BusConfig, SafetyBus
 from monitor.policy import Command, Latch, Reason
-from monitor.signing import new_key_pair
+from monitor.wire.signing import new_key_pair
 from tests.helpers import free_port, wait_for
 from tests.plc_kit import CELL, ROOT, TTL_MS, Plc, _env, stop_process
 

@@ -10,11 +10,11 @@ import pytest
 
 from monitor.adapters import SafetySnapshot, snapshot_of
 from monitor.adapters.follower import Follower, subscribe
-from monitor.bus import BusConfig, BusKeys, SafetyBus, open_session
-from monitor.consumer import COMMAND_SCHEMA, CommandWatchdog, Verdict
-from monitor.inbox import Inbox
+from monitor.bus.session import BusConfig, BusKeys, SafetyBus, open_session
 from monitor.policy import Command, Reason
-from monitor.signing import load_private_key, load_public_key, new_key_pair
+from monitor.wire.consumer import COMMAND_SCHEMA, CommandWatchdog, Verdict
+from monitor.wire.inbox import Inbox
+from monitor.wire.signing import load_private_key, load_public_key, new_key_pair
 from tests.helpers import free_port, wait_for
 
 CELL = "ad"

@@ -21,12 +21,12 @@ import contextlib
 from monitor.adapters import modbus_map as mm
 from monitor.adapters.modbus import ModbusOutput
 from monitor.adapters.snapshot import NOTE_CODES, snapshot_of
-from monitor.bus import BusConfig, BusKeys, SafetyBus, open_session
-from monitor.consumer import COMMAND_SCHEMA, Verdict
+from monitor.bus.session import BusConfig, BusKeys, SafetyBus, open_session
 from monitor.detector.test_model import TEST_MODEL_NOTE, TEST_MODEL_REASON
 from monitor.policy import Command, Latch, Reason
 from monitor.policy.model import ResetOutcome
-from monitor.signing import load_private_key, new_key_pair
+from monitor.wire.consumer import COMMAND_SCHEMA, Verdict
+from monitor.wire.signing import load_private_key, new_key_pair
 from tests.helpers import free_port, wait_for
 from tests.plc_kit import CELL, ROOT, TTL_MS, Plc, _env, start_adapter, stop_process
 
@@ -36,7 +36,7 @@ RUN, SLOW, STOP = 2, 1, 0
 # a monitor in its own process (to kill or SIGSTOP it): signed RUN, repeated by the heartbeat
 MONITOR = """
 import sys, time
-from monitor.bus import BusConfig, SafetyBus
+from monitor.bus.session import BusConfig, SafetyBus
 from monitor.policy import Command
 cfg = BusConfig(cell=sys.argv[1], instance="mon-plc", listen=(f"tcp/127.0.0.1:{sys.argv[2]}",),
                 heartbeat_hz=20.0, ttl_ms=int(sys.argv[4]), signing_key=sys.argv[3])

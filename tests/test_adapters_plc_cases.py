@@ -15,7 +15,7 @@ pytest.importorskip("pymodbus")
 from pymodbus.client import ModbusTcpClient
 
 from monitor.adapters import modbus_map as mm
-from monitor.bus import BusConfig, BusKeys, SafetyBus, open_session
+from monitor.bus.session import BusConfig, BusKeys, SafetyBus, open_session
 from monitor.cases.receiver import CaseReceiver
 from monitor.cases.sets import (
     CasePlan,
@@ -26,7 +26,7 @@ from monitor.cases.sets import (
     initial_case,
 )
 from monitor.policy import Command, Reason
-from monitor.signing import new_key_pair
+from monitor.wire.signing import new_key_pair
 from tests.helpers import free_port, wait_for
 from tests.plc_kit import CELL, TTL_MS, Plc, start_adapter, stop_process
 

@@ -17,12 +17,12 @@ from monitor.adapters import ros2_wire as wire
 from monitor.adapters.follower import Follower, subscribe
 from monitor.adapters.ros2 import Ros2Output, Ros2Settings, speed_override
 from monitor.adapters.snapshot import SafetySnapshot
-from monitor.bus import BusConfig, BusKeys, SafetyBus, open_session
-from monitor.consumer import COMMAND_SCHEMA, CommandWatchdog
+from monitor.bus.session import BusConfig, BusKeys, SafetyBus, open_session
 from monitor.errors import ConfigError
-from monitor.inbox import Inbox
 from monitor.policy import Command, Reason
-from monitor.signing import load_private_key, load_public_key, new_key_pair
+from monitor.wire.consumer import COMMAND_SCHEMA, CommandWatchdog
+from monitor.wire.inbox import Inbox
+from monitor.wire.signing import load_private_key, load_public_key, new_key_pair
 from tests.helpers import (
     assert_one_line,
     assert_one_line_error,

@@ -1,5 +1,5 @@
-"""The replay's annotated video (monitor/annotate.py): labels that never overlap, one colour per
-zone kind in the preview and the video, and a replay of a generated walk whose frames show the
+"""The replay's annotated video (monitor/records/annotate.py): labels that never overlap, one colour
+per zone kind in the preview and the video, and a replay of a generated walk whose frames show the
 header, the tracker's person ids, the refused reset and the floor range behind each hit."""
 
 from __future__ import annotations
@@ -13,12 +13,12 @@ import numpy as np
 import pytest
 import yaml
 
-from monitor.annotate import HEADER_PX, HOLD_S, Annotator, Drawn
 from monitor.config import demo_cell_path
 from monitor.health import WATCH_BGR, HealthReport, draw_health
 from monitor.pipeline import StepResult
 from monitor.policy import STOP
-from monitor.replay import ReplaySettings, replay
+from monitor.records.annotate import HEADER_PX, HOLD_S, Annotator, Drawn
+from monitor.replay.video import ReplaySettings, replay
 from monitor.scene import DemoScene, write_video
 from monitor.zones import parse_cell, watch_regions
 from monitor.zones.draw import (
@@ -288,8 +288,8 @@ def test_a_reset_or_alert_of_a_timer_tick_shows_on_the_next_frames_for_hold_s_th
 
 
 def test_a_burst_of_alerts_shows_the_newest_rows_only():
-    from monitor.annotate import MAX_EVENT_ROWS
     from monitor.policy import PolicyConfig, PolicyInputs, initial_state, step
+    from monitor.records.annotate import MAX_EVENT_ROWS
     from monitor.types import Alert
 
     _, command = step(initial_state(), PolicyInputs(), 0.0, PolicyConfig())

@@ -2,7 +2,7 @@ import cv2
 import numpy as np
 import pytest
 
-from monitor import boxes as B
+from monitor.geometry import boxes as B
 
 
 def _random_boxes(rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]:

@@ -1,14 +1,14 @@
 """Box algebra at its edges: degenerate and sub-pixel boxes, exact thresholds, ties, dtypes.
 
 Each case is a behaviour the detector's post-processing relies on (found by mutation testing of
-monitor/boxes.py: these are the bugs the broader tests in test_boxes.py could not see)."""
+monitor/geometry/boxes.py: these are the bugs the broader tests in test_boxes.py could not see)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from monitor.boxes import area, gap_matrix, ios_matrix, iou_matrix, merge_boxes, nms
+from monitor.geometry.boxes import area, gap_matrix, ios_matrix, iou_matrix, merge_boxes, nms
 
 
 def b(*rows) -> np.ndarray:

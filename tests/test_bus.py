@@ -10,8 +10,7 @@ import time
 import pytest
 import zenoh
 
-from monitor.alerts import AlertLimits
-from monitor.bus import (
+from monitor.bus.session import (
     COMMAND_SCHEMA,
     BusConfig,
     BusKeys,
@@ -23,9 +22,10 @@ from monitor.bus import (
 )
 from monitor.errors import ConfigError
 from monitor.policy import Command, Latch, Reason, ResetOutcome
-from monitor.resets import request_reset
-from monitor.signing import load_private_key, new_key_pair
 from monitor.types import Alert, FrameInfo, Persons, ZoneHit, ZoneReport
+from monitor.wire.alerts import AlertLimits
+from monitor.wire.resets import request_reset
+from monitor.wire.signing import load_private_key, new_key_pair
 from tests.helpers import free_port, wait_for
 from tests.tls import make_tls
 
@@ -172,7 +172,7 @@ def test_heartbeat_repeats_the_latest_command_and_stops_for_a_stalled_pipeline(b
     records: list[logging.LogRecord] = []
     handler = logging.Handler()
     handler.emit = records.append
-    logging.getLogger("monitor.bus").addHandler(handler)
+    logging.getLogger("monitor.bus.session").addHandler(handler)
     bus.publish_command(RUN_CMD)
     assert wait_for(lambda: sum(c["heartbeat"] and c["state"] == "RUN"
                                 for c in ctl.commands) >= 3)
@@ -183,7 +183,7 @@ def test_heartbeat_repeats_the_latest_command_and_stops_for_a_stalled_pipeline(b
     first_stall = min(c["mono"] for c in ctl.commands if c["state"] == "STOP")
     assert first_stall - last_run <= 0.6 + 2 / 20 + 0.1
     # the STOP a consumer acts on is in the monitor's own log too, once (not every heartbeat)
-    logging.getLogger("monitor.bus").removeHandler(handler)
+    logging.getLogger("monitor.bus.session").removeHandler(handler)
     said = [r.getMessage() for r in records if "STOP stalled" in r.getMessage()]
     assert len(said) == 1 and "bus.stall_timeout 0.6 s" in said[0]
 
@@ -424,7 +424,7 @@ def test_secure_router_only_monitor_publishes_commands_only_operators_reset(tmp_
 
 
 def test_alert_limiter_per_kind_with_critical_interval():
-    from monitor.alerts import AlertLimiter, alert_from_dict, alert_to_dict, reset_alert
+    from monitor.wire.alerts import AlertLimiter, alert_from_dict, alert_to_dict, reset_alert
 
     lim = AlertLimiter(AlertLimits(min_interval=5.0, critical_min_interval=1.0))
     warn = Alert("camera_frozen", "warning", "m", "cam0", 0.0)

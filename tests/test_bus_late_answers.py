@@ -15,12 +15,12 @@ import time
 
 import pytest
 
-from monitor.bus import BusConfig, BusKeys, SafetyBus, open_session
-from monitor.mute_requests import mute_payload, request_mute
-from monitor.muting import MuteOutcome
+from monitor.bus.session import BusConfig, BusKeys, SafetyBus, open_session
+from monitor.cases.mute_requests import mute_payload, request_mute
+from monitor.cases.muting import MuteOutcome
 from monitor.policy import Command, Latch, ResetOutcome
-from monitor.resets import request_reset, reset_payload
-from monitor.signing import load_private_key, new_key_pair
+from monitor.wire.resets import request_reset, reset_payload
+from monitor.wire.signing import load_private_key, new_key_pair
 from tests.helpers import free_port, wait_for
 
 CELL = "late"

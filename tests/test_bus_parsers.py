@@ -1,6 +1,6 @@
 """Every parser of bus input refuses hostile JSON as invalid, with a reason, and no exception
 escapes: deep nesting, 1e400, 10**400, NaN, Infinity, huge strings, wrong types, in the whole
-payload and in each field (monitor/payload.py, the one bounded decoder they share). The
+payload and in each field (monitor/wire/payload.py, the one bounded decoder they share). The
 holds messages are validly signed, so the hostile body reaches the parser (as the 176 of
 10,000 that raised did). A bounded property test mixes random JSON and random bytes; heavier
 fuzzing is ``benchmarks/fuzz.py``."""
@@ -15,16 +15,16 @@ from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from monitor import payload as pj
-from monitor.bus_holds import HoldsGate, holds_payload
-from monitor.busconfig import BusKeys
+from monitor.bus.holds import HoldsGate, holds_payload
+from monitor.cases.mute_requests import MuteGate, MuteRefused, mute_payload
 from monitor.cases.requests import CaseGate, CasePolicy, CaseRefused, case_payload
-from monitor.consumer import COMMAND_SCHEMA, InvalidCommand, parse_command
-from monitor.handover import Entry
-from monitor.mute_requests import MuteGate, MuteRefused, mute_payload
-from monitor.resets import ResetGate, ResetPolicy, ResetRefused, reset_payload
-from monitor.signing import Signer
-from monitor.zone_apply import ApplyGate, ApplyRefused, apply_payload
+from monitor.cases.zone_apply import ApplyGate, ApplyRefused, apply_payload
+from monitor.tracking.handover import Entry
+from monitor.wire import payload as pj
+from monitor.wire.busconfig import BusKeys
+from monitor.wire.consumer import COMMAND_SCHEMA, InvalidCommand, parse_command
+from monitor.wire.resets import ResetGate, ResetPolicy, ResetRefused, reset_payload
+from monitor.wire.signing import Signer
 
 CELL, BOOT, PREFIX = "c1", "b1", "workcell/c1/"
 KEYS = BusKeys.of(PREFIX)

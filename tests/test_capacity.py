@@ -11,7 +11,9 @@ import tomllib
 import pytest
 import yaml
 
-from monitor.capacity import (
+from monitor.config import demo_cell_path, parse_config
+from monitor.errors import ConfigError
+from monitor.service.capacity import (
     CONTENTION,
     PIPELINE_FACTOR,
     TAIL_S,
@@ -22,9 +24,7 @@ from monitor.capacity import (
     decode_time_s,
     measure_detect_s,
 )
-from monitor.config import demo_cell_path, parse_config
-from monitor.errors import ConfigError
-from monitor.service_setup import check_capacity
+from monitor.service.setup import check_capacity
 from tests.helpers import assert_one_line_error, free_port, run_monitor
 
 DEFAULTS = Limits(frame_timeout=0.5, max_frame_age=0.3, stall_timeout=0.5, lost_after_s=1.0)
@@ -273,7 +273,7 @@ def test_max_fps_caps_how_often_the_service_takes_a_camera(batch):
     import threading
 
     from monitor.frames import LatestFrameGrabber, open_source
-    from monitor.service_loop import LiveFeed
+    from monitor.service.loop import LiveFeed
 
     stop = threading.Event()
     grabber = LatestFrameGrabber(open_source("synthetic:demo", "cam0", realtime=True),

@@ -16,8 +16,8 @@ from monitor.errors import ConfigError
 from monitor.pipeline import Pipeline
 from monitor.policy import PolicyConfig
 from monitor.scene import DemoScene, Figure, draw_figure
-from monitor.signing import Signer
 from monitor.types import FrameInfo, ZoneHit, ZoneReport
+from monitor.wire.signing import Signer
 from monitor.zones import parse_cell
 
 POLICY = PolicyConfig(clear_time=0.5, restart_interlock="auto")
@@ -261,8 +261,8 @@ def test_an_unknown_set_stops_the_cell_with_the_reason_a_refused_request_does_no
 
 
 def test_the_sets_in_force_are_in_the_annotated_header_and_the_replay_events(detector):
-    from monitor.annotate import header_text
-    from monitor.replay import command_event
+    from monitor.records.annotate import header_text
+    from monitor.replay.video import command_event
 
     pipe = Pipeline(detector, "cam0", POLICY, parse_cell(_station_cell("A")))
     _run(pipe, 0.0, 0.3)

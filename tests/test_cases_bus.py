@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import yaml
 
-from monitor.bus import BusConfig, BusKeys, SafetyBus, open_session
+from monitor.bus.session import BusConfig, BusKeys, SafetyBus, open_session
 from monitor.cases.receiver import CaseReceiver, case_key, request_case
 from monitor.cases.requests import case_payload
 from monitor.cases.sets import plan_of
@@ -19,8 +19,8 @@ from monitor.frames import Frame
 from monitor.pipeline import Pipeline
 from monitor.policy import PolicyConfig
 from monitor.scene import DemoScene, Figure, draw_figure
-from monitor.signing import load_private_key, new_key_pair
 from monitor.types import FrameInfo
+from monitor.wire.signing import load_private_key, new_key_pair
 from monitor.zones import load_cell, parse_cell
 from tests.helpers import (
     assert_one_line_error,

@@ -1,4 +1,4 @@
-"""The consumer rule for several monitors of one cell (monitor.cell_consumer), pure: each role
+"""The consumer rule for several monitors of one cell (monitor.wire.cell_consumer), pure: each role
 with its own key and command key; the cell is the most restrictive of all expected roles."""
 
 from __future__ import annotations
@@ -7,10 +7,10 @@ import json
 
 import pytest
 
-from monitor.busconfig import BusConfig, BusKeys
-from monitor.cell_consumer import CellWatchdog, parse_expect
 from monitor.errors import ConfigError
-from monitor.signing import load_private_key, load_public_key, new_key_pair
+from monitor.wire.busconfig import BusConfig, BusKeys
+from monitor.wire.cell_consumer import CellWatchdog, parse_expect
+from monitor.wire.signing import load_private_key, load_public_key, new_key_pair
 
 PREFIX = "workcell/c1/"
 WALL = 1_000_000.0

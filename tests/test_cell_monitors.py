@@ -15,8 +15,8 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from monitor.bus import BusKeys
-from monitor.signing import load_public_key, new_key_pair
+from monitor.bus.session import BusKeys
+from monitor.wire.signing import load_public_key, new_key_pair
 from tests.cameras import MjpegCamera, demo_jpegs
 from tests.helpers import free_port
 from tests.processes import CAPACITY, CellConsumer, Monitor, one_inference_thread, wait_for

@@ -1,5 +1,5 @@
-"""One person id across the cameras of a cell (monitor/cell_persons.py): the real tracker of each
-camera, with calibrations given as pixel -> floor functions."""
+"""One person id across the cameras of a cell (monitor/tracking/cell_persons.py): the real tracker
+of each camera, with calibrations given as pixel -> floor functions."""
 
 from __future__ import annotations
 
@@ -8,11 +8,11 @@ import functools
 import numpy as np
 import pytest
 
-from monitor.cell_persons import CellPersons, CellPersonsConfig
 from monitor.config import parse_config
 from monitor.errors import ConfigError
 from monitor.policy.causes import frame_causes
-from monitor.tracks import PersonTracker
+from monitor.tracking.cell_persons import CellPersons, CellPersonsConfig
+from monitor.tracking.tracks import PersonTracker
 from monitor.types import FrameInfo, Persons, ZoneHit, ZoneReport
 from monitor.zones.check import merge_towards_danger
 

@@ -11,7 +11,7 @@ import time
 
 import pytest
 
-from monitor.bus import BusConfig, BusKeys, SafetyBus, open_session
+from monitor.bus.session import BusConfig, BusKeys, SafetyBus, open_session
 from monitor.policy import Command, Reason
 from tests.helpers import free_port
 
@@ -87,7 +87,7 @@ def test_reset_reads_the_status_at_the_first_reply(monitor_and_a_hung_queryable)
 
 def test_reset_returns_at_the_monitors_answer(monitor_and_a_hung_queryable):
     from monitor.policy import Latch, ResetOutcome
-    from monitor.resets import LatchNonces
+    from monitor.wire.resets import LatchNonces
 
     connect, held, bus = monitor_and_a_hung_queryable
     latched = Command("STOP", 0.0, (), latched=True, latched_by=Latch(
@@ -117,8 +117,8 @@ def _reset_against_a_rogue(tmp_path, *extra: str) -> tuple[str, str, int]:
     query at once with "accepted"; `monitor reset` run against both; the monitor's policy
     refuses (a person is still in the zone)."""
     from monitor.policy import Latch, ResetOutcome
-    from monitor.resets import LatchNonces
-    from monitor.signing import new_key_pair
+    from monitor.wire.resets import LatchNonces
+    from monitor.wire.signing import new_key_pair
 
     new_key_pair(tmp_path / "monitor.key")
     _, _, anna = new_key_pair(tmp_path / "anna.key")

@@ -12,8 +12,8 @@ from pathlib import Path
 
 import pytest
 
-from monitor.bus import BusConfig, BusKeys, open_session
-from monitor.signing import load_public_key, new_key_pair, verify
+from monitor.bus.session import BusConfig, BusKeys, open_session
+from monitor.wire.signing import load_public_key, new_key_pair, verify
 from tests.helpers import assert_one_line_error, free_port, run_here
 
 ROLES = ("monitor-a", "monitor-b")

@@ -39,7 +39,8 @@ def imported_by(*argv: str) -> tuple[int, set[str], str]:
         "except SystemExit as e:  # --help\n"
         "    rc = e.code\n"
         "heavy = ['supervision', 'onnxruntime', 'zenoh', 'cv2', 'trimesh', 'scipy', 'av',"
-        " 'starlette', 'asyncua', 'pymodbus', 'monitor.bus', 'monitor.frames', 'monitor.tracks']\n"
+        " 'starlette', 'asyncua', 'pymodbus', 'monitor.bus.session', 'monitor.frames',"
+        " 'monitor.tracking.tracks']\n"
         "print(json.dumps([rc, [m for m in heavy if m in sys.modules], out.getvalue()]))\n")
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                           timeout=120, cwd=ROOT)
@@ -50,7 +51,8 @@ def imported_by(*argv: str) -> tuple[int, set[str], str]:
 
 @pytest.mark.parametrize("argv, never", [
     (("zones", "list", str(DEMO)), {"supervision", "onnxruntime", "trimesh", "scipy", "av",
-                                     "monitor.bus", "monitor.frames", "monitor.tracks"}),
+                                     "monitor.bus.session", "monitor.frames",
+                                     "monitor.tracking.tracks"}),
     (("status", "--help"), {"supervision", "onnxruntime", "cv2", "trimesh", "scipy", "av"}),
 ], ids=["zones-list", "status"])
 def test_a_command_loads_only_what_it_needs(argv, never):

@@ -9,10 +9,10 @@ from __future__ import annotations
 import pytest
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
 
-from monitor.mute_requests import MuteGate, MuteRefused, mute_payload
-from monitor.resets import ResetGate, ResetPolicy, ResetRefused, reset_payload
-from monitor.signing import Signer
-from monitor.zone_apply import ApplyGate, ApplyRefused, apply_payload
+from monitor.cases.mute_requests import MuteGate, MuteRefused, mute_payload
+from monitor.cases.zone_apply import ApplyGate, ApplyRefused, apply_payload
+from monitor.wire.resets import ResetGate, ResetPolicy, ResetRefused, reset_payload
+from monitor.wire.signing import Signer
 
 T = 1_732_400_000.0
 HOUR = 3600.0

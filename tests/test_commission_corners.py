@@ -25,7 +25,7 @@ from monitor.commission.walk_scene import (
     write_walk_scene,
     zone_corners,
 )
-from monitor.scenarios import PROTECTIVE
+from monitor.replay.scenarios import PROTECTIVE
 from monitor.zones import parse_cell
 from tests.helpers import one_error_line
 from tests.processes import one_inference_thread

@@ -13,7 +13,7 @@ import pytest
 
 from monitor.cli import main
 from monitor.commission.report import SECTIONS, checksum_of, printed_checksum, verify
-from monitor.commissioned import RECORD_NAME, status_of
+from monitor.service.commissioned import RECORD_NAME, status_of
 from tests.helpers import one_error_line
 from tests.processes import Service, wait_for
 

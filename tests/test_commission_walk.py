@@ -12,11 +12,11 @@ import cv2
 import numpy as np
 import pytest
 
-from monitor import scenarios as sc
 from monitor.cli import main
 from monitor.commission.floor import zone_floors
 from monitor.commission.pictures import BLIND_BGR
 from monitor.commission.walk import StepSample, analyse
+from monitor.replay import scenarios as sc
 from monitor.scene import cell as scene_cell
 from monitor.scene import write_video
 from monitor.zones import parse_cell, write_cell_data

@@ -7,8 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from monitor.alerts import AlertLimits
-from monitor.bus import BusConfig
+from monitor.bus.session import BusConfig
 from monitor.config import (
     DEMO_LISTEN,
     DEMO_SOURCE,
@@ -22,6 +21,7 @@ from monitor.detector import DetectorConfig
 from monitor.errors import ConfigError
 from monitor.health import HealthConfig
 from monitor.policy import PolicyConfig
+from monitor.wire.alerts import AlertLimits
 from tests.helpers import assert_one_line
 
 FULL = """\

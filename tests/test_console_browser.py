@@ -20,11 +20,11 @@ from pathlib import Path
 import cv2
 import pytest
 
-from monitor.bus import BusConfig, SafetyBus
+from monitor.bus.session import BusConfig, SafetyBus
 from monitor.incidents import IncidentIndex
 from monitor.policy import Command, Reason
-from monitor.signing import new_key_pair
 from monitor.types import Alert
+from monitor.wire.signing import new_key_pair
 from monitor.zones import load_cell
 from tests.console_kit import (
     CHROMIUM,

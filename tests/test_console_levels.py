@@ -21,7 +21,7 @@ from monitor.console.auth import Operators, hash_password, read_entries, set_pas
 from monitor.console.levels import ACTIONS, LEVELS, NEVER, may, parse_level, refusal, table
 from monitor.console.sessions import COOKIE, Sessions
 from monitor.errors import ConfigError
-from monitor.signing import key_fingerprint, public_key_text
+from monitor.wire.signing import key_fingerprint, public_key_text
 from monitor.zones import load_cell
 from tests.console_kit import audit_lines, basic, plain_console, zone_file
 

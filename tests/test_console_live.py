@@ -1,4 +1,4 @@
-"""The live picture (monitor/preview.py, docs/console.md "The live picture"): the monitor's
+"""The live picture (monitor/bus/preview.py, docs/console.md "The live picture"): the monitor's
 preview sink never waits (a publisher that hangs costs the loop nothing but the offer), its
 pictures are signed, scaled down and at most ``fps`` per camera on a real Zenoh bus; the
 console shows only a picture signed with the pinned key; and, end to end, a real `monitor run`
@@ -16,12 +16,12 @@ import cv2
 import numpy as np
 import pytest
 
-from monitor.bus import BusConfig, SafetyBus, open_session
+from monitor.bus.preview import PreviewConfig, PreviewSink, read_preview, start_preview
+from monitor.bus.session import BusConfig, SafetyBus, open_session
 from monitor.console.live import LiveRenderer, LiveState
 from monitor.frames import Frame
-from monitor.preview import PreviewConfig, PreviewSink, read_preview, start_preview
-from monitor.signing import load_public_key, new_key_pair
 from monitor.types import FrameInfo
+from monitor.wire.signing import load_public_key, new_key_pair
 from monitor.zones import load_cell
 from tests.console_kit import CHROMIUM, ROOT, chromium, wait_http, zone_file
 from tests.helpers import free_port, wait_for

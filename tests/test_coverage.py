@@ -231,7 +231,7 @@ def _walk_behind_base(detector, robot_base: dict | None):
     inside)."""
     from monitor.pipeline import Pipeline
     from monitor.policy import RUN, SLOW, PolicyConfig, ResetRequest
-    from monitor.scenarios import PROTECTIVE, _rect_distance
+    from monitor.replay.scenarios import PROTECTIVE, _rect_distance
     from monitor.scene.cell import Block, CellScene, Walker, zone_data
     from monitor.types import FrameInfo
 

@@ -17,7 +17,7 @@ from monitor.policy import (
     initial_state,
     step,
 )
-from monitor.service_log import command_fields
+from monitor.service.log import command_fields
 from monitor.timetext import video_time, wall_clock
 from tests.policy_kit import CONFIGS, _inputs, frame, lost, reset, run, sequences, warmed
 
@@ -109,7 +109,7 @@ def test_wall_clock_says_how_long_ago_for_old_times():
 
 
 def test_replay_describes_in_video_seconds():
-    from monitor.replay import describe
+    from monitor.replay.video import describe
 
     cmd = _latched_reset_possible()
     assert describe(cmd) == cmd.describe(video_time)

@@ -29,9 +29,9 @@ from monitor.errors import ConfigError
 from monitor.frames import Frame, LatestFrameGrabber, open_source
 from monitor.pipeline import Pipeline
 from monitor.policy import STOP, PolicyConfig, ResetRequest
-from monitor.replay import ReplaySettings, VideoFeed, replay
+from monitor.replay.video import ReplaySettings, VideoFeed, replay
 from monitor.scene import DemoScene
-from monitor.service_loop import LiveFeed
+from monitor.service.loop import LiveFeed
 from monitor.types import Fault, FrameInfo
 from monitor.zones import load_cell
 
@@ -451,7 +451,7 @@ def test_replay_summary_counts_state_and_reason_changes_apart(tmp_path, detector
 # --- sinks and CLI helpers -------------------------------------------------------------------
 
 def test_events_sink_writes_a_reset_possible_event(tmp_path, detector, empty_cell_image):
-    from monitor.replay import EventsSink
+    from monitor.replay.video import EventsSink
 
     rec = Recorder()
     driver = Driver(Pipeline(detector, "cam0", POLICY, None), [rec])

@@ -14,7 +14,6 @@ import cv2
 import numpy as np
 import pytest
 
-from monitor import scenarios as sc
 from monitor.detector import Detector
 from monitor.detector import envelope as env
 from monitor.detector.selftest import SelfTestCase
@@ -22,6 +21,7 @@ from monitor.health import CameraHealth, HealthConfig
 from monitor.health.conditions import ENVELOPE, ENVELOPE_NEAR, judge
 from monitor.pipeline import Pipeline
 from monitor.policy import STOP, PolicyConfig, ResetRequest
+from monitor.replay import scenarios as sc
 from monitor.types import FrameInfo
 from monitor.zones.masks import zone_regions_px
 from tests.helpers import protective_walk

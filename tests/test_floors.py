@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from monitor import geometry as geo
-from monitor import occlusion as occ
 from monitor import zones as zn
+from monitor.geometry import occlusion as occ
 from monitor.scene import DEMO_CAMERA
 
 DEMO = Path(__file__).resolve().parents[1] / "zones" / "demo-cell.yaml"

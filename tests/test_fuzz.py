@@ -1,6 +1,6 @@
 """Fuzzers: random and mutated inputs for every parser that faces the outside.
 
-Targets: the OTUS codec and validator, pose JSON (``monitor.pose``), the zone loader and
+Targets: the OTUS codec and validator, pose JSON (``monitor.pose.stream``), the zone loader and
 validator (``monitor.zones.parse_cell`` / ``cell_faults``), the config loader
 (``monitor.config.parse_config``), the consumer rule (``CommandWatchdog``) and the reset gate.
 An input may be refused only with the project's one-line errors (``MonitorError``; the
@@ -115,7 +115,7 @@ def _otus_values(rng: random.Random) -> list[float]:
 
 
 def fuzz_otus(rng: random.Random, case: dict) -> None:
-    from monitor.pose import OTUS_FORMAT, OTUS_SIZE, PoseValidator, decode_otus
+    from monitor.pose.stream import OTUS_FORMAT, OTUS_SIZE, PoseValidator, decode_otus
 
     validator = case.setdefault("validator", PoseValidator())
     kind = rng.random()
@@ -128,7 +128,13 @@ def fuzz_otus(rng: random.Random, case: dict) -> None:
 
 
 def fuzz_pose_json(rng: random.Random, case: dict) -> None:
-    from monitor.pose import OTUS_FORMAT, PoseValidator, decode_otus, pose_from_json, pose_to_json
+    from monitor.pose.stream import (
+        OTUS_FORMAT,
+        PoseValidator,
+        decode_otus,
+        pose_from_json,
+        pose_to_json,
+    )
 
     values = [v if math.isfinite(v) else 0.0 for v in _otus_values(rng)]
     sample = decode_otus(struct.pack(OTUS_FORMAT, *values))
@@ -175,7 +181,7 @@ def fuzz_config(rng: random.Random, case: dict) -> None:
 
 
 def fuzz_consumer(rng: random.Random, case: dict) -> None:
-    from monitor.consumer import CommandWatchdog
+    from monitor.wire.consumer import CommandWatchdog
 
     dog = case.setdefault("dog", CommandWatchdog(require_liveliness=False))
     body = {"schema": "workcell.safety.command/1", "cell": "cell1", "seq": rng.randint(1, 99),
@@ -202,7 +208,7 @@ def fuzz_consumer(rng: random.Random, case: dict) -> None:
 
 
 def fuzz_resets(rng: random.Random, case: dict) -> None:
-    from monitor.resets import ResetGate, ResetPolicy, ResetRefused
+    from monitor.wire.resets import ResetGate, ResetPolicy, ResetRefused
 
     gate = case.setdefault("gate", ResetGate(ResetPolicy(None, "cell1", "k",
                                                          allow_unsigned=True)))
@@ -222,10 +228,10 @@ def fuzz_holds(rng: random.Random, case: dict) -> None:
     10,000 such messages raised in the handler)."""
     from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
 
-    from monitor.bus_holds import HoldsGate, holds_payload
-    from monitor.busconfig import BusKeys
-    from monitor.handover import Entry
-    from monitor.signing import Signer
+    from monitor.bus.holds import HoldsGate, holds_payload
+    from monitor.tracking.handover import Entry
+    from monitor.wire.busconfig import BusKeys
+    from monitor.wire.signing import Signer
 
     key = case.setdefault("key", Ed25519PrivateKey.generate())
     gate = case.setdefault("gate", HoldsGate("c1", "workcell/c1/", "monitor-b",

@@ -1,7 +1,6 @@
-"""Hand-over of holds between the monitors of one cell, the pure part (monitor/handover.py) and
-the gate of the bus edge (monitor/bus_holds.py): which of my zones a departure reaches, one
-hold per entry, release rules, and refused messages (unsigned, forged, unknown role, stale,
-replayed)."""
+"""Hand-over of holds between the monitors of one cell, the pure part (monitor/tracking/handover.py)
+and the gate of the bus edge (monitor/bus/holds.py): which of my zones a departure reaches, one hold
+per entry, release rules, and refused messages (unsigned, forged, unknown role, stale, replayed)."""
 
 from __future__ import annotations
 
@@ -11,9 +10,11 @@ import numpy as np
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
 
 from monitor import zones as zn
-from monitor.bus_holds import HoldsGate, holds_payload
-from monitor.busconfig import BusKeys
-from monitor.handover import (
+from monitor.bus.holds import HoldsGate, holds_payload
+from monitor.policy.causes import frame_causes
+from monitor.scene import Camera
+from monitor.scene.cell import camera_calibration
+from monitor.tracking.handover import (
     MAX_ENTRIES,
     Entry,
     HandedHolds,
@@ -22,12 +23,10 @@ from monitor.handover import (
     silent_peers,
     zone_footprints,
 )
-from monitor.policy.causes import frame_causes
-from monitor.scene import Camera
-from monitor.scene.cell import camera_calibration
-from monitor.signing import Signer
-from monitor.tracks import PersonTracker, Track
+from monitor.tracking.tracks import PersonTracker, Track
 from monitor.types import Persons, ZoneHit, ZoneReport
+from monitor.wire.busconfig import BusKeys
+from monitor.wire.signing import Signer
 
 PREFIX = "workcell/th/"
 CAM_B = Camera.look_at("camB", (640, 360), np.array([[450.0, 0, 320], [0, 450.0, 180],

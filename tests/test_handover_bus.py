@@ -1,5 +1,5 @@
 """Hand-over holds on a real Zenoh bus (tcp/127.0.0.1): attacks on the *timing* of a peer's
-genuine, signed holds messages (monitor/bus_holds.py, docs/consumer.md "Trust")."""
+genuine, signed holds messages (monitor/bus/holds.py, docs/consumer.md "Trust")."""
 
 from __future__ import annotations
 
@@ -13,14 +13,14 @@ from collections.abc import Iterator
 import pytest
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
 
-from monitor.bus import BusConfig, SafetyBus, open_session
-from monitor.bus_holds import HoldsGate, HoldsLink, HoldsSender, holds_payload
-from monitor.busconfig import BusKeys
+from monitor.bus.holds import HoldsGate, HoldsLink, HoldsSender, holds_payload
+from monitor.bus.session import BusConfig, SafetyBus, open_session
 from monitor.config import demo_cell_path
-from monitor.handover import Entry, HandoverConfig
 from monitor.pipeline import Pipeline
 from monitor.policy import PolicyConfig
-from monitor.signing import Signer
+from monitor.tracking.handover import Entry, HandoverConfig
+from monitor.wire.busconfig import BusKeys
+from monitor.wire.signing import Signer
 from monitor.zones import load_cell
 from tests.helpers import free_port, wait_for
 
@@ -86,7 +86,7 @@ def test_a_peer_stream_held_back_seconds_is_silent_not_all_clear(detector, late_
 def test_a_signed_message_with_a_nan_wall_time_is_outside_the_window():
     """json reads NaN: ``abs(NaN - now) > window`` is False, so the first version took a
     message with ``"wall": NaN`` as inside any clock window (and as heard now). NaN is now
-    refused before any field is read (monitor/payload.py): invalid, never heard."""
+    refused before any field is read (monitor/wire/payload.py): invalid, never heard."""
     gate = HoldsGate("ho", "workcell/ho/", "monitor-b", {"monitor-a": KEY_A.public_key()})
     key = BusKeys.of("workcell/ho/", "monitor-a").holds
     body = json.loads(holds_payload("ho", "monitor-a", "b", 1, 1000.0,

@@ -20,7 +20,7 @@ import yaml
 
 from monitor.scene import Camera
 from monitor.scene.cell import SCENE_CAMERA, CellScene, Walker, camera_calibration
-from monitor.signing import load_public_key, new_key_pair
+from monitor.wire.signing import load_public_key, new_key_pair
 from tests.helpers import free_port
 from tests.processes import CAPACITY, CellConsumer, Monitor, one_inference_thread
 

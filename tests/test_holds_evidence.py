@@ -6,9 +6,9 @@ from __future__ import annotations
 
 import pytest
 
-from monitor import scenarios as sc
 from monitor.pipeline import Pipeline
 from monitor.policy import STOP, PolicyConfig, ResetRequest
+from monitor.replay import scenarios as sc
 from monitor.types import Fault, FrameInfo
 from monitor.zones import parse_cell
 

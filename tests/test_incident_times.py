@@ -13,7 +13,6 @@ import av
 import numpy as np
 import pytest
 
-from monitor.annotate import HEADER_PX, annotate
 from monitor.driver import Step
 from monitor.frames import Frame
 from monitor.incidents import RecorderConfig
@@ -21,6 +20,7 @@ from monitor.incidents.recorder import IncidentRecorder
 from monitor.incidents.store import RECORD
 from monitor.pipeline import StepResult
 from monitor.policy import PolicyConfig, step
+from monitor.records.annotate import HEADER_PX, annotate
 from monitor.timetext import wall_iso
 from monitor.types import FrameInfo
 from tests.policy_kit import frame, prot, warmed

@@ -32,7 +32,7 @@ from monitor.incidents.store import IncidentStore
 from monitor.incidents.triggers import Triggers
 from monitor.pipeline import StepResult
 from monitor.policy import Command, Reason, ResetOutcome
-from monitor.replay import ReplaySettings, replay
+from monitor.replay.video import ReplaySettings, replay
 from monitor.scene import DemoScene, write_video
 from monitor.types import Alert, Fault, FrameInfo
 from monitor.zones import load_cell

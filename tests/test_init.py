@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from monitor.config import load_config
-from monitor.signing import load_operators, load_private_key
+from monitor.wire.signing import load_operators, load_private_key
 from tests.helpers import free_port, run_here, run_monitor
 
 POLY = "40,40 600,40 600,440 40,440"

@@ -16,9 +16,9 @@ from monitor.adapters import modbus_map as mm
 from monitor.adapters.modbus import ModbusOutput
 from monitor.adapters.opcua import NAMESPACE, OpcUaOutput, OpcUaSettings, node_id
 from monitor.adapters.snapshot import snapshot_of
-from monitor.consumer import Verdict
 from monitor.policy import PolicyConfig, Reason, step
 from monitor.timetext import wall_clock
+from monitor.wire.consumer import Verdict
 from tests.helpers import free_port, wait_for
 from tests.plc_kit import Plc
 from tests.policy_kit import frame, prot, warmed, warn

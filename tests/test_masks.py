@@ -180,7 +180,7 @@ def test_an_uncalibrated_mask_near_a_protective_zone_is_warned_about():
 
 
 def _scenario_cell(name: str) -> zn.Cell:
-    from monitor import scenarios as sc
+    from monitor.replay import scenarios as sc
 
     return zn.parse_cell(sc.select([name])[0].zone_data())
 
@@ -207,7 +207,7 @@ def test_a_tight_and_a_loose_mask_are_graded_by_the_person_that_could_stand_ther
 def test_mask_grades_follow_the_person_size_at_that_depth():
     """The same outline is a person's size near the camera and larger than anyone far away;
     a small one is smaller than anyone."""
-    from monitor import scenarios as sc
+    from monitor.replay import scenarios as sc
 
     data = sc.select(["mask-tight-behind"])[0].zone_data()
     (mask,) = [z for z in data["zones"] if z["kind"] == "mask"]
@@ -251,8 +251,8 @@ def test_volume_masks_count_through_their_image_outline():
 def test_zones_validate_grades_masks(tmp_path, capsys):
     import json
 
-    from monitor import scenarios as sc
     from monitor.cli import main
+    from monitor.replay import scenarios as sc
 
     words = {}
     for name in ("mask-tight-front", "mask-loose-front"):

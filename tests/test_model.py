@@ -9,8 +9,8 @@ import onnx
 import pytest
 from monitor.models import synthetic
 
-from monitor.accuracy import Accuracy, cell_tolerance_px, score_frame
 from monitor.scene import WORKWEAR_BGR, Figure, draw_figure, random_frames
+from monitor.scene.accuracy import Accuracy, cell_tolerance_px, score_frame
 
 # The bytes of the default build; change only together with models/README.md.
 EXPECTED_SHA256 = "9b0fa13cf5ccb14834e90969fffd3f446781de9fc4aa26325148f6bcb0302ee3"

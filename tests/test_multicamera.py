@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 import yaml
 
-from monitor.annotate import Annotator
 from monitor.config import demo_cell_path, parse_config
 from monitor.errors import ConfigError
 from monitor.pipeline import Pipeline
 from monitor.policy import PolicyConfig
+from monitor.records.annotate import Annotator
 from monitor.scene import DemoScene, Figure, draw_figure
 from monitor.types import FrameInfo
 from monitor.zones import load_cell

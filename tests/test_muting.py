@@ -8,8 +8,8 @@ import copy
 
 import pytest
 
+from monitor.cases.muting import DEFAULT_MUTED_SCALE, MuteRequest, Mutes, mute_rules
 from monitor.errors import ConfigError
-from monitor.muting import DEFAULT_MUTED_SCALE, MuteRequest, Mutes, mute_rules
 from monitor.pipeline import Pipeline
 from monitor.policy import PolicyConfig
 from monitor.scene.cell import CellScene, Walker, zone_data

@@ -11,9 +11,9 @@ import sys
 import pytest
 import yaml
 
+from monitor.cases.mute_requests import mute_payload, request_mute
 from monitor.config import demo_cell_path
-from monitor.mute_requests import mute_payload, request_mute
-from monitor.signing import load_private_key, new_key_pair
+from monitor.wire.signing import load_private_key, new_key_pair
 from tests.processes import Service, wait_for
 
 

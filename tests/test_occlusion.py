@@ -15,8 +15,8 @@ import pytest
 import shapely
 
 from monitor import geometry as geo
-from monitor import occlusion as occ
 from monitor import zones as zn
+from monitor.geometry import occlusion as occ
 from monitor.scene import DEMO_CAMERA
 from monitor.types import ZoneHit, ZoneReport
 

@@ -204,7 +204,7 @@ def test_a_captured_confirm_clear_reset_never_releases_a_restarted_monitors_latc
     inside. The reset names the old run's latch nonce: refused (naming that nonce), and it
     drops no hold; a reset naming the latch of now works as before."""
     from monitor.policy import ResetRequest
-    from monitor.resets import LatchNonces
+    from monitor.wire.resets import LatchNonces
 
     empty, inside = _empty_frame(), _inside_frame()
 

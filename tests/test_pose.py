@@ -15,8 +15,8 @@ import time
 import pytest
 import zenoh
 
-from monitor.bus import BusConfig, BusKeys, open_session
-from monitor.pose import (
+from monitor.bus.session import BusConfig, BusKeys, open_session
+from monitor.pose.stream import (
     OTUS_SIZE,
     REJECT_REASONS,
     OtusSample,
@@ -272,7 +272,7 @@ def test_udp_to_zenoh_bridge_with_real_sockets():
 
 
 def test_safety_bus_pose_subscriber_feeds_pose_time():
-    from monitor.bus import SafetyBus
+    from monitor.bus.session import SafetyBus
 
     port = free_port()
     cfg = BusConfig(cell="ps", instance="m", listen=(f"tcp/127.0.0.1:{port}",))
@@ -390,11 +390,12 @@ def test_bridge_with_a_subscriber_does_not_warn():
 
 
 def test_the_documented_packet_layout_is_the_codecs():
-    """docs/otus.md's table, row by row, against monitor.pose: byte range, order and field."""
+    """docs/otus.md's table, row by row, against monitor.pose.stream: byte range, order and
+    field."""
     import re
     from pathlib import Path
 
-    from monitor.pose import OTUS_FORMAT
+    from monitor.pose.stream import OTUS_FORMAT
 
     doc = (Path(__file__).resolve().parents[1] / "docs" / "otus.md").read_text(encoding="utf-8")
     rows = re.findall(r"^\| (\d+)-(\d+) \| ([^|]+) \| `([a-z_0-9]+)(?:\[(\d)\])?` \|", doc, re.M)

@@ -17,9 +17,9 @@ import pytest
 from monitor.config import parse_config
 from monitor.errors import ConfigError
 from monitor.geometry.calibration_quality import TrackerNoise
-from monitor.pose import OtusSample, PoseLimits, PoseSubscriber, check_step, pose_to_json
-from monitor.tool_motion import MotionLimits
-from monitor.tracker_noise import TrackerConfig
+from monitor.pose.stream import OtusSample, PoseLimits, PoseSubscriber, check_step, pose_to_json
+from monitor.pose.tool_motion import MotionLimits
+from monitor.pose.tracker_noise import TrackerConfig
 
 HZ = 400.0
 ZERO = (0.0, 0.0, 0.0)

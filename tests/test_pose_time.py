@@ -14,11 +14,11 @@ import time
 
 import pytest
 
-from monitor.bus import BusConfig, BusKeys, open_session
+from monitor.bus.session import BusConfig, BusKeys, open_session
 from monitor.config import parse_config
 from monitor.errors import ConfigError
-from monitor.pose import MotionLimits, OtusSample, PoseSubscriber, pose_to_json
-from monitor.pose_time import TrackerClock, TrackerClockConfig
+from monitor.pose.stream import MotionLimits, OtusSample, PoseSubscriber, pose_to_json
+from monitor.pose.tracker_time import TrackerClock, TrackerClockConfig
 from tests.helpers import free_port
 
 HZ = 400.0

@@ -92,17 +92,17 @@ def test_no_module_of_monitor_uses_another_modules_private_name():
 def test_the_checker_names_each_kind_of_private_use_in_a_scratch_tree(tmp_path):
     pkg = tmp_path / "monitor" / "geometry"
     pkg.mkdir(parents=True)
-    for name in ("monitor/__init__.py", "monitor/boxes.py", "monitor/geometry/polygons.py",
+    for name in ("monitor/__init__.py", "monitor/geometry/boxes.py", "monitor/geometry/polygons.py",
                  "monitor/geometry/camera.py", "monitor/geometry/poses.py"):
         (tmp_path / name).write_text("def _helper():\n    return 0\n")
     (pkg / "scratch.py").write_text(
         "from monitor.geometry.polygons import points_in_polygon, _helper\n"
         "from . import camera\n"
         "import monitor.geometry.poses as poses\n"
-        "import monitor.boxes\n\n\n"
+        "import monitor.geometry.boxes\n\n\n"
         "def _own():\n    return 1\n\n\n"
         "def use():\n"
-        "    return (camera._hidden, poses._other, monitor.boxes._deep, _own(),\n"
+        "    return (camera._hidden, poses._other, monitor.geometry.boxes._deep, _own(),\n"
         "            points_in_polygon, _helper)\n")
     (pkg / "__init__.py").write_text("from monitor.geometry.scratch import _own, use\n"
                                      "from .camera import _helper as helper\n")
@@ -113,5 +113,5 @@ def test_the_checker_names_each_kind_of_private_use_in_a_scratch_tree(tmp_path):
         "monitor/geometry/scratch.py:1: from monitor.geometry.polygons import _helper",
         "monitor/geometry/scratch.py:12: monitor.geometry.camera._hidden",
         "monitor/geometry/scratch.py:12: monitor.geometry.poses._other",
-        "monitor/geometry/scratch.py:12: monitor.boxes._deep",
+        "monitor/geometry/scratch.py:12: monitor.geometry.boxes._deep",
     ]), found  # a module's own private names (_own in scratch.py) are its own business

@@ -14,10 +14,9 @@ import pytest
 from monitor.models import synthetic
 from onnx import TensorProto
 
-from monitor import quantize
-from monitor.accuracy import Accuracy, cell_tolerance_px, score_frame
-from monitor.detector import Detector
+from monitor.detector import Detector, quantize
 from monitor.scene import random_frames
+from monitor.scene.accuracy import Accuracy, cell_tolerance_px, score_frame
 from tests.helpers import run_monitor
 from tests.onnx_models import bright_squares, yolov8_like
 
@@ -95,7 +94,7 @@ def test_cli_refuses_below_the_agreement_threshold_then_writes(tmp_path, model25
     assert out.is_file() and f"wrote {out}" in proc.stdout
     assert re.search(r"^fp32 only \(int8 misses\) +0$", proc.stdout, re.M), proc.stdout
     # the passed check is recorded beside it: monitor run recommends only such a file
-    from monitor.int8hint import check_passed
+    from monitor.service.int8hint import check_passed
 
     assert check_passed(out)[0], check_passed(out)[1]
     proc = run("model", "quantize", model256, "--frames", frames_dir, "--out", out,

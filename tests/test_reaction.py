@@ -1,5 +1,5 @@
-"""The reaction-time budget, measured (monitor/reaction.py): the arithmetic, the crossing logic
-of the alert, and `monitor run` alerting at start when its measured budget exceeds its T_r."""
+"""The reaction-time budget, measured (monitor/geometry/reaction.py): the arithmetic, the crossing
+logic of the alert, and `monitor run` alerting at start when its measured budget exceeds its T_r."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import cv2
 import pytest
 
 from monitor.geometry import SeparationParams, protective_separation_m
-from monitor.reaction import (
+from monitor.geometry.reaction import (
     ALERT_KIND,
     Allowances,
     MeasuredBudget,
@@ -157,7 +157,7 @@ def test_run_alerts_at_start_when_measured_budget_exceeds_tr(tmp_path, synthetic
     """T_r from a tight config (0.3 + 0.3 + 0.05 + ttl 0.3 + consumer 0 + pose 0.05 = 1.0 s),
     a camera that delivers one frame a second: the measured budget is at least 1 s of frame
     interval + 1 s of frame age + ttl, far over T_r on any machine; load only adds to it."""
-    from monitor.bus import BusConfig, BusKeys, open_session
+    from monitor.bus.session import BusConfig, BusKeys, open_session
     from monitor.config import demo_cell_path
     from tests.helpers import free_port
     from tests.processes import Monitor
@@ -217,8 +217,8 @@ def test_int8_hint_recommends_only_a_checked_file(tmp_path, synthetic_model, det
     import shutil
 
     from monitor.detector import Detector
-    from monitor.int8hint import check_passed, int8_hint, record_path, write_record
-    from monitor.quantize import Agreement
+    from monitor.detector.quantize import Agreement
+    from monitor.service.int8hint import check_passed, int8_hint, record_path, write_record
 
     model = tmp_path / "m.onnx"
     int8 = tmp_path / "m.int8.onnx"

@@ -18,7 +18,7 @@ import pytest
 from monitor.config import demo_cell_path
 from monitor.pipeline import StepResult
 from monitor.policy import RUN, SLOW, STOP, PolicyConfig
-from monitor.replay import ReplaySettings, replay
+from monitor.replay.video import ReplaySettings, replay
 from monitor.scene import DEMO_CAMERA, DemoScene, FrameTruth, write_video
 from monitor.zones import Cell, check_persons, load_cell
 from tests.helpers import assert_one_line_error, run_monitor
@@ -326,7 +326,7 @@ def test_replay_publish_sends_the_commands_over_zenoh(synthetic_model, tmp_path)
     import socket
     import time
 
-    from monitor.bus import BusConfig, BusKeys, open_session
+    from monitor.bus.session import BusConfig, BusKeys, open_session
 
     scene = DemoScene(fps=5.0, duration_s=9.0)
     video = tmp_path / "walk-in.mp4"

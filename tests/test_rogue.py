@@ -19,10 +19,10 @@ import time
 
 import pytest
 
-from monitor.bus import BusConfig, BusKeys, DuplicateMonitor, SafetyBus, open_session
+from monitor.bus.session import BusConfig, BusKeys, DuplicateMonitor, SafetyBus, open_session
 from monitor.policy import Command, Latch, Reason, ResetOutcome
-from monitor.resets import LatchNonces, latch_of_status, request_reset, reset_payload
-from monitor.signing import load_private_key, new_key_pair
+from monitor.wire.resets import LatchNonces, latch_of_status, request_reset, reset_payload
+from monitor.wire.signing import load_private_key, new_key_pair
 from tests.helpers import free_port, wait_for
 
 CELL = "rogue"
@@ -339,7 +339,7 @@ def test_a_monitor_appearing_later_makes_both_stop_with_a_duplicate_monitor_faul
 
 
 def test_the_default_instance_id_is_unique_per_process():
-    out = subprocess.run([sys.executable, "-c", "from monitor.bus import BusConfig; "
+    out = subprocess.run([sys.executable, "-c", "from monitor.bus.session import BusConfig; "
                           "print(BusConfig().instance)"], capture_output=True, text=True,
                          timeout=60)
     here = BusConfig().instance

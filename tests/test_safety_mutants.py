@@ -13,7 +13,7 @@ import pytest
 
 from monitor import geometry as geo
 from monitor import zones as zn
-from monitor.bus import COMMAND_SCHEMA, CommandWatchdog, Verdict
+from monitor.bus.session import COMMAND_SCHEMA, CommandWatchdog, Verdict
 from monitor.config import demo_cell_path
 from monitor.health import CameraHealth, HealthConfig
 from monitor.pipeline import Pipeline
@@ -108,7 +108,8 @@ def test_bug_unplaceable_person_has_tool_separation_zero():
     assert placed.tool_separation_m > 1.0
 
 
-# --- the consumer watchdog (monitor/bus.py CommandWatchdog) ---------------------------------------
+# --- the consumer watchdog (monitor/bus/session.py CommandWatchdog)
+# ---------------------------------------
 
 ALIVE = "workcell/t/safety/alive/mon1"
 

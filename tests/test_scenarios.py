@@ -12,7 +12,7 @@ import dataclasses
 
 import pytest
 
-from monitor import scenarios as sc
+from monitor.replay import scenarios as sc
 
 FPS = 5.0
 

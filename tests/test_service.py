@@ -12,10 +12,10 @@ import urllib.request
 
 import pytest
 
-from monitor.bus import reset_payload
+from monitor.bus.session import reset_payload
 from monitor.config import demo_cell_path
 from monitor.policy import PolicyConfig
-from monitor.resets import latch_of_status, signed_reset
+from monitor.wire.resets import latch_of_status, signed_reset
 from monitor.zones import load_cell
 from tests.cameras import MjpegCamera, demo_jpegs
 from tests.helpers import assert_one_line_error, free_port, run_here
@@ -181,7 +181,7 @@ def test_metrics_are_per_camera_and_the_state_is_readable():
     stalls); the state is monitor_state{state="STOP"} 1, not a bare number."""
     from prometheus_client import generate_latest
 
-    from monitor.metrics import CameraFigures, Metrics
+    from monitor.service.metrics import CameraFigures, Metrics
 
     m = Metrics(0, "127.0.0.1")
     m.update("SLOW", [CameraFigures("cam0", 15.0, 12.5, 3, True, 2),

@@ -1,6 +1,6 @@
-"""The checks every signed request shares (monitor.signed_requests): signer, cell, clock window,
-request ids. Each gate's own tests (resets, mutes, zone applies, selections) check the wording
-their users see; these check the rules themselves, once."""
+"""The checks every signed request shares (monitor.wire.signed_requests): signer, cell, clock
+window, request ids. Each gate's own tests (resets, mutes, zone applies, selections) check the
+wording their users see; these check the rules themselves, once."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import math
 import pytest
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
 
-from monitor.signed_requests import (
+from monitor.wire.signed_requests import (
     MAX_REMEMBERED,
     RequestIds,
     RequestKind,
@@ -17,7 +17,7 @@ from monitor.signed_requests import (
     check_signer,
     check_window,
 )
-from monitor.signing import Signer
+from monitor.wire.signing import Signer
 
 
 class Refused(ValueError):
@@ -80,7 +80,7 @@ def test_request_ids_refuse_a_replay_and_stay_bounded() -> None:
 
 
 def test_the_verify_budget_allows_a_burst_then_its_rate() -> None:
-    from monitor.verify_budget import VerifyBudget
+    from monitor.wire.verify_budget import VerifyBudget
 
     budget = VerifyBudget(per_s=4.0)
     assert sum(budget.take(100.0) for _ in range(50)) == 4  # the burst, then nothing

@@ -10,10 +10,10 @@ import sys
 
 import pytest
 
-from monitor.consumer import CommandWatchdog, parse_command
 from monitor.errors import ConfigError
-from monitor.resets import ResetGate, ResetPolicy, ResetRefused, reset_payload
-from monitor.signing import (
+from monitor.wire.consumer import CommandWatchdog, parse_command
+from monitor.wire.resets import ResetGate, ResetPolicy, ResetRefused, reset_payload
+from monitor.wire.signing import (
     load_operators,
     load_private_key,
     load_public_key,
@@ -187,7 +187,7 @@ def test_a_reset_without_a_latch_nonce_or_boot_is_refused(keys, missing, reason)
 
 
 def test_latch_nonces_are_unique_per_latch_and_per_run():
-    from monitor.resets import LatchNonces
+    from monitor.wire.resets import LatchNonces
 
     run1, run2 = LatchNonces("boot-1"), LatchNonces("boot-1")  # even with a repeated boot id
     nonces = {run1(1), run1(2), run2(1), run2(2)}
@@ -321,7 +321,7 @@ def test_two_live_monitors_on_a_cell_mean_stop(keys):
 def test_parse_command_names_the_bad_field():
     with pytest.raises(ValueError, match="ttl_ms"):
         parse_command(command(1, ttl=-5))
-    # NaN is refused by the bounded decoder before any field is read (monitor/payload.py)
+    # NaN is refused by the bounded decoder before any field is read (monitor/wire/payload.py)
     with pytest.raises(ValueError, match="NaN is not a number"):
         parse_command(command(1, ttl=float("nan")))
 

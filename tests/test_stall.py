@@ -10,7 +10,7 @@ import time
 
 import pytest
 
-from monitor.bus import BusConfig, BusKeys, open_session
+from monitor.bus.session import BusConfig, BusKeys, open_session
 from tests.processes import Monitor, wait_for, write_config
 
 FREEZE_S = 2.5

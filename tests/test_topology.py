@@ -14,11 +14,11 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from monitor.bus import BusConfig, BusKeys, SafetyBus, open_session
-from monitor.consumer import CommandWatchdog
+from monitor.bus.session import BusConfig, BusKeys, SafetyBus, open_session
 from monitor.policy import Command, Latch
-from monitor.resets import LatchNonces, reset_payload
-from monitor.signing import load_private_key, load_public_key, new_key_pair
+from monitor.wire.consumer import CommandWatchdog
+from monitor.wire.resets import LatchNonces, reset_payload
+from monitor.wire.signing import load_private_key, load_public_key, new_key_pair
 from tests.helpers import free_port, wait_for
 from tests.tls import make_tls
 
@@ -150,8 +150,8 @@ def test_router_acl_gives_each_role_the_rights_of_the_cells_only_monitor(tmp_pat
     token, status, reset and mute queryables) work; a read-only user can neither command nor
     hold for a role, nor send an operator's correctly signed reset or mute; the cell router's
     monitor user cannot command another cell."""
-    from monitor.cell_consumer import CellWatchdog
-    from monitor.mute_requests import mute_payload
+    from monitor.cases.mute_requests import mute_payload
+    from monitor.wire.cell_consumer import CellWatchdog
 
     tls = make_tls(tmp_path)
     users = {**USERS, "rogue": "r-pw"}

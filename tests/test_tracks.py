@@ -1,5 +1,5 @@
 """Person tracks: persistent ids (names), and where a lost person could be keeps the zones it
-touches occupied until the camera has seen them free (monitor/whereabouts.py)."""
+touches occupied until the camera has seen them free (monitor/tracking/whereabouts.py)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import pytest
 
 from monitor import zones as zn
 from monitor.timetext import seconds
-from monitor.tracks import PersonTracker, lost_person_index
+from monitor.tracking.tracks import PersonTracker, lost_person_index
 from monitor.types import FrameInfo, Persons, ZoneReport
 
 W, H = 1280, 720

@@ -9,9 +9,9 @@ import os
 
 import pytest
 
+from monitor.bus.foreign import ForeignCommands
 from monitor.errors import ConfigError
-from monitor.foreign import ForeignCommands
-from monitor.signing import load_operators, load_private_key, load_public_key, new_key_pair
+from monitor.wire.signing import load_operators, load_private_key, load_public_key, new_key_pair
 from tests.helpers import (
     assert_one_line,
     assert_one_line_error,
@@ -169,9 +169,9 @@ def test_without_a_signing_key_any_well_formed_command_of_another_boot_is_a_seco
 def test_the_watch_inbox_stays_bounded_under_a_flood_and_the_newest_command_wins():
     import zenoh
 
-    from monitor.bus import BusConfig, BusKeys, open_session
+    from monitor.bus.session import BusConfig, BusKeys, open_session
     from monitor.cli.watch import _watch_subscriptions
-    from monitor.inbox import Inbox
+    from monitor.wire.inbox import Inbox
 
     port = free_port()
     keys = BusKeys.of("workcell/flood/")
@@ -216,7 +216,7 @@ def _seq(entry) -> int | None:
 
 
 def test_a_command_later_than_clock_sync_plus_ttl_is_dropped_the_window_is_the_declared_sync():
-    from monitor.consumer import CommandWatchdog
+    from monitor.wire.consumer import CommandWatchdog
 
     def late(seconds: float, **kw) -> str | None:
         dog = CommandWatchdog(max_ttl_ms=1000, require_liveliness=False, cell="c1", **kw)

@@ -14,7 +14,7 @@ import time
 
 import pytest
 
-from monitor.bus import BusConfig, BusKeys, open_session
+from monitor.bus.session import BusConfig, BusKeys, open_session
 from tests.helpers import free_port
 
 TTL_MS = 300
@@ -23,7 +23,7 @@ HZ = 10.0
 
 def publisher_main(port: int, cell: str) -> None:
     """The service side: a pipeline loop handing a command to SafetyBus every 50 ms."""
-    from monitor.bus import BusConfig, SafetyBus
+    from monitor.bus.session import BusConfig, SafetyBus
     from monitor.policy import Command, Reason
 
     script = [("RUN", 1.0), ("SLOW", 0.5), ("STOP", 0.0), ("RUN", 1.0)]
@@ -190,9 +190,9 @@ def test_bus_cli_errors_are_one_line():
 def test_router_status_and_reset_commands_through_a_router(tmp_path):
     """`monitor router` as the hub; the monitor and the CLI tools are clients of it. `monitor
     reset` waits for the monitor's answer: exit 0 accepted, 1 refused (with the reason)."""
-    from monitor.bus import SafetyBus
+    from monitor.bus.session import SafetyBus
     from monitor.policy import Command, Latch, ResetOutcome
-    from monitor.resets import LatchNonces
+    from monitor.wire.resets import LatchNonces
 
     port = free_port()
     router = subprocess.Popen(
@@ -288,9 +288,9 @@ def test_the_demos_unsigned_reset_is_bound_to_the_latch_too(tmp_path):
     """The embedded demo accepts resets without operator keys: `monitor reset` still reads the
     latch nonce from the status and sends it, so the unsigned reset releases only that latch;
     a copy of it sent after the next latch is refused naming its stale nonce."""
-    from monitor.bus import SafetyBus
+    from monitor.bus.session import SafetyBus
     from monitor.policy import Command, Latch, ResetOutcome
-    from monitor.resets import LatchNonces, request_reset, reset_payload
+    from monitor.wire.resets import LatchNonces, request_reset, reset_payload
 
     port = free_port()
     cfg = BusConfig(cell="demo", instance="mon-demo", listen=(f"tcp/127.0.0.1:{port}",),

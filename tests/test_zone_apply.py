@@ -1,9 +1,9 @@
 """A changed zone file reaches the running service only through an operator's signed apply
-(monitor/zone_apply.py, monitor/zone_swap.py): a `monitor run` process watching a person who
-stands in the warning area; a new protective zone around them gives STOP after the signed apply
-and not before, every command then names the new zone set; an unsigned apply, one by an
-unknown operator, one whose file changed after signing and one of an invalid file are refused
-with a one-line reason and the old zones stay in force."""
+(monitor/cases/zone_apply.py, monitor/service/zone_swap.py): a `monitor run` process watching a
+person who stands in the warning area; a new protective zone around them gives STOP after the signed
+apply and not before, every command then names the new zone set; an unsigned apply, one by an
+unknown operator, one whose file changed after signing and one of an invalid file are refused with a
+one-line reason and the old zones stay in force."""
 
 from __future__ import annotations
 
@@ -14,10 +14,10 @@ from pathlib import Path
 
 import pytest
 
+from monitor.cases.zone_apply import apply_payload, request_apply
 from monitor.config import demo_cell_path
 from monitor.scene import DemoScene, write_video
-from monitor.signing import load_private_key, new_key_pair
-from monitor.zone_apply import apply_payload, request_apply
+from monitor.wire.signing import load_private_key, new_key_pair
 from monitor.zones import load_cell
 from tests.helpers import run_monitor
 from tests.processes import Service, codes

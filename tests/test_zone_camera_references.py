@@ -13,14 +13,14 @@ import pytest
 
 from monitor import cli
 from monitor import zones as zn
-from monitor.camera_references import (
+from monitor.config import parse_config
+from monitor.errors import ConfigError
+from monitor.health.references import (
     CONFIG,
     ZONE_FILE,
     choose_reference,
     reference_warnings,
 )
-from monitor.config import parse_config
-from monitor.errors import ConfigError
 from monitor.scene import write_video
 from tests.helpers import one_error_line as one_line_error
 from tests.helpers import zones_cli as zones
@@ -161,7 +161,7 @@ def test_the_service_pipeline_checks_with_the_zone_file_reference(cell, tmp_path
     """``build_pipeline`` (what ``monitor run`` starts from) gives cam0's health checker the
     zone file's image, not monitor.toml's; a zone file image replaced by one of another size
     since is refused at start in one line."""
-    from monitor.service_setup import build_pipeline
+    from monitor.service.setup import build_pipeline
 
     zone_ref = image(tmp_path / "zone.png", level=30)
     image(tmp_path / "config.png", level=220)

@@ -86,7 +86,7 @@ def test_a_hidden_feet_persons_tool_separation_never_exceeds_the_true_distance(g
     every 0.1 m and then takes half a step off: the separation it reports is a lower bound of
     the true distance (never more), and no more than half a step below it. The tool stands on
     the range's line beyond its near end, so the true distance is known exactly."""
-    from monitor import occlusion as occ
+    from monitor.geometry import occlusion as occ
 
     cell = load_cell(demo_cell_path())
     prep, cam = cell.prepared, cell.cameras["cam0"]

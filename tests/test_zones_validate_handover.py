@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from monitor import cli
-from monitor.signing import new_key_pair
+from monitor.wire.signing import new_key_pair
 
 DEMO = Path(__file__).resolve().parents[1] / "zones" / "demo-cell.yaml"
 UNCALIBRATED = "  - id: cam1\n    width: 1280\n    height: 720\n\nzones:"

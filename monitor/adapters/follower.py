@@ -18,9 +18,9 @@ from collections.abc import Callable, Sequence
 import zenoh
 
 from monitor.adapters.snapshot import Output, SafetySnapshot, snapshot_of
-from monitor.cell_consumer import CellWatchdog
-from monitor.consumer import CommandWatchdog
-from monitor.inbox import Inbox
+from monitor.wire.cell_consumer import CellWatchdog
+from monitor.wire.consumer import CommandWatchdog
+from monitor.wire.inbox import Inbox
 
 log = logging.getLogger("monitor.adapters")
 

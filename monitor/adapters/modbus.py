@@ -350,7 +350,7 @@ def check_arguments(args: argparse.Namespace) -> None:
 
 
 def make_outputs(args: argparse.Namespace, session, keys) -> list:
-    from monitor.pose import parse_host_port
+    from monitor.pose.stream import parse_host_port
 
     host, port = parse_host_port(args.modbus_listen, 5020)
     if not is_loopback(host) and not args.allow_network:
@@ -370,7 +370,7 @@ def make_outputs(args: argparse.Namespace, session, keys) -> list:
     case_sets = parse_case_sets(args)
     signer = case_signer = None
     if args.inputs:
-        from monitor.signing import load_private_key
+        from monitor.wire.signing import load_private_key
 
         if (args.reset_operator or args.reset_key or not case_sets) \
                 and (not args.reset_operator or not args.reset_key):
@@ -487,8 +487,8 @@ class AlertSender:
         self.lock = threading.Lock()
 
     def __call__(self, alert: Alert) -> None:
-        from monitor.alerts import alert_to_dict
-        from monitor.bus import ALERT_SCHEMA
+        from monitor.bus.session import ALERT_SCHEMA
+        from monitor.wire.alerts import alert_to_dict
 
         log.warning("alert %s: %s", alert.kind, alert.message)
         with self.lock:
@@ -504,7 +504,7 @@ def send_reset(session, keys, signer, operator: str, cell: str, peer: str,
                timeout: float) -> tuple[str, str]:
     """An operator reset for the latch the monitor publishes now, signed with ``signer``:
     ("accepted" | "refused" | "no_answer", reason). The monitor checks it like any reset."""
-    from monitor.resets import latch_of_status, request_reset, reset_payload
+    from monitor.wire.resets import latch_of_status, request_reset, reset_payload
 
     status = None
     for reply in session.get(keys.status, timeout=timeout):

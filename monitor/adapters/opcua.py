@@ -40,7 +40,7 @@ DEFAULT_STALE_MS = 250.0
 DEFAULT_HANDSHAKE_S = 3.0  # a connection without an activated session is closed after this
 OBJECT = "WorkcellMonitor"
 SSM = "SafetyStateManagement"  # the OPC 40100-1 SafetyStateManagementType's instance name
-# the consumer rule's own verdicts (monitor.consumer): nothing is known about cameras then
+# the consumer rule's own verdicts (monitor.wire.consumer): nothing is known about cameras then
 OVERRIDES = frozenset({"no_command", "ttl", "sequence", "liveliness", "duplicate_monitor",
                        "adapter_stale"})
 # written together, first when the state gets safer and last when it gets less safe

@@ -6,7 +6,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Protocol
 
-from monitor.consumer import Verdict
+from monitor.wire.consumer import Verdict
 
 STATE_CODE = {"STOP": 0, "SLOW": 1, "RUN": 2}  # register / variable values of the state
 # notes a command carries in its reasons while they hold, after the causes: never the cause of

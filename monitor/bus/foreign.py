@@ -25,10 +25,10 @@ import threading
 
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PublicKey
 
-from monitor.consumer import parse_command
-from monitor.signing import SIGNATURE_BYTES, verify
 from monitor.types import Alert
-from monitor.verify_budget import VerifyBudget
+from monitor.wire.consumer import parse_command
+from monitor.wire.signing import SIGNATURE_BYTES, verify
+from monitor.wire.verify_budget import VerifyBudget
 
 KINDS = ("unsigned", "signature", "unchecked", "invalid", "replayed", "stale")
 

@@ -1,15 +1,16 @@
-"""Hand-over of holds on the bus: the Zenoh edge of ``monitor.handover`` (docs/consumer.md).
+"""Hand-over of holds on the bus: the Zenoh edge of ``monitor.tracking.handover``
+(docs/consumer.md).
 
 A monitor with ``[handover] peers`` publishes, at the bus's heartbeat rate, its holds of persons
 lost inside zones and its recent departures on ``<prefix>safety/<role>/holds``, signed with its
-command key (``monitor.signing``; the payload names cell, role, boot, seq and wall), and takes
+command key (``monitor.wire.signing``; the payload names cell, role, boot, seq and wall), and takes
 its peers' verified entries into ``Pipeline.handover`` (the loop's thread, as a driver sink).
 
 It listens on every role's holds key: a message on the key of a role it does not expect,
 unsigned, wrongly signed, malformed, for another cell, outside the clock window or replayed
 (``seq`` not growing within one boot) is refused and counted (``holds_refused`` in the status,
-one ``foreign_holds`` alert per burst), like forged commands (``monitor.foreign``). A message can
-only add holds, never end one; a peer that falls silent ends nothing either.
+one ``foreign_holds`` alert per burst), like forged commands (``monitor.bus.foreign``). A message
+can only add holds, never end one; a peer that falls silent ends nothing either.
 
 A flood cannot keep the genuine peer from being verified (issue 31: 64 zero bytes as
 "signatures" spent the one shared budget of 100 checks/s, the peer went unverified, a latched
@@ -41,9 +42,7 @@ from collections.abc import Callable, Mapping
 import zenoh
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PublicKey
 
-from monitor import payload as payload_json
-from monitor.busconfig import BusKeys
-from monitor.handover import (
+from monitor.tracking.handover import (
     HANDOVER_SCHEMA,
     MAX_ENTRIES,
     Entry,
@@ -52,12 +51,14 @@ from monitor.handover import (
     overflow_entry,
     silent_peers,
 )
-from monitor.handover import entries_of as _entries_of
-from monitor.signing import SIGNATURE_BYTES, Signer, verify
+from monitor.tracking.handover import entries_of as _entries_of
 from monitor.types import Alert, Fault
-from monitor.verify_budget import VerifyBudget
+from monitor.wire import payload as payload_json
+from monitor.wire.busconfig import BusKeys
+from monitor.wire.signing import SIGNATURE_BYTES, Signer, verify
+from monitor.wire.verify_budget import VerifyBudget
 
-_log = logging.getLogger("monitor.handover")
+_log = logging.getLogger("monitor.tracking.handover")
 KINDS = ("unknown_role", "unsigned", "signature", "unchecked", "invalid", "stale", "replayed")
 MAX_BOOTS = 64  # remembered (role, boot) seq counters: a flood cannot grow memory
 AHEAD = 8  # messages each one vouches for: up to AHEAD - 1 lost in a row stay vouched
@@ -347,7 +348,7 @@ class HoldsLink:
 
 def start_handover(config, pipeline, bus) -> HoldsLink | None:
     """The hand-over sink of ``monitor run`` (None without ``[handover] peers``)."""
-    from monitor.signing import load_private_key, load_public_key
+    from monitor.wire.signing import load_private_key, load_public_key
 
     peers = config.handover.peers
     if not peers:

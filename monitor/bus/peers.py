@@ -1,10 +1,10 @@
-"""One monitor per cell (per role), the bus's side (``monitor.bus.SafetyBus``).
+"""One monitor per cell (per role), the bus's side (``monitor.bus.session.SafetyBus``).
 
 At start the bus refuses to run when another monitor's liveliness token is present on the cell
 (``refuse_if_another``); later it reports ``duplicate_monitor`` (``faults``) and sends STOP
 (``guarded``) while another monitor's token or commands are seen. Only commands signed with this
 cell's monitor key count as another monitor's; unsigned or wrongly signed ones are counted and
-alerted (``monitor.foreign``).
+alerted (``monitor.bus.foreign``).
 """
 
 from __future__ import annotations
@@ -17,8 +17,8 @@ from collections.abc import Callable
 import zenoh
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PublicKey
 
+from monitor.bus.foreign import ForeignCommands
 from monitor.errors import ConfigError
-from monitor.foreign import ForeignCommands
 from monitor.policy import STOP, Command, Reason
 from monitor.types import Alert, Fault
 
@@ -119,7 +119,7 @@ class PeerWatch:
 
     def on_command(self, sample: zenoh.Sample, own_boot: str) -> None:
         """Commands on our key from another sender: a second monitor when signed with our key
-        (``monitor.foreign``), else counted and alerted."""
+        (``monitor.bus.foreign``), else counted and alerted."""
         try:
             signature = sample.attachment.to_bytes() if sample.attachment is not None else None
             boot = self._foreign.classify(sample.payload.to_bytes(), signature, own_boot,

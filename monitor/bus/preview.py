@@ -12,7 +12,7 @@ The message (``workcell.safety.preview/1``): the bus envelope (cell, seq, mono, 
 instance, boot, config_hash), ``camera``, ``frame_seq``, ``capture_mono``, the camera's size
 (``width``, ``height``), the picture's size and the JPEG as base64 (``jpeg``); the sample's
 attachment is the Ed25519 signature of the payload with the monitor's key, as for commands
-(``monitor.signing``), so a console that pins the key shows no picture someone else put there.
+(``monitor.wire.signing``), so a console that pins the key shows no picture someone else put there.
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PublicKey
 from pydantic import Field
 
 from monitor.schema import Float, Int, section
-from monitor.signing import Signer, load_private_key, verify
+from monitor.wire.signing import Signer, load_private_key, verify
 
 PREVIEW_SCHEMA = "workcell.safety.preview/1"
 MAX_PREVIEW_BYTES = 2_000_000  # a preview message larger than this is not read

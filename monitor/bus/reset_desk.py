@@ -1,7 +1,8 @@
-"""The bus's side of operator resets on ``<prefix>safety/reset`` (``monitor.bus.SafetyBus``).
+"""The bus's side of operator resets on ``<prefix>safety/reset``
+(``monitor.bus.session.SafetyBus``).
 
 A reset arrives as a query (or a put) signed by an operator key; the desk checks it with
-``monitor.resets.ResetGate`` bound to this boot and the latch published now. Refused requests
+``monitor.wire.resets.ResetGate`` bound to this boot and the latch published now. Refused requests
 are answered at once and alerted (``drain_alerts``); verified ones wait for the pipeline
 (``poll``), their queries until the policy's outcome is published (``answer``) or
 ``answer_s`` has passed (``expire``). A request the pipeline has not taken by then is dropped
@@ -9,7 +10,7 @@ with that answer: a reset answered "not decided" is never decided later (it woul
 latch its operator was told still holds). Of several waiting at one step the newest is taken;
 the older ones are answered "superseded" at once. Every answer names the request it answers
 (its SHA-256), the monitor's instance and boot, and is signed with the monitor's key
-(``monitor.answers``): ``monitor reset --monitor-key`` believes nothing else.
+(``monitor.wire.answers``): ``monitor reset --monitor-key`` believes nothing else.
 """
 
 from __future__ import annotations
@@ -23,12 +24,12 @@ from collections.abc import Callable
 
 import zenoh
 
-from monitor import payload as payload_json
-from monitor.answers import answer_attachment, request_digest
 from monitor.policy import ResetRequest
-from monitor.resets import MAX_RESET_PAYLOAD, ResetGate, ResetRefused
-from monitor.signing import Signer
 from monitor.types import Alert
+from monitor.wire import payload as payload_json
+from monitor.wire.answers import answer_attachment, request_digest
+from monitor.wire.resets import MAX_RESET_PAYLOAD, ResetGate, ResetRefused
+from monitor.wire.signing import Signer
 
 SCHEMA_VERSION = 1
 # a taken request whose outcome never came (a stalled step's decision is discarded, and the

@@ -9,15 +9,15 @@ Keys (``prefix`` defaults to ``workcell/<cell>/``):
 ``<prefix>safety/alert``            alerts (JSON; JPEG snapshot as the sample attachment)
 ``<prefix>safety/detections``       persons and zone hits per processed frame (dashboards)
 ``<prefix>safety/preview``          a small signed JPEG per camera at a low rate, published by
-                                    ``monitor.preview`` on its own publisher (the console)
+                                    ``monitor.bus.preview`` on its own publisher (the console)
 ``<prefix>safety/status``           queryable: state, config hash, fps, uptime, last reset
 ``<prefix>safety/reset``            queryable (and subscribed): signed operator resets
-                                    (``monitor.resets``); the reply is the answer
+                                    (``monitor.wire.resets``); the reply is the answer
 ``<prefix>safety/mute``             queryable: signed mute requests
-                                    (``monitor.mute_requests``; docs/muting.md)
-``<prefix>safety/zones/apply``     queryable: signed zone applies (``monitor.zone_swap``)
+                                    (``monitor.cases.mute_requests``; docs/muting.md)
+``<prefix>safety/zones/apply``     queryable: signed zone applies (``monitor.service.zone_swap``)
 ``<prefix>safety/alive/<instance>`` liveliness token of the running monitor
-``<prefix>tracker/pose``            tool pose samples (``monitor.pose``)
+``<prefix>tracker/pose``            tool pose samples (``monitor.pose.stream``)
 =================================  =========================================================
 
 Every payload is a UTF-8 JSON object with the envelope ``schema`` (e.g.
@@ -30,27 +30,28 @@ A subscriber that stops reading (hung controller, full TCP buffers) costs a comm
 stalling the monitor for its default 5 s. Puts that reach no subscriber and failed puts are counted
 and reported by the status queryable (``puts_unmatched``, ``put_errors``).
 
-Signing (``monitor.signing``): with ``signing_key`` set, every command and heartbeat carries an
+Signing (``monitor.wire.signing``): with ``signing_key`` set, every command and heartbeat carries an
 Ed25519 signature of its exact payload bytes as the sample attachment; the payload holds cell,
 instance, boot, seq, state, speed_scale, ttl_ms, mono and wall. Resets are queries on
 ``safety/reset`` signed by an operator key listed in ``operators_file``; the bus refuses the
 others itself (answered to the sender, alerted) and hands the pipeline only verified requests
-(``monitor.resets``; the bus's side: ``monitor.bus_resets.ResetDesk``). The policy's outcome is
-the answer to the query.
+(``monitor.wire.resets``; the bus's side: ``monitor.bus.reset_desk.ResetDesk``). The policy's
+outcome is the answer to the query.
 
 Several monitors per cell (``BusConfig.role``, docs/consumer.md): a monitor with a role has its
 keys under ``<prefix>safety/<role>/`` (command, alert, detections, status, reset, mute, zones
 apply) and its token under ``<prefix>safety/alive/<role>/<instance>``; role "" keeps the keys
-above. Consumers expect each role with its key (``monitor.cell_consumer.CellWatchdog``).
+above. Consumers expect each role with its key (``monitor.wire.cell_consumer.CellWatchdog``).
 
 One monitor per cell (per role): the instance id is unique by default (host, pid, random); at
 start the bus refuses to run when another monitor's liveliness token is present on the cell, and
 later it reports ``duplicate_monitor`` (``faults()``) and sends STOP while another monitor's
 token or commands are seen. Only commands signed with this cell's monitor key count as another
-monitor's; unsigned or wrongly signed ones are counted and alerted (``monitor.foreign``). The
-bus's side: ``monitor.bus_peers.PeerWatch``.
+monitor's; unsigned or wrongly signed ones are counted and alerted (``monitor.bus.foreign``). The
+bus's side: ``monitor.bus.peers.PeerWatch``.
 
-Consumer rule: ``monitor.consumer.CommandWatchdog`` (shown by ``monitor watch``; docs/consumer.md).
+Consumer rule: ``monitor.wire.consumer.CommandWatchdog`` (shown by ``monitor watch``;
+docs/consumer.md).
 """
 
 from __future__ import annotations
@@ -66,10 +67,15 @@ from collections.abc import Callable
 
 import zenoh
 
-from monitor.alerts import AlertLimiter, AlertLimits, alert_to_dict
-from monitor.bus_peers import DuplicateMonitor, PeerWatch
-from monitor.bus_resets import RESET_ANSWER_SCHEMA, ResetDesk
-from monitor.busconfig import (
+from monitor.bus.peers import DuplicateMonitor, PeerWatch
+from monitor.bus.reset_desk import RESET_ANSWER_SCHEMA, ResetDesk
+from monitor.cases.mute_requests import MuteDesk, MuteGate
+from monitor.cases.muting import MuteOutcome, MuteRequest
+from monitor.policy import STOP, Command, Reason, ResetRequest
+from monitor.signals import close_bounded
+from monitor.types import Alert, Fault, Persons, ZoneReport
+from monitor.wire.alerts import AlertLimiter, AlertLimits, alert_to_dict
+from monitor.wire.busconfig import (
     MODES,
     BusConfig,
     BusKeys,
@@ -78,16 +84,11 @@ from monitor.busconfig import (
     zenoh_config,
     zenoh_error,
 )
-from monitor.consumer import COMMAND_SCHEMA, CommandWatchdog, Verdict
-from monitor.mute_requests import MuteDesk, MuteGate
-from monitor.muting import MuteOutcome, MuteRequest
-from monitor.policy import STOP, Command, Reason, ResetRequest
-from monitor.resets import RESET_SCHEMA, ResetGate, ResetPolicy, latch_of, reset_payload
-from monitor.signals import close_bounded
-from monitor.signing import Signer, load_operators, load_private_key
-from monitor.types import Alert, Fault, Persons, ZoneReport
+from monitor.wire.consumer import COMMAND_SCHEMA, CommandWatchdog, Verdict
+from monitor.wire.resets import RESET_SCHEMA, ResetGate, ResetPolicy, latch_of, reset_payload
+from monitor.wire.signing import Signer, load_operators, load_private_key
 
-_log = logging.getLogger("monitor.bus")
+_log = logging.getLogger("monitor.bus.session")
 
 __all__ = [
     "COMMAND_SCHEMA",
@@ -264,16 +265,16 @@ class SafetyBus:
         return self._signer.public_text if self._signer else None
 
     def pose_subscriber(self, limits=None, on_reject=None, tracker_clock=None, tracker=None):
-        """A ``monitor.pose.PoseSubscriber`` on ``<prefix>tracker/pose`` of this session
+        """A ``monitor.pose.stream.PoseSubscriber`` on ``<prefix>tracker/pose`` of this session
         (use it as a context manager inside the bus's ``with``); ``tracker_clock``: the
         ``[tracker_clock]`` settings its tracker times are checked with; ``tracker``: the
         ``[tracker]`` precision its pose checks allow for."""
-        from monitor.pose import PoseSubscriber
+        from monitor.pose.stream import PoseSubscriber
 
         return PoseSubscriber(self.session, self.keys.pose, limits, self._clock, on_reject,
                               tracker_clock=tracker_clock, tracker=tracker)
 
-    # --- one monitor per cell (monitor.bus_peers) ------------------------------------------
+    # --- one monitor per cell (monitor.bus.peers) ------------------------------------------
 
     def faults(self) -> list[Fault]:
         """Faults the bus sees (poll every step): ``duplicate_monitor`` while another monitor's
@@ -281,7 +282,8 @@ class SafetyBus:
         return self._peers.faults()
 
     def foreign_commands(self) -> dict[str, int]:
-        """Commands on our key ignored per kind (unsigned, signature, ...; ``monitor.foreign``)."""
+        """Commands on our key ignored per kind (unsigned, signature, ...;
+        ``monitor.bus.foreign``)."""
         return self._peers.foreign_counts()
 
     # --- publishing --------------------------------------------------------------------------
@@ -437,7 +439,7 @@ class SafetyBus:
         with self._lock:
             self._status_extra.update(fields)
 
-    # --- resets (monitor.bus_resets) --------------------------------------------------------
+    # --- resets (monitor.bus.reset_desk) --------------------------------------------------------
 
     def poll_resets(self) -> list[ResetRequest]:
         """Verified reset requests received since the last call (oldest first). Refused ones

@@ -1,14 +1,14 @@
 """Operator mute requests on ``safety/mute``: the signed wire format, the bus-side gate and
 the desk that holds requests until the pipeline has judged them (docs/muting.md).
 
-Modelled on resets (``monitor.resets``): a request is a Zenoh query whose payload is UTF-8
-JSON and whose attachment is the Ed25519 signature (``monitor.signing.signed_message(<mute
+Modelled on resets (``monitor.wire.resets``): a request is a Zenoh query whose payload is UTF-8
+JSON and whose attachment is the Ed25519 signature (``monitor.wire.signing.signed_message(<mute
 key>, payload)``) of an operator listed in the operators file. The bus refuses, before the
 pipeline sees it and with a reason in the answer: an unknown operator, a missing or wrong
 signature, another cell, another boot of the monitor (a request from before a restart), a
 wall time more than ``window_s`` off the monitor's clock, a request id seen before. Muting is
 never unsigned: a monitor without an operators file refuses every mute. The pipeline then
-judges the zone's own rules (``monitor.muting``: listed operators, maximum, unmutable) and its
+judges the zone's own rules (``monitor.cases.muting``: listed operators, maximum, unmutable) and its
 outcome is the answer.
 
 Payload::
@@ -28,11 +28,17 @@ import os
 import threading
 import time
 
-from monitor import payload as payload_json
-from monitor.answers import request_answer
-from monitor.muting import MuteOutcome, MuteRequest
-from monitor.signed_requests import RequestIds, RequestKind, check_cell, check_signer, check_window
+from monitor.cases.muting import MuteOutcome, MuteRequest
 from monitor.types import Alert
+from monitor.wire import payload as payload_json
+from monitor.wire.answers import request_answer
+from monitor.wire.signed_requests import (
+    RequestIds,
+    RequestKind,
+    check_cell,
+    check_signer,
+    check_window,
+)
 
 MUTE_SCHEMA = "workcell.safety.mute/1"
 MUTE_ANSWER_SCHEMA = "workcell.safety.mute-answer/1"
@@ -249,5 +255,5 @@ def reply(query, key: str, body: dict) -> None:
         query.drop()
 
 
-# the answer to a signed request: one mechanism for every kind (monitor/answers.py)
+# the answer to a signed request: one mechanism for every kind (monitor/wire/answers.py)
 request_mute = request_answer

@@ -87,7 +87,7 @@ def mute_rules(cell) -> dict[str, MuteRule]:
 
 @dataclass(frozen=True)
 class MuteRequest:
-    """A verified request (``monitor.mute_requests``): mute ``zone`` for ``duration_s``, or
+    """A verified request (``monitor.cases.mute_requests``): mute ``zone`` for ``duration_s``, or
     end its mute early (``end``). ``time``: when it arrived (the monitor's clock)."""
 
     zone: str

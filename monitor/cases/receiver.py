@@ -15,11 +15,11 @@ import time
 
 import zenoh
 
-from monitor.answers import request_answer
-from monitor.busconfig import BusKeys
 from monitor.cases.requests import CaseGate, CasePolicy
 from monitor.cases.sets import CasePlan, Refusal, Selection
-from monitor.signing import load_operators
+from monitor.wire.answers import request_answer
+from monitor.wire.busconfig import BusKeys
+from monitor.wire.signing import load_operators
 
 CASE_ANSWER_SCHEMA = "workcell.safety.case-answer/1"
 
@@ -107,5 +107,5 @@ class CaseReceiver:
         self._take(sample.payload.to_bytes(), signature)
 
 
-# the answer to a signed request: one mechanism for every kind (monitor/answers.py)
+# the answer to a signed request: one mechanism for every kind (monitor/wire/answers.py)
 request_case = request_answer

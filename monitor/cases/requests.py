@@ -10,7 +10,7 @@ refused with the reason (the answer to the sender, counted) and changes nothing
 (``monitor.cases.sets``): a lie on the network never switches zones, and one forged packet
 never stops the cell.
 
-Payload (UTF-8 JSON; the Ed25519 signature of ``monitor.signing.signed_message(<case key>,
+Payload (UTF-8 JSON; the Ed25519 signature of ``monitor.wire.signing.signed_message(<case key>,
 payload)`` is the attachment)::
 
     {"schema": "workcell.safety.case/1", "cell": "cell1", "selector": "robot",
@@ -27,9 +27,9 @@ import math
 import time
 from dataclasses import dataclass
 
-from monitor import payload as payload_json
 from monitor.cases.sets import Refusal, Selection
-from monitor.signed_requests import RequestKind, check_cell, check_signer, check_window
+from monitor.wire import payload as payload_json
+from monitor.wire.signed_requests import RequestKind, check_cell, check_signer, check_window
 
 CASE_SCHEMA = "workcell.safety.case/1"
 MAX_CASE_PAYLOAD = 4 * 1024

@@ -4,15 +4,15 @@ The running monitor swaps its zone set only when an operator asks for it with a 
 signed by a key of the operators file (the same keys as resets, ``monitor keys new
 --operator``) that names the hash of the zone set to apply (``monitor zones hash``). The
 service then re-reads the zone file from its own configured path and applies it only when the
-file's hash is the signed one (``monitor.zone_swap``): an operator signs what they validated,
-and a file changed after that is refused, never applied in their name.
+file's hash is the signed one (``monitor.service.zone_swap``): an operator signs what they
+validated, and a file changed after that is refused, never applied in their name.
 
 Checked here, before the loop sees it: the operator is listed and the signature matches (an
 unsigned request is always refused: there is no ``allow_unsigned`` for zones), the cell, this
 run of the monitor (``boot``, read from its status), the time (``wall`` within ``window_s``)
 and the request id (never seen before).
 
-Payload (UTF-8 JSON; the Ed25519 signature of ``monitor.signing.signed_message(<apply key>,
+Payload (UTF-8 JSON; the Ed25519 signature of ``monitor.wire.signing.signed_message(<apply key>,
 payload)`` is the attachment)::
 
     {"schema": "workcell.safety.zones-apply/1", "cell": "cell1", "operator": "anna",
@@ -28,10 +28,16 @@ import re
 import time
 from dataclasses import dataclass
 
-from monitor import payload as payload_json
-from monitor.answers import request_answer
-from monitor.resets import MAX_FIELD, MAX_RESET_PAYLOAD, finite_number
-from monitor.signed_requests import RequestIds, RequestKind, check_cell, check_signer, check_window
+from monitor.wire import payload as payload_json
+from monitor.wire.answers import request_answer
+from monitor.wire.resets import MAX_FIELD, MAX_RESET_PAYLOAD, finite_number
+from monitor.wire.signed_requests import (
+    RequestIds,
+    RequestKind,
+    check_cell,
+    check_signer,
+    check_window,
+)
 
 APPLY_SCHEMA = "workcell.safety.zones-apply/1"
 APPLY_ANSWER_SCHEMA = "workcell.safety.zones-apply-answer/1"
@@ -130,5 +136,5 @@ def _parse(payload: bytes) -> dict:
             "wall": float(wall), "note": note, "boot": boot, **({"cell": cell} if cell else {})}
 
 
-# the answer to a signed request: one mechanism for every kind (monitor/answers.py)
+# the answer to a signed request: one mechanism for every kind (monitor/wire/answers.py)
 request_apply = request_answer

@@ -4,6 +4,9 @@ Every parser of the tree is a :class:`MonitorParser`: each option's help shows i
 the global options (``--debug``) work before or after the subcommand. Errors reach the user as
 one line in their words (no exception names, no paths inside the installation); ``--debug``
 shows the traceback.
+
+Also here: the deploy kit and the docs shipped in the wheel (``deploykit.py``). May import:
+everything but ``monitor.console`` (which imports the cli for its own command).
 """
 
 from __future__ import annotations

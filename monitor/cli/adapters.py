@@ -20,10 +20,7 @@ import sys
 import threading
 
 from monitor.adapters.follower import DEFAULT_TICK_S, Follower, subscribe
-from monitor.cell_consumer import subscribe_cell
-from monitor.consumer import DEFAULT_CLOCK_SYNC_MS
 from monitor.errors import ConfigError
-from monitor.inbox import DEFAULT_BOUND, Inbox
 from monitor.signals import (
     Interrupted,
     StopSignals,
@@ -31,6 +28,9 @@ from monitor.signals import (
     close_bounded,
     exit_if_stopped,
 )
+from monitor.wire.cell_consumer import subscribe_cell
+from monitor.wire.consumer import DEFAULT_CLOCK_SYNC_MS
+from monitor.wire.inbox import DEFAULT_BOUND, Inbox
 
 # kind -> (module of monitor.adapters, help)
 KINDS: dict[str, tuple[str, str]] = {}
@@ -83,7 +83,7 @@ def register_bridges(bsub, add_zenoh_args) -> None:
 
 
 def cmd_bridge(args: argparse.Namespace) -> int:
-    from monitor.bus import BusKeys, default_instance, open_session
+    from monitor.bus.session import BusKeys, default_instance, open_session
     from monitor.cli.watch import make_watchdog
     from monitor.cli.zenoh_args import bus_config
 

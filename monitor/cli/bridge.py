@@ -12,13 +12,13 @@ import time
 
 import zenoh
 
-from monitor.alerts import AlertLimiter, AlertLimits, alert_to_dict, pose_alert
-from monitor.bus import ALERT_SCHEMA, BusKeys, default_instance, open_session
+from monitor.bus.session import ALERT_SCHEMA, BusKeys, default_instance, open_session
 from monitor.cli.zenoh_args import add_zenoh_args, bounded, bus_config
 from monitor.errors import ConfigError
-from monitor.pose import OtusBridge, PoseLimits, Rejection, parse_host_port
+from monitor.pose.stream import OtusBridge, PoseLimits, Rejection, parse_host_port
+from monitor.pose.tracker_noise import TrackerConfig
 from monitor.signals import Interrupted, StopSignals, call_interruptible, exit_if_stopped
-from monitor.tracker_noise import TrackerConfig
+from monitor.wire.alerts import AlertLimiter, AlertLimits, alert_to_dict, pose_alert
 
 
 def cmd_bridge_otus(args: argparse.Namespace) -> int:

@@ -148,13 +148,13 @@ def cmd_set_show(args: argparse.Namespace) -> int:
 
 def cmd_select(args: argparse.Namespace) -> int:
     # the bus side (Zenoh, signing) only here: `monitor zones list` registers these commands too
-    from monitor.bus import default_instance, open_session
+    from monitor.bus.session import default_instance, open_session
     from monitor.cases.receiver import case_key, request_case
     from monitor.cli.keys import KEY_DIR
     from monitor.cli.zenoh_args import bounded as _bounded
     from monitor.cli.zenoh_args import bus_config as _bus_config
     from monitor.cli.zenoh_args import nothing_found_hint as _nothing_found_hint
-    from monitor.signing import load_private_key
+    from monitor.wire.signing import load_private_key
 
     bus = _bus_config(args, instance=args.instance or default_instance("case"))
     key = case_key(bus.key_prefix)

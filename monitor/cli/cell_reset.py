@@ -13,10 +13,10 @@ from __future__ import annotations
 import argparse
 import time
 
-from monitor.busconfig import BusConfig
 from monitor.cli.roles import role_keys
-from monitor.resets import latch_of_status, request_reset, reset_payload
 from monitor.signals import Interrupted, call_interruptible
+from monitor.wire.busconfig import BusConfig
+from monitor.wire.resets import latch_of_status, request_reset, reset_payload
 
 
 def reset_roles(args: argparse.Namespace, bus: BusConfig, session, signer, stop,

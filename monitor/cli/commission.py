@@ -93,8 +93,8 @@ def cmd_walk(args: argparse.Namespace) -> int:
     from monitor.commission.walk_video import walk_video
     from monitor.config import load_config
     from monitor.detector import Detector
-    from monitor.replay import ReplaySettings
-    from monitor.service_setup import zones_file_of
+    from monitor.replay.video import ReplaySettings
+    from monitor.service.setup import zones_file_of
     from monitor.zones import load_cell
 
     if not 0.05 <= args.cell_size <= 2.0:
@@ -167,8 +167,8 @@ def _record(args: argparse.Namespace, config) -> Path:
 def cmd_report(args: argparse.Namespace) -> int:
     from monitor.commission.inputs import gather
     from monitor.commission.report import printed_checksum, render
-    from monitor.commissioned import record_path, write_record
     from monitor.config import load_config
+    from monitor.service.commissioned import record_path, write_record
 
     config = load_config(args.config)
     model = _model_path(config, None)

@@ -26,8 +26,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def cmd_scenarios(args: argparse.Namespace) -> int:
-    from monitor import scenarios as sc
     from monitor.errors import ConfigError
+    from monitor.replay import scenarios as sc
 
     if not 1.0 <= args.fps <= 60.0:
         raise ConfigError(f"--fps {args.fps:g}: must be within [1, 60]")

@@ -16,11 +16,11 @@ import sys
 from pathlib import Path
 
 from monitor import zones as zn
+from monitor.cli.deploykit import KitCamera, doc_files, doc_title, kit_dir, kit_file, render_config
 from monitor.cli.zone_cameras import media_size, new_zone_document, parse_size
-from monitor.deploykit import KitCamera, doc_files, doc_title, kit_dir, kit_file, render_config
 from monitor.errors import ConfigError
 from monitor.frames import source_kind
-from monitor.signing import new_key_pair
+from monitor.wire.signing import new_key_pair
 
 _ID = re.compile(r"^[A-Za-z0-9_.-]+$")
 DEFAULT_LISTEN = "tcp/127.0.0.1:7447"  # zenoh/peer.json5's listen endpoint

@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 
 from monitor.errors import ConfigError
-from monitor.signing import new_key_pair
+from monitor.wire.signing import new_key_pair
 
 KEY_DIR = Path("~/.config/workcell-monitor/keys")
 

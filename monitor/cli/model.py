@@ -104,8 +104,7 @@ def cmd_build(args: argparse.Namespace) -> int:
 def build_int8(fp32: Path, steps=None):
     """The synthetic model's int8 file beside ``fp32``: analytic ranges, calibration on
     generated frames, then checked on other generated frames (refused below 0.98)."""
-    from monitor import quantize
-    from monitor.detector import Detector
+    from monitor.detector import Detector, quantize
     from monitor.models import synthetic
     from monitor.progress import progress
     from monitor.scene import random_frames
@@ -127,7 +126,7 @@ def build_int8(fp32: Path, steps=None):
         staged.unlink(missing_ok=True)
         raise quantize.QuantizeRefused(f"int8 synthetic model not written: {why}")
     staged.replace(out)
-    from monitor.int8hint import write_record
+    from monitor.service.int8hint import write_record
 
     write_record(out, agreement, 0.98, True)  # monitor run recommends only a checked int8
     if steps:
@@ -140,9 +139,8 @@ def _wrap(progress):
 
 
 def _detector(model: Path | None, layout: str | None = None, int8: bool = False):
-    from monitor import quantize
     from monitor.cli.run import ensure_model
-    from monitor.detector import Detector, DetectorConfig
+    from monitor.detector import Detector, DetectorConfig, quantize
 
     path = model if model else ensure_model()
     if int8 and model is None:
@@ -174,8 +172,8 @@ def parse_size(text: str) -> tuple[int, int]:
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
-    from monitor.accuracy import Accuracy, cell_tolerance_px, score_frame
     from monitor.scene import random_frames
+    from monitor.scene.accuracy import Accuracy, cell_tolerance_px, score_frame
 
     detector = _detector(args.model, int8=args.int8)
     size = parse_size(args.size)
@@ -228,8 +226,7 @@ def cmd_envelope(args: argparse.Namespace) -> int:
 
 
 def cmd_quantize(args: argparse.Namespace) -> int:
-    from monitor import quantize
-    from monitor.detector import Detector
+    from monitor.detector import Detector, quantize
     from monitor.errors import InputError
     from monitor.progress import Steps, progress
 
@@ -263,7 +260,7 @@ def cmd_quantize(args: argparse.Namespace) -> int:
         if why and not args.force:
             raise quantize.QuantizeRefused(f"int8 model not written: {why} (--force writes it)")
         staged.replace(out)
-        from monitor.int8hint import write_record
+        from monitor.service.int8hint import write_record
 
         # monitor run recommends only an int8 whose check passed (a forced one: never)
         write_record(out, agreement, args.min_agreement, why is None)

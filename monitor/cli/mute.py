@@ -11,7 +11,8 @@ import re
 import sys
 import time
 
-from monitor.bus import default_instance, open_session
+from monitor.bus.session import default_instance, open_session
+from monitor.cases.mute_requests import mute_payload, request_mute
 from monitor.cli.keys import KEY_DIR
 from monitor.cli.operator import first_status, operator_key_path
 from monitor.cli.role_arg import add_role_arg
@@ -21,9 +22,8 @@ from monitor.cli.zenoh_args import bounded as _bounded
 from monitor.cli.zenoh_args import bus_config as _bus_config
 from monitor.cli.zenoh_args import nothing_found_hint as _nothing_found_hint
 from monitor.errors import ConfigError
-from monitor.mute_requests import mute_payload, request_mute
 from monitor.signals import Interrupted, StopSignals, call_interruptible
-from monitor.signing import load_private_key
+from monitor.wire.signing import load_private_key
 
 _UNITS = {"": 1.0, "s": 1.0, "m": 60.0, "min": 60.0, "h": 3600.0}
 

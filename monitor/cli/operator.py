@@ -12,7 +12,7 @@ from pathlib import Path
 
 import zenoh
 
-from monitor.bus import BusKeys, default_instance, open_session
+from monitor.bus.session import BusKeys, default_instance, open_session
 from monitor.cli.keys import KEY_DIR
 from monitor.cli.role_arg import add_role_arg
 from monitor.cli.roles import no_answer, role_keys
@@ -25,9 +25,9 @@ from monitor.cli.zenoh_args import (
     safe_json,
 )
 from monitor.errors import ConfigError
-from monitor.resets import latch_of_status, request_reset, reset_payload
 from monitor.signals import Interrupted, StopSignals, call_interruptible
-from monitor.signing import load_private_key, load_public_key
+from monitor.wire.resets import latch_of_status, request_reset, reset_payload
+from monitor.wire.signing import load_private_key, load_public_key
 
 STATUS_GRACE_S = 0.2  # s to wait for more monitors' status after the first
 _END = object()  # put by the query's drop callback: no more replies will come

@@ -106,7 +106,7 @@ def write_image_atomic(path: Path, image: np.ndarray) -> None:
 def _zone_camera_out(args: argparse.Namespace) -> tuple[str, Path | None]:
     """With --zones: the zone file's camera (the one --camera rule) and the image to write:
     --out, else the reference the camera's entry names (None: neither)."""
-    from monitor.camera_references import zone_file_reference
+    from monitor.health.references import zone_file_reference
     from monitor.zones import load_cell
     from monitor.zones.cameras import choose_camera, zone_file_hint
 
@@ -162,7 +162,7 @@ def _store_in_zone_file(zones: Path, camera: str, out: Path) -> str | None:
 
 
 def _capture(args: argparse.Namespace) -> int:
-    from monitor.camera_references import require_size
+    from monitor.health.references import require_size
 
     camera, source, out = _camera_source_out(args)
     image, used = capture_reference(source, camera, args.frames)

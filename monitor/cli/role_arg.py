@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import argparse
 
-from monitor.busconfig import checked_role
+from monitor.wire.busconfig import checked_role
 
 
 def parse_role(text: str) -> str:

@@ -12,9 +12,9 @@ import time
 
 import zenoh
 
-from monitor.busconfig import BusConfig, BusKeys, checked_role
 from monitor.cli.zenoh_args import nothing_found_hint
 from monitor.errors import ConfigError
+from monitor.wire.busconfig import BusConfig, BusKeys, checked_role
 
 ROLES_LOOKUP_S = 1.0  # s to ask which roles answer, after the asked key stayed silent
 

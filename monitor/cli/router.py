@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from monitor.bus import default_instance, open_session
+from monitor.bus.session import default_instance, open_session
 from monitor.cli.zenoh_args import add_zenoh_args, bounded, bus_config
 from monitor.errors import ConfigError
 from monitor.signals import (

@@ -124,7 +124,7 @@ def do_replay(video: Path, zones: Path | None, model: Path | None, config_path: 
     from monitor.detector import Detector
     from monitor.driver import require_protective_zone
     from monitor.incidents.settings import config_hash
-    from monitor.replay import ReplaySettings, replay
+    from monitor.replay.video import ReplaySettings, replay
     from monitor.zones import load_cell
     from monitor.zones.cameras import choose_camera
 
@@ -149,8 +149,8 @@ def do_replay(video: Path, zones: Path | None, model: Path | None, config_path: 
                               config_hash=config_hash(config_path))
     if not publish:
         return replay(video, detector, cell, settings, stop=stop)
-    from monitor.bus import SafetyBus
-    from monitor.service_setup import bus_config_for
+    from monitor.bus.session import SafetyBus
+    from monitor.service.setup import bus_config_for
 
     with SafetyBus(bus_config_for(config, cell)) as bus:
         def send(result) -> None:
@@ -279,7 +279,7 @@ def _demo(args: argparse.Namespace, signals) -> int:
 def cmd_run(args: argparse.Namespace) -> int:
     signals = _signals()  # first: a signal while the model or Zenoh loads is honoured too
     try:
-        from monitor.service import run_service
+        from monitor.service.run import run_service
 
         code = run_service(args.config, log_json=args.log_json, duration=args.duration,
                            signals=signals, capacity_check=args.capacity_check)

@@ -9,12 +9,16 @@ import sys
 import time
 
 from monitor.adapters.follower import subscribe
-from monitor.bus import BusConfig, BusKeys, CommandWatchdog, Verdict, default_instance, open_session
-from monitor.cell_consumer import CellWatchdog, parse_expect, subscribe_cell
+from monitor.bus.session import (
+    BusConfig,
+    BusKeys,
+    CommandWatchdog,
+    Verdict,
+    default_instance,
+    open_session,
+)
 from monitor.cli.zenoh_args import add_zenoh_args, bus_config, nothing_found_hint, safe_json
-from monitor.consumer import DEFAULT_CLOCK_SYNC_MS
 from monitor.errors import ConfigError
-from monitor.inbox import DEFAULT_BOUND, Inbox
 from monitor.signals import (
     Interrupted,
     StopSignals,
@@ -22,7 +26,10 @@ from monitor.signals import (
     close_bounded,
     exit_if_stopped,
 )
-from monitor.signing import load_public_key
+from monitor.wire.cell_consumer import CellWatchdog, parse_expect, subscribe_cell
+from monitor.wire.consumer import DEFAULT_CLOCK_SYNC_MS
+from monitor.wire.inbox import DEFAULT_BOUND, Inbox
+from monitor.wire.signing import load_public_key
 
 HINT_AFTER_S = 3.0  # s of silence before watch says where it looked and what to try
 

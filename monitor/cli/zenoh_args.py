@@ -1,8 +1,8 @@
 """Zenoh options and helpers shared by the bus commands (watch, bridge, router, reset, status).
 
 ``add_zenoh_args`` gives a parser the Zenoh option group; ``bus_config`` turns those options
-into a :class:`~monitor.bus.BusConfig`; ``nothing_found_hint`` says where a command looked when
-nothing answered; ``bounded`` closes a session with a deadline.
+into a :class:`~monitor.bus.session.BusConfig`; ``nothing_found_hint`` says where a command looked
+when nothing answered; ``bounded`` closes a session with a deadline.
 """
 
 from __future__ import annotations
@@ -11,9 +11,9 @@ import argparse
 import json
 import sys
 
-from monitor.busconfig import MODES, BusConfig
 from monitor.errors import ConfigError
 from monitor.signals import close_bounded
+from monitor.wire.busconfig import MODES, BusConfig
 
 # `monitor run` without a config listens here (monitor.config.DEMO_LISTEN); the operator
 # commands connect here when no endpoint is given, so they find a default service on this host.

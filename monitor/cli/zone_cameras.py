@@ -168,8 +168,8 @@ def _config_with_camera(args: argparse.Namespace, width: int, height: int) -> st
     """monitor.toml's text with the new camera's [[camera]] table, validated."""
     import tomllib
 
+    from monitor.cli.deploykit import KitCamera, add_camera_table
     from monitor.config import parse_config
-    from monitor.deploykit import KitCamera, add_camera_table
 
     path: Path = args.config
     if args.source is None:
@@ -269,7 +269,7 @@ def reference_entry(zone_file: Path, image_path: Path, camera: str, width: int,
                     height: int) -> str:
     """The zone file's ``reference:`` value for an image: checked to be a readable image of
     the camera's size, its path relative to the zone file. One-line ConfigError otherwise."""
-    from monitor.camera_references import require_size
+    from monitor.health.references import require_size
 
     if not image_path.is_file():
         raise ConfigError(f"--reference {image_path}: no such file (make one with 'monitor "

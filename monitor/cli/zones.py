@@ -491,8 +491,8 @@ def _draw_hidden(image: np.ndarray, cell: zn.Cell, camera: str) -> int:
     """Hatch the foot positions where this camera cannot see a person (behind an occluder,
     in a mask): the cells a lost person's area never loses by this camera's view."""
     # the tracker's grid only for a preview: `monitor zones list` starts without it
-    from monitor.tracks import TrackerConfig
-    from monitor.whereabouts import FootGrid
+    from monitor.tracking.tracks import TrackerConfig
+    from monitor.tracking.whereabouts import FootGrid
     from monitor.zones.masks import zone_regions_px
     from monitor.zones.visibility import hidden_feet
 

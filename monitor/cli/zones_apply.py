@@ -2,7 +2,7 @@
 
 Reads the zone file, validates it (the one-line error of ``monitor zones validate``), computes
 its hash (``monitor zones hash``), signs a request naming that hash with the operator's key
-(``monitor.zone_apply``) and prints the monitor's answer. The monitor re-reads the file from
+(``monitor.cases.zone_apply``) and prints the monitor's answer. The monitor re-reads the file from
 its own configured path and applies it only when that file has the signed hash.
 Exit 0 applied, 1 refused (reason printed), 2 bad input or no monitor answered.
 """
@@ -47,15 +47,15 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def cmd_apply(args: argparse.Namespace) -> int:
     from monitor import zones as zn
-    from monitor.bus import default_instance, open_session
+    from monitor.bus.session import default_instance, open_session
+    from monitor.cases.zone_apply import apply_payload, request_apply
     from monitor.cli.operator import first_status, operator_key_path
     from monitor.cli.roles import no_answer, role_keys
     from monitor.cli.zenoh_args import bounded as _bounded
     from monitor.cli.zenoh_args import bus_config as _bus_config
     from monitor.cli.zenoh_args import nothing_found_hint as _nothing_found_hint
     from monitor.signals import Interrupted, StopSignals, call_interruptible
-    from monitor.signing import load_private_key
-    from monitor.zone_apply import apply_payload, request_apply
+    from monitor.wire.signing import load_private_key
 
     with StopSignals(name="monitor zones apply") as stop:
         bus = _bus_config(args, instance=args.instance or default_instance("zones-apply"))

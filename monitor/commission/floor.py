@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from monitor.occlusion import points_in_volume, standable
+from monitor.geometry.occlusion import points_in_volume, standable
 from monitor.zones import BoxZone, Cell, ExtrudeZone, volume_outline_m
 from monitor.zones.masks import zone_regions_px
 from monitor.zones.visibility import hidden_feet

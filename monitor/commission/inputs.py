@@ -15,23 +15,23 @@ import cv2
 import numpy as np
 
 from monitor import __version__
-from monitor.camera_references import (
-    choose_references,
-    load_chosen_reference,
-    reference_warnings,
-)
 from monitor.commission.floor import zone_floors
 from monitor.commission.pictures import camera_picture, floor_picture
 from monitor.commission.walk_video import read_walk
-from monitor.commissioned import fingerprint, settings_changed
 from monitor.config import MonitorConfig, load_config
 from monitor.detector.envelope import file_sha256, sidecar_path
 from monitor.driver import protective_warning
 from monitor.errors import InputError
 from monitor.geometry import SeparationParams
-from monitor.reaction import needed_separation_m
-from monitor.service_setup import reaction_budget, zones_file_of
-from monitor.signing import key_fingerprint, load_operators, load_private_key, public_key_text
+from monitor.geometry.reaction import needed_separation_m
+from monitor.health.references import (
+    choose_references,
+    load_chosen_reference,
+    reference_warnings,
+)
+from monitor.service.commissioned import fingerprint, settings_changed
+from monitor.service.setup import reaction_budget, zones_file_of
+from monitor.wire.signing import key_fingerprint, load_operators, load_private_key, public_key_text
 from monitor.zones import Cell, load_cell
 
 

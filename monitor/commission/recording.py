@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from monitor.errors import InputError
-from monitor.replay import open_video_writer
+from monitor.replay.video import open_video_writer
 
 
 @dataclass(frozen=True)

@@ -1,5 +1,5 @@
 """A generated commissioning walk with ground truth: the walk docs/commissioning.md asks for,
-in the scenario suite's cell (``monitor.scenarios``: the 2 x 2 m protective box around the
+in the scenario suite's cell (``monitor.replay.scenarios``: the 2 x 2 m protective box around the
 robot, the 5 x 5 m warning square, camera ``cam0`` 6 m in front, 640x360).
 
 The person walks around the protective zone 0.7 m outside its boundary and, at each corner,
@@ -19,7 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from monitor.commission.truth import TRUTH_FILE, truth_of, write_truth
-from monitor.scenarios import PROTECTIVE, Scenario
+from monitor.replay.scenarios import PROTECTIVE, Scenario
 from monitor.scene import write_video
 from monitor.scene.cell import Block, CellFrameTruth, CellScene, Walker
 from monitor.zones import write_cell_data

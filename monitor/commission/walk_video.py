@@ -1,5 +1,5 @@
 """``monitor commission walk --video``: the walk test on a recorded video, through replay's own
-machinery (``monitor.replay.replay``: the service's driver and pipeline on the video's clock),
+machinery (``monitor.replay.video.replay``: the service's driver and pipeline on the video's clock),
 with a ``WalkRecorder`` on its step callback. Writes into DIR: ``walk.json`` (the result),
 ``floor.png``, ``camera-<id>.png``, and replay's ``events.jsonl``, ``summary.json`` and
 ``annotated.mp4`` (the evidence behind every figure).
@@ -23,7 +23,7 @@ from monitor.commission.pictures import camera_picture, floor_picture
 from monitor.commission.truth import read_truth
 from monitor.commission.walk import WalkRecorder, WalkResult, analyse
 from monitor.errors import InputError
-from monitor.replay import ReplaySettings, replay
+from monitor.replay.video import ReplaySettings, replay
 from monitor.zones import Cell
 from monitor.zones.cameras import choose_camera
 

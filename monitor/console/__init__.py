@@ -8,4 +8,7 @@ console only subscribes, and ``monitor run`` never reads anything the console wr
 runs (a changed zone file takes effect at the next start).
 
 Starlette and uvicorn are the optional extra ``console``; nothing else imports this package.
+
+May import: the cli (its own command's options), the adapters, the bus, the incidents and everything
+under them.
 """

@@ -39,7 +39,6 @@ from starlette.responses import FileResponse, JSONResponse, Response
 from starlette.routing import Mount, Route
 from starlette.staticfiles import StaticFiles
 
-from monitor.alerts import AlertLimiter
 from monitor.console.audit import AuditLog, bounded
 from monitor.console.auth import Operators, basic_credentials
 from monitor.console.edit_body import MAX_BODY, BadRequest, check_zone_id, parse_edit_body
@@ -54,6 +53,7 @@ from monitor.console.setup_routes import forbidden, setup_routes
 from monitor.console.zones_api import ZoneEditor
 from monitor.errors import ConfigError
 from monitor.types import Alert
+from monitor.wire.alerts import AlertLimiter
 
 STATIC = Path(__file__).parent / "static"
 CHECK_THREADS = 1  # scrypt checks at once (16 MB, ~0.1 s of a core each): a flood of

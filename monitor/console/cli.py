@@ -97,7 +97,7 @@ def _references(items: list[str]) -> dict[str, Path]:
 def cmd_console(args: argparse.Namespace) -> int:
     from monitor.console.audit import AuditLog
     from monitor.console.auth import Operators, is_loopback, require_safe_listen
-    from monitor.pose import parse_host_port
+    from monitor.pose.stream import parse_host_port
 
     if args.zones is None:
         raise ConfigError("monitor console: give --zones FILE (the zone file the monitor runs "
@@ -129,7 +129,7 @@ def _serve(args, host: str, port: int, tls: bool, operators, references, audit) 
     import uvicorn
 
     from monitor.adapters.follower import Follower, subscribe
-    from monitor.bus import BusKeys, default_instance, open_session
+    from monitor.bus.session import BusKeys, default_instance, open_session
     from monitor.cli.watch import make_watchdog
     from monitor.cli.zenoh_args import bus_config as _bus_config
     from monitor.console.app import Console, build_app
@@ -137,9 +137,9 @@ def _serve(args, host: str, port: int, tls: bool, operators, references, audit) 
     from monitor.console.incidents import NoIncidents, RecorderIncidents
     from monitor.console.live import LiveRenderer, LiveState, subscribe_live
     from monitor.console.zones_api import ZoneEditor
-    from monitor.inbox import Inbox
     from monitor.signals import close_bounded
-    from monitor.signing import load_public_key
+    from monitor.wire.inbox import Inbox
+    from monitor.wire.signing import load_public_key
 
     editor = ZoneEditor(args.zones)  # a broken zone file: one line, nothing started
     unknown = set(references) - set(editor.cell().cameras)

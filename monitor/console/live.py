@@ -1,7 +1,7 @@
 """The console's live view: the cell's verdict, the live picture, detections and alert
 snapshots, drawn.
 
-The picture is the monitor's live preview (``monitor.preview``: a small JPEG per camera at a low
+The picture is the monitor's live preview (``monitor.bus.preview``: a small JPEG per camera at a low
 rate, ``[preview] fps``, signed with the monitor's key; a preview not signed by a pinned key is
 not shown), or, without one in the last ``PREVIEW_FRESH_S``, the snapshot of a recent alert of
 that camera, else the camera's reference image (``--reference cam0=FILE``). Over it the console
@@ -29,7 +29,7 @@ import cv2
 import numpy as np
 
 from monitor.adapters.snapshot import SafetySnapshot
-from monitor.preview import MAX_PREVIEW_BYTES, read_preview
+from monitor.bus.preview import MAX_PREVIEW_BYTES, read_preview
 from monitor.types import Alert
 from monitor.zones.draw import draw_zones
 from monitor.zones.files import Cell

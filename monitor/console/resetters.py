@@ -4,8 +4,8 @@ The console grants no reset (``monitor/console/levels.py``): a reset is a signed
 operator listed in the monitor's operators file (``bus.operators_file``, ``<name>
 ed25519:<base64>`` per line, docs/security.md). So that there is one source of truth, the setup
 page lists that file's names and key fingerprints (the commissioning report's fingerprint,
-``monitor.signing.key_fingerprint``), read with the monitor's own reader
-(``monitor.signing.load_operators``: a file that group or others may write is refused there as
+``monitor.wire.signing.key_fingerprint``), read with the monitor's own reader
+(``monitor.wire.signing.load_operators``: a file that group or others may write is refused there as
 it is by the monitor). It is read again on every request: what the page shows is the file now
 (the running monitor reads it at start: a changed file takes effect when the monitor restarts).
 """
@@ -15,7 +15,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from monitor.errors import ConfigError
-from monitor.signing import key_fingerprint, load_operators, public_key_text
+from monitor.wire.signing import key_fingerprint, load_operators, public_key_text
 
 
 def reset_operators(path: Path | None) -> dict:

@@ -1,2 +1,5 @@
 """Package data: the demo cell (demo-cell.yaml, a link to zones/demo-cell.yaml in the source
-tree) that `monitor demo` and the default `monitor run` use."""
+tree) that `monitor demo` and the default `monitor run` use.
+
+Imports nothing.
+"""

@@ -16,10 +16,15 @@ yolox           1xNx(5+C), raw grid-relative boxes, N = cells          BGR 0..25
 ==============  =====================================================  ======================
 
 Boxes come back in the original frame's pixels (letterbox undone), person class only, after a
-score threshold, a top-k cap, NMS and merging (``monitor.boxes``). NaN or infinite outputs
+score threshold, a top-k cap, NMS and merging (``monitor.geometry.boxes``). NaN or infinite outputs
 raise ``DetectorError`` (never "no persons"); ``Detector.self_test`` checks the model still
 finds a known person. Modules: layouts (which layout, person classes), preprocess (letterbox),
 decode, session, selftest, config.
+
+Also here: cheap statistics of a small grey image that the envelope and the camera checks are judged
+by (``imagestats.py``) and static int8 quantization calibrated on the user's frames
+(``quantize.py``). May import: ``monitor.frames``, ``monitor.scene`` (the self-test's figure),
+``monitor.geometry`` (box algebra) and the bottom layer; never the pipeline.
 """
 
 from __future__ import annotations
@@ -32,7 +37,6 @@ from pathlib import Path
 
 import numpy as np
 
-from monitor import boxes as box_ops
 from monitor.detector.config import DetectorConfig
 from monitor.detector.decode import (
     check_finite,
@@ -60,6 +64,7 @@ from monitor.detector.session import open_session
 from monitor.detector.shapes import OutputShapes
 from monitor.detector.test_model import TEST_MODEL_NOTE
 from monitor.errors import DetectorError, InputError
+from monitor.geometry import boxes as box_ops
 from monitor.types import Fault, FrameInfo, Persons
 
 __all__ = [

@@ -41,10 +41,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from monitor import boxes as box_ops
-from monitor import imagestats
+from monitor.detector import imagestats
 from monitor.detector.selftest import SelfTestCase
 from monitor.errors import ModelError
+from monitor.geometry import boxes as box_ops
 from monitor.types import Persons
 
 log = logging.getLogger(__name__)
@@ -81,7 +81,7 @@ class Envelope:
     source: str  # the self-test image: "built-in" or its file
     model_sha256: str = ""
     case_sha256: str = ""
-    # the limits as measures of the test image itself (``monitor.imagestats.conditions``):
+    # the limits as measures of the test image itself (``monitor.detector.imagestats.conditions``):
     # a camera without a reference image is judged by these (docs/health.md)
     absolute: dict[str, float] = field(default_factory=dict)
     # axis -> ((grade, recall), ...) as measured, for the table and the docs

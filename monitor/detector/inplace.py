@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from monitor import imagestats
+from monitor.detector import imagestats
 from monitor.detector.selftest import SelfTestCase
 from monitor.types import Fault, Persons
 

@@ -15,8 +15,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from monitor import boxes as box_ops
 from monitor.errors import ConfigError
+from monitor.geometry import boxes as box_ops
 from monitor.scene import Figure, draw_figure
 from monitor.types import Fault, Persons
 

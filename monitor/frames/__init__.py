@@ -20,6 +20,8 @@ message naming the source and the fault.
 Modules: ``base`` (the frame, the source protocol, source kinds, frame times, the backoff),
 ``video`` (files), ``sources`` (images, cameras, streams, the synthetic scene, pacing,
 ``open_source``), ``grabber`` (the live newest-frame grabber).
+
+May import: ``monitor.scene`` (the synthetic demo source) and the bottom layer.
 """
 
 from monitor.frames.base import (

@@ -16,6 +16,10 @@ One module per job: ``poses`` (rotations, tool pose), ``polygons``, ``camera`` (
 camera models, horizon), ``distortion`` (is a lens model one-to-one over
 the image), ``separation`` (ISO/TS 15066 arithmetic, reaction time), ``shapes`` (FCL
 objects), ``calibration`` (tracker-to-flange and tracker-to-cell calibration, AX = XB).
+
+Also here: placement of a box on the floor with occluders, shadows and floor regions
+(``occlusion``), box algebra: IoU, NMS and merging (``boxes``), and the reaction-time budget
+measured (``reaction``). May import: the bottom layer only (``types``, ``schema``, ``errors``).
 """
 
 from monitor.geometry.calibration import (

@@ -4,7 +4,7 @@ A *floor region* is a horizontal standing surface at ``height_m`` over a floor p
 platform, a mezzanine, a pit's floor). A pixel's viewing ray meets the plane z = height inside
 the polygon at most once per region, so a foot pixel has one candidate position on the cell
 floor and one on each region its ray meets there: the placement keeps all of them
-(``monitor.occlusion``). Pure functions, metres, z up.
+(``monitor.geometry.occlusion``). Pure functions, metres, z up.
 """
 
 from __future__ import annotations

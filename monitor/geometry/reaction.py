@@ -103,10 +103,11 @@ class MeasuredReaction:
 def at_start(frame_s: float, processed_fps: Mapping[str, float],
              frame_age_s: Mapping[str, float], allowances: Allowances
              ) -> dict[str, MeasuredReaction]:
-    """The budget estimated from the start-up capacity check (``monitor.capacity.Capacity``):
-    a camera's processed frame interval is 1 / its processed fps, and its capture->command the
-    worst age of its newest frame at a decision (interval + a frame's latency: a frame captured
-    just after the grabber was read waits a whole interval) plus the publishing, within
+    """The budget estimated from the start-up capacity check
+    (``monitor.service.capacity.Capacity``): a camera's processed frame interval is 1 / its
+    processed fps, and its capture->command the worst age of its newest frame at a decision
+    (interval + a frame's latency: a frame captured just after the grabber was read waits a whole
+    interval) plus the publishing, within
     ``frame_s``'s allowance. Pure."""
     del frame_s  # part of frame_age_s already
     return {cam: MeasuredReaction(cam, 1.0 / fps if fps > 0 else math.inf,
@@ -241,7 +242,7 @@ def status_of(verdicts: Mapping[str, Verdict], configured_s: float) -> dict:
 
 def reaction_gauges(registry):
     """Prometheus gauges of the budget, on the service's registry (kept apart from
-    ``monitor.metrics.Metrics``): measured per camera, configured, exceeded per camera."""
+    ``monitor.service.metrics.Metrics``): measured per camera, configured, exceeded per camera."""
     from prometheus_client import Gauge
 
     return (Gauge("monitor_reaction_budget_seconds", "measured reaction budget (p99 chain)",

@@ -23,6 +23,10 @@ Modules: ``config`` (thresholds, fault and alert names), ``report`` (what a chec
 ``camera`` (``CameraHealth``: the camera STOP faults and the defocus warning), ``scene`` (the
 watch zones' scene changes) and ``draw`` (drawing a report; snapshot JPEGs). Import the names
 below from ``monitor.health``.
+
+Also here: which reference image a camera's checks start from, the zone file's or monitor.toml's
+(``references.py``). May import: ``monitor.detector`` (image statistics, the envelope),
+``monitor.zones`` (watch regions) and the layers under them; never the pipeline.
 """
 
 from __future__ import annotations

@@ -13,6 +13,7 @@ import cv2
 import numpy as np
 
 from monitor.detector.envelope import Envelope
+from monitor.detector.imagestats import sharpness
 from monitor.errors import InputError
 from monitor.health.conditions import EnvelopeWatch, zone_regions
 from monitor.health.config import (
@@ -28,7 +29,6 @@ from monitor.health.config import (
 from monitor.health.draw import encode_jpeg
 from monitor.health.report import HealthReport, ZoneStatus
 from monitor.health.scene import WatchZones
-from monitor.imagestats import sharpness
 from monitor.types import Alert, Fault
 
 

@@ -1,7 +1,7 @@
 """Image conditions against the model's operating envelope (monitor/detector/envelope.py).
 
 Per frame, on the health checks' small grey image: mean luminance, spread (std / mean),
-noise and sharpness (``monitor.imagestats``), for the whole view and for each protective
+noise and sharpness (``monitor.detector.imagestats``), for the whole view and for each protective
 zone's image region. Outside the envelope is a STOP fault ``detector_envelope`` naming the
 camera, the region and the measure ("cam0: too dim for the detector: mean luminance 38,
 envelope >= 55"); inside but within ``envelope_margin`` of an edge is a warning alert.
@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from monitor import imagestats
+from monitor.detector import imagestats
 from monitor.detector.envelope import Envelope, limit_measures, limits_of
 from monitor.types import Alert, Fault
 

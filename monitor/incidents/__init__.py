@@ -11,6 +11,10 @@ For readers (the web console, the CLI, remote tools), the whole API is:
 - ``data_dir_of(RecorderConfig)``: where a config's incidents are.
 
 Writers: ``IncidentRecorder`` (the driver sink), nothing else.
+
+May import: the driver (it is one of its sinks), ``monitor.records`` (the records and the overlay it
+shares with the replay), ``monitor.zones`` and the layers under them; never the service, the bus or
+the adapters.
 """
 
 from monitor.incidents.settings import RecorderConfig, data_dir_of, default_data_dir

@@ -10,7 +10,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from monitor.annotate import annotate
+from monitor.records.annotate import annotate
 from monitor.timetext import TimeText
 
 CODEC = "H.264 (libx264 via PyAV)"
@@ -18,10 +18,10 @@ CODEC = "H.264 (libx264 via PyAV)"
 
 def overlay(image: np.ndarray, result, cell, camera_id: str, watch: list,
             when: TimeText | None = None) -> np.ndarray:
-    """The replay's overlay (``monitor.annotate``): the header with camera and time, zones with
-    labels apart and a legend, each person with the track id the commands use and the floor
-    range behind a hit, health, the state bar with the command's description. ``when``: the
-    times as text (live: wall clock); None: seconds of the video."""
+    """The replay's overlay (``monitor.records.annotate``): the header with camera and time, zones
+    with labels apart and a legend, each person with the track id the commands use and the floor
+    range behind a hit, health, the state bar with the command's description. ``when``: the times as
+    text (live: wall clock); None: seconds of the video."""
     return annotate(image, result, cell, camera_id, watch, when=when)[0]
 
 

@@ -31,13 +31,13 @@ from pathlib import Path
 import cv2
 
 from monitor.driver import Step
-from monitor.events import alert_event, command_event, describe
 from monitor.incidents.clips import CODEC, ClipWriter, overlay
 from monitor.incidents.retention import enforce
 from monitor.incidents.ring import FrameRing, RingFrame, encode_jpeg
 from monitor.incidents.settings import RecorderConfig
 from monitor.incidents.store import RECORD, IncidentStore
 from monitor.incidents.triggers import Triggers
+from monitor.records.events import alert_event, command_event, describe
 from monitor.timetext import TimeText
 from monitor.types import Alert
 from monitor.zones import watch_regions

@@ -1,7 +1,7 @@
 """The pipeline: one processing step per frame (detect, mask, zones, tracks, health) and the
 cell's decision over every camera's newest answer (``monitor.policy``).
 
-Persons are tracked per camera (``monitor.tracks``): a person lost inside a protective or
+Persons are tracked per camera (``monitor.tracking.tracks``): a person lost inside a protective or
 warning zone keeps it occupied (``ZoneHit(lost=True)``) until seen again or until an operator's
 ``confirm_clear`` reset. Mask zones act on the detector's raw boxes before merging
 (``monitor.zones.masks``), so a masked look-alike never swallows a real person.
@@ -15,6 +15,10 @@ Modules: ``core`` (``Pipeline``: the step per frame and the decision handed on),
 (``StepResult``, per-camera state), ``masking`` (mask zones on raw boxes), ``locate`` (zones,
 tracks, cell persons of a frame), ``evidence`` (every camera's answer merged for the policy),
 ``holds`` (lost persons, confirm-clear), ``fault_alerts``, ``mutes``, ``zone_sets``.
+
+May import: the stages it runs (``detector``, ``frames``, ``tracking``, ``health``),
+``monitor.zones``, ``monitor.cases``, the building blocks and the bottom layer; never the driver,
+the bus or their callers.
 """
 
 from monitor.pipeline.core import Pipeline

@@ -16,11 +16,9 @@ from dataclasses import replace
 import numpy as np
 
 from monitor.cases import sets as cases
-from monitor.cell_persons import CellPersons, CellPersonsConfig
+from monitor.cases.muting import MuteOutcome, MuteRequest, Mutes
 from monitor.detector import Detector
-from monitor.handover import HandedHolds
 from monitor.health import CameraHealth
-from monitor.muting import MuteOutcome, MuteRequest, Mutes
 from monitor.pipeline.data import CameraState, StepResult
 from monitor.pipeline.evidence import ZonesApplying, policy_inputs
 from monitor.pipeline.fault_alerts import FaultAlerts, one_line
@@ -40,7 +38,9 @@ from monitor.policy import (
     step,
 )
 from monitor.timetext import TimeText
-from monitor.tracks import Hold, PersonTracker, TrackerConfig
+from monitor.tracking.cell_persons import CellPersons, CellPersonsConfig
+from monitor.tracking.handover import HandedHolds
+from monitor.tracking.tracks import Hold, PersonTracker, TrackerConfig
 from monitor.types import Alert, Fault, FrameInfo, Persons
 from monitor.zones import Cell
 from monitor.zones.masks import MaskRule
@@ -83,7 +83,7 @@ class Pipeline:
         self.fault_alerts = FaultAlerts()  # STOP faults alerted when they appear and end
         self.state: PolicyState = initial_state()
         self.last_command: Command | None = None
-        # serial -> nonce of a new latch (live: ``monitor.resets.LatchNonces`` of the bus's
+        # serial -> nonce of a new latch (live: ``monitor.wire.resets.LatchNonces`` of the bus's
         # boot); None: ``latch-<serial>``, deterministic for replay
         self.latch_nonces: Callable[[int], str] | None = None
         # zones muted by operators (``request_mutes``), applied at each decision; zone sets
@@ -112,7 +112,7 @@ class Pipeline:
 
     @property
     def mutes(self) -> Mutes:
-        """The mute state (``monitor.muting.Mutes``)."""
+        """The mute state (``monitor.cases.muting.Mutes``)."""
         return self.mute_desk.mutes
 
     @mutes.setter
@@ -148,7 +148,8 @@ class Pipeline:
     def swap_cell(self, cell: Cell, prepared=None,
                   health: Mapping[str, CameraHealth | None] | None = None,
                   note: str = "") -> None:
-        """Decide with ``cell`` from the next step on (a signed zone apply, monitor.zone_swap).
+        """Decide with ``cell`` from the next step on (a signed zone apply,
+        monitor.service.zone_swap).
 
         Everything derived from the zone set is replaced here: the prepared zones (with the
         reaction time of separation monitoring when given), the mask rules, each tracker's

@@ -5,11 +5,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from monitor.cell_persons import Who
+from monitor.cases.muting import Mute, MuteOutcome
 from monitor.health import CameraHealth, HealthReport
-from monitor.muting import Mute, MuteOutcome
 from monitor.policy import Command
-from monitor.tracks import PersonTracker
+from monitor.tracking.cell_persons import Who
+from monitor.tracking.tracks import PersonTracker
 from monitor.types import Alert, Fault, FrameInfo, Persons, ZoneReport
 
 
@@ -33,7 +33,7 @@ class StepResult:
     # that hold at this decision (docs/muting.md)
     mute_outcomes: tuple[MuteOutcome, ...] = ()
     mutes: tuple[Mute, ...] = ()
-    person_ids: tuple[Who, ...] = ()  # the cell person of each row (monitor.cell_persons)
+    person_ids: tuple[Who, ...] = ()  # the cell person of each row (monitor.tracking.cell_persons)
 
 
 @dataclass

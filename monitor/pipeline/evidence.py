@@ -10,11 +10,11 @@ import functools
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 
-from monitor.handover import HandedHolds
 from monitor.pipeline.data import CameraState
 from monitor.pipeline.mutes import MuteDesk
 from monitor.pipeline.zone_sets import ZoneSets
 from monitor.policy import PolicyInputs, ResetRequest
+from monitor.tracking.handover import HandedHolds
 from monitor.types import Fault
 from monitor.zones import merge_towards_danger
 from monitor.zones.check import apply_mutes

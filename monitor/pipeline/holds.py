@@ -8,11 +8,11 @@ import logging
 from collections.abc import Mapping
 from dataclasses import replace
 
-from monitor.cell_persons import CellPersons
-from monitor.handover import HandedHolds
 from monitor.pipeline.data import CameraState
 from monitor.policy import Latch, ResetRequest, stale_latch
-from monitor.tracks import Hold
+from monitor.tracking.cell_persons import CellPersons
+from monitor.tracking.handover import HandedHolds
+from monitor.tracking.tracks import Hold
 from monitor.types import Alert
 
 log = logging.getLogger("monitor.pipeline")  # the pipeline's log, as before the split

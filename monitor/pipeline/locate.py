@@ -10,13 +10,13 @@ from collections.abc import Callable, Mapping
 
 import numpy as np
 
-from monitor.cell_persons import CellPersons, Who
 from monitor.detector import Detector
 from monitor.pipeline.data import CameraState
 from monitor.pipeline.fault_alerts import one_line
 from monitor.policy import PolicyConfig
+from monitor.tracking.cell_persons import CellPersons, Who
+from monitor.tracking.whereabouts import FootGrid, FreeElsewhere
 from monitor.types import Fault, FrameInfo, Persons, ZoneReport
-from monitor.whereabouts import FootGrid, FreeElsewhere
 from monitor.zones import Cell, check_persons
 from monitor.zones.masks import MaskRule
 from monitor.zones.moving import ToolState

@@ -3,7 +3,7 @@
 ``MuteDesk`` holds the mute state a ``Pipeline`` owns: requests judged as they come in, mutes
 ended at the first decision at or after their end (or all of them after a zone apply), and the
 outcomes and alerts that ride on the next ``StepResult``. The rules themselves are the pure
-``monitor.muting.Mutes``; this only keeps them between steps and says what changed.
+``monitor.cases.muting.Mutes``; this only keeps them between steps and says what changed.
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import logging
 from collections.abc import Sequence
 from dataclasses import replace
 
-from monitor.muting import Mute, MuteOutcome, MuteRequest, Mutes
+from monitor.cases.muting import Mute, MuteOutcome, MuteRequest, Mutes
 from monitor.policy.model import Reason
 from monitor.timetext import TimeText, seconds
 from monitor.types import Alert
@@ -47,7 +47,7 @@ class MuteDesk:
                 ) -> tuple[MuteOutcome, ...]:
         """Judge mute requests at ``now``: accepted ones hold from ``now`` for their duration.
         The outcomes and their alerts are kept for ``take_events``."""
-        from monitor.alerts import mute_alert
+        from monitor.wire.alerts import mute_alert
 
         out = []
         for req in requests:
@@ -68,7 +68,7 @@ class MuteDesk:
     def muted(self, now: float) -> tuple[dict[str, float | None], tuple[Reason, ...]]:
         """The zones muted at ``now`` (for ``apply_mutes``) and the policy's notes; a mute
         that ended is alerted here, at the first decision at or after its end."""
-        from monitor.alerts import unmute_alert
+        from monitor.wire.alerts import unmute_alert
 
         if self._end_why:  # a zone apply ends every mute (the rules may have changed)
             for mute in self.mutes.active:

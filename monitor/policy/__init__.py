@@ -31,6 +31,8 @@ Rules (the monitor is a supplementary device; it fails towards STOP):
 * A step without a frame (``frame_time=None``) only evaluates timers and current faults. The zone
   causes of the last frame are carried over, so a cell is never declared clear without a frame
   that shows it clear.
+
+May import: the bottom layer only (``types``, ``schema``, ``timetext``).
 """
 
 from monitor.policy.causes import fail_safe_causes, frame_causes

@@ -27,8 +27,8 @@ class FrameCauses:
 
 
 def _person(hit: ZoneHit) -> int | str:
-    """The cell person's id (one per person on every camera: monitor.cell_persons), else the
-    tracked person's id (stable across frames), else the row."""
+    """The cell person's id (one per person on every camera: monitor.tracking.cell_persons), else
+    the tracked person's id (stable across frames), else the row."""
     if hit.who is not None:
         return hit.who
     return hit.track_id if hit.track_id is not None else hit.person
@@ -132,7 +132,8 @@ def fail_safe_causes(inputs: PolicyInputs, now: float, config: PolicyConfig,
 # not delivered its first frame): a STOP like the start-up one, and like it never latched by
 # the manual interlock (unless ``startup_requires_reset``), so a restart of a multi-camera cell
 # never waits for an operator. A latching fault (``Fault.latch``) still latches.
-# A signed zone apply (monitor.zone_swap) is a start on new zones: the same STOP, not latched.
+# A signed zone apply (monitor.service.zone_swap) is a start on new zones: the same STOP, not
+# latched.
 STARTUP_FAULTS = frozenset({"camera_waiting", "zones_applying"})
 
 

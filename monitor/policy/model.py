@@ -54,7 +54,7 @@ class Reason:
     (cause gone, waiting ``clear_time``), ``latched`` (waiting for a reset; with no STOP cause
     now the first reason, saying the latch's cause as past, with its zone), ``shutdown`` and
     ``stalled`` (added by the bus). ``person`` is the cell person's id when the person is
-    tracked (``monitor.cell_persons``: a number, or "cam1:4" on an uncalibrated camera of
+    tracked (``monitor.tracking.cell_persons``: a number, or "cam1:4" on an uncalibrated camera of
     several), else the row.
     """
 
@@ -84,7 +84,7 @@ class Reason:
 class Latch:
     """The cause that latched the STOP, and when (s). ``nonce`` names this latch: a reset must
     name it (``ResetRequest.latch``), so a reset made for another latch or another run of the
-    monitor never releases this one (``monitor.resets.LatchNonces`` makes them live)."""
+    monitor never releases this one (``monitor.wire.resets.LatchNonces`` makes them live)."""
 
     code: str
     message: str

@@ -39,9 +39,9 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from monitor.errors import ConfigError, InputError
-from monitor.pose_time import TrackerClock, TrackerClockConfig
-from monitor.tool_motion import MotionLimits, ToolMotion, ToolSpeed, estimate_tool_speed
-from monitor.tracker_noise import TrackerConfig
+from monitor.pose.tool_motion import MotionLimits, ToolMotion, ToolSpeed, estimate_tool_speed
+from monitor.pose.tracker_noise import TrackerConfig
+from monitor.pose.tracker_time import TrackerClock, TrackerClockConfig
 
 OTUS_FORMAT = "<23d"
 OTUS_SIZE = struct.calcsize(OTUS_FORMAT)  # 184
@@ -393,7 +393,7 @@ class PoseSubscriber:
 
     Use as a context manager (undeclares the subscriber on exit); ``latest()`` and
     ``pose_time()`` are what the service feeds to the policy. Every sample's tracker time is
-    checked against its receive time (``monitor.pose_time``): while it disagrees the speed
+    checked against its receive time (``monitor.pose.tracker_time``): while it disagrees the speed
     history stays empty and ``latest().clock_fault`` is a ``pose_implausible`` fault.
     """
 

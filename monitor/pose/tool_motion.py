@@ -15,10 +15,10 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 from monitor.errors import ConfigError
-from monitor.tracker_noise import TrackerConfig
+from monitor.pose.tracker_noise import TrackerConfig
 
 if TYPE_CHECKING:
-    from monitor.pose import OtusSample
+    from monitor.pose.stream import OtusSample
 
 Vec3 = tuple[float, float, float]
 

@@ -1,7 +1,7 @@
 """The tracker's declared precision and the pose noise it lets through (issue 29).
 
-The pose checks compare two readings of the tool: consecutive samples (``monitor.pose``,
-``check_step``) and the ends of a speed window (``monitor.tool_motion``, the reported rates
+The pose checks compare two readings of the tool: consecutive samples (``monitor.pose.stream``,
+``check_step``) and the ends of a speed window (``monitor.pose.tool_motion``, the reported rates
 against the measured ones). Each reading carries the tracker's own noise, so even a tool at rest
 shows a difference. With fixed allowances, an optical tracker with 1 degree of orientation noise
 made 291 of 480 stationary samples a ``pose_implausible`` STOP. So the allowance comes from the

@@ -5,8 +5,8 @@ Every frame shows a header (video time, frame number, camera id), the zones with
 never overlap (``monitor.zones.labels``) and a legend of the zone colours (the colours of
 ``monitor zones preview``), each person's box labelled with the id the commands use (the
 tracker's id), and for a person in a zone the floor range the zone check tested (from
-``monitor.occlusion``'s placement: the nearest to the farthest floor position, drawn back into
-the image), resets (accepted or refused, by whom) and alerts for ``HOLD_S`` seconds after they
+``monitor.geometry.occlusion``'s placement: the nearest to the farthest floor position, drawn back
+into the image), resets (accepted or refused, by whom) and alerts for ``HOLD_S`` seconds after they
 happen, and the command in the bottom bar.
 
 ``Annotator.step`` returns the image and a ``Drawn`` record of every text it drew, so tests
@@ -20,10 +20,10 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from monitor.events import describe
 from monitor.health import draw_health
 from monitor.pipeline import StepResult
 from monitor.policy import RUN, SLOW, STOP
+from monitor.records.events import describe
 from monitor.timetext import TimeText
 from monitor.zones import Cell
 from monitor.zones.check import placement
@@ -83,8 +83,8 @@ class Drawn:
 
 def person_ids(result: StepResult) -> tuple[int | str, ...]:
     """The id of each person row as the commands' reasons name it (``monitor.policy.causes``):
-    the cell person's (one id for one person on every camera, ``monitor.cell_persons``), the
-    tracker's id without one, the row index only where there is no tracker."""
+    the cell person's (one id for one person on every camera, ``monitor.tracking.cell_persons``),
+    the tracker's id without one, the row index only where there is no tracker."""
     n = len(result.persons) if result.persons is not None else 0
     if len(result.person_ids) == n:
         return tuple(result.person_ids)

@@ -1,5 +1,6 @@
-"""The command and alert records of ``events.jsonl``, shared by the replay (``monitor.replay``),
-the incident recorder (``monitor.incidents.recorder``) and anyone who reads them back.
+"""The command and alert records of ``events.jsonl``, shared by the replay
+(``monitor.replay.video``), the incident recorder (``monitor.incidents.recorder``) and anyone who
+reads them back.
 
 One place for the record's shape, below all of its writers: the recorder takes the same
 records as the replay without importing the replay. No wall-clock values: the same input gives

@@ -26,18 +26,18 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from monitor.annotate import Annotator
 from monitor.detector import Detector
 from monitor.detector.envelope import for_detector
 from monitor.driver import Driver, Step, StepInputs, require_protective_zone
 from monitor.errors import InputError
-from monitor.events import alert_event, command_event, describe
 from monitor.frames import Frame, VideoFileReader
 from monitor.health import HealthConfig
 from monitor.health.build import camera_health, inplace_check
 from monitor.pipeline import Pipeline
 from monitor.policy import RUN, SLOW, STOP, PolicyConfig, ResetRequest
 from monitor.progress import bar
+from monitor.records.annotate import Annotator
+from monitor.records.events import alert_event, command_event, describe
 from monitor.timetext import video_time
 from monitor.zones import Cell, watch_regions
 from monitor.zones.cameras import choose_camera
@@ -291,10 +291,10 @@ class SummarySink:
 
 
 class VideoSink:
-    """annotated.mp4: one annotated image per frame (``monitor.annotate``; ticks add none, but
-    their resets and alerts show on the next frames). H.264 through PyAV when it is installed
-    (browsers play it), else MPEG-4 Part 2 through OpenCV. ``foot_band_px`` is the detector's
-    foot band the zone check used (the floor ranges drawn are the ones checked)."""
+    """annotated.mp4: one annotated image per frame (``monitor.records.annotate``; ticks add none,
+    but their resets and alerts show on the next frames). H.264 through PyAV when it is installed
+    (browsers play it), else MPEG-4 Part 2 through OpenCV. ``foot_band_px`` is the detector's foot
+    band the zone check used (the floor ranges drawn are the ones checked)."""
 
     def __init__(self, path: Path, fps: float, cell: Cell | None, camera_id: str, watch: list,
                  foot_band_px: tuple[float, float] = (0.0, 0.0)):

@@ -15,6 +15,9 @@ Two kinds of scenes:
 Everything is deterministic from a seed. Ground-truth person boxes are the boxes of the
 person's *visible* pixels, ``x1, y1, x2, y2`` with exclusive right/bottom edges (pixel i covers
 [i, i+1)).
+
+Also here: detector accuracy against a scene's ground truth (``accuracy.py``). May import: the
+bottom layer only (``errors``, ``progress``); the frames and the detector's self-test draw from it.
 """
 
 from __future__ import annotations

@@ -2,8 +2,8 @@
 much faster is it on this host? A log line and a ``int8`` status field; the model is never
 switched automatically (the integrator decides, with the check's numbers in hand).
 
-The agreement check (monitor/quantize.py: persons found by fp32 and int8 on held-out frames)
-is recorded beside the int8 file (``NAME.int8.onnx.check.json``, with the file's sha256) by
+The agreement check (monitor/detector/quantize.py: persons found by fp32 and int8 on held-out
+frames) is recorded beside the int8 file (``NAME.int8.onnx.check.json``, with the file's sha256) by
 ``monitor model quantize`` and ``monitor model build --int8``. An int8 file without a record of
 a passed check (written with ``--force``, or replaced since) is never recommended.
 """
@@ -16,7 +16,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from monitor.quantize import Agreement, default_output
+from monitor.detector.quantize import Agreement, default_output
 
 
 def record_path(int8: Path) -> Path:
@@ -92,7 +92,7 @@ def int8_hint(model_path: Path, detect_fp32: Callable, open_int8: Callable[[Path
               ) -> Int8Hint | None:
     """Time the fp32 detector and the int8 file beside it (``open_int8(path)`` -> its detect)
     briefly on a frame of ``size``; None when there is none (or the model is int8 already)."""
-    from monitor.capacity import measure_detect_s
+    from monitor.service.capacity import measure_detect_s
 
     if model_path.name.endswith(".int8.onnx"):
         return None

@@ -1,6 +1,6 @@
 """The service's log: one line per event (plain, or JSON with ``--log-json``) on stderr, and the
-fields of a command change's line. Shared by the entry (``monitor.service``), its start-up checks
-(``monitor.service_setup``) and the live loop (``monitor.service_loop``)."""
+fields of a command change's line. Shared by the entry (``monitor.service.run``), its start-up
+checks (``monitor.service.setup``) and the live loop (``monitor.service.loop``)."""
 
 from __future__ import annotations
 

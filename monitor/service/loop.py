@@ -13,14 +13,14 @@ import threading
 import time
 from collections import deque
 
-from monitor.bus import SafetyBus
+from monitor.bus.session import SafetyBus
 from monitor.detector.test_model import TEST_MODEL_REASON
 from monitor.driver import Step, StepInputs
 from monitor.health import LOST
-from monitor.metrics import CameraFigures, Metrics
 from monitor.pipeline import StepResult
 from monitor.policy import Reason
-from monitor.service_log import command_fields, event
+from monitor.service.log import command_fields, event
+from monitor.service.metrics import CameraFigures, Metrics
 from monitor.timetext import wall_clock
 from monitor.types import Alert, Fault
 from monitor.zones.separation import tool_points_in_tracker
@@ -39,7 +39,7 @@ class LiveFeed:
         self.min_interval = {cid: 1.0 / fps for cid, fps in (max_fps or {}).items() if fps}
         self.last_taken: dict[str, float] = {}
         self.use_zones(prepared)
-        self.zones = None  # monitor.zone_swap.LiveZones: signed zone applies, between steps
+        self.zones = None  # monitor.service.zone_swap.LiveZones: signed zone applies, between steps
         self.bus = bus
         self.pose = pose
         self.stop = stop
@@ -48,7 +48,7 @@ class LiveFeed:
         self.end = time.monotonic() + duration if duration is not None else None
         self.turn = 0
         self.cases = None  # the zone set selections' receiver (None: no sets)
-        self.handover = None  # monitor.bus_holds.HoldsLink: a silent peer is a STOP fault
+        self.handover = None  # monitor.bus.holds.HoldsLink: a silent peer is a STOP fault
         # None: never connected yet (start-up is no loss); True / False after that
         self.was_connected: dict[str, bool | None] = {g.camera_id: None for g in grabbers}
 
@@ -125,7 +125,7 @@ class LiveFeed:
                 if speed.fault is not None:
                     faults.append(speed.fault)
             for rejection in self.pose.drain_rejections():
-                from monitor.alerts import pose_alert
+                from monitor.wire.alerts import pose_alert
 
                 self.alert(pose_alert(rejection, "pose", now))
         return StepInputs(reset=resets[-1] if resets else None,

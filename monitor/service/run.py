@@ -20,23 +20,22 @@ import threading
 import time
 from pathlib import Path
 
-from monitor.bus import SafetyBus
-from monitor.camera_references import reference_warnings
+from monitor.bus.preview import start_preview
+from monitor.bus.session import SafetyBus
 from monitor.cases.receiver import CaseReceiver
-from monitor.commissioned import fingerprint
-from monitor.commissioned import status_of as commissioned_status
 from monitor.config import MonitorConfig, load_config
 from monitor.driver import Driver, protective_warning, settle_heap
 from monitor.geometry import describe_separation
 from monitor.health.build import inplace_check, protective_regions
-from monitor.metrics import Metrics
+from monitor.health.references import reference_warnings
 from monitor.pipeline import Pipeline
 from monitor.policy import STOP, Command, Reason
-from monitor.preview import start_preview
-from monitor.resets import LatchNonces
-from monitor.service_log import event, setup_logging
-from monitor.service_loop import LiveFeed, ServiceSink
-from monitor.service_setup import (
+from monitor.service.commissioned import fingerprint
+from monitor.service.commissioned import status_of as commissioned_status
+from monitor.service.log import event, setup_logging
+from monitor.service.loop import LiveFeed, ServiceSink
+from monitor.service.metrics import Metrics
+from monitor.service.setup import (
     build_pipeline,
     bus_config_for,
     check_capacity,
@@ -47,6 +46,7 @@ from monitor.service_setup import (
 )
 from monitor.signals import StopSignals
 from monitor.timetext import wall_clock
+from monitor.wire.resets import LatchNonces
 
 
 def run_service(config_path: str | Path | None, log_json: bool = False,
@@ -198,8 +198,8 @@ def _serve(config: MonitorConfig, pipeline: Pipeline, bus: SafetyBus, expected: 
                         sink.alert, pipeline.prepared,
                         max_fps={c.id: c.max_fps for c in config.cameras})
         # signed zone applies: checked on the bus, swapped in by the loop between two steps
-        from monitor.bus_holds import start_handover
-        from monitor.zone_swap import LiveZones, ZoneApplies
+        from monitor.bus.holds import start_handover
+        from monitor.service.zone_swap import LiveZones, ZoneApplies
 
         applies = ZoneApplies(bus)
         closers.insert(0, applies.close)

@@ -9,24 +9,24 @@ import logging
 import time
 from pathlib import Path
 
-from monitor.bus import BusConfig, SafetyBus
-from monitor.capacity import CameraDemand, Limits
-from monitor.capacity import check as capacity_check
+from monitor.bus.session import BusConfig, SafetyBus
 from monitor.config import DEMO_SOURCE, MonitorConfig, demo_cell_path
 from monitor.detector.test_model import require_real_model
 from monitor.driver import require_protective_zone
 from monitor.errors import ConfigError
 from monitor.geometry import ReactionBudget
-from monitor.metrics import Metrics
-from monitor.pipeline import Pipeline
-from monitor.reaction import (
+from monitor.geometry.reaction import (
     Allowances,
     MeasuredBudget,
     ReactionSink,
     ReactionWatch,
     at_start,
 )
-from monitor.service_log import event
+from monitor.pipeline import Pipeline
+from monitor.service.capacity import CameraDemand, Limits
+from monitor.service.capacity import check as capacity_check
+from monitor.service.log import event
+from monitor.service.metrics import Metrics
 from monitor.zones.separation import require_separation_ready, with_reaction_time
 
 
@@ -53,10 +53,10 @@ def _require_fed_cameras(cell, config: MonitorConfig, zones_file: str | None) ->
 def build_pipeline(config: MonitorConfig):
     """Model, zones, health checker and pipeline from a validated config (I/O: files only);
     also the warning to carry when the synthetic test model is allowed on a live camera."""
-    from monitor.camera_references import choose_references, load_chosen_reference
     from monitor.detector import Detector
     from monitor.detector.envelope import for_detector
     from monitor.health.build import camera_health
+    from monitor.health.references import choose_references, load_chosen_reference
     from monitor.models import synthetic
     from monitor.zones import load_cell
 
@@ -93,7 +93,7 @@ def zones_file_of(config: MonitorConfig) -> str | None:
 
 def zone_checks(config: MonitorConfig, cell, zones_file: str | None) -> None:
     """What a zone set must pass to be decided with, at start and at a signed apply
-    (monitor.zone_swap): a protective zone, every fed camera in it, no zone of an unfed
+    (monitor.service.zone_swap): a protective zone, every fed camera in it, no zone of an unfed
     camera, and a tool with a calibrated camera for separation monitoring. ConfigError."""
     require_protective_zone(cell, config.zones.allow_no_protective,
                             zones_file or "(no [zones] file)")
@@ -146,11 +146,11 @@ def reaction_budget(config: MonitorConfig) -> ReactionBudget:
 
 
 def int8_at_start(config: MonitorConfig, detector, expected: dict, stopped):
-    """The int8 model beside the configured one, timed against it here (monitor/int8hint.py);
-    None without one. Never switches the model."""
+    """The int8 model beside the configured one, timed against it here
+    (monitor/service/int8hint.py); None without one. Never switches the model."""
     from monitor.detector import Detector
     from monitor.errors import MonitorError
-    from monitor.int8hint import int8_hint
+    from monitor.service.int8hint import int8_hint
 
     size = max((expected.get(c.id) or (1920, 1080) for c in config.cameras),
                key=lambda s: s[0] * s[1])
@@ -164,7 +164,7 @@ def int8_at_start(config: MonitorConfig, detector, expected: dict, stopped):
 
 def reaction_sink(config: MonitorConfig, pipeline: Pipeline, capacity, bus: SafetyBus,
                   metrics: Metrics, alert) -> ReactionSink:
-    """The measured reaction budget (monitor/reaction.py) against the T_r that S_p was
+    """The measured reaction budget (monitor/geometry/reaction.py) against the T_r that S_p was
     computed with (without separation monitoring: this configuration's T_r, and a warning
     only): judged at start from the capacity check's figures (log, alert, status), then live
     from the steps."""

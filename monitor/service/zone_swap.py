@@ -1,14 +1,14 @@
 """A changed zone file applied to the running service, only when an operator signed it.
 
 ``ZoneApplies`` is the bus side: a queryable on ``<prefix>safety/zones/apply`` that checks each
-request (``monitor.zone_apply.ApplyGate``: listed operator, signature, cell, this boot, time,
+request (``monitor.cases.zone_apply.ApplyGate``: listed operator, signature, cell, this boot, time,
 request id), answers a refused one at once and queues the others for the safety loop.
 
 ``LiveZones`` is the loop side (called from ``LiveFeed.inputs``, between two steps, in the loop's
 own thread: the pipeline is never touched from another thread). For each request it re-reads
 the zone file from the service's configured path, refuses unless the file's zone-set hash is
 the signed one ("the file changed after you signed"), validates it as at start
-(``monitor.service_setup.zone_checks``; the cameras and their sizes must stay, they need a restart),
+(``monitor.service.setup.zone_checks``; the cameras and their sizes must stay, they need a restart),
 builds what derives from it (prepared zones, watch regions of the health checks) and only then
 swaps it into the pipeline (``Pipeline.swap_cell``), the bus (``config_hash`` of the status and
 of every command) and the recorder, with a ``zones_applied`` alert naming the operator and the
@@ -33,12 +33,12 @@ from collections.abc import Callable
 
 import numpy as np
 
-from monitor import payload as payload_json
+from monitor.cases.zone_apply import APPLY_ANSWER_SCHEMA, ApplyGate, ApplyRefused, ApplyRequest
 from monitor.errors import ConfigError, InputError
-from monitor.resets import MAX_RESET_PAYLOAD
-from monitor.signing import load_operators
 from monitor.types import Alert
-from monitor.zone_apply import APPLY_ANSWER_SCHEMA, ApplyGate, ApplyRefused, ApplyRequest
+from monitor.wire import payload as payload_json
+from monitor.wire.resets import MAX_RESET_PAYLOAD
+from monitor.wire.signing import load_operators
 
 APPLIED = "zones_applied"
 REFUSED = "zones_apply_refused"
@@ -171,9 +171,9 @@ class LiveZones:
 
     def apply(self, req: ApplyRequest) -> str:
         """Swap the zones when everything holds; ApplyRefused (nothing changed) otherwise."""
-        from monitor.camera_references import choose_reference, load_chosen_reference
         from monitor.health.build import camera_health, protective_regions
-        from monitor.service_setup import prepared_zones, zone_checks
+        from monitor.health.references import choose_reference, load_chosen_reference
+        from monitor.service.setup import prepared_zones, zone_checks
         from monitor.zones import load_cell, watch_regions
 
         if not self.zones_file:

@@ -1,6 +1,6 @@
 """One person id across the cameras of a cell: a camera's track becomes a *cell person*.
 
-Each camera numbers its own tracks (``monitor.tracks.PersonTracker``): cam0's person 1 and
+Each camera numbers its own tracks (``monitor.tracking.tracks.PersonTracker``): cam0's person 1 and
 cam1's person 4 may be one human standing where both views overlap. Reasons, holds, alerts, the
 log and the annotated video name persons by their cell person id instead:
 
@@ -31,7 +31,7 @@ import numpy as np
 from pydantic import Field
 
 from monitor.schema import Float, section
-from monitor.tracks import Hold, PersonTracker, Track, TrackUpdate
+from monitor.tracking.tracks import Hold, PersonTracker, Track, TrackUpdate
 from monitor.types import ZoneReport
 
 Who = int | str  # a cell person id, or a camera-qualified track id ("cam1:4")

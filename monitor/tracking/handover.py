@@ -5,13 +5,13 @@ image edge, moving outwards), is lost anywhere else outside its zones ("lost": b
 fixture, at the far end of the view) or is lost inside one of its zones (a *hold*) may be where
 only monitor-b's zones are, unseen by monitor-b's cameras (hidden, missed). Each monitor with
 peers publishes the list of its holds and recent losses (``entries_of``; signed on its
-``safety/<role>/holds`` key, ``monitor.bus_holds``); a receiving monitor turns each verified
+``safety/<role>/holds`` key, ``monitor.bus.holds``); a receiving monitor turns each verified
 entry it has not taken before into a hold of its own (``HandedHolds``): a ``person_lost`` STOP
 on every protective zone of its own whose floor footprint lies within reach of the entry's floor
 point (walking speed x ``reach_s``), and on any of its protective zones with an id the entry
 held. A held zone ends when its own cameras see a person within reach of that point *inside
 that zone* (whose own hits then keep it occupied), or on an operator's confirm-clear reset. A
-peer that falls silent never ends one (``monitor.bus_holds`` makes the silence a STOP); a peer
+peer that falls silent never ends one (``monitor.bus.holds`` makes the silence a STOP); a peer
 message with more persons than ``MAX_ENTRIES`` holds every protective zone.
 
 Pure: no clock, no I/O; the edges pass times in.
@@ -27,9 +27,9 @@ from typing import Annotated, Any
 import numpy as np
 from pydantic import Field
 
-from monitor.busconfig import Role
 from monitor.schema import ConfigPath, Float, section
 from monitor.types import Fault, ZoneHit, ZoneReport
+from monitor.wire.busconfig import Role
 from monitor.zones.draw import volume_outline_m
 from monitor.zones.moving import follows_tool
 
@@ -107,13 +107,13 @@ class Entry:
 
 def entries_of(tracks: Mapping[str, Sequence[Any]], now: float, wall_now: float,
                keep_s: float) -> tuple[Entry, ...]:
-    """What this monitor hands over now, from each camera's tracks (``monitor.tracks.Track``):
-    every lost person holding zones, and every other person lost within ``keep_s`` -- one who
-    left the view at an image edge ("departure") or was lost anywhere else ("lost": behind a
-    fixture, at the far end of the view, where only a peer's zone may be). ``now`` is the
-    tracks' clock, ``wall_now`` the Unix time at ``now``. Holds first, then the most recent.
-    A track without a finite floor point (uncalibrated camera) cannot be handed over. All of
-    them: ``holds_payload`` says when there are more than a message carries."""
+    """What this monitor hands over now, from each camera's tracks
+    (``monitor.tracking.tracks.Track``): every lost person holding zones, and every other person
+    lost within ``keep_s`` -- one who left the view at an image edge ("departure") or was lost
+    anywhere else ("lost": behind a fixture, at the far end of the view, where only a peer's zone
+    may be). ``now`` is the tracks' clock, ``wall_now`` the Unix time at ``now``. Holds first, then
+    the most recent. A track without a finite floor point (uncalibrated camera) cannot be handed
+    over. All of them: ``holds_payload`` says when there are more than a message carries."""
     out = []
     for cid, camera_tracks in sorted(tracks.items()):
         for t in camera_tracks:

@@ -5,8 +5,8 @@ by a part carried past the camera, between two frames at 1 fps. A per-frame zone
 then read "clear" exactly when a reset or a RUN is most dangerous. So persons are tracked
 across frames (ByteTrack from ``supervision``: association by box overlap with a Kalman motion
 model) for their names, and every track that is lost leaves an *area* where the person could be
-(``monitor.whereabouts``): it grows at walking speed through whatever the camera does not see
-free and shrinks where a working camera sees it free for ``clear_time``. While the area touches
+(``monitor.tracking.whereabouts``): it grows at walking speed through whatever the camera does not
+see free and shrinks where a working camera sees it free for ``clear_time``. While the area touches
 a protective or warning zone it is a *hold*: every frame, the camera's zone report carries
 ``ZoneHit(..., track_id=k, lost=True, lost_since=t)`` for each zone it touches, until
 
@@ -16,7 +16,7 @@ a protective or warning zone it is a *hold*: every frame, the camera's zone repo
 
 Ids are names only: a person re-found, or a new person near where a lost one was, never ends a
 hold. A track lost at an image edge moving outwards is marked ``left_view`` so that the cell's
-other monitors can take it over (``monitor.handover``).
+other monitors can take it over (``monitor.tracking.handover``).
 
 Everything here is deterministic: no wall clock, the frame's capture time is passed in.
 """
@@ -31,8 +31,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from monitor.timetext import TimeText
-from monitor.types import Persons, ZoneHit, ZoneReport
-from monitor.whereabouts import (
+from monitor.tracking.whereabouts import (
     HOLD_KINDS,
     FootGrid,
     FreeElsewhere,
@@ -42,6 +41,7 @@ from monitor.whereabouts import (
     ZonesOf,
     union_zones,
 )
+from monitor.types import Persons, ZoneHit, ZoneReport
 
 
 def _supervision():
@@ -84,7 +84,7 @@ class TrackerConfig:
     # a lost track's last box this much inside a seen box was merged into it: where both
     # stood is kept (someone may be hidden in the merged box) until seen free
     merge_ios: float = 0.3
-    # where a lost person could be (monitor.whereabouts): grid columns over the image, the
+    # where a lost person could be (monitor.tracking.whereabouts): grid columns over the image, the
     # reach's perspective margin, the share of a box under it where hidden feet may be
     cells_across: int = 48
     reach_margin: float = 1.5
@@ -123,7 +123,8 @@ class Hold:
     lost_since: float
     box_px: tuple[float, float, float, float]
     seen_as: int | str | None = None
-    who: int | str | None = None  # the cell person (monitor.cell_persons); None: the track id
+    # the cell person (monitor.tracking.cell_persons); None: the track id
+    who: int | str | None = None
 
     def describe(self, when: TimeText | None = None) -> str:
         """``person 3 lost inside stop``, with ``at <when(lost_since)>`` when a clock is given
@@ -191,7 +192,7 @@ def lost_person_index(track_id: int) -> int:
 
 class PersonTracker:
     """Persistent person ids for one camera, and where its lost persons could be (their
-    areas, ``monitor.whereabouts``; an area touching a zone is a hold).
+    areas, ``monitor.tracking.whereabouts``; an area touching a zone is a hold).
 
     ``to_floor`` (a camera calibration's ``pixel_to_floor``) adds floor positions and
     velocities to the tracks; without it tracks are image-only.

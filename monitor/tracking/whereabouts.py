@@ -18,7 +18,7 @@ moment of the loss the monitor keeps the *area* of the image they could be stand
 
 A zone is held while a lost person's area touches it; the hold ends when the area no longer
 does (the area itself ends when it is empty). Nothing else ends it: a new person appearing
-where the lost one was is a name (``monitor.tracks``), never evidence that the lost one is
+where the lost one was is a name (``monitor.tracking.tracks``), never evidence that the lost one is
 gone; a camera in fault sees nothing free, so the area grows while the fault lasts.
 
 Cells are foot positions on a grid over the image (``FootGrid``: ``cells_across`` columns of

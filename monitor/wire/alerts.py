@@ -102,7 +102,7 @@ def reset_alert(outcome, source: str, now: float) -> Alert:
 
 
 def mute_alert(outcome, now: float, when=None) -> Alert:
-    """Alert for a judged mute request (``monitor.muting.MuteOutcome``): ``zone_muted``
+    """Alert for a judged mute request (``monitor.cases.muting.MuteOutcome``): ``zone_muted``
     (warning) when a mute starts, ``zone_unmuted`` when one is ended early, ``mute_refused``
     when refused. ``when``: turns the policy's times into the operator's clock."""
     req, mute = outcome.request, outcome.mute
@@ -131,7 +131,7 @@ def unmute_alert(mute, now: float, when=None, why: str = "expired") -> Alert:
 
 
 def pose_alert(rejection, source: str, now: float) -> Alert:
-    """Alert for a rejected tool-pose sample or a silent pose stream (``monitor.pose``)."""
+    """Alert for a rejected tool-pose sample or a silent pose stream (``monitor.pose.stream``)."""
     if rejection.reason == "silence":
         return Alert("pose_silence", "warning", rejection.message, source, now,
                      details={"reason": rejection.reason})

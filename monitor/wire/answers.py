@@ -16,7 +16,7 @@ import json
 import zenoh
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PublicKey
 
-from monitor.signing import Signer, public_key_text, verify
+from monitor.wire.signing import Signer, public_key_text, verify
 
 
 def answer_key(key_expr: str) -> str:

@@ -131,11 +131,11 @@ class BusKeys:
     reset: str
     alive: str  # prefix of the liveliness tokens: alive + "/" + instance
     pose: str
-    mute: str = ""  # signed mute requests (monitor.mute_requests; docs/muting.md)
-    zones_apply: str = ""  # signed zone applies (monitor.zone_apply)
-    holds: str = ""  # signed holds of persons lost inside zones (monitor.bus_holds)
+    mute: str = ""  # signed mute requests (monitor.cases.mute_requests; docs/muting.md)
+    zones_apply: str = ""  # signed zone applies (monitor.cases.zone_apply)
+    holds: str = ""  # signed holds of persons lost inside zones (monitor.bus.holds)
     case: str = ""  # signed zone set selections, one key per cell (monitor.cases.receiver)
-    preview: str = ""  # small live pictures per camera for the console (monitor.preview)
+    preview: str = ""  # small live pictures per camera for the console (monitor.bus.preview)
     role: str = ""
 
     @classmethod

@@ -31,8 +31,8 @@ from collections.abc import Callable, Mapping
 
 import zenoh
 
-from monitor.busconfig import BusKeys
-from monitor.consumer import (
+from monitor.wire.busconfig import BusKeys
+from monitor.wire.consumer import (
     DEFAULT_CLOCK_SYNC_MS,
     DEFAULT_MAX_TTL_MS,
     MAX_TRACKED,
@@ -273,7 +273,7 @@ def subscribe_cell(session: zenoh.Session, prefix: str, inbox,
 def parse_expect(items: list[str], load_key: Callable[[str], object]) -> dict[str, tuple]:
     """``ROLE=KEYFILE`` options into role -> (public key, ...); a role may be given twice
     (two keys during a key change). ValueError names the bad item."""
-    from monitor.busconfig import checked_role
+    from monitor.wire.busconfig import checked_role
 
     out: dict[str, tuple] = {}
     for item in items:

@@ -8,7 +8,7 @@ this order (docs/consumer.md gives the same list for ports to other languages):
    type and range (finite numbers, ``seq`` a positive integer below 2**53, known state, speed
    within 0..1 and 0 for STOP); anything else is dropped, never raised;
 2. it is signed by a trusted monitor key (Ed25519 over the exact payload bytes, see
-   ``monitor.signing``) -- when the consumer has keys, unsigned or wrongly signed is dropped;
+   ``monitor.wire.signing``) -- when the consumer has keys, unsigned or wrongly signed is dropped;
 3. it names the expected cell (and instance, when one is followed);
 4. its ``wall`` time is at most ``clock_sync_ms`` ahead of the consumer's clock and at most
    ``clock_sync_ms`` + ttl behind it (recordings, and genuine commands relayed late: a
@@ -31,8 +31,8 @@ import collections
 import math
 from dataclasses import dataclass
 
-from monitor import payload as payload_json
-from monitor.signing import verify
+from monitor.wire import payload as payload_json
+from monitor.wire.signing import verify
 
 COMMAND_SCHEMA = "workcell.safety.command/1"
 STATES = ("RUN", "SLOW", "STOP")

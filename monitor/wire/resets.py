@@ -16,7 +16,7 @@ request. Nonces are an HMAC of (boot, latch serial) under a random key made at e
 (``LatchNonces``): unique per latch and per run, and unguessable, so no operator can be led to
 sign a reset for a latch that has not happened yet.
 
-Payload (UTF-8 JSON; the Ed25519 signature of ``monitor.signing.signed_message(<reset key>,
+Payload (UTF-8 JSON; the Ed25519 signature of ``monitor.wire.signing.signed_message(<reset key>,
 payload)`` is the attachment)::
 
     {"schema": "workcell.safety.reset/1", "cell": "cell1", "operator": "anna",
@@ -34,11 +34,17 @@ import os
 import time
 from dataclasses import dataclass, field
 
-from monitor import payload as payload_json
-from monitor.answers import request_answer
 from monitor.policy import ResetRequest
-from monitor.signed_requests import RequestIds, RequestKind, check_cell, check_signer, check_window
-from monitor.signing import Signer
+from monitor.wire import payload as payload_json
+from monitor.wire.answers import request_answer
+from monitor.wire.signed_requests import (
+    RequestIds,
+    RequestKind,
+    check_cell,
+    check_signer,
+    check_window,
+)
+from monitor.wire.signing import Signer
 
 RESET_SCHEMA = "workcell.safety.reset/1"
 MAX_RESET_PAYLOAD = 8 * 1024
@@ -198,5 +204,5 @@ def _parse(payload: bytes) -> dict:
             **({"cell": cell} if cell else {})}
 
 
-# the answer to a signed request: one mechanism for every kind (monitor/answers.py)
+# the answer to a signed request: one mechanism for every kind (monitor/wire/answers.py)
 request_reset = request_answer

@@ -1,12 +1,12 @@
 """What every signed request to the monitor checks the same way: who signed it, for which cell,
 when, and whether it was seen before.
 
-Resets (``monitor.resets``), mutes (``monitor.mute_requests``), zone applies
-(``monitor.zone_apply``) and zone set selections (``monitor.cases.requests``) each have their own
-payload and their own rules (a latch nonce, a zone, a hash, a seq), but the first checks are one
-rule, kept here so that a fix to one is a fix to all: the signer is listed and the Ed25519
-signature over (key, payload) is theirs; the request names this cell; its wall time is within the
-window of the monitor's clock; its request id was not used before (replay).
+Resets (``monitor.wire.resets``), mutes (``monitor.cases.mute_requests``), zone applies
+(``monitor.cases.zone_apply``) and zone set selections (``monitor.cases.requests``) each have their
+own payload and their own rules (a latch nonce, a zone, a hash, a seq), but the first checks are one
+rule, kept here so that a fix to one is a fix to all: the signer is listed and the Ed25519 signature
+over (key, payload) is theirs; the request names this cell; its wall time is within the window of
+the monitor's clock; its request id was not used before (replay).
 
 Each check raises the caller's own refusal class (a ``ValueError`` whose message is the reason
 told to the sender), so callers keep their exception types and the wording their users see.
@@ -18,7 +18,7 @@ import collections
 import math
 from dataclasses import dataclass
 
-from monitor.signing import verify
+from monitor.wire.signing import verify
 
 # request ids remembered at most (a flood of valid requests must not grow memory without bound)
 MAX_REMEMBERED = 10_000

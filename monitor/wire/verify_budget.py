@@ -1,8 +1,8 @@
 """How many signatures a receiver checks per second: a token bucket.
 
 An Ed25519 check costs ~0.1 ms; a flood of forged messages on a key must not take the CPU the
-safety loop needs. Receivers of foreign commands (``monitor.foreign``) and of hand-over holds
-(``monitor.bus_holds``) take a token before each check and count a message as dropped when
+safety loop needs. Receivers of foreign commands (``monitor.bus.foreign``) and of hand-over holds
+(``monitor.bus.holds``) take a token before each check and count a message as dropped when
 there is none (a dropped message never releases anything: it is treated as not received).
 """
 

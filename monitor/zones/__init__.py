@@ -23,6 +23,9 @@ One module per job:
 
 ``load_cell`` validates everything before anything runs and raises ``ConfigError`` with one line
 naming the file, the zone and the fault.
+
+May import: ``monitor.geometry``, ``monitor.cases`` (mute rules) and the bottom layer; never a stage
+that runs the zones (tracking, health, pipeline).
 """
 
 from monitor.zones.check import check_persons, merge_towards_danger, volume_distances

@@ -10,8 +10,8 @@ import fcl
 import numpy as np
 
 from monitor import geometry as geo
-from monitor import occlusion as occ
 from monitor.errors import ConfigError, InputError
+from monitor.geometry import occlusion as occ
 from monitor.types import ZoneHit, ZoneReport
 from monitor.zones.files import Cell
 from monitor.zones.moving import ToolState
@@ -34,18 +34,18 @@ def check_persons(cell: Cell | PreparedCell, camera_id: str, boxes_px: np.ndarra
 
     ``boxes_px`` is (N, 4) x1, y1, x2, y2 in pixels of ``camera_id`` at full resolution.
 
-    Each box is placed on the floor as a *range* of positions (``monitor.occlusion``): with the
-    feet in view, between ``foot_band_px`` = (lo, hi) pixels above the box's bottom edge (the
+    Each box is placed on the floor as a *range* of positions (``monitor.geometry.occlusion``): with
+    the feet in view, between ``foot_band_px`` = (lo, hi) pixels above the box's bottom edge (the
     detector's box-bottom error; ``foot_uncertainty_px`` alone means (0, that)); with the feet
-    possibly hidden (box bottom on an occluder's outline or the image edge, or box shorter than
-    a person of the zone file's lowest ``person.height_range_m``), from the head over that height
-    range (the feet-in-view answer kept too: a crouching person is short). Floor regions of
-    the zone file (``floors:``, platforms and pits) add the positions where the sight lines
-    meet them, and the person cylinder then spans every surface the range may stand on.
-    Volume zones test the person cylinder (radius + Z_d, person height) swept along the
-    range with FCL: a hit has ``distance_m`` 0.0. Image zones with the bottom-centre anchor count
-    the box when any point of the feet's pixel range is inside. A person who cannot be placed
-    (feet range reaching the horizon) hits every protective and warning volume zone with
+    possibly hidden (box bottom on an occluder's outline or the image edge, or box shorter than a
+    person of the zone file's lowest ``person.height_range_m``), from the head over that height
+    range (the feet-in-view answer kept too: a crouching person is short). Floor regions of the zone
+    file (``floors:``, platforms and pits) add the positions where the sight lines meet them, and
+    the person cylinder then spans every surface the range may stand on. Volume zones test the
+    person cylinder (radius + Z_d, person height) swept along the range with FCL: a hit has
+    ``distance_m`` 0.0. Image zones with the bottom-centre anchor count the box when any point of
+    the feet's pixel range is inside. A person who cannot be placed (feet range reaching the
+    horizon) hits every protective and warning volume zone with
     ``distance_m`` None and counts as touching the tool (fail safe).
 
     Zones that follow the tool (``follow:``) are placed by ``tool_state`` (the pose, its age,

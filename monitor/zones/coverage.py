@@ -9,7 +9,7 @@ warning volume zone and asks every calibrated camera whether it would see a pers
   and right, and the sight line to it passes through no occluder (the declared ``occluder``
   volumes and the robot base, which is always one). Floor inside an occluder's footprint does not
   count (nobody stands in a bench). A person partly hidden is placed from the head
-  (monitor/occlusion.py); one whose head shows to no camera is not seen at all.
+  (monitor/geometry/occlusion.py); one whose head shows to no camera is not seen at all.
 * **volume**: points of the zone from the floor up to head height (``height_range_m[1]``),
   observed when some camera sees the point itself (inside its image, sight line free).
 
@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from monitor import geometry as geo
-from monitor.occlusion import camera_centre_m, points_in_volume, standable
+from monitor.geometry.occlusion import camera_centre_m, points_in_volume, standable
 from monitor.zones.moving import follows_tool, max_zone
 from monitor.zones.schema import CellSpec
 

@@ -345,9 +345,9 @@ class ZoneDrawCache:
 def shadow_image(cell: Cell, camera_id: str, width: int, height: int, step_px: int = 8
                  ) -> np.ndarray | None:
     """(height, width) bool: image pixels whose floor point lies in the camera's shadow behind
-    the cell's occluders (monitor/occlusion.py), or None without occluders or calibration.
+    the cell's occluders (monitor/geometry/occlusion.py), or None without occluders or calibration.
     Evaluated every ``step_px`` pixels of the camera and scaled to ``width`` x ``height``."""
-    from monitor.occlusion import shadow_mask, standable  # occlusion imports prepare: late
+    from monitor.geometry.occlusion import shadow_mask, standable  # occlusion imports prepare: late
 
     occluders = cell.spec.occluder_zones()  # the robot base included
     model = cell.camera_models.get(camera_id)

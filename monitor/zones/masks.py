@@ -34,7 +34,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from monitor.boxes import connected_groups, gap_matrix
+from monitor.geometry.boxes import connected_groups, gap_matrix
 from monitor.zones.draw import volume_region_px
 from monitor.zones.files import Cell
 from monitor.zones.schema import PolygonZone

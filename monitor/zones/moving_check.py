@@ -12,7 +12,7 @@ import fcl
 import numpy as np
 
 from monitor import geometry as geo
-from monitor import occlusion as occ
+from monitor.geometry import occlusion as occ
 from monitor.geometry.shapes import prism_geometries
 from monitor.types import ZoneHit
 from monitor.zones.moving import ToolState, cell_from_zone, growth_m, max_zone, transform_points

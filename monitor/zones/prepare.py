@@ -13,7 +13,7 @@ import numpy as np
 
 from monitor import geometry as geo
 from monitor.geometry.floors import FloorRegion
-from monitor.occlusion import (
+from monitor.geometry.occlusion import (
     OccluderColumns,
     PolygonSegments,
     camera_centre_m,
@@ -62,7 +62,7 @@ class _ImageZones:
         """(N, Z) bool: box anchored in zone under each zone's anchor rule.
 
         ``feet_px`` = (u, top, bottom): the image rows the feet may be on (see
-        ``monitor.occlusion.Placement``); a bottom-centre zone then counts the box when any
+        ``monitor.geometry.occlusion.Placement``); a bottom-centre zone then counts the box when any
         point of that vertical segment is inside. Without it the box's bottom edge is used.
         """
         n = len(boxes)

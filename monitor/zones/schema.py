@@ -61,7 +61,7 @@ class CameraSpec(_Strict):
     height: int = Field(gt=0, le=32768)
     calibration: Calibration | None = None
     # the reference image of the health checks (monitor reference capture), relative to the
-    # zone file; it wins over monitor.toml's [[camera]] reference (monitor/camera_references.py)
+    # zone file; it wins over monitor.toml's [[camera]] reference (monitor/health/references.py)
     reference: str | None = Field(default=None, min_length=1)
 
 
@@ -215,7 +215,7 @@ class PersonSpec(_Strict):
     height_m: float = Field(default=1.9, gt=0.0, le=3.0)
     position_uncertainty_m: float = Field(default=0.1, ge=0.0, le=2.0)
     # heights a person's head may be at (crouching .. tall): a box whose feet may be hidden is
-    # placed from its top over this whole range (monitor/occlusion.py)
+    # placed from its top over this whole range (monitor/geometry/occlusion.py)
     height_range_m: tuple[float, float] = (1.0, 2.0)
 
 
@@ -323,7 +323,8 @@ class FloorSpec(_Strict):
 class RobotBaseSpec(_Strict):
     """The robot's base (pedestal, riser, controller cabinet beside it): a vertical cylinder on
     the floor that contains it. It is always an occluder: a person behind it may have their legs
-    hidden, so a box cut at its top edge is placed from the head (monitor/occlusion.py). Without
+    hidden, so a box cut at its top edge is placed from the head (monitor/geometry/occlusion.py).
+    Without
     ``robot_base`` in the file the default (radius 0.5 m, 1.0 m high, at the cell origin, which
     is the robot base by the cell frame's definition) applies: declare yours when it is larger.
     """

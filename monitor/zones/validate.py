@@ -11,8 +11,8 @@ import numpy as np
 from pydantic import ValidationError
 
 from monitor import geometry as geo
+from monitor.cases.muting import mute_faults
 from monitor.geometry.distortion import distortion_fault
-from monitor.muting import mute_faults
 from monitor.zones.coverage import coverage_faults
 from monitor.zones.floors import check_floors
 from monitor.zones.moving import follow_faults, follows_tool, max_zone

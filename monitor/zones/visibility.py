@@ -14,7 +14,7 @@ A foot position is *hidden* from a camera when
 
 Floor points the camera cannot place (at or above its horizon) are not hidden: nobody stands
 there. An uncalibrated camera knows no occluders: only its masks hide. The lost persons' areas
-(``monitor.whereabouts``) never count a hidden foot position as seen free.
+(``monitor.tracking.whereabouts``) never count a hidden foot position as seen free.
 """
 
 from __future__ import annotations

@@ -13,7 +13,7 @@ import fcl
 import numpy as np
 
 from monitor import geometry as geo
-from monitor import occlusion as occ
+from monitor.geometry import occlusion as occ
 from monitor.zones.schema import BoxZone, CylinderZone, ExtrudeZone
 
 if TYPE_CHECKING:
