@@ -115,7 +115,8 @@ def _otus_values(rng: random.Random) -> list[float]:
 
 
 def fuzz_otus(rng: random.Random, case: dict) -> None:
-    from monitor.pose.stream import OTUS_FORMAT, OTUS_SIZE, PoseValidator, decode_otus
+    from monitor.pose.otus import OTUS_FORMAT, OTUS_SIZE, decode_otus
+    from monitor.pose.stream import PoseValidator
 
     validator = case.setdefault("validator", PoseValidator())
     kind = rng.random()
@@ -128,13 +129,8 @@ def fuzz_otus(rng: random.Random, case: dict) -> None:
 
 
 def fuzz_pose_json(rng: random.Random, case: dict) -> None:
-    from monitor.pose.stream import (
-        OTUS_FORMAT,
-        PoseValidator,
-        decode_otus,
-        pose_from_json,
-        pose_to_json,
-    )
+    from monitor.pose.otus import OTUS_FORMAT, decode_otus
+    from monitor.pose.stream import PoseValidator, pose_from_json, pose_to_json
 
     values = [v if math.isfinite(v) else 0.0 for v in _otus_values(rng)]
     sample = decode_otus(struct.pack(OTUS_FORMAT, *values))

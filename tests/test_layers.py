@@ -39,3 +39,18 @@ def test_an_upward_import_in_a_copy_fails_naming_it(tmp_path):
     assert "monitor.policy.machine -> monitor.pipeline" in out, out
     # the same import closes a circle the acyclic contract names too
     assert "no import circles among the modules of any package BROKEN" in out, out
+
+
+def test_a_circle_inside_a_package_even_for_the_type_checker_fails_naming_it(tmp_path):
+    """The acyclic contract covers every level, not only monitor's children, and imports a type
+    checker follows: volumes -> files closes files -> prepare -> volumes inside monitor.zones."""
+    shutil.copytree(ROOT / "monitor", tmp_path / "monitor",
+                    ignore=shutil.ignore_patterns("__pycache__", "static", "*.yaml"))
+    volumes = tmp_path / "monitor" / "zones" / "volumes.py"
+    volumes.write_text(volumes.read_text() + "\nfrom typing import TYPE_CHECKING\n\n"
+                       "if TYPE_CHECKING:\n    from monitor.zones.files import Cell  # noqa\n")
+    run = _lint(tmp_path)
+    out = run.stdout + run.stderr
+    assert run.returncode != 0, out
+    assert "no import circles among the modules of any package BROKEN" in out, out
+    assert "No cycles are allowed in monitor.zones." in out, out

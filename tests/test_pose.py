@@ -16,16 +16,18 @@ import pytest
 import zenoh
 
 from monitor.bus.session import BusConfig, BusKeys, open_session
-from monitor.pose.stream import (
+from monitor.pose.otus import (
     OTUS_SIZE,
     REJECT_REASONS,
     OtusSample,
     PacketError,
+    decode_otus,
+    encode_otus,
+)
+from monitor.pose.stream import (
     PoseLimits,
     PoseSubscriber,
     PoseValidator,
-    decode_otus,
-    encode_otus,
     pose_from_json,
     pose_to_json,
 )
@@ -395,7 +397,7 @@ def test_the_documented_packet_layout_is_the_codecs():
     import re
     from pathlib import Path
 
-    from monitor.pose.stream import OTUS_FORMAT
+    from monitor.pose.otus import OTUS_FORMAT
 
     doc = (Path(__file__).resolve().parents[1] / "docs" / "otus.md").read_text(encoding="utf-8")
     rows = re.findall(r"^\| (\d+)-(\d+) \| ([^|]+) \| `([a-z_0-9]+)(?:\[(\d)\])?` \|", doc, re.M)

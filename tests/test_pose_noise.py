@@ -17,7 +17,8 @@ import pytest
 from monitor.config import parse_config
 from monitor.errors import ConfigError
 from monitor.geometry.calibration_quality import TrackerNoise
-from monitor.pose.stream import OtusSample, PoseLimits, PoseSubscriber, check_step, pose_to_json
+from monitor.pose.otus import OtusSample
+from monitor.pose.stream import PoseLimits, PoseSubscriber, check_step, pose_to_json
 from monitor.pose.tool_motion import MotionLimits
 from monitor.pose.tracker_noise import TrackerConfig
 

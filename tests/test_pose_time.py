@@ -17,7 +17,9 @@ import pytest
 from monitor.bus.session import BusConfig, BusKeys, open_session
 from monitor.config import parse_config
 from monitor.errors import ConfigError
-from monitor.pose.stream import MotionLimits, OtusSample, PoseSubscriber, pose_to_json
+from monitor.pose.otus import OtusSample
+from monitor.pose.stream import PoseSubscriber, pose_to_json
+from monitor.pose.tool_motion import MotionLimits
 from monitor.pose.tracker_time import TrackerClock, TrackerClockConfig
 from tests.helpers import free_port
 

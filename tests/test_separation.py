@@ -21,7 +21,8 @@ from monitor import geometry as geo
 from monitor import zones as zn
 from monitor.config import demo_cell_path
 from monitor.errors import ConfigError
-from monitor.pose.stream import MotionLimits, OtusSample, ToolMotion, estimate_tool_speed
+from monitor.pose.otus import OtusSample
+from monitor.pose.tool_motion import MotionLimits, ToolMotion, estimate_tool_speed
 from monitor.zones import separation as zsep
 
 ZERO = (0.0, 0.0, 0.0)

@@ -16,15 +16,16 @@ import re
 import sqlite3
 import tempfile
 from collections.abc import Awaitable, Callable, Iterator
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 from starlette.concurrency import run_in_threadpool
 from starlette.requests import Request
 from starlette.responses import Response, StreamingResponse
 from starlette.routing import Route
 
-from monitor.console.audit import bounded
+from monitor.console.audit import AuditLog, bounded
 from monitor.console.auth import basic_credentials
+from monitor.console.incidents import IncidentSource
 from monitor.console.responses import SECURITY_HEADERS, json_response
 from monitor.console.review import (
     BadFilter,
@@ -34,9 +35,23 @@ from monitor.console.review import (
     to_csv,
 )
 from monitor.console.setup_routes import forbidden
+from monitor.console.zones_api import ZoneEditor
 
-if TYPE_CHECKING:
-    from monitor.console.app import Console
+
+class ReviewSources(Protocol):
+    """What the review routes read of the console (``app.Console``): its incident source, its
+    audit log and its zone editor (for the cameras of the cell). A protocol, so that this module
+    never imports the app that mounts its routes."""
+
+    @property
+    def incidents(self) -> IncidentSource: ...
+
+    @property
+    def audit(self) -> AuditLog: ...
+
+    @property
+    def editor(self) -> ZoneEditor: ...
+
 
 Login = Callable[[str, tuple[str, str] | None], Awaitable[tuple[str | None, int, str]]]
 REVIEWED_EVENT = "incident_reviewed"
@@ -52,7 +67,7 @@ def _chunks(spool) -> Iterator[bytes]:
         spool.close()
 
 
-def review_routes(console: Console, login: Login) -> list[Route]:
+def review_routes(console: ReviewSources, login: Login) -> list[Route]:
     """The routes, over the console's incident source and audit log; ``login``: the
     console's credential check (lock-outs and all, ``app.build_app``)."""
 

@@ -31,91 +31,25 @@ import dataclasses
 import json
 import math
 import socket
-import struct
 import threading
 import time
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from monitor.errors import ConfigError, InputError
+from monitor.errors import ConfigError
+from monitor.pose.otus import (
+    OtusSample,
+    PacketError,
+    Vec3,
+    decode_otus,
+    sample_from_values,
+)
 from monitor.pose.tool_motion import MotionLimits, ToolMotion, ToolSpeed, estimate_tool_speed
 from monitor.pose.tracker_noise import TrackerConfig
 from monitor.pose.tracker_time import TrackerClock, TrackerClockConfig
 
-OTUS_FORMAT = "<23d"
-OTUS_SIZE = struct.calcsize(OTUS_FORMAT)  # 184
 POSE_SCHEMA = "workcell.tracker.pose/1"
-
-REJECT_REASONS = (
-    "size",  # datagram is not 184 bytes
-    "non_finite",  # a NaN or infinity in any field
-    "quaternion_norm",  # |q| differs from 1 by more than the tolerance
-    "timestamp_backwards",
-    "timestamp_repeat",
-    "speed",  # implied (position jump) or reported linear speed above the limit
-    "acceleration",  # implied (velocity change) or reported acceleration above the limit
-    "angular_speed",  # implied (orientation jump) or reported angular speed above the limit
-    "out_of_bounds",  # position outside the configured tracking volume
-    "malformed",  # a Zenoh pose sample that is not valid JSON of the schema
-    "silence",  # no packet for longer than pose_timeout (reported by the bridge, once per gap)
-)
-
-Vec3 = tuple[float, float, float]
-
-
-class PacketError(InputError):
-    """A pose packet or sample that cannot be used; ``reason`` is one of ``REJECT_REASONS``."""
-
-    def __init__(self, reason: str, message: str) -> None:
-        super().__init__(message)
-        self.reason = reason
-
-
-@dataclass(frozen=True)
-class OtusSample:
-    """One tracker pose. Metres, seconds (tracker clock), radians; quaternion is x, y, z, w."""
-
-    device_id: float
-    timestamp: float
-    position_m: Vec3
-    velocity_m_s: Vec3
-    acceleration_m_s2: Vec3
-    quaternion_xyzw: tuple[float, float, float, float]
-    angular_velocity_rad_s: Vec3
-    angular_acceleration_rad_s2: Vec3
-    button1: float = 0.0
-    button2: float = 0.0
-
-    def values(self) -> tuple[float, ...]:
-        """The 23 doubles in packet order."""
-        return (self.device_id, self.timestamp, *self.position_m, *self.velocity_m_s,
-                *self.acceleration_m_s2, *self.quaternion_xyzw, *self.angular_velocity_rad_s,
-                *self.angular_acceleration_rad_s2, self.button1, self.button2)
-
-
-def encode_otus(sample: OtusSample) -> bytes:
-    """Pack a sample into the 184-byte OTUS datagram."""
-    return struct.pack(OTUS_FORMAT, *sample.values())
-
-
-def _from_values(v: tuple[float, ...] | list[float]) -> OtusSample:
-    return OtusSample(
-        device_id=v[0], timestamp=v[1], position_m=(v[2], v[3], v[4]),
-        velocity_m_s=(v[5], v[6], v[7]), acceleration_m_s2=(v[8], v[9], v[10]),
-        quaternion_xyzw=(v[11], v[12], v[13], v[14]),
-        angular_velocity_rad_s=(v[15], v[16], v[17]),
-        angular_acceleration_rad_s2=(v[18], v[19], v[20]), button1=v[21], button2=v[22],
-    )
-
-
-def decode_otus(packet: bytes) -> OtusSample:
-    """Unpack one OTUS datagram. Raises ``PacketError("size")`` unless it is 184 bytes; the
-    values are not checked here (``PoseValidator`` does that)."""
-    if len(packet) != OTUS_SIZE:
-        raise PacketError("size", f"OTUS packet has {len(packet)} bytes, expected {OTUS_SIZE}")
-    return _from_values(struct.unpack(OTUS_FORMAT, packet))
-
 
 @dataclass(frozen=True)
 class PoseLimits:
@@ -346,7 +280,7 @@ def pose_from_json(payload: bytes) -> tuple[OtusSample, dict]:
             RecursionError) as exc:
         text = str(exc).splitlines()[0][:160] if str(exc) else type(exc).__name__
         raise PacketError("malformed", f"pose sample is not {POSE_SCHEMA}: {text}") from None
-    return _from_values(values), body
+    return sample_from_values(values), body
 
 
 def _number(x: object) -> float:

@@ -12,13 +12,10 @@ import itertools
 import math
 from collections import deque
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
 
 from monitor.errors import ConfigError
+from monitor.pose.otus import OtusSample
 from monitor.pose.tracker_noise import TrackerConfig
-
-if TYPE_CHECKING:
-    from monitor.pose.stream import OtusSample
 
 Vec3 = tuple[float, float, float]
 

@@ -6,7 +6,7 @@ swept cylinders with the growth as a distance (monitor/zones/moving.py, docs/mov
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import fcl
 import numpy as np
@@ -17,6 +17,7 @@ from monitor.geometry.shapes import prism_geometries
 from monitor.types import ZoneHit
 from monitor.zones.moving import ToolState, cell_from_zone, growth_m, max_zone, transform_points
 from monitor.zones.schema import BoxZone, CylinderZone, ExtrudeZone
+from monitor.zones.views import CellData, PreparedData
 from monitor.zones.volumes import (
     FCL_DISTANCE_MARGIN_M,
     Volume,
@@ -27,10 +28,6 @@ from monitor.zones.volumes import (
     swept_person,
     zone_scale,
 )
-
-if TYPE_CHECKING:
-    from monitor.zones.files import Cell
-    from monitor.zones.prepare import PreparedCell
 
 _DREQ = fcl.DistanceRequest()
 
@@ -52,7 +49,7 @@ class MovingZone:
         return self.zone.id
 
 
-def prepare_moving(cell: Cell) -> tuple[MovingZone, ...]:
+def prepare_moving(cell: CellData) -> tuple[MovingZone, ...]:
     """Every enabled following zone of the cell."""
     out = []
     for z in cell.zones:
@@ -94,7 +91,7 @@ def place_zone(mz: MovingZone, m: np.ndarray) -> Volume:
     return Volume(z.id, z.kind, zone_scale(z), tuple(objs), pts.min(axis=0), pts.max(axis=0), mesh)
 
 
-def placed_zones(prep: PreparedCell, tool: ToolState | None
+def placed_zones(prep: PreparedData, tool: ToolState | None
                  ) -> list[tuple[Volume, float, bool]]:
     """Each following zone as it stands this step: (volume, growth m, at maximum size). A
     fresh pose places it (grown with the speed); otherwise it is its maximum volume."""
@@ -110,7 +107,7 @@ def placed_zones(prep: PreparedCell, tool: ToolState | None
     return out
 
 
-def moving_hits(prep: PreparedCell, place: occ.Placement, tool: ToolState | None
+def moving_hits(prep: PreparedData, place: occ.Placement, tool: ToolState | None
                 ) -> list[ZoneHit]:
     """The persons that touch a following zone this step: the person's swept zone cylinder
     within the zone's growth of it (overlap when it does not grow); a person who cannot be

@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import cv2
 import fcl
@@ -28,10 +28,8 @@ from monitor.zones.schema import (
     ToolCylinder,
     ToolSphere,
 )
+from monitor.zones.views import CellData
 from monitor.zones.volumes import Volume, occluder_corners_m, prepare_volume, zone_scale
-
-if TYPE_CHECKING:
-    from monitor.zones.files import Cell
 
 # --------------------------------------------------------------------------------------------
 # Prepared geometry for the per-frame query
@@ -107,7 +105,7 @@ class PreparedCell:
     """Everything the per-frame query needs, built once from a Cell (FCL objects, stacked
     polygon edges, summed-area tables). Read-only after construction."""
 
-    cell: Cell
+    cell: CellData
     image_zones: Mapping[str, _ImageZones]
     volumes: tuple[Volume, ...]
     volume_lo: np.ndarray  # (V, 3)
@@ -129,7 +127,7 @@ class PreparedCell:
     moving: tuple[Any, ...] = ()  # zones that follow the tool (moving_check.MovingZone)
 
 
-def prepare_cell(cell: Cell) -> PreparedCell:
+def prepare_cell(cell: CellData) -> PreparedCell:
     """Build the per-frame geometry of a cell (use ``cell.prepared`` to build it once)."""
     image: dict[str, _ImageZones] = {}
     for cam_id, cam in cell.cameras.items():
@@ -215,7 +213,7 @@ def _prepare_image_zones(zs: list[PolygonZone], cam: CameraSpec) -> _ImageZones:
     )
 
 
-def _prepare_tool(cell: Cell) -> _Tool | None:
+def _prepare_tool(cell: CellData) -> _Tool | None:
     t = cell.spec.tool
     if t is None:
         return None

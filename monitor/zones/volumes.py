@@ -7,7 +7,7 @@ to reach them."""
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import fcl
 import numpy as np
@@ -15,10 +15,7 @@ import numpy as np
 from monitor import geometry as geo
 from monitor.geometry import occlusion as occ
 from monitor.zones.schema import BoxZone, CylinderZone, ExtrudeZone
-
-if TYPE_CHECKING:
-    from monitor.zones.files import Cell
-    from monitor.zones.prepare import PreparedCell
+from monitor.zones.views import CellData, PreparedData
 
 FCL_DISTANCE_MARGIN_M = 0.0005
 
@@ -51,7 +48,7 @@ def box_corners(z: BoxZone) -> np.ndarray:
     return np.r_[np.c_[xy, np.full(4, lo[2])], np.c_[xy, np.full(4, hi[2])]]
 
 
-def occluder_corners_m(z: Any, cell: Cell, segments: int = 24) -> np.ndarray:
+def occluder_corners_m(z: Any, cell: CellData, segments: int = 24) -> np.ndarray:
     """Points (M, 3) whose convex hull contains a volume (corners; a cylinder's rims)."""
     if isinstance(z, ExtrudeZone):
         base = np.array(z.points_m, dtype=float)
@@ -69,7 +66,7 @@ def occluder_corners_m(z: Any, cell: Cell, segments: int = 24) -> np.ndarray:
     return np.asarray(cell.meshes[z.id][0], dtype=float)
 
 
-def prepare_volume(z: Any, cell: Cell) -> Volume:
+def prepare_volume(z: Any, cell: CellData) -> Volume:
     mesh = None
     if isinstance(z, ExtrudeZone):
         pts = np.array(z.points_m, dtype=float)
@@ -102,7 +99,7 @@ def stand_span(place: occ.Placement, height_m: float) -> tuple[np.ndarray, np.nd
     return np.minimum(lo, 0.0), np.maximum(hi, 0.0) + height_m
 
 
-def swept_person(prep: PreparedCell, a: np.ndarray, b: np.ndarray, z0: float = 0.0,
+def swept_person(prep: PreparedData, a: np.ndarray, b: np.ndarray, z0: float = 0.0,
                   z1: float | None = None) -> list[fcl.CollisionObject]:
     """The zone cylinder swept from floor point ``a`` to ``b``: one cylinder, or a box between
     two end cylinders (exactly the swept volume); from ``z0`` to ``z1`` (the person height
