@@ -1,6 +1,6 @@
 """A command imports only the module that registers it (monitor/cli/__init__.py's COMMANDS):
 `monitor zones list` does not load the tracker or the detector, `monitor status` not OpenCV.
-Start-up times themselves are measured, not asserted (python -X importtime; docs in README)."""
+Start-up times themselves are measured, not asserted (python -X importtime; docs/performance.md)."""
 
 from __future__ import annotations
 

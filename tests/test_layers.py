@@ -1,5 +1,6 @@
-"""The layers of monitor/ are a contract ([tool.importlinter] in pyproject.toml, README
-"Layers"): `lint-imports` keeps them on the real tree and refuses an upward import."""
+"""The layers of monitor/ are a contract ([tool.importlinter] in pyproject.toml,
+docs/architecture.md "Layers"): `lint-imports` keeps them on the real tree and refuses an
+upward import."""
 
 from __future__ import annotations
 

@@ -1,7 +1,8 @@
-"""No private (underscore) name of monitor/ is used outside its own module (README "Layers"):
-what another module needs is public, so renaming or changing a private helper never breaks a
-caller its author cannot see. The check walks monitor/ with ``ast``; a package's ``__init__``
-importing a private name from one of its own submodules counts as across modules too."""
+"""No private (underscore) name of monitor/ is used outside its own module
+(docs/architecture.md, "Layers"): what another module needs is public, so renaming or changing
+a private helper never breaks a caller its author cannot see. The check walks monitor/ with
+``ast``; a package's ``__init__`` importing a private name from one of its own submodules counts
+as across modules too."""
 
 from __future__ import annotations
 
