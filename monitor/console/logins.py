@@ -22,8 +22,8 @@ Why this shape (issue 48, OWASP ASVS V2: a throttle that cannot be used to deny 
   300 s, renewable for ever) let anyone who reached the port keep a named user from viewing;
   now the delay is at most ``max_delay_s`` and holds that user only at sources that failed.
 * **Bounded memory that never forgets the worst.** At most ``max_tracked`` names and sources;
-  a full table lets go of the least-failed (an expired one first, then the fewest failures in
-  the window, the oldest of those): a flood of cheap new names or sources churns among
+  a full table lets go of its least-failed eighth (expired ones first, then the fewest failures
+  in the window, the oldest of those): a flood of cheap new names or sources churns among
   themselves and never resets the count of the name under attack.
 
 Pure and thread-safe; time comes from ``clock`` (monotonic seconds).
@@ -31,6 +31,7 @@ Pure and thread-safe; time comes from ``clock`` (monotonic seconds).
 
 from __future__ import annotations
 
+import heapq
 import threading
 import time
 from collections import OrderedDict, deque
@@ -39,6 +40,7 @@ from dataclasses import dataclass, field
 
 NAME_KEY_CHARS = 64  # a longer name is no operator's; counted by its first characters
 MAX_KEPT_FAILURES = 256  # per name or source: far past the longest delay
+EVICT_SHARE = 8  # a full table lets go of its least-failed eighth at once
 
 
 @dataclass(frozen=True)
@@ -182,10 +184,13 @@ class LoginGuard:
             return tally
         if len(self._tallies) >= self.limits.max_tracked:
             since = now - self.limits.window_s
-            # the least-failed goes (ties: the longest quiet): a flood of new names or
-            # sources pushes out only its own kind, never the count of the name under attack
-            victim = min(self._tallies.items(),
-                         key=lambda item: (item[1].prune(since), item[1].last))[0]
-            del self._tallies[victim]
+            # the least-failed go (ties: the longest quiet): a flood of new names or sources
+            # pushes out only its own kind, never the count of the name under attack. An
+            # eighth at once: one scan per 512 new entries, not one per entry
+            victims = heapq.nsmallest(max(1, len(self._tallies) // EVICT_SHARE),
+                                      self._tallies.items(),
+                                      key=lambda item: (item[1].prune(since), item[1].last))
+            for key_, _ in victims:
+                del self._tallies[key_]
         tally = self._tallies[key] = _Tally()
         return tally
