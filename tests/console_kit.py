@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 import uvicorn
 
-from monitor.console.app import Console, build_app
+from monitor.console.app import SERVER_OPTIONS, Console, build_app
 from monitor.console.audit import AuditLog
 from monitor.console.auth import Operators, set_password
 from monitor.console.incidents import NoIncidents
@@ -178,7 +178,8 @@ def serving(console):
     """The app in a real uvicorn on 127.0.0.1 (its own thread); yields the base URL."""
     port = free_port()
     server = uvicorn.Server(uvicorn.Config(build_app(console), host="127.0.0.1", port=port,
-                                           log_level="warning", timeout_graceful_shutdown=1))
+                                           log_level="warning", timeout_graceful_shutdown=1,
+                                           **SERVER_OPTIONS))
     thread = threading.Thread(target=server.run, daemon=True)
     thread.start()
     deadline = time.monotonic() + 30.0

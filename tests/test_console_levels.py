@@ -249,9 +249,9 @@ def test_viewing_off_loopback_needs_a_login_and_a_removed_user_is_refused_at_onc
 
 
 def test_on_loopback_viewing_stays_open():
-    sessions = Sessions(clock=lambda: 0.0, max_sessions=2)
-    tokens = [sessions.open(n) for n in ("a", "b", "c")]
-    assert sessions.name(tokens[0]) is None and sessions.name(tokens[2]) == "c"  # bounded
+    sessions = Sessions(clock=lambda: 0.0, max_per_user=2)
+    tokens = [sessions.open(n) for n in ("a", "a", "a")]
+    assert sessions.name(tokens[0]) is None and sessions.name(tokens[2]) == "a"  # bounded
     later = Sessions(clock=iter([0.0, 9.0e9]).__next__)
     assert later.name(later.open("a")) is None  # expired
     assert sessions.name("x" * 5000) is None

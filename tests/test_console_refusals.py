@@ -45,20 +45,21 @@ def test_500_unauthenticated_requests_make_no_incident_and_a_bounded_audit(tmp_p
                basic("m" * 3000, "x")]  # no, foreign, broken, unknown-name credentials
     for k in range(500):
         r = client.put(f"/api/zones/{zone}", json=body, headers=headers[k % len(headers)])
-        # refused; the guesses at a name lock it and this client out (test_console_logins.py)
+        # refused; the guesses at a name throttle it (test_console_logins.py)
         assert r.status_code in (401, 429), r.text
-        assert "not accepted" in r.json()["error"] or "locked out" in r.json()["error"]
+        assert "not accepted" in r.json()["error"] or "next try" in r.json()["error"]
     assert [i.id for i in IncidentIndex(data_dir).list()] == before  # not one incident
     lines = [e for e in _lines(tmp_path / "audit.jsonl") if e["event"] == "zone_edit"]
     assert len(lines) == REFUSED_BURST  # the rest counted, not written
-    lockouts = [e for e in _lines(tmp_path / "audit.jsonl") if e["event"] == "login_lockout"]
-    assert len(lockouts) == 1  # the client's lock-out came within the alert interval: held
+    throttled = [e for e in _lines(tmp_path / "audit.jsonl")
+                 if e["event"] == "login_throttled"]
+    assert len(throttled) == 1  # the name's delay: it holds every later guess, none counted
     raw = (tmp_path / "audit.jsonl").read_text().splitlines()
     assert max(len(line) for line in raw) < 1200  # every field cut, the sizes said
     assert lines[0]["result"] == "refused" and lines[0]["zone"].endswith("(15000 characters)")
     assert lines[3]["tried"].endswith("(3000 characters)")  # the name tried, cut
-    # after a quiet spell (and the lock-outs) one more line says how many were not written
-    clock.now += max(REFUSED_EVERY_S, LoginLimits().lockout_s)
+    # after a quiet spell (and the delays) one more line says how many were not written
+    clock.now += max(REFUSED_EVERY_S, LoginLimits().max_delay_s)
     client.put("/api/zones/aisle", json=body)
     last = _lines(tmp_path / "audit.jsonl")[-1]
     assert last["refused_unwritten"] == 500 - REFUSED_BURST and last["zone"] == "aisle"

@@ -11,7 +11,7 @@ import pytest
 from monitor.cases.muting import DEFAULT_MUTED_SCALE, MuteRequest, Mutes, mute_rules
 from monitor.errors import ConfigError
 from monitor.pipeline import Pipeline
-from monitor.policy import PolicyConfig
+from monitor.policy import PolicyConfig, ResetRequest
 from monitor.scene.cell import CellScene, Walker, zone_data
 from monitor.types import FrameInfo, ZoneHit, ZoneReport
 from monitor.zones.check import apply_mutes
@@ -197,3 +197,41 @@ def test_a_zone_file_with_mute_writes_back_as_it_reads():
     data = cell_to_data(cell)
     assert data["zones"][0]["mute"]["as"] == "none"
     assert parse_cell(data).config_hash == cell.config_hash
+
+
+def test_a_reset_with_the_protective_zone_muted_and_a_person_inside_is_refused_naming_it(
+        detector):
+    """Issue 48, the scanners' rule (docs/muting.md, "Resets while muted"): a person walks into
+    robot-protective (STOP, latched); anna mutes it; a reset while the person is still inside
+    is refused naming the muted zone (before: accepted, SLOW x0.3 with the person inside); once
+    the person is seen out of it the same reset is accepted, the mute still holding."""
+    walk = Walker(((0.0, 0.45, 0.0), (3.0, 0.45, 0.0), (4.5, 3.4, 0.0)), appear_s=1.0)
+    scene = CellScene((walk,), fps=10.0, duration_s=5.6)
+    pipe = Pipeline(detector, "cam0", PolicyConfig(clear_time=0.5),
+                    parse_cell(zone_data(scene) | {"zones": cell_data()["zones"]}))
+    results = {}
+    for image, truth in scene.frames():
+        t = round(truth.time_s, 6)
+        if t == 1.5:
+            (outcome,) = pipe.request_mutes([req(duration_s=60.0, t=t)], t)
+            assert outcome.accepted, outcome.reason
+        reset = ResetRequest("anna", t, f"reset-{t}") if t in (2.0, 5.5) else None
+        info = FrameInfo("cam0", round(t * scene.fps), t, image.shape[1], image.shape[0])
+        results[t] = pipe.process(image, info, t, reset=reset)
+    assert results[1.4].command.state == "STOP" and results[1.4].command.latched
+    muted = results[1.9].command
+    assert muted.state == "STOP" and muted.latched and not muted.reset_possible
+    assert any(r.code == "muted" for r in muted.reasons)
+    assert muted.reasons[0].code == "latched" and \
+        "no reset until muted robot-protective seen free" in muted.reasons[0].message
+    assert "muted zone robot-protective not seen free" in muted.describe()
+    refused = results[2.0].command
+    assert refused.reset is not None and not refused.reset.accepted
+    assert refused.reset.message.startswith("refused: muted zone robot-protective not seen "
+                                            "free (person ")
+    assert "never makes a reset with a person inside acceptable" in refused.reset.message
+    assert all(results[t].command.state == "STOP" for t in results if 2.0 <= t < 5.5)
+    accepted = results[5.5].command
+    assert accepted.reset is not None and accepted.reset.accepted, accepted.reset
+    assert accepted.state != "STOP" and any(r.code == "muted" for r in accepted.reasons)
+    assert results[5.4].command.reset_possible  # seen free: said before the reset came

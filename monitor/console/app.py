@@ -45,11 +45,12 @@ from monitor.console.edit_body import MAX_BODY, BadRequest, check_zone_id, parse
 from monitor.console.edits import ZoneEditIncidents
 from monitor.console.incidents import IncidentSource
 from monitor.console.live import LiveRenderer, LiveState, reference_image
-from monitor.console.logins import Lockout, LoginGuard
+from monitor.console.logins import LoginGuard, Throttle
 from monitor.console.responses import SECURITY_HEADERS, json_response
 from monitor.console.review_api import review_routes
 from monitor.console.sessions import Sessions, ViewGate
 from monitor.console.setup_routes import forbidden, setup_routes
+from monitor.console.sources import Source, TrustedProxies, request_source
 from monitor.console.zones_api import ZoneEditor
 from monitor.errors import ConfigError
 from monitor.types import Alert
@@ -59,7 +60,12 @@ STATIC = Path(__file__).parent / "static"
 CHECK_THREADS = 1  # scrypt checks at once (16 MB, ~0.1 s of a core each): a flood of
 # guesses takes at most one core from the host the monitor runs on
 MAX_WAITING_CHECKS = 32  # more are refused at once (503), never queued without bound
-LOCKOUT_ALERT = "console_login_lockout"
+THROTTLE_ALERT = "console_login_throttled"
+# uvicorn's options for the console (cli.py and the tests): its proxy_headers would replace the
+# socket's peer with an X-Forwarded-For from 127.0.0.1 (its default forwarded_allow_ips), so a
+# local process chose its own address; the console reads the header itself, from the proxies of
+# --trusted-proxy only (sources.py)
+SERVER_OPTIONS = {"proxy_headers": False, "server_header": False}
 
 
 @dataclass
@@ -80,6 +86,8 @@ class Console:
     view_login: bool = False  # viewing needs a login (off loopback): sessions.py
     sessions: Sessions = field(default_factory=Sessions)
     reset_operators: Path | None = None  # the monitor's operators file, shown read-only
+    # whose X-Forwarded-For is believed (--trusted-proxy; default none): sources.py
+    trusted_proxies: TrustedProxies = field(default_factory=TrustedProxies)
 
 
 class LoginChecks:
@@ -185,30 +193,30 @@ def build_app(console: Console) -> Starlette:
 
     checks = LoginChecks()
 
-    def lockout_alert(lockout: Lockout, client: str, tried: str) -> None:
-        alert = Alert(LOCKOUT_ALERT, "warning", f"console: {lockout.message()}", "console",
-                      time.time(), details={"client": client, "tried": tried[:64]})
+    def throttle_alert(throttle: Throttle, source: Source, tried: str) -> None:
+        alert = Alert(THROTTLE_ALERT, "warning", f"console: {throttle.message()}", "console",
+                      time.time(), details={**source.fields(), "tried": tried[:64]})
         repeat = checks.alerts.admit(alert, time.monotonic())
         if repeat is None:
-            return  # held back (a flood of lock-outs): counted in the next one's repeat
+            return  # held back (a flood of them): counted in the next one's repeat
         alert.details["repeat"] = repeat
-        console.audit.record(event="login_lockout", client=client, tried=tried[:64],
+        console.audit.record(event="login_throttled", **source.fields(), tried=tried[:64],
                              message=alert.message, repeat=repeat)
         if console.on_alert is not None:
             console.on_alert(alert)
 
-    async def login(client: str, credentials: tuple[str, str] | None
+    async def login(source: Source, credentials: tuple[str, str] | None
                     ) -> tuple[str | None, int, str]:
-        """(operator, 200, "") for a right password not locked out, else (None, status,
-        why)."""
+        """(operator, 200, "") for a right password not held back by a delay, else (None,
+        status, why)."""
         if not console.operators.enabled:
             return None, 403, "editing is off: the console was started without --passwords"
         if credentials is None:
             return None, 401, "operator name or password not accepted"
         name, password = credentials
-        locked = console.logins.locked(client, name)
-        if locked is not None:
-            return None, 429, locked.message()
+        waiting = console.logins.waiting(source.key, name)
+        if waiting is not None:
+            return None, 429, waiting.message()
         if checks.waiting >= MAX_WAITING_CHECKS:
             return None, 503, "too many password checks at once: try again in a moment"
         checks.waiting += 1
@@ -219,34 +227,29 @@ def build_app(console: Console) -> Starlette:
                                                 limiter=checks.limiter())
         finally:
             checks.waiting -= 1
-        locked = console.logins.locked(client, name)  # locked while this one was checked
-        if locked is not None:
-            return None, 429, locked.message()
         if ok:
-            console.logins.succeeded(client, name)
+            console.logins.succeeded(source.key, name)
             return name, 200, ""
-        started = console.logins.failed(client, name)
-        for lockout in started:
-            lockout_alert(lockout, client, name)
-        if started:
-            return None, 429, started[0].message()
+        for throttle in console.logins.failed(source.key, name):
+            throttle_alert(throttle, source, name)
         return None, 401, "operator name or password not accepted"
 
     async def save_zone(request: Request) -> Response:
         zone_id = request.path_params["id"]
         credentials = basic_credentials(request.headers.get("authorization"))
-        client = request.client.host if request.client else ""
-        operator, status, why = await login(client, credentials)
+        source = request_source(request, console.trusted_proxies)
+        operator, status, why = await login(source, credentials)
         if operator is None:
             # whoever reaches the port: one bounded, rate-limited audit line, never an
             # incident (a flood of them must not push real STOPs out of retention)
-            await run_in_threadpool(console.audit.refused, zone=zone_id, operator=None,
-                                    tried=credentials[0] if credentials else None,
-                                    client=client, result="refused", error=why)
+            await run_in_threadpool(functools.partial(
+                console.audit.refused, zone=zone_id, operator=None,
+                tried=credentials[0] if credentials else None, **source.fields(),
+                result="refused", error=why))
             headers = {"retry-after": "60"} if status in (429, 503) else {}
             return JSONResponse({"error": why}, status_code=status,
                                 headers={**SECURITY_HEADERS, **headers})
-        refused = await forbidden(console, operator, "edit_zone", client, zone_id,
+        refused = await forbidden(console, operator, "edit_zone", source, zone_id,
                                   SECURITY_HEADERS)
         if refused is not None:
             return refused
@@ -254,7 +257,7 @@ def build_app(console: Console) -> Starlette:
 
         def refuse(status: int, result: str, error: str) -> dict:
             """An operator's refused attempt: audited whole (bounded) and an incident."""
-            entry = console.audit.record(zone=zone, operator=operator, client=client,
+            entry = console.audit.record(zone=zone, operator=operator, **source.fields(),
                                          result=result, error=bounded(error, 400),
                                          config_hash_before=current_hash())
             return {"error": error, "incident": edit_incident(entry), "status": status}
@@ -280,7 +283,7 @@ def build_app(console: Console) -> Starlette:
             return json_response(out, out.pop("status"))
         entry = await run_in_threadpool(
             functools.partial(console.audit.record, zone=zone_id, operator=operator,
-                              client=client, result="saved",
+                              **source.fields(), result="saved",
                               action="added" if new else "changed", config_hash_before=before,
                               config_hash=cell.config_hash, file=str(console.editor.path)))
         incident = await run_in_threadpool(edit_incident, entry)

@@ -48,6 +48,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    "lists who may reset, read-only (default: none, not shown)")
     p.add_argument("--audit", type=Path, metavar="FILE",
                    help="audit log of edits, JSON lines (default: ZONEFILE.audit.jsonl)")
+    p.add_argument("--trusted-proxy", action="append", default=[], metavar="ADDRESS",
+                   help="a reverse proxy (address or network) whose X-Forwarded-For names the "
+                   "client: throttled and audited by that address, beside the proxy's "
+                   "(repeatable; default: none, the header is ignored)")
     p.add_argument("--https-cert", metavar="PEM", help="TLS certificate of the console "
                    "(default: none, plain HTTP; allowed on loopback only)")
     p.add_argument("--https-key", metavar="PEM", help="TLS private key of the console "
@@ -117,7 +121,10 @@ def cmd_console(args: argparse.Namespace) -> int:
     except ImportError:
         raise ConfigError("monitor console needs the optional extra: pip install "
                           "'workcell-monitor[console]'") from None
+    from monitor.console.sources import TrustedProxies
+
     operators = Operators(args.passwords)
+    args.trusted_proxies = TrustedProxies(args.trusted_proxy)  # a bad one: one line, no start
     references = _references(args.reference)
     audit = AuditLog(args.audit or args.zones.with_name(args.zones.name + ".audit.jsonl"))
     # off loopback viewing needs a login too (the live picture shows people): sessions.py
@@ -132,7 +139,7 @@ def _serve(args, host: str, port: int, tls: bool, operators, references, audit) 
     from monitor.bus.session import BusKeys, default_instance, open_session
     from monitor.cli.watch import make_watchdog
     from monitor.cli.zenoh_args import bus_config as _bus_config
-    from monitor.console.app import Console, build_app
+    from monitor.console.app import SERVER_OPTIONS, Console, build_app
     from monitor.console.edits import ZoneEditIncidents
     from monitor.console.incidents import NoIncidents, RecorderIncidents
     from monitor.console.live import LiveRenderer, LiveState, subscribe_live
@@ -158,7 +165,8 @@ def _serve(args, host: str, port: int, tls: bool, operators, references, audit) 
                       references=references,
                       edits=ZoneEditIncidents(args.incidents, bus.cell) if args.incidents
                       else None, view_login=args.view_login,
-                      reset_operators=args.reset_operators)
+                      reset_operators=args.reset_operators,
+                      trusted_proxies=args.trusted_proxies)
     def on_alert(alert) -> None:  # a lock-out: on the live page and in the console's log
         live.add_alert(alert)
         print(f"monitor console: alert {alert.kind}: {alert.message}", file=sys.stderr,
@@ -183,7 +191,7 @@ def _serve(args, host: str, port: int, tls: bool, operators, references, audit) 
         config = uvicorn.Config(app, host=host, port=port, log_level="warning",
                                 ssl_certfile=args.https_cert if tls else None,
                                 ssl_keyfile=args.https_key if tls else None,
-                                timeout_graceful_shutdown=1)
+                                timeout_graceful_shutdown=1, **SERVER_OPTIONS)
         server = uvicorn.Server(config)
         if args.duration:
             threading.Timer(args.duration, lambda: setattr(server, "should_exit", True)).start()

@@ -62,7 +62,9 @@ class ZoneEditIncidents:
             "zone_edit": {"operator": operator, "zone": zone, "result": result,
                           "accepted": result == "saved", "message": entry.get("error", ""),
                           "old_hash": before, "new_hash": after,
-                          "client": entry.get("client", ""), "file": entry.get("file", "")},
+                          "client": entry.get("client", ""),
+                          "forwarded_for": entry.get("forwarded_for"),
+                          "file": entry.get("file", "")},
             "events": [], "commands": [], "clips": {}, "complete": True,
         }
         folder = self.data_dir / incident_id

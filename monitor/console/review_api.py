@@ -35,6 +35,7 @@ from monitor.console.review import (
     to_csv,
 )
 from monitor.console.setup_routes import forbidden
+from monitor.console.sources import Source, request_source
 from monitor.console.zones_api import ZoneEditor
 
 
@@ -53,7 +54,7 @@ class ReviewSources(Protocol):
     def editor(self) -> ZoneEditor: ...
 
 
-Login = Callable[[str, tuple[str, str] | None], Awaitable[tuple[str | None, int, str]]]
+Login = Callable[[Source, tuple[str, str] | None], Awaitable[tuple[str | None, int, str]]]
 REVIEWED_EVENT = "incident_reviewed"
 CHUNK = 256 * 1024
 
@@ -103,17 +104,18 @@ def review_routes(console: ReviewSources, login: Login) -> list[Route]:
     async def reviewed(request: Request) -> Response:
         raw_id = request.path_params["id"]
         credentials = basic_credentials(request.headers.get("authorization"))
-        client = request.client.host if request.client else ""
-        operator, status, why = await login(client, credentials)
+        source = request_source(request, console.trusted_proxies)
+        client = source.fields()  # the socket's peer, and a trusted proxy's word apart
+        operator, status, why = await login(source, credentials)
         if operator is None:
             # whoever reaches the port: one bounded, rate-limited audit line, nothing marked
             await run_in_threadpool(functools.partial(
                 console.audit.refused, event=REVIEWED_EVENT, incident=raw_id, operator=None,
-                tried=credentials[0] if credentials else None, client=client,
+                tried=credentials[0] if credentials else None, **client,
                 result="refused", error=why))
             headers = {"retry-after": "60"} if status in (429, 503) else {}
             return json_response({"error": why}, status, headers)
-        refused = await forbidden(console, operator, "mark_reviewed", client, raw_id,
+        refused = await forbidden(console, operator, "mark_reviewed", source, raw_id,
                                   SECURITY_HEADERS)
         if refused is not None:  # a viewer: 403 naming the level needed, audited
             return refused
@@ -122,7 +124,7 @@ def review_routes(console: ReviewSources, login: Login) -> list[Route]:
         except BadFilter as exc:
             await run_in_threadpool(functools.partial(
                 console.audit.record, event=REVIEWED_EVENT, incident=bounded(raw_id, 80),
-                operator=operator, client=client, result="bad_request", error=str(exc)))
+                operator=operator, **client, result="bad_request", error=str(exc)))
             return json_response({"error": str(exc)}, 400)
         try:
             mark = await run_in_threadpool(console.incidents.mark_reviewed, incident_id,
@@ -132,16 +134,16 @@ def review_routes(console: ReviewSources, login: Login) -> list[Route]:
                    f"{str(exc).splitlines()[0] if str(exc) else ''}"
             await run_in_threadpool(functools.partial(
                 console.audit.record, event=REVIEWED_EVENT, incident=incident_id,
-                operator=operator, client=client, result="error", error=text))
+                operator=operator, **client, result="error", error=text))
             return json_response({"error": text}, 500)
         if mark is None:
             await run_in_threadpool(functools.partial(
                 console.audit.record, event=REVIEWED_EVENT, incident=incident_id,
-                operator=operator, client=client, result="unknown"))
+                operator=operator, **client, result="unknown"))
             return json_response({"error": f"no incident {incident_id!r}"}, 404)
         entry = await run_in_threadpool(functools.partial(
             console.audit.record, event=REVIEWED_EVENT, incident=incident_id,
-            operator=operator, client=client, result="reviewed",
+            operator=operator, **client, result="reviewed",
             reviewed_by=mark.operator, reviewed_at=mark.at))
         return json_response({"reviewed": incident_id, "review": mark.to_dict(),
                               "audit": entry})

@@ -11,9 +11,11 @@ script can read it, and no other site's page can make the browser send it.
 
 The session only names the user: the level is read from the passwords file on every request, so
 a user removed from the file (or a file broken) is refused at once. Sessions live in memory (a
-restart logs everyone out), for ``LIFETIME_S`` at most, ``MAX_SESSIONS`` at most (the oldest is
-dropped). Edits never accept the cookie: each still sends its own ``Basic`` credential, so a
-forged cross-site request has nothing to ride on.
+restart logs everyone out), for ``LIFETIME_S`` at most, ``MAX_PER_USER`` per user at most (that
+user's oldest is dropped: one user logging in again and again never logs anyone else out, as a
+bound on all sessions once did; the total is bounded by the passwords file's users). Edits never
+accept the cookie: each still sends its own ``Basic`` credential, so a forged cross-site request
+has nothing to ride on.
 
 A refused view (no session, an expired one, a removed user) answers 401 with one line and is
 not audited: a read refused is no change, and a page left open polls several times a second.
@@ -36,7 +38,7 @@ from monitor.console.levels import may
 
 COOKIE = "workcell_console"
 LIFETIME_S = 8 * 3600.0  # a shift
-MAX_SESSIONS = 1024
+MAX_PER_USER = 16  # sessions of one user (browsers, tabs that logged in anew, machines)
 OPEN_PATHS = ("/api/login", "/api/logout", "/api/me")  # answer without a session
 VIEW_NEEDS_LOGIN = ("viewing this console needs a login (any level: viewer, operator or "
                     "admin) because it listens off loopback: log in at /setup")
@@ -46,10 +48,10 @@ class Sessions:
     """token -> user name, bounded and expiring; ``clock``: monotonic seconds."""
 
     def __init__(self, clock: Callable[[], float] = time.monotonic,
-                 lifetime_s: float = LIFETIME_S, max_sessions: int = MAX_SESSIONS) -> None:
+                 lifetime_s: float = LIFETIME_S, max_per_user: int = MAX_PER_USER) -> None:
         self.clock = clock
         self.lifetime_s = lifetime_s
-        self.max_sessions = max_sessions
+        self.max_per_user = max_per_user
         # sha256(token) -> (name, expires): the token itself is never kept
         self._open: OrderedDict[bytes, tuple[str, float]] = OrderedDict()
         self._lock = threading.Lock()
@@ -60,10 +62,14 @@ class Sessions:
 
     def open(self, name: str) -> str:
         token = secrets.token_urlsafe(32)
+        now = self.clock()
         with self._lock:
-            self._open[self._key(token)] = (name, self.clock() + self.lifetime_s)
-            while len(self._open) > self.max_sessions:
-                self._open.popitem(last=False)  # the oldest login goes first
+            for key in [k for k, (_, ends) in self._open.items() if ends <= now]:
+                del self._open[key]  # expired ones go first (a login is rare: a scan is cheap)
+            mine = [k for k, (who, _) in self._open.items() if who == name]
+            for key in mine[:max(0, len(mine) - self.max_per_user + 1)]:
+                del self._open[key]  # this user's oldest, never another user's
+            self._open[self._key(token)] = (name, now + self.lifetime_s)
         return token
 
     def name(self, token: str | None) -> str | None:

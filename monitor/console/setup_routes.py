@@ -41,18 +41,15 @@ from monitor.console.setup_api import (
     VOLUME_FIELDS,
     SetupEditor,
 )
+from monitor.console.sources import Source, request_source
 from monitor.errors import ConfigError
 
-Login = Callable[[str, "tuple[str, str] | None"], Awaitable[tuple[str | None, int, str]]]
+Login = Callable[[Source, "tuple[str, str] | None"], Awaitable[tuple[str | None, int, str]]]
 NOTE = ("a draft: the running monitor keeps its zone set until an operator applies the file "
         "(monitor zones apply, signed; its commands name the hash in force)")
 
 
-def _client(request: Request) -> str:
-    return request.client.host if request.client else ""
-
-
-async def forbidden(console: Any, name: str, action: str, client: str, target: str,
+async def forbidden(console: Any, name: str, action: str, source: Source, target: str,
                     headers: dict) -> Response | None:
     """A 403 (audited whole, one line naming the level needed) when ``name``'s level, as the
     passwords file says now, may not do ``action``; None when it may."""
@@ -62,7 +59,7 @@ async def forbidden(console: Any, name: str, action: str, client: str, target: s
         return None
     await run_in_threadpool(functools.partial(
         console.audit.record, zone=bounded(target, 80), operator=name, level=level,
-        client=client, result="forbidden", edit=action, error=why))
+        **source.fields(), result="forbidden", edit=action, error=why))
     return JSONResponse({"error": why}, status_code=403, headers=headers)
 
 
@@ -82,13 +79,13 @@ def setup_routes(console: Any, login: Login, edit_incident: Callable[[dict], str
     async def credentialed(request: Request, target: str) -> tuple[str | None, Response | None]:
         """The user of the request's ``Basic`` credential, or the refusal to answer."""
         credentials = basic_credentials(request.headers.get("authorization"))
-        client = _client(request)
-        name, status, why = await login(client, credentials)
+        source = request_source(request, console.trusted_proxies)
+        name, status, why = await login(source, credentials)
         if name is not None:
             return name, None
         await run_in_threadpool(functools.partial(
             console.audit.refused, zone=target, operator=None,
-            tried=credentials[0] if credentials else None, client=client, result="refused",
+            tried=credentials[0] if credentials else None, **source.fields(), result="refused",
             error=why))
         extra = {"retry-after": "60"} if status in (429, 503) else {}
         return None, JSONResponse({"error": why}, status_code=status,
@@ -99,14 +96,15 @@ def setup_routes(console: Any, login: Login, edit_incident: Callable[[dict], str
         name, refused = await credentialed(request, target)
         if refused is not None:
             return refused
-        client = _client(request)
-        refused = await forbidden(console, name, action, client, target, headers)
+        source = request_source(request, console.trusted_proxies)
+        refused = await forbidden(console, name, action, source, target, headers)
         if refused is not None:
             return refused
 
         def refuse(status: int, result: str, error: str) -> Response:
-            entry = console.audit.record(zone=bounded(target, 80), operator=name, client=client,
-                                         edit=action, result=result, error=bounded(error, 400),
+            entry = console.audit.record(zone=bounded(target, 80), operator=name,
+                                         **source.fields(), edit=action, result=result,
+                                         error=bounded(error, 400),
                                          config_hash_before=current_hash())
             return JSONResponse({"error": error, "incident": edit_incident(entry)},
                                 status_code=status, headers=headers)
@@ -130,7 +128,7 @@ def setup_routes(console: Any, login: Login, edit_incident: Callable[[dict], str
                    f"{str(exc).splitlines()[0] if str(exc) else ''}"
             return await run_in_threadpool(refuse, 500, "error", text)
         entry = await run_in_threadpool(functools.partial(
-            console.audit.record, zone=target, operator=name, client=client, edit=action,
+            console.audit.record, zone=target, operator=name, **source.fields(), edit=action,
             result="saved", action="changed", config_hash_before=before,
             config_hash=cell.config_hash, file=str(console.editor.path)))
         incident = await run_in_threadpool(edit_incident, entry)
@@ -160,7 +158,7 @@ def setup_routes(console: Any, login: Login, edit_incident: Callable[[dict], str
         token = console.sessions.open(name)
         await run_in_threadpool(functools.partial(
             console.audit.record, event="login", operator=name, level=level,
-            client=_client(request), result="ok"))
+            **request_source(request, console.trusted_proxies).fields(), result="ok"))
         response = JSONResponse({"name": name, "level": level}, headers=headers)
         response.set_cookie(COOKIE, token, max_age=int(LIFETIME_S), path="/", httponly=True,
                             samesite="strict", secure=request.url.scheme == "https")

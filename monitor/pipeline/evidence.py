@@ -13,9 +13,9 @@ from dataclasses import dataclass, field
 from monitor.pipeline.data import CameraState
 from monitor.pipeline.mutes import MuteDesk
 from monitor.pipeline.zone_sets import ZoneSets
-from monitor.policy import PolicyInputs, ResetRequest
+from monitor.policy import PolicyInputs, Reason, ResetRequest, frame_causes
 from monitor.tracking.handover import HandedHolds
-from monitor.types import Fault
+from monitor.types import Fault, ZoneReport
 from monitor.zones import merge_towards_danger
 from monitor.zones.check import apply_mutes
 
@@ -81,6 +81,7 @@ def policy_inputs(cameras: Mapping[str, CameraState], now: float, *,
     # muted zones as the zone file says (docs/muting.md): on the merged answer at this
     # decision only, so a mute's end applies exactly at the first decision after it
     muted, notes = mute_desk.muted(now)
+    muted_stops = suspended_stops(report, muted)
     report = apply_mutes(report, muted)
     # the oldest camera's frame: a camera that falls behind or stops makes the cell STOP
     oldest = min(times) if with_frame and times else (None, None)
@@ -89,4 +90,18 @@ def policy_inputs(cameras: Mapping[str, CameraState], now: float, *,
                         zone_report=report if with_frame else None,
                         faults=tuple(faults), detector_error=detector_error,
                         pose_time=pose_time, zone_error=zone_error,
-                        reset_request=reset, mutes=notes, latch_nonce=latch_nonce())
+                        reset_request=reset, mutes=notes, latch_nonce=latch_nonce(),
+                        muted_stops=muted_stops)
+
+
+def suspended_stops(report: ZoneReport | None, muted: Mapping[str, float | None]
+                    ) -> tuple[Reason, ...]:
+    """The STOP causes the mutes suspend: a person (seen, or lost inside) in a muted zone
+    that would STOP unmuted, from the merged answer before the mutes. They refuse a reset
+    while they hold (docs/muting.md, "Resets while muted"); a camera's newest answer, so a
+    timer tick between frames keeps them as the frame showed them."""
+    if report is None or not muted:
+        return ()
+    hits = tuple(h for h in report.hits if h.zone_id in muted)
+    # the muted zones' hits alone: separation is never muted and STOPs of its own
+    return frame_causes(ZoneReport(hits=hits)).stops if hits else ()

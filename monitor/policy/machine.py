@@ -12,6 +12,7 @@ import math
 from monitor.policy.causes import FrameCauses, fail_safe_causes, frame_causes, is_startup
 from monitor.policy.model import (
     LEVEL_OF,
+    MUTED_INSIDE,
     RUN,
     RUN_CLEAR,
     SLOW_ACTIVE,
@@ -73,11 +74,22 @@ def stale_latch(req: ResetRequest, current: Latch | None) -> str | None:
     return None
 
 
+def muted_inside(muted_stops: tuple[Reason, ...]) -> str:
+    """Why a reset waits while muted protective zones hold persons, naming the zones."""
+    zones = sorted({r.zone_id for r in muted_stops if r.zone_id}) or ["(unnamed)"]
+    causes = "; ".join(r.message for r in muted_stops)
+    return (f"muted zone{'s' if len(zones) > 1 else ''} {', '.join(zones)} not seen free "
+            f"({causes}): a mute suspends a zone's STOP, it never makes a reset with a person "
+            "inside acceptable; no reset until the muted zones are seen free")
+
+
 def arbitrate_reset(req: ResetRequest | None, stop_causes: tuple[Reason, ...],
-                    current: Latch | None, now: float, config: PolicyConfig
+                    current: Latch | None, now: float, config: PolicyConfig,
+                    muted_stops: tuple[Reason, ...] = ()
                     ) -> tuple[ResetOutcome | None, Latch | None]:
-    """Accept a reset only when it is fresh, names this latch, the STOP is latched and no STOP
-    cause holds."""
+    """Accept a reset only when it is fresh, names this latch, the STOP is latched, no STOP
+    cause holds and no muted zone holds a person (``muted_stops``: the STOP causes the mutes
+    suspend)."""
     if req is None:
         return None, current
     age = now - req.time
@@ -90,6 +102,11 @@ def arbitrate_reset(req: ResetRequest | None, stop_causes: tuple[Reason, ...],
     if stop_causes:
         text = "; ".join(r.message for r in stop_causes)
         if any(r.code == "person_lost" for r in stop_causes):
+            text += f" ({CONFIRM_CLEAR_HINT})"
+        return ResetOutcome(req.operator, False, "refused: " + text, req.request_id), current
+    if muted_stops and current is not None:
+        text = muted_inside(muted_stops)
+        if any(r.code == "person_lost" for r in muted_stops):
             text += f" ({CONFIRM_CLEAR_HINT})"
         return ResetOutcome(req.operator, False, "refused: " + text, req.request_id), current
     if current is None:
@@ -135,7 +152,7 @@ def _clearing(seen: float, now: float, config: PolicyConfig) -> Reason:
 
 
 def latch_reason(latched_by: Latch, holding: bool, slow_causes: tuple[Reason, ...],
-                 when: TimeText) -> Reason:
+                 when: TimeText, muted_stops: tuple[Reason, ...] = ()) -> Reason:
     """The latch as a reason. While a STOP cause holds, the causes before it say why (present
     tense, with their zones) and this one says a reset waits. Once none holds it is the
     command's only cause and says the latch's cause as a past event, at its time on the
@@ -143,13 +160,17 @@ def latch_reason(latched_by: Latch, holding: bool, slow_causes: tuple[Reason, ..
     from the first reason
     (OPC UA ``Reason``, the Modbus ``reason``/``zone`` registers, the console), so none shows a
     person inside a cell that is clear. A person in a warning zone meanwhile is named (the
-    cell is not clear then, though a reset is possible)."""
+    cell is not clear then, though a reset is possible), and a muted zone that holds a person
+    (``muted_stops``: then no reset until it is seen free)."""
     if holding:
         return Reason("latched", "STOP latched: waiting for an operator reset")
-    now_text = "cell clear" if not slow_causes else \
-        "no STOP cause now (" + "; ".join(r.text(when) for r in slow_causes) + ")"
+    now_text = "cell clear" if not (slow_causes or muted_stops) else "no STOP cause now" + (
+        " (" + "; ".join(r.text(when) for r in slow_causes) + ")" if slow_causes else "")
+    zones = sorted({r.zone_id for r in muted_stops if r.zone_id})
+    possible = f"no reset until muted {', '.join(zones) or 'zones'} seen free" if muted_stops \
+        else "reset possible"
     return Reason("latched", f"latched by {latched_by.message} at {when(latched_by.at)}; "
-                  f"{now_text}, reset possible", zone_id=latched_by.zone_id)
+                  f"{now_text}, {possible}", zone_id=latched_by.zone_id)
 
 
 def step(state: PolicyState, inputs: PolicyInputs, now: float,
@@ -172,7 +193,7 @@ def step(state: PolicyState, inputs: PolicyInputs, now: float,
                        inputs.latch_nonce or f"latch-{serial}")
     latches = serial if latched_by is not None and state.latched_by is None else state.latches
     reset, latched_by = arbitrate_reset(inputs.reset_request, stop_causes, latched_by, now,
-                                        config)
+                                        config, inputs.muted_stops)
     stop_seen = now if stop_causes else state.stop_seen
     slow_seen = now if (stop_causes or slow_causes) else state.slow_seen
     stop_cleared = has_cleared(stop_seen, now, config)
@@ -187,7 +208,7 @@ def step(state: PolicyState, inputs: PolicyInputs, now: float,
         SLOW_ACTIVE: slow_causes,
         RUN_CLEAR: (),
         # latched with no STOP cause: the causes before are history, said by the latch reason
-        STOP_LATCHED: (latch_reason(latched_by, False, slow_causes, when),)
+        STOP_LATCHED: (latch_reason(latched_by, False, slow_causes, when, inputs.muted_stops),)
         if latched_by is not None else (),
     }.get(phase, state.hold_reasons)
     if phase in (STOP_CLEARING, STOP_LATCHED) and not stop_cleared:
@@ -197,6 +218,9 @@ def step(state: PolicyState, inputs: PolicyInputs, now: float,
     if latched_by is not None and phase != STOP_LATCHED:
         reasons += (latch_reason(latched_by, True, slow_causes, when),)
     reasons += inputs.mutes  # muted zones: said in every command while muted
+    if latched_by is not None and inputs.muted_stops:  # why the reset waits (after the mutes)
+        reasons += (Reason(MUTED_INSIDE, muted_inside(inputs.muted_stops),
+                           zone_id=inputs.muted_stops[0].zone_id),)
 
     # (1.0 without a SLOW cause; a STOP's own entry would expire before STOP can be left)
     window, lowest = speed_window(state.scale_window, seen.scale, now, config)
@@ -205,7 +229,7 @@ def step(state: PolicyState, inputs: PolicyInputs, now: float,
     since = now if (state.since is None or level != state.state) else state.since
     hold = {STOP_ACTIVE: stop_causes, SLOW_ACTIVE: slow_causes, RUN_CLEAR: ()}.get(
         phase, state.hold_reasons)
-    reset_possible = latched_by is not None and not stop_causes
+    reset_possible = latched_by is not None and not stop_causes and not inputs.muted_stops
     possible_since = (state.reset_possible_since if state.reset_possible_since is not None
                       else now) if reset_possible else None
     new_state = PolicyState(

@@ -21,6 +21,8 @@ SLOW_CLEARING = "SLOW_CLEARING"  # SLOW causes gone, waiting clear_time
 STOP_ACTIVE = "STOP_ACTIVE"  # a STOP cause is present
 STOP_CLEARING = "STOP_CLEARING"  # STOP causes gone, waiting clear_time (not latched)
 STOP_LATCHED = "STOP_LATCHED"  # STOP causes gone, waiting for an operator reset
+# the reason of a latched STOP whose reset waits for a muted zone to be seen free
+MUTED_INSIDE = "muted_inside"
 PHASES = (RUN_CLEAR, SLOW_ACTIVE, SLOW_CLEARING, STOP_ACTIVE, STOP_CLEARING, STOP_LATCHED)
 LEVEL_OF = {RUN_CLEAR: RUN, SLOW_ACTIVE: SLOW, SLOW_CLEARING: SLOW, STOP_ACTIVE: STOP,
             STOP_CLEARING: STOP, STOP_LATCHED: STOP}
@@ -153,6 +155,11 @@ class PolicyInputs:
     # the zones muted at this step, one ``Reason("muted", ...)`` each (the caller has already
     # applied the mutes to ``zone_report``): shown in every command while they hold
     mutes: tuple[Reason, ...] = ()
+    # the STOP causes a mute suspends at this step (a person in a muted protective zone, from
+    # the zone answer before the mutes): no STOP of their own, but a reset is refused while
+    # any holds, naming them (the scanners' rule: muting suspends a field, it never makes a
+    # reset with a person inside acceptable; docs/muting.md)
+    muted_stops: tuple[Reason, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -215,6 +222,9 @@ class Command:
                 clear = f" (clear for {self.clear_for_s:.1f} s)" \
                     if self.clear_for_s is not None else ""
                 return f"{head}; no STOP cause now{clear}: reset possible"
+            inside = "; ".join(r.text(when) for r in self.reasons if r.code == MUTED_INSIDE)
+            if inside:
+                return f"{head}; {inside}"
             return f"{head}; waiting for an operator reset"
         if self.state == RUN:
             return "RUN"
