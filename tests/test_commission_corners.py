@@ -27,7 +27,7 @@ from monitor.commission.walk_scene import (
 )
 from monitor.replay.scenarios import PROTECTIVE
 from monitor.zones import parse_cell
-from tests.helpers import one_error_line
+from tests.helpers import commissioner_key, one_error_line
 from tests.processes import one_inference_thread
 
 ZONE = "robot-protective"
@@ -81,7 +81,8 @@ def hidden(tmp_path_factory, synthetic_model):
     scene, _ = corner_walk(hidden_corner=True, visits=(HIDDEN_CORNER,))
     walk, truths = _walk(tmp, synthetic_model, scene)
     assert main(["commission", "report", "--config", str(tmp / "monitor.toml"), "--walk",
-                 str(tmp / "walk"), "--out", str(tmp / "report.html")]) == 0
+                 str(tmp / "walk"), "--out", str(tmp / "report.html"),
+                 "--key", str(commissioner_key(tmp))]) == 0
     return walk, truths, (tmp / "report.html").read_text()
 
 

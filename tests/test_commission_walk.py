@@ -20,7 +20,7 @@ from monitor.replay import scenarios as sc
 from monitor.scene import cell as scene_cell
 from monitor.scene import write_video
 from monitor.zones import parse_cell, write_cell_data
-from tests.helpers import one_error_line
+from tests.helpers import commissioner_key, one_error_line
 from tests.processes import one_inference_thread
 
 CABINET = scene_cell.Block("cabinet", (-1.0, -1.5, 0.0), (-0.1, -1.1, 1.9))
@@ -59,7 +59,8 @@ def walked(tmp_path_factory, synthetic_model):
     assert main(["commission", "walk", "--video", str(tmp / "walk.mp4"), "--config",
                  str(tmp / "monitor.toml"), "--out", str(tmp / "walk"), "--no-video"]) == 0
     assert main(["commission", "report", "--config", str(tmp / "monitor.toml"), "--walk",
-                 str(tmp / "walk"), "--out", str(tmp / "report.html")]) == 0
+                 str(tmp / "walk"), "--out", str(tmp / "report.html"),
+                 "--key", str(commissioner_key(tmp))]) == 0
     walk = json.loads((tmp / "walk" / "walk.json").read_text())
     return tmp, walk, _truth_entries(truth), (tmp / "report.html").read_text()
 

@@ -4,8 +4,9 @@
   per zone the floor cells the person was seen in, blind spots, entries with their time to
   STOP, gaps in detection; a floor picture and a camera picture.
 * ``report``: one self-contained printable HTML file with every figure of the configuration,
-  its checksum, and ``commissioned.json`` beside the config (what ``monitor status`` compares).
-* ``verify``: recompute a report's checksum.
+  signed with the commissioner's key, and ``commissioned.json`` beside the config (signed too:
+  what ``monitor run`` accepts and ``monitor status`` compares).
+* ``verify``: check a report's signature and name its signer.
 """
 
 from __future__ import annotations
@@ -21,8 +22,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
         "commission", help="the walk test and the commissioning report",
         description="Prove the cell was commissioned right: a walk test that shows where each "
-        "protective zone sees a person and how fast each entry was stopped, and a report with "
-        "a checksum that the running monitor names in its status.")
+        "protective zone sees a person and how fast each entry was stopped, and a report "
+        "signed with the commissioner's key that the running monitor names in its status.")
     sub = parser.add_subparsers(dest="commission_command", metavar="ACTION", required=True)
 
     p = sub.add_parser(
@@ -56,30 +57,41 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(func=cmd_walk)
 
     p = sub.add_parser(
-        "report", help="the commissioning report (HTML) and its checksum",
+        "report", help="the commissioning report (HTML), signed with the commissioner's key",
         description="Writes one self-contained, printable HTML report of the configuration "
         "(product version, model and zone file hashes, the model's measured envelope, every "
         "zone drawn, every changed setting, keys and operators, capacity, reaction time and "
-        "S_p, the walk test, open warnings, sign-off fields) and prints its checksum. With "
-        "--config, commissioned.json beside it records the checksum: `monitor status` then "
-        "says whether the running configuration still matches.")
+        "S_p, the walk test, open warnings, sign-off fields), signed over every byte with "
+        "the commissioner's Ed25519 key (--key; `monitor keys new --commissioner NAME`). "
+        "With --config, commissioned.json beside it (signed too) records the configuration's "
+        "fingerprint: `monitor run` accepts it when the key is in [service] "
+        "commissioners_file, and `monitor status` says whether the running configuration "
+        "still matches.")
     p.add_argument("--config", type=Path, help="monitor.toml (default: the embedded demo; "
                    "then no record is written)")
     p.add_argument("--walk", type=Path, metavar="DIR", help="a `commission walk` output folder")
     p.add_argument("--status", type=Path, metavar="FILE", help="the running service's status "
                    "(`monitor status --json > status.json`): its capacity and reaction figures")
+    p.add_argument("--key", type=Path, required=True, metavar="PRIVATE",
+                   help="the commissioner's private key (`monitor keys new --commissioner "
+                   "NAME`); with --config it must be listed in [service] commissioners_file")
     p.add_argument("--by", default="", help="who commissioned the cell (printed in the "
-                   "sign-off; default blank)")
+                   "sign-off; default: the key's name in the commissioners file)")
     p.add_argument("--date", default="", help="the date printed in the sign-off (default "
                    "blank: the report holds no clock, so it is reproducible)")
     p.add_argument("--out", type=Path, default=Path("commissioning-report.html"),
                    help="the report file")
     p.set_defaults(func=cmd_report)
 
-    p = sub.add_parser("verify", help="check a report's printed checksum against its content",
-                       description="Exit 0 when the report's checksum matches its content, "
-                       "1 when it was changed.")
+    p = sub.add_parser("verify", help="check a report's signature and name its signer",
+                       description="Exit 0 when the report's signature covers its every byte "
+                       "and (with --key or --config) was made by that key or by a listed "
+                       "commissioner; 1 when the report was changed or signed by another key.")
     p.add_argument("report", type=Path, help="the report file")
+    p.add_argument("--key", type=Path, metavar="PUB", help="the commissioner's public key "
+                   "file: the report must be signed by it")
+    p.add_argument("--config", type=Path, help="monitor.toml: the report must be signed by a "
+                   "key of its [service] commissioners_file")
     p.set_defaults(func=cmd_verify)
 
 
@@ -166,39 +178,95 @@ def _record(args: argparse.Namespace, config) -> Path:
 
 def cmd_report(args: argparse.Namespace) -> int:
     from monitor.commission.inputs import gather
-    from monitor.commission.report import printed_checksum, render
+    from monitor.commission.report import render, signed
     from monitor.config import load_config
-    from monitor.service.commissioned import record_path, write_record
+    from monitor.service.commissioned import record_bytes, record_path, write_record
+    from monitor.wire.signing import key_fingerprint, load_private_key
 
     config = load_config(args.config)
+    signer = load_private_key(args.key)
+    by = _commissioner(config, args, signer.public_text)
     model = _model_path(config, None)
-    content = gather(args.config, model, args.walk, args.status, args.by, args.date)
-    html = render(content)
-    checksum = printed_checksum(html)
+    content = gather(args.config, model, args.walk, args.status, by, args.date,
+                     signer.public_text)
+    report = signed(render(content), signer)
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(html)
-    print(f"wrote {args.out}")
-    print(f"checksum {checksum}")
+    args.out.write_bytes(report)
+    print(f"wrote {args.out}, signed by {by or 'an unnamed commissioner'} "
+          f"(key {key_fingerprint(signer.public_text)})")
     if args.config is not None:
         record = record_path(args.config)
-        write_record(record, checksum, content["fingerprint"], args.out.name, args.by)
-        print(f"recorded in {record} (monitor status: commissioned)")
+        write_record(record, record_bytes(report, args.out.name, by, content["fingerprint"],
+                                          signer))
+        print(f"recorded in {record} (signed; a running monitor takes it within seconds: "
+              "monitor status: commissioned)")
     else:
         print("embedded demo: no commissioned.json written (pass --config)")
     return 0
 
 
+def _commissioner(config, args: argparse.Namespace, public_text: str) -> str:
+    """The signer's name: the commissioners file's name of the key (which must be listed
+    when the report is for a config), else --by."""
+    from monitor.wire.signing import load_operators, parse_public_key
+
+    path = config.service.commissioners_file
+    if args.config is None:
+        return args.by
+    if not path:
+        print(f"warning: {args.config} has no [service] commissioners_file: the monitor "
+              "accepts no commissioned record until one lists this key (`monitor keys new "
+              "--commissioner NAME` printed the line)", file=sys.stderr)
+        return args.by
+    listed = load_operators(path, "commissioners file", "commissioner")
+    key = parse_public_key(public_text)
+    name = next((n for n, k in listed.items() if k == key), None)
+    if name is None:
+        raise InputError(f"{args.key}: this key is not listed in the commissioners file "
+                         f"{path}: the monitor would refuse the record")
+    if args.by and args.by != name:
+        raise InputError(f"--by {args.by}: the key is {name}'s in {path}")
+    return name
+
+
 def cmd_verify(args: argparse.Namespace) -> int:
-    from monitor.commission.report import verify
+    from monitor.commission.report import signer_named, verify
+    from monitor.config import load_config
+    from monitor.wire.evidence import NotSigned
+    from monitor.wire.signing import key_fingerprint, load_operators, load_public_key
 
     try:
-        html = args.report.read_text()
+        data = args.report.read_bytes()
     except FileNotFoundError:
         raise InputError(f"{args.report}: no such report") from None
-    except UnicodeDecodeError:
-        raise InputError(f"{args.report}: not a report (not text)") from None
-    ok, printed = verify(html)
-    if printed is None:
-        raise InputError(f"{args.report}: no checksum line: not a commissioning report")
-    print(f"{'ok' if ok else 'CHANGED'}: printed checksum {printed}")
-    return 0 if ok else 1
+    try:
+        opened = verify(data)
+    except NotSigned as exc:
+        print(f"CHANGED or not signed: {args.report}: {exc}")
+        return 1
+    fp = key_fingerprint(opened.key_text)
+    named = signer_named(opened) or "nobody"
+    if not opened.valid:
+        print(f"CHANGED: {args.report}: the signature of key {fp} does not cover this content")
+        return 1
+    if args.key is not None:
+        if load_public_key(args.key) != opened.key:
+            print(f"OTHER KEY: {args.report} is intact but signed by key {fp}, not {args.key}")
+            return 1
+        print(f"ok: signed by {named} with {args.key} (key {fp}); every byte is as signed")
+        return 0
+    if args.config is not None:
+        path = load_config(args.config).service.commissioners_file
+        if not path:
+            raise InputError(f"{args.config}: no [service] commissioners_file to check against")
+        listed = load_operators(path, "commissioners file", "commissioner")
+        name = next((n for n, k in listed.items() if k == opened.key), None)
+        if name is None:
+            print(f"NOT A COMMISSIONER: {args.report} is intact but signed by key {fp}, "
+                  f"which is not in {path}")
+            return 1
+        print(f"ok: signed by commissioner {name} (key {fp}, {path}); every byte is as signed")
+        return 0
+    print(f"ok: every byte is as signed by key {fp}, named in the report as {named}; pass "
+          "--key PUB or --config to check that it is the commissioner's key")
+    return 0

@@ -36,9 +36,11 @@ from monitor.zones import Cell, load_cell
 
 
 def gather(config_path: Path | None, model_path: Path, walk_dir: Path | None = None,
-           status_file: Path | None = None, by: str = "", date: str = "") -> dict:
+           status_file: Path | None = None, by: str = "", date: str = "",
+           signer_key: str | None = None) -> dict:
     """The report's content (JSON-able, deterministic). ``model_path``: the model the config
-    names (the synthetic model's file for a config without one)."""
+    names (the synthetic model's file for a config without one); ``signer_key``: the public
+    key text of the commissioner who signs it."""
     config = load_config(config_path)
     zones_file = zones_file_of(config)
     cell = load_cell(zones_file) if zones_file else None
@@ -46,7 +48,7 @@ def gather(config_path: Path | None, model_path: Path, walk_dir: Path | None = N
                         "> FILE`)") if status_file else None
     walk = read_walk(walk_dir) if walk_dir else None
     base = config_path.parent if config_path else None
-    print_ = fingerprint(config, cell.config_hash if cell else "", model_path)
+    print_ = fingerprint(config, cell.config_hash if cell else "", model_path, cell)
     settings = settings_changed(config)
     content = {
         "product": {"name": "workcell-monitor", "version": __version__},
@@ -62,7 +64,9 @@ def gather(config_path: Path | None, model_path: Path, walk_dir: Path | None = N
         "reaction": _reaction(config, cell, status),
         "walk": _walk(walk, walk_dir) if walk is not None else None,
         "warnings": _warnings(config, cell, status, walk, model_path),
-        "signoff": {"commissioned_by": by, "date": date},
+        "signoff": {"commissioned_by": by, "date": date,
+                    "key": {"public_key": signer_key, "fingerprint": _key_id(signer_key)}
+                    if signer_key else None},
         "pictures": _pictures(config, cell),
         "sources": {"status": _name(status_file, base) if status_file else None,
                     "walk": _name(walk_dir, base) if walk_dir else None},

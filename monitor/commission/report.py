@@ -2,21 +2,32 @@
 script, no outside resource) rendered from ``inputs.gather``'s content. Pure and deterministic:
 keys sorted, no clock (the date is what the sign-off gives).
 
-Its checksum is the SHA-256 of the file's bytes without the one line that prints it
-(``id="checksum"``): ``verify`` recomputes it from a file, so any later edit shows.
+It is signed over every byte with the commissioner's Ed25519 key (``monitor.wire.evidence``):
+the file ends in a fixed signature block (``REPORT_LAYOUT``: the signer's public key and the
+signature, found by position from the end, inside the sign-off section on the last page), and
+the signature covers every other byte, so ``verify`` fails on any added, removed or changed
+byte, wherever it is.
 """
 
 from __future__ import annotations
 
-import hashlib
 import json
+import re
 from html import escape
 from typing import Any
 
+from monitor.wire.evidence import Layout, Opened, open_signed, sign
+from monitor.wire.signing import Signer
+
 SECTIONS = ("identity", "model", "zones", "pictures", "settings", "keys", "capacity",
             "reaction", "walk", "warnings", "signoff")
-CHECKSUM_ID = 'id="checksum"'
-CHECKSUM_TAG = "<!--checksum-->"
+REPORT_LAYOUT = Layout(
+    "commissioning-report",
+    b'<p class="signature">Ed25519 signature of every byte of this file but the 88 characters '
+    b'of the signature itself, by key <code id="signature-key">',
+    b'</code>: <code id="signature">',
+    b"</code></p>\n</section>\n</body>\n</html>\n")
+SIGNER = re.compile(r'<span id="signer">([^<]*)</span>')
 
 STYLE = """
 body { font-family: sans-serif; font-size: 11pt; margin: 2em; color: #111; }
@@ -32,44 +43,36 @@ figure { margin: 0.6em 0; page-break-inside: avoid; }
 
 
 def render(content: dict) -> str:
-    """The report's HTML with its checksum line filled in."""
+    """The report's HTML up to its signature block (``signed`` adds it)."""
     cell = escape(str(content.get("cell") or ""))
     parts = [
         "<!DOCTYPE html>", '<html lang="en">', "<head>", '<meta charset="utf-8">',
         f"<title>Commissioning report: cell {cell}</title>", f"<style>{STYLE}</style>",
         "</head>", "<body>", f"<h1>Commissioning report: cell {cell}</h1>",
         "<p>workcell-monitor is a supplementary monitor, not a certified protective device.</p>",
-        CHECKSUM_TAG,
         _identity(content), _model(content["model"]), _zones(content["zones"]),
         _pictures(content["pictures"]), _settings(content["settings"]), _keys(content["keys"]),
         _capacity(content["capacity"]), _reaction(content["reaction"]),
         _walk(content["walk"]), _warnings(content["warnings"]), _signoff(content["signoff"]),
-        "</body>", "</html>", ""]
-    body = "\n".join(parts)
-    digest = checksum_of(body)
-    line = (f'<p {CHECKSUM_ID}>Report checksum (SHA-256 of this file without this line): '
-            f"<code>{digest}</code></p>")
-    return body.replace(CHECKSUM_TAG, line, 1)
+        ""]
+    return "\n".join(parts)
 
 
-def checksum_of(html: str) -> str:
-    """SHA-256 of the report without its checksum line (and without the placeholder)."""
-    lines = [ln for ln in html.split("\n") if CHECKSUM_ID not in ln and ln != CHECKSUM_TAG]
-    return hashlib.sha256("\n".join(lines).encode()).hexdigest()
+def signed(body: str, signer: Signer) -> bytes:
+    """The report file: ``body`` and its signature block."""
+    return sign(body.encode("utf-8"), REPORT_LAYOUT, signer)
 
 
-def printed_checksum(html: str) -> str | None:
-    """The checksum the report prints (None: no checksum line)."""
-    for ln in html.split("\n"):
-        if CHECKSUM_ID in ln and "<code>" in ln:
-            return ln.split("<code>", 1)[1].split("</code>", 1)[0]
-    return None
+def verify(data: bytes) -> Opened:
+    """The report taken apart and checked (``evidence.NotSigned`` when it has no signature
+    block at its end)."""
+    return open_signed(data, REPORT_LAYOUT)
 
 
-def verify(html: str) -> tuple[bool, str | None]:
-    """(the printed checksum is the file's, the printed checksum)."""
-    printed = printed_checksum(html)
-    return printed is not None and printed == checksum_of(html), printed
+def signer_named(opened: Opened) -> str | None:
+    """The name the (signed) sign-off gives the signer."""
+    found = SIGNER.search(opened.body.decode("utf-8", "replace"))
+    return found.group(1) if found else None
 
 
 # --- sections ------------------------------------------------------------------------------------
@@ -248,6 +251,13 @@ def _signoff(s: dict) -> str:
     rows = [("commissioned by", s.get("commissioned_by") or ""), ("date", s.get("date") or ""),
             ("signature", ""), ("accepted by (operator of the cell)", ""), ("date", ""),
             ("signature", "")]
-    return _section("signoff", "Sign-off", "<p>The undersigned commissioned the cell with the "
-                    "configuration identified above and accept it as shown.</p>",
-                    _table(rows).replace("<table>", '<table class="sign">', 1))
+    key = s.get("key") or {}
+    return "\n".join([
+        '<section id="signoff">', "<h2>Sign-off</h2>",
+        "<p>The undersigned commissioned the cell with the configuration identified above and "
+        "accept it as shown.</p>",
+        _table(rows).replace("<table>", '<table class="sign">', 1),
+        f'<p>Signed digitally by <span id="signer">{escape(s.get("commissioned_by") or "")}'
+        f"</span> (commissioner key {escape(str(key.get('fingerprint') or ''))}). Check it "
+        "with <code>monitor commission verify REPORT --config monitor.toml</code>: any "
+        "changed byte fails.</p>"])
