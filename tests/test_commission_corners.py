@@ -40,7 +40,9 @@ def _walk(tmp, model, scene, missed=frozenset(), truth=True):
         f'[zones]\nfile = "{ZONES_FILE}"\n'))
     args = ["commission", "walk", "--video", str(tmp / "walk.mp4"), "--config",
             str(tmp / "monitor.toml"), "--out", str(tmp / "walk"), "--no-video"]
-    assert main([*args, "--truth", str(tmp / "truth.json")] if truth else args) == 0
+    # 0: every zone PASSes; 1: a zone FAILs (the hidden corner's walk, a short one), which the
+    # tests of the verdict check (tests/test_commission_verdict.py); not 2: no error
+    assert main([*args, "--truth", str(tmp / "truth.json")] if truth else args) in (0, 1)
     walk = json.loads((tmp / "walk" / "walk.json").read_text())
     return walk, truths
 

@@ -107,7 +107,7 @@ def test_verify_names_the_signer_and_fails_on_any_change(cell_dir, tmp_path, cap
                                       b"{display:none}</style>", 1),
         "passed-line": html.replace(b"<body>", b'<body>\n<p id="checksum">Walk test PASSED'
                                     b"</p>", 1),
-        "removed-line": html.replace(b"<h2>Open warnings</h2>\n", b"", 1),
+        "removed-line": html.replace(b"<h2>Sign-off</h2>\n", b"", 1),
         "changed-byte": html.replace(b"protective", b"protectivE", 1),
         "appended": html + b"<p>ok</p>\n",
         "cut": html[:-1],

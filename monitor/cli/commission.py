@@ -15,6 +15,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from monitor.commission.verdict import MIN_WALKED
 from monitor.errors import InputError
 
 
@@ -33,7 +34,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "corners), runs it through the monitor as `monitor replay` does (restart "
         "interlock auto: each entry its own STOP) and writes "
         "walk.json, floor.png, camera-<id>.png, events.jsonl, summary.json and "
-        "annotated.mp4 into --out.")
+        "annotated.mp4 into --out. Prints the verdict per zone and camera; exit 1 when one "
+        "FAILs (nobody detected, a protective zone never entered, too little floor walked, a "
+        "camera frozen or lost). A recording with more than 5 %% of its frames repeated or "
+        "missing is refused (exit 2) with the measured figures.")
     source = p.add_mutually_exclusive_group(required=True)
     source.add_argument("--video", type=Path, help="a recorded walk (one of --video, --record "
                         "is required)")
@@ -69,7 +73,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "still matches.")
     p.add_argument("--config", type=Path, help="monitor.toml (default: the embedded demo; "
                    "then no record is written)")
-    p.add_argument("--walk", type=Path, metavar="DIR", help="a `commission walk` output folder")
+    p.add_argument("--walk", type=Path, metavar="DIR", action="append", default=[],
+                   help="a `commission walk` output folder (repeatable: one walk per camera, "
+                   "or several passes; they merge into the verdict)")
+    p.add_argument("--min-walked", type=float, default=MIN_WALKED, metavar="SHARE",
+                   help="share of each zone's visible floor the walks must have seen a person "
+                   f"on, else that zone FAILs (default {MIN_WALKED:g})")
     p.add_argument("--status", type=Path, metavar="FILE", help="the running service's status "
                    "(`monitor status --json > status.json`): its capacity and reaction figures")
     p.add_argument("--key", type=Path, required=True, metavar="PRIVATE",
@@ -102,7 +111,9 @@ def _model_path(config, model: Path | None) -> Path:
 
 
 def cmd_walk(args: argparse.Namespace) -> int:
-    from monitor.commission.walk_video import walk_video
+    from monitor.commission.details import zones as zone_details
+    from monitor.commission.verdict import camera_verdicts, zone_verdicts
+    from monitor.commission.walk_video import read_walk, walk_video
     from monitor.config import load_config
     from monitor.detector import Detector
     from monitor.replay.video import ReplaySettings
@@ -126,7 +137,11 @@ def cmd_walk(args: argparse.Namespace) -> int:
     if zones is None:
         raise InputError("no zone file: pass --zones or a --config with [zones] file")
     cell = load_cell(zones)
-    video = args.video if args.video is not None else _record(args, config)
+    recording = None
+    if args.video is not None:
+        video = args.video
+    else:
+        video, recording = _record(args, config)
     detector = Detector(_model_path(config, args.model), config.detector)
     recorded_from = config.cameras[0].id if args.record is not None else None
     settings = ReplaySettings(out_dir=args.out, camera_id=args.camera or recorded_from,
@@ -134,7 +149,8 @@ def cmd_walk(args: argparse.Namespace) -> int:
                               policy=config.policy, health=config.health,
                               tick_s=config.service.tick_s,
                               allow_no_protective=config.zones.allow_no_protective)
-    result, pictures = walk_video(video, detector, cell, settings, args.cell_size, args.truth)
+    result, pictures = walk_video(video, detector, cell, settings, args.cell_size, args.truth,
+                                  recording)
     for z in result.zones:
         cover = (f"{z.seen_cells}/{z.cells} floor cells seen, {len(z.blind_spots)} blind"
                  if z.cells else "image zone (no floor)")
@@ -146,13 +162,22 @@ def cmd_walk(args: argparse.Namespace) -> int:
               f"{'STOP' if z.kind == 'protective' else 'SLOW'}: {times}); gaps {len(z.gaps)}"
               f"{corners}")
     print(f"outputs: {args.out}/ (walk.json, {', '.join(sorted(pictures.values()))})")
-    return 0
+    data = read_walk(args.out)
+    ours = [z for z in zone_details(cell) if z["camera"] in (None, data["camera"])]
+    verdicts = [v.to_dict() for v in zone_verdicts(ours, [data])
+                + camera_verdicts([data["camera"]], [data])]
+    _print_verdict(verdicts)
+    failed = any(v["verdict"] == "FAIL" for v in verdicts)
+    print(f"walk test {'FAIL' if failed else 'PASS'} (the report merges this walk with the "
+          "others: `commission report --walk DIR --walk DIR2 ...`)")
+    return 1 if failed else 0
 
 
-def _record(args: argparse.Namespace, config) -> Path:
+def _record(args: argparse.Namespace, config) -> tuple[Path, dict]:
     """Record the walk from the config's camera (``--camera``, else its first) into
-    OUT/walk.mp4; the path."""
-    from monitor.commission.recording import record_walk
+    OUT/walk.mp4; the path and the recording's figures. A recording with too many repeated or
+    missing slots is refused (``recording.check``)."""
+    from monitor.commission.recording import check, record_walk
     from monitor.frames import SourceOptions, open_source
     from monitor.signals import StopSignals
 
@@ -171,14 +196,18 @@ def _record(args: argparse.Namespace, config) -> Path:
             rec = record_walk(source, path, args.record, args.fps, stop)
         finally:
             source.close()
-    print(f"recorded {rec.frames} frames at {args.fps:g} fps into {path} ({rec.codec}); "
-          f"{rec.repeated} repeated (camera slower), {rec.dropped} dropped (camera faster)")
-    return path
+    print(f"recorded {rec.frames} frames at {args.fps:g} fps into {path} ({rec.codec}): "
+          f"{rec.frames - rec.repeated} distinct ({100 * rec.distinct_share:.0f} %), "
+          f"{rec.repeated} repeated (camera slower), {rec.dropped} dropped (camera faster); "
+          f"the camera gave {rec.camera_fps:.1f} fps")
+    check(rec, args.fps)
+    return path, rec.to_dict()
 
 
 def cmd_report(args: argparse.Namespace) -> int:
     from monitor.commission.inputs import gather
     from monitor.commission.report import render, signed
+    from monitor.commission.verdict import WalkLimits
     from monitor.config import load_config
     from monitor.service.commissioned import record_bytes, record_path, write_record
     from monitor.wire.signing import key_fingerprint, load_private_key
@@ -187,11 +216,15 @@ def cmd_report(args: argparse.Namespace) -> int:
     signer = load_private_key(args.key)
     by = _commissioner(config, args, signer.public_text)
     model = _model_path(config, None)
+    if not 0.0 <= args.min_walked <= 1.0:
+        raise InputError(f"--min-walked {args.min_walked:g}: a share within [0, 1]")
     content = gather(args.config, model, args.walk, args.status, by, args.date,
-                     signer.public_text)
+                     signer.public_text, WalkLimits(args.min_walked))
     report = signed(render(content), signer)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_bytes(report)
+    _print_verdict(content["verdicts"]["zones"] + content["verdicts"]["cameras"])
+    print(f"open warnings: {len(content['warnings'])}")
     print(f"wrote {args.out}, signed by {by or 'an unnamed commissioner'} "
           f"(key {key_fingerprint(signer.public_text)})")
     if args.config is not None:
@@ -203,6 +236,12 @@ def cmd_report(args: argparse.Namespace) -> int:
     else:
         print("embedded demo: no commissioned.json written (pass --config)")
     return 0
+
+
+def _print_verdict(verdicts: list[dict]) -> None:
+    for v in verdicts:
+        why = f": {'; '.join(v['reasons'])}" if v["reasons"] else ""
+        print(f"{v['verdict']} {v['what']} {v['subject']}{why}")
 
 
 def _commissioner(config, args: argparse.Namespace, public_text: str) -> str:
