@@ -107,6 +107,11 @@ class ServiceConfig:
     # and the bus's limits (monitor/service/capacity.py): "refuse" a host that cannot watch the cell
     # in time, "warn" only, or "off".
     capacity_check: Literal["refuse", "warn", "off"] = "refuse"
+    # "<commissioner> ed25519:<base64>" per line (the operators file's format): whose signed
+    # commissioned.json the monitor accepts (docs/commissioning.md). None: no record is
+    # accepted, the status says "commissioned: NO". A commissioner's key signs evidence only,
+    # never a reset: keep it out of the operators file.
+    commissioners_file: ConfigPath = None
 
 
 def _cameras(value: Any) -> Any:

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import typing
 from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated, Any, TypeVar
@@ -46,6 +47,32 @@ def _resolve(value: str | None, info: ValidationInfo) -> str | None:
 
 # a file named in the config: relative to the config file's folder when loaded from a file
 ConfigPath = Annotated[Text | None, AfterValidator(_resolve)]
+
+
+
+def config_files(section: Any, prefix: str = "") -> dict[str, str]:
+    """Every file a config section (and the sections in it) names in a ``ConfigPath`` field,
+    as ``{"section.key": path}`` (a tuple of sections as ``section[<id>].key``, a mapping of
+    paths as ``section.key.<name>``): what the commissioned fingerprint digests, found from the
+    annotations so that a path setting added later is covered without a list to keep."""
+    out: dict[str, str] = {}
+    hints = typing.get_type_hints(type(section), include_extras=True)
+    for f in dataclasses.fields(section):
+        value, hint = getattr(section, f.name), hints.get(f.name)
+        name = f"{prefix}{f.name}"
+        if hint == ConfigPath:
+            if value:
+                out[name] = str(value)
+        elif isinstance(value, dict) and typing.get_args(hint)[-1:] == (ConfigPath,):
+            out.update({f"{name}.{k}": str(v) for k, v in sorted(value.items()) if v})
+        elif dataclasses.is_dataclass(value):
+            out.update(config_files(value, f"{name}."))
+        elif isinstance(value, tuple) and value and all(map(dataclasses.is_dataclass, value)):
+            for k, item in enumerate(value):  # [[camera]] entries: camera[<id>].key
+                title = f"{prefix}{getattr(item, '__section__', f.name)}"
+                out.update(config_files(item, f"{title}[{getattr(item, 'id', k)}]."))
+    return out
+
 
 # fields whose values are never printed in an error (only their type)
 SECRET_KEYS = frozenset({"password"})

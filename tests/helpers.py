@@ -168,3 +168,14 @@ def protective_walk(fps: float):
                                 (5.5, -2.6, -0.8)))
     scene = scene_cell.CellScene((walker,), fps=fps, duration_s=6.0)
     return scene, parse_cell(sc.Scenario("walk", "walk in", scene).zone_data())
+
+
+def commissioner_key(folder: Path, name: str = "anna") -> Path:
+    """A commissioner's key pair in ``folder`` and the line for ``folder/commissioners``
+    (appended; ``[service] commissioners_file = "commissioners"`` names it); the private key."""
+    from monitor.wire.signing import new_key_pair
+
+    private, _, public = new_key_pair(Path(folder) / f"{name}-commissioner.key")
+    with (Path(folder) / "commissioners").open("a") as fh:
+        fh.write(f"{name} {public}\n")
+    return private

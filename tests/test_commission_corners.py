@@ -27,7 +27,7 @@ from monitor.commission.walk_scene import (
 )
 from monitor.replay.scenarios import PROTECTIVE
 from monitor.zones import parse_cell
-from tests.helpers import one_error_line
+from tests.helpers import commissioner_key, one_error_line
 from tests.processes import one_inference_thread
 
 ZONE = "robot-protective"
@@ -40,7 +40,9 @@ def _walk(tmp, model, scene, missed=frozenset(), truth=True):
         f'[zones]\nfile = "{ZONES_FILE}"\n'))
     args = ["commission", "walk", "--video", str(tmp / "walk.mp4"), "--config",
             str(tmp / "monitor.toml"), "--out", str(tmp / "walk"), "--no-video"]
-    assert main([*args, "--truth", str(tmp / "truth.json")] if truth else args) == 0
+    # 0: every zone PASSes; 1: a zone FAILs (the hidden corner's walk, a short one), which the
+    # tests of the verdict check (tests/test_commission_verdict.py); not 2: no error
+    assert main([*args, "--truth", str(tmp / "truth.json")] if truth else args) in (0, 1)
     walk = json.loads((tmp / "walk" / "walk.json").read_text())
     return walk, truths
 
@@ -81,7 +83,8 @@ def hidden(tmp_path_factory, synthetic_model):
     scene, _ = corner_walk(hidden_corner=True, visits=(HIDDEN_CORNER,))
     walk, truths = _walk(tmp, synthetic_model, scene)
     assert main(["commission", "report", "--config", str(tmp / "monitor.toml"), "--walk",
-                 str(tmp / "walk"), "--out", str(tmp / "report.html")]) == 0
+                 str(tmp / "walk"), "--out", str(tmp / "report.html"),
+                 "--key", str(commissioner_key(tmp))]) == 0
     return walk, truths, (tmp / "report.html").read_text()
 
 

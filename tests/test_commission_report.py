@@ -1,28 +1,40 @@
-"""`monitor commission report` on the demo cell: the same inputs give the same bytes and
-checksum, a changed byte is found by `commission verify`, the report renders in headless
-chromium with every section and picture, and `monitor status` of a running service names the
-checksum of the commissioned configuration and whether it still matches."""
+"""`monitor commission report` on the demo cell: the same inputs and key give the same bytes, a
+changed byte is found by `commission verify`, the report renders in headless chromium with
+every section and picture, and `monitor status` of a running service names the commissioned
+report and whether the running configuration still matches. (Signatures, forged records and
+the fingerprint's files: tests/test_commission_signed.py.)"""
 
 from __future__ import annotations
 
-import json
+import hashlib
 import shutil
 from pathlib import Path
 
 import pytest
 
 from monitor.cli import main
-from monitor.commission.report import SECTIONS, checksum_of, printed_checksum, verify
-from monitor.service.commissioned import RECORD_NAME, status_of
-from tests.helpers import one_error_line
+from monitor.commission.report import SECTIONS, verify
+from monitor.service.commissioned import RECORD_NAME, read_record, status_of
+from monitor.wire.signing import load_operators
+from tests.helpers import commissioner_key, one_error_line
 from tests.processes import Service, wait_for
 
 CHROMIUM = Path("/usr/bin/chromium")
 CHROMEDRIVER = Path(shutil.which("chromedriver") or "/usr/bin/chromedriver")
 
 
-def _report(out: Path, *args: str) -> str:
-    assert main(["commission", "report", "--out", str(out), "--by", "anna", *args]) == 0
+KEYS: dict[str, Path] = {}
+
+
+def _report(out: Path, *args: str, by: str = "anna") -> str:
+    key = args[args.index("--key") + 1] if "--key" in args else None
+    if key is None:
+        if "--config" in args:  # a config's commissioner is listed beside it
+            key = str(commissioner_key(Path(args[args.index("--config") + 1]).parent, by))
+        else:
+            key = str(KEYS.get(by) or KEYS.setdefault(by, commissioner_key(out.parent, by)))
+        args = (*args, "--key", key)
+    assert main(["commission", "report", "--out", str(out), "--by", by, *args]) == 0
     return out.read_text()
 
 
@@ -35,17 +47,16 @@ def demo_report(tmp_path_factory) -> Path:
     return out
 
 
-def test_the_same_inputs_give_the_same_report_and_checksum(demo_report, tmp_path, capsys):
+def test_the_same_inputs_give_the_same_report(demo_report, tmp_path, capsys):
     again = _report(tmp_path / "again.html")
     first = demo_report.read_text()
-    assert again == first
-    checksum = printed_checksum(first)
-    assert checksum is not None and len(checksum) == 64
-    assert checksum == checksum_of(first) and verify(first) == (True, checksum)
-    assert f"checksum {checksum}" in capsys.readouterr().out
+    assert again == first  # Ed25519 signatures are deterministic: the same bytes
+    opened = verify(demo_report.read_bytes())
+    assert opened.valid and opened.key_text in first
+    assert "signed by anna" in capsys.readouterr().out
     # what makes it: the zone set, the model, the changed settings and the sign-off
     assert "demo-cell.yaml" in first and "bus.allow_unsigned_resets" in first
-    assert "anna" in first and _report(tmp_path / "other.html", "--by", "bob") != first
+    assert "anna" in first and _report(tmp_path / "other.html", by="bob") != first
 
 
 def test_a_changed_report_fails_verification(demo_report, tmp_path, capsys):
@@ -59,16 +70,22 @@ def test_a_changed_report_fails_verification(demo_report, tmp_path, capsys):
 def test_the_record_beside_the_config_and_the_status_field(tmp_path, synthetic_model):
     config = tmp_path / "monitor.toml"
     config.write_text(f'[camera]\nsource = "synthetic:demo"\n[model]\npath = "{synthetic_model}"\n'
-                      '[policy]\nclear_time = 1.5\n')
+                      '[policy]\nclear_time = 1.5\n[service]\ncommissioners_file = '
+                      '"commissioners"\n')
     html = _report(tmp_path / "report.html", "--config", str(config))
-    record = json.loads((tmp_path / RECORD_NAME).read_text())
-    assert record["checksum"] == printed_checksum(html) and record["by"] == "anna"
+    record, by, _ = read_record(tmp_path / RECORD_NAME,
+                                load_operators(tmp_path / "commissioners"))
+    assert record["report_sha256"] == hashlib.sha256((tmp_path / "report.html").read_bytes()
+                                                     ).hexdigest()
+    assert by == "anna" and record["by"] == "anna"
     assert "policy.clear_time" in html
-    running = {k: record[k] for k in ("zones_hash", "model_sha256", "settings_sha256")}
+    running = {k: record[k] for k in ("zones_hash", "model_sha256", "settings_sha256",
+                                      "files")}
     assert status_of(config, running)["matches"] is True
     changed = status_of(config, {**running, "zones_hash": "0" * 16})
     assert changed["matches"] is False and changed["differs"] == ["zones"]
-    assert changed["checksum"] == record["checksum"]
+    assert changed["checksum"] == record["report_sha256"]
+    assert "not commissioned: zones differs" in changed["reason"]
     other = tmp_path / "other" / "monitor.toml"
     other.parent.mkdir()
     gone = status_of(other, running)
@@ -78,9 +95,10 @@ def test_the_record_beside_the_config_and_the_status_field(tmp_path, synthetic_m
 
 @pytest.mark.slow
 def test_status_names_the_commissioned_checksum(tmp_path, synthetic_model):
-    svc = Service(tmp_path, synthetic_model, "synthetic:demo")
+    svc = Service(tmp_path, synthetic_model, "synthetic:demo",
+                  'commissioners_file = "commissioners"\n')
     html = _report(tmp_path / "report.html", "--config", str(svc.config))
-    checksum = printed_checksum(html)
+    checksum = hashlib.sha256((tmp_path / "report.html").read_bytes()).hexdigest()
     assert "tester" in html  # the operators file's operator and key fingerprint
     with svc:
         # the first answers: once the monitor has decided (its status queryable is routed)
@@ -116,8 +134,8 @@ def test_the_report_renders_in_headless_chromium(demo_report, tmp_path):
             "return Array.from(document.images).map(i => [i.alt, i.complete, i.naturalWidth])")
         assert {alt for alt, _, _ in images} >= {"floor plan", "camera cam0"}
         assert all(done and width > 0 for _, done, width in images), images
-        checksum = driver.find_element(By.ID, "checksum").text
-        assert printed_checksum(demo_report.read_text()) in checksum
+        key = driver.find_element(By.ID, "signature-key").text
+        assert key == verify(demo_report.read_bytes()).key_text
         driver.save_screenshot(str(tmp_path / "report.png"))
         pdf = driver.print_page()  # printable: Chrome's own print to PDF (base64)
         assert len(pdf) > 10_000
@@ -135,6 +153,7 @@ def test_bad_inputs_are_one_line(tmp_path, capsys, args, needle):
     (tmp_path / "bad.json").write_text("{not json")
     paths = {"missing": tmp_path / "none.json", "bad": tmp_path / "bad.json", "tmp": tmp_path}
     argv = [a.format(**paths) for a in args]
-    assert main(["commission", "report", "--out", str(tmp_path / "r.html"), *argv]) == 2
+    assert main(["commission", "report", "--out", str(tmp_path / "r.html"), *argv,
+                 "--key", str(commissioner_key(tmp_path))]) == 2
     assert needle in one_error_line(capsys)
     assert not (tmp_path / "r.html").exists()

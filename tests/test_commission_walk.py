@@ -20,7 +20,7 @@ from monitor.replay import scenarios as sc
 from monitor.scene import cell as scene_cell
 from monitor.scene import write_video
 from monitor.zones import parse_cell, write_cell_data
-from tests.helpers import one_error_line
+from tests.helpers import commissioner_key, one_error_line
 from tests.processes import one_inference_thread
 
 CABINET = scene_cell.Block("cabinet", (-1.0, -1.5, 0.0), (-0.1, -1.1, 1.9))
@@ -59,7 +59,8 @@ def walked(tmp_path_factory, synthetic_model):
     assert main(["commission", "walk", "--video", str(tmp / "walk.mp4"), "--config",
                  str(tmp / "monitor.toml"), "--out", str(tmp / "walk"), "--no-video"]) == 0
     assert main(["commission", "report", "--config", str(tmp / "monitor.toml"), "--walk",
-                 str(tmp / "walk"), "--out", str(tmp / "report.html")]) == 0
+                 str(tmp / "walk"), "--out", str(tmp / "report.html"),
+                 "--key", str(commissioner_key(tmp))]) == 0
     walk = json.loads((tmp / "walk" / "walk.json").read_text())
     return tmp, walk, _truth_entries(truth), (tmp / "report.html").read_text()
 
@@ -112,7 +113,7 @@ def test_the_report_shows_every_protective_zone_and_each_time_to_stop(walked):
     protective = [z for z in walk["zones"] if z["kind"] == "protective"]
     assert protective
     for z in protective:
-        assert f'id="walk-{z["zone_id"]}"' in html
+        assert f'id="walk1-{z["zone_id"]}"' in html
         assert f"<td>{z['seen_cells']} ({100 * z['seen_fraction']:.0f} %)</td>" in html
         for k, e in enumerate(z["entries"], 1):
             row = f"<tr><td>{k}</td><td>{e['entry_s']:.4g}</td><td>{e['exit_s']:.4g}</td>" \
@@ -162,10 +163,12 @@ def test_record_a_walk_from_the_configs_camera(tmp_path, synthetic_model, capsys
         '[camera]\nsource = "synthetic:demo"\nrealtime = false\nloop = false\n'
         f'[model]\npath = "{synthetic_model}"\n')
     out = tmp_path / "walk"
+    # one second of the demo: nobody is detected yet, so the walk FAILs (exit 1) and says why
     assert main(["commission", "walk", "--record", "1", "--config", str(tmp_path / "monitor.toml"),
-                 "--out", str(out), "--no-video"]) == 0
+                 "--out", str(out), "--no-video"]) == 1
     printed = capsys.readouterr().out
     assert "recorded 10 frames at 10 fps" in printed and "0 repeated" in printed
+    assert "FAIL camera cam0: nobody was detected in its walk" in printed
     walk = json.loads((out / "walk.json").read_text())
     assert walk["frames"] == 10 and walk["video"] == "walk.mp4" and walk["camera"] == "cam0"
     kinds = {z["zone_id"]: z["cells"] for z in walk["zones"]}

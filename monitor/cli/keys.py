@@ -1,4 +1,5 @@
-"""``monitor keys new``: Ed25519 key pairs for the monitor, operators and selectors."""
+"""``monitor keys new``: Ed25519 key pairs for the monitor, operators, selectors and
+commissioners (one key, one role)."""
 
 from __future__ import annotations
 
@@ -12,18 +13,20 @@ KEY_DIR = Path("~/.config/workcell-monitor/keys")
 
 
 def cmd_keys_new(args: argparse.Namespace) -> int:
-    if args.operator and args.selector:
-        raise ConfigError("monitor keys new: --operator or --selector, not both (a selector "
-                          "must not be able to reset: one key, one role)")
-    name = args.operator or args.selector
+    roles = [r for r in ("operator", "selector", "commissioner") if getattr(args, r)]
+    if len(roles) > 1:
+        raise ConfigError(f"monitor keys new: --{roles[0]} or --{roles[1]}, not both (a "
+                          "selector or a commissioner must not be able to reset: one key, one "
+                          "role)")
+    name = args.operator or args.selector or args.commissioner
     if args.path:
         path = Path(args.path)
     elif name:
         path = (KEY_DIR / f"{name}.key").expanduser()
     else:
-        raise ConfigError("monitor keys new: give a PATH for the key, or --operator NAME or "
-                          f"--selector NAME (then {KEY_DIR}/NAME.key)")
-    flag = "--operator" if args.operator else "--selector"
+        raise ConfigError("monitor keys new: give a PATH for the key, or --operator NAME, "
+                          f"--selector NAME or --commissioner NAME (then {KEY_DIR}/NAME.key)")
+    flag = f"--{roles[0]}" if roles else ""
     if name and any(c.isspace() or c == "#" for c in name):
         raise ConfigError(f"{flag} {name!r}: no spaces or '#' in {flag[2:]} ids")
     private, public, text = new_key_pair(path, force=args.force)
@@ -35,6 +38,11 @@ def cmd_keys_new(args: argparse.Namespace) -> int:
               "sets is a selector: monitor keys new --selector NAME)")
         print(f"add this line to the monitor's operators file (bus.operators_file):\n"
               f"{args.operator} {text}")
+    elif args.commissioner:
+        print(f"sign the commissioning report with it (`monitor commission report --key "
+              f"{private}`); add this line to the monitor's commissioners file "
+              f"([service] commissioners_file), never to the operators file:\n"
+              f"{args.commissioner} {text}")
     elif args.selector:
         print(f"add this line to the monitor's selectors file (bus.selectors_file), never to "
               f"the operators file (that would let it reset a latched STOP):\n"
@@ -47,7 +55,7 @@ def cmd_keys_new(args: argparse.Namespace) -> int:
 
 def register(subparsers) -> None:
     keys = subparsers.add_parser("keys", help="make signing keys (monitor, operators, "
-                                 "selectors)")
+                                 "selectors, commissioners)")
     ksub = keys.add_subparsers(dest="keys_action", metavar="ACTION", required=True)
     p = ksub.add_parser("new", help="write a new Ed25519 key pair (private key mode 600)",
                         description="Writes PATH (private, mode 600) and PATH.pub (public). "
@@ -59,6 +67,8 @@ def register(subparsers) -> None:
     p.add_argument("--selector", help="selector id (a robot program, a PLC adapter that "
                    "selects zone sets): print the line for the selectors file (default: a "
                    "monitor key)")
+    p.add_argument("--commissioner", help="commissioner id (who signs the commissioning report "
+                   "and commissioned.json): print the line for the commissioners file")
     p.add_argument("--force", action="store_true",
                    help="replace existing key files (default: refuse)")
     p.set_defaults(func=cmd_keys_new)

@@ -100,8 +100,13 @@ def _commissioned(value: Any) -> str:
         return "commissioned: unknown (not reported)"
     if c.get("matches") is True:
         by = f" by {c['by']}" if c.get("by") else ""
-        return f"commissioned: yes, checksum {str(c.get('checksum', '?'))[:16]}{by}"
-    return f"commissioned: NO ({c.get('reason') or 'the configuration differs from the record'})"
+        key = f" (key {c['key']})" if c.get("key") else ""
+        return f"commissioned: yes, checksum {str(c.get('checksum', '?'))[:16]}{by}{key}"
+    differs = [str(d) for d in _list(c.get("differs"))]
+    reason = c.get("reason") or (f"not commissioned: {', '.join(differs)} differ from the "
+                                 "record" if differs else "the configuration differs from the "
+                                 "record")
+    return f"commissioned: NO ({reason})"
 
 
 def status_text(status: dict) -> str:

@@ -8,26 +8,30 @@ reaction time) come from a saved ``monitor status --json`` answer of the running
 from __future__ import annotations
 
 import base64
+import dataclasses
 import json
+from collections.abc import Sequence
 from pathlib import Path
 
 import cv2
 import numpy as np
+import onnxruntime as ort
 
 from monitor import __version__
+from monitor.commission import details
 from monitor.commission.floor import zone_floors
+from monitor.commission.open_warnings import Facts, open_warnings
 from monitor.commission.pictures import camera_picture, floor_picture
+from monitor.commission.verdict import DEFAULT_LIMITS, WalkLimits, camera_verdicts, zone_verdicts
 from monitor.commission.walk_video import read_walk
 from monitor.config import MonitorConfig, load_config
 from monitor.detector.envelope import file_sha256, sidecar_path
-from monitor.driver import protective_warning
 from monitor.errors import InputError
 from monitor.geometry import SeparationParams
 from monitor.geometry.reaction import needed_separation_m
 from monitor.health.references import (
     choose_references,
     load_chosen_reference,
-    reference_warnings,
 )
 from monitor.service.commissioned import fingerprint, settings_changed
 from monitor.service.setup import reaction_budget, zones_file_of
@@ -35,18 +39,32 @@ from monitor.wire.signing import key_fingerprint, load_operators, load_private_k
 from monitor.zones import Cell, load_cell
 
 
-def gather(config_path: Path | None, model_path: Path, walk_dir: Path | None = None,
-           status_file: Path | None = None, by: str = "", date: str = "") -> dict:
+def gather(config_path: Path | None, model_path: Path,
+           walk_dirs: Sequence[Path] | Path | None = None,
+           status_file: Path | None = None, by: str = "", date: str = "",
+           signer_key: str | None = None, limits: WalkLimits = DEFAULT_LIMITS) -> dict:
     """The report's content (JSON-able, deterministic). ``model_path``: the model the config
-    names (the synthetic model's file for a config without one)."""
+    names (the synthetic model's file for a config without one); ``walk_dirs``: the walks (one
+    per camera, or several passes: they merge); ``signer_key``: the public key text of the
+    commissioner who signs it."""
     config = load_config(config_path)
     zones_file = zones_file_of(config)
     cell = load_cell(zones_file) if zones_file else None
     status = _read_json(status_file, "status file", " (save it with `monitor status --json "
                         "> FILE`)") if status_file else None
-    walk = read_walk(walk_dir) if walk_dir else None
+    if isinstance(walk_dirs, str | Path):
+        walk_dirs = [Path(walk_dirs)]
+    walk_dirs = list(walk_dirs or [])
+    walks = [read_walk(d) for d in walk_dirs]
     base = config_path.parent if config_path else None
-    print_ = fingerprint(config, cell.config_hash if cell else "", model_path)
+    zone_details = details.zones(cell) if cell is not None else []
+    reaction = _reaction(config, cell, status)
+    selectors = sorted(load_operators(config.bus.selectors_file, "selectors file", "selector")
+                       ) if config.bus.selectors_file else []
+    current = [w for w in walks if w.get("zones_hash") == (cell.config_hash if cell else "")]
+    facts = Facts(config, cell, status, walks, model_path, _is_test_model(model_path),
+                  reaction, zone_details, limits)
+    print_ = fingerprint(config, cell.config_hash if cell else "", model_path, cell)
     settings = settings_changed(config)
     content = {
         "product": {"name": "workcell-monitor", "version": __version__},
@@ -59,13 +77,26 @@ def gather(config_path: Path | None, model_path: Path, walk_dir: Path | None = N
         "settings": settings,
         "keys": _keys(config, base),
         "capacity": (status or {}).get("capacity"),
-        "reaction": _reaction(config, cell, status),
-        "walk": _walk(walk, walk_dir) if walk is not None else None,
-        "warnings": _warnings(config, cell, status, walk, model_path),
-        "signoff": {"commissioned_by": by, "date": date},
+        "reaction": reaction,
+        "walks": [_walk(w, d) for w, d in zip(walks, walk_dirs, strict=True)],
+        "verdicts": {"zones": [v.to_dict() for v in zone_verdicts(zone_details, current,
+                                                                  limits)],
+                     "cameras": [v.to_dict() for v in camera_verdicts(
+                         sorted(cell.cameras) if cell else [], current)],
+                     "min_walked": limits.min_walked},
+        "zone_details": zone_details,
+        "zone_sets": details.zone_sets(cell, selectors) if cell is not None else None,
+        "calibration": details.calibrations(cell) if cell is not None else [],
+        "person": details.person_and_separation(cell) if cell is not None else None,
+        "budget": _budget(config),
+        "not_tested": _not_tested(walks, cell),
+        "warnings": open_warnings(facts),
+        "signoff": {"commissioned_by": by, "date": date,
+                    "key": {"public_key": signer_key, "fingerprint": _key_id(signer_key)}
+                    if signer_key else None},
         "pictures": _pictures(config, cell),
         "sources": {"status": _name(status_file, base) if status_file else None,
-                    "walk": _name(walk_dir, base) if walk_dir else None},
+                    "walks": [_name(d, base) for d in walk_dirs]},
     }
     return content
 
@@ -168,47 +199,41 @@ def _walk(walk: dict, walk_dir: Path) -> dict:
     return {**{k: v for k, v in walk.items() if k != "pictures"}, "pictures": pictures}
 
 
-def _warnings(config: MonitorConfig, cell: Cell | None, status: dict | None,
-              walk: dict | None, model_path: Path) -> list[str]:
-    out = []
-    warning = protective_warning(cell)
-    if warning:
-        out.append(warning)
-    out += [f"zone file: {w}" for w in (cell.warnings if cell else ())]
-    out += reference_warnings(config, cell)
-    if config.bus.allow_unsigned_resets:
-        out.append("resets are accepted without an operator key")
-    if status is None:
-        out.append("no status of the running service given (--status): capacity and the "
-                   "measured reaction time are not in this report")
-    else:
-        out += [f"capacity: {w}" for w in (status.get("capacity") or {}).get("warnings", [])]
-        if (status.get("reaction_budget") or {}).get("exceeded"):
-            out.append("the measured reaction time exceeds the configured T_r")
-    if walk is None:
-        out.append("no walk test given (--walk): coverage and times to STOP are not shown")
-    else:
-        if walk.get("zones_hash") != (cell.config_hash if cell else ""):
-            out.append("the walk test was made with other zones than these")
-        for z in walk.get("zones", []):
-            if z.get("kind") == "protective" and z.get("blind_spots"):
-                out.append(f"zone {z['zone_id']}: {len(z['blind_spots'])} floor cells no "
-                           "camera sees (blind spots)")
-            for e in z.get("entries", []):
-                if z.get("kind") == "protective" and e.get("stop_s") is None:
-                    out.append(f"zone {z['zone_id']}: entry at {e['entry_s']} s without a "
-                               "STOP")
-            for c in z.get("corners", []) if z.get("kind") == "protective" else []:
-                x, y = c["corner_m"]
-                if not c.get("frames_seen"):
-                    out.append(f"zone {z['zone_id']}: corner ({x:g}, {y:g}) m: no person seen "
-                               "there in the walk (crouch there)")
-                elif c.get("frames_near") and c["frames_seen"] < c["frames_near"]:
-                    out.append(f"zone {z['zone_id']}: corner ({x:g}, {y:g}) m: the person was "
-                               f"seen in {c['frames_seen']} of the {c['frames_near']} frames "
-                               "they were there")
-    if not sidecar_path(model_path).is_file():
-        out.append("the model has no measured envelope (monitor model envelope)")
+def _budget(config: MonitorConfig) -> dict:
+    """T_r of this configuration, part by part (``ReactionBudget``)."""
+    budget = reaction_budget(config)
+    return {**{k: round(v, 4) for k, v in dataclasses.asdict(budget).items()},
+            "total_s": round(budget.total_s(), 4)}
+
+
+def _is_test_model(model_path: Path) -> bool:
+    """The synthetic test model (its metadata says so, as the detector reads it)."""
+    try:
+        session = ort.InferenceSession(str(model_path), providers=["CPUExecutionProvider"])
+    except Exception:  # a broken model is the detector's error at start, not the report's
+        return False
+    return "synthetic_weights" in (session.get_modelmeta().custom_metadata_map or {})
+
+
+def _not_tested(walks: list[dict], cell: Cell | None) -> list[str]:
+    """What this commissioning did not test and what the monitor cannot see."""
+    out = ["the monitor's own processing, the bus and the robot controller are not in the "
+           "walk's time to STOP: they are the reaction budget, measured by the running service",
+           "persons other than the walker: smaller or crouching persons, several at once, "
+           "unusual clothing, carried objects",
+           "lighting other than during the walk (night, sun through windows, a lamp out)",
+           "space no camera sees (the blind spots, the floor behind occluders and the robot): "
+           "the monitor treats it as occupied only where the zone file says so",
+           "the robot's own motion and the separation distance in operation (no pose during "
+           "the walk test)"]
+    if not any(w.get("truth") for w in walks):
+        out.append("detection delay: without ground truth an entry starts at the first "
+                   "detection, so the frames a detector missed before it are not timed")
+    for w in walks:
+        for z in w.get("zones", []):
+            if z.get("unvisited"):
+                out.append(f"zone {z['zone_id']}: {len(z['unvisited'])} visible floor cells "
+                           f"the walk never saw a person on (walk {w.get('video')})")
     return out
 
 

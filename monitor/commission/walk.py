@@ -59,6 +59,7 @@ class StepSample:
     hit_zones: tuple[str, ...] = ()  # zones the zone check found a seen person in
     persons: int = 0  # persons detected and not masked in this frame
     feet_m: tuple[tuple[float, float], ...] = ()  # their floor points
+    faults: tuple[tuple[str, str], ...] = ()  # (source, fault) of the command's camera faults
 
 
 @dataclass(frozen=True)
@@ -124,6 +125,10 @@ class WalkResult:
     gaps: tuple[Gap, ...]
     seen_m: tuple[tuple[float, float], ...] = field(default=(), repr=False)
     by_truth: bool = False  # entries counted from the ground truth too
+    # {camera: {fault: frames}}: the frames whose command named a camera fault (frozen, lost,
+    # blinded, moved, defocused): while one holds the walk proves nothing for that camera
+    camera_faults: dict[str, dict[str, int]] = field(default_factory=dict)
+    detected_frames: int = 0  # frames with a person detected (0: nobody was seen at all)
 
     def to_dict(self) -> dict:
         """JSON of the result (numbers rounded: the same walk gives the same text)."""
@@ -135,6 +140,7 @@ class WalkResult:
                        "corners": [{**asdict(c), "seen": c.seen} for c in z.corners]}
                       for z in self.zones],
             "gaps": [asdict(g) for g in self.gaps],
+            "camera_faults": self.camera_faults, "detected_frames": self.detected_frames,
             "seen_m": list(self.seen_m)})
 
     def zone(self, zone_id: str) -> ZoneWalk:
@@ -151,9 +157,12 @@ class WalkRecorder:
     def __call__(self, result) -> None:
         cmd = result.command
         named = tuple(sorted({r.zone_id for r in cmd.reasons if r.zone_id}))
+        faults = tuple(sorted({(r.source or "?", r.fault) for r in cmd.reasons
+                               if r.fault and r.fault.startswith("camera_")}))
         frame = result.frame
         if frame is None or result.persons is None:
-            self.samples.append(StepSample(result.now, frame is not None, cmd.state, named))
+            self.samples.append(StepSample(result.now, frame is not None, cmd.state, named,
+                                           faults=faults))
             return
         report = result.zone_report
         hits = tuple(sorted({h.zone_id for h in report.hits if not h.lost})) \
@@ -164,7 +173,7 @@ class WalkRecorder:
         feet = feet_on_floor(self.cell, frame.camera_id, boxes, frame.width, frame.height)
         self.samples.append(StepSample(
             result.now, True, cmd.state, named, hits, len(rows),
-            tuple((float(x), float(y)) for x, y in feet)))
+            tuple((float(x), float(y)) for x, y in feet), faults))
 
 
 def analyse(samples: Sequence[StepSample], floors: Sequence[ZoneFloor],
@@ -197,7 +206,18 @@ def analyse(samples: Sequence[StepSample], floors: Sequence[ZoneFloor],
     duration = (times[-1] - times[0] + interval) if times else 0.0
     return WalkResult(duration, len(frames), interval, floors[0].cell_m if floors else 0.0,
                       tuple(zones), gaps, tuple(map(tuple, seen.tolist())),
-                      by_truth=truth is not None)
+                      by_truth=truth is not None, camera_faults=camera_faults(frames),
+                      detected_frames=sum(s.persons > 0 for s in frames))
+
+
+def camera_faults(frames: Sequence[StepSample]) -> dict[str, dict[str, int]]:
+    """{camera: {fault: frames whose command named it}}."""
+    out: dict[str, dict[str, int]] = {}
+    for s in frames:
+        for source, fault in s.faults:
+            counts = out.setdefault(source, {})
+            counts[fault] = counts.get(fault, 0) + 1
+    return {cam: dict(sorted(c.items())) for cam, c in sorted(out.items())}
 
 
 def _zone(samples: Sequence[StepSample], frames: Sequence[StepSample], detected: list[bool],

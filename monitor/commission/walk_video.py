@@ -31,11 +31,12 @@ WALK_FILE = "walk.json"
 
 
 def walk_video(video: str | Path, detector, cell: Cell, settings: ReplaySettings,
-               cell_m: float = CELL_M, truth: Path | None = None
-               ) -> tuple[WalkResult, dict[str, str]]:
+               cell_m: float = CELL_M, truth: Path | None = None,
+               recording: dict | None = None) -> tuple[WalkResult, dict[str, str]]:
     """Replay ``video`` with the walk recorder; (result, {picture name: file name}) and the
     files in ``settings.out_dir``. ``truth``: the video's ground truth (``truth.json`` of a
-    generated walk), read before the replay so that a bad file fails at once."""
+    generated walk), read before the replay so that a bad file fails at once; ``recording``:
+    the figures of ``--record`` (kept in walk.json)."""
     frames = read_truth(truth) if truth is not None else None
     camera_id = choose_camera(cell.cameras, settings.camera_id, cell.label)
     policy = dataclasses.replace(settings.policy, restart_interlock="auto")
@@ -50,6 +51,7 @@ def walk_video(video: str | Path, detector, cell: Cell, settings: ReplaySettings
     pictures = write_pictures(out, cell, floors, result, {camera_id: first_frame(video)})
     data = {"video": Path(video).name, "camera": camera_id, "zones_hash": cell.config_hash,
             "truth": Path(truth).name if truth is not None else None,
+            "recording": recording,
             **result.to_dict(), "pictures": pictures}
     (out / WALK_FILE).write_text(json.dumps(data, indent=1, sort_keys=True) + "\n")
     return result, pictures

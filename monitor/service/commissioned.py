@@ -1,12 +1,19 @@
-"""Which commissioned configuration runs: the fingerprint of a configuration and the record
+"""Which commissioned configuration runs: the fingerprint of a configuration and the signed record
 ``monitor commission report`` leaves beside the config file (``commissioned.json``).
 
-The fingerprint of what runs is three digests: the zone set (``config_hash``, the one every
-command names), the model file (SHA-256) and the settings that differ from the defaults
-(SHA-256 of their canonical JSON). The report prints them and its own checksum; the record
-keeps them. ``monitor run`` reads the record at start and answers in its status
-``commissioned: {checksum, by, matches, differs}``; a signed zone apply is compared again
-(``matches`` false, ``differs: ["zones"]``). No record: ``checksum`` null, ``matches`` false.
+The fingerprint is everything that decides safety: the zone set (``config_hash``, the one every
+command names), the model file (SHA-256), the settings that differ from the defaults (SHA-256 of
+their canonical JSON), and the SHA-256 of every file the config names (``schema.config_files``:
+operators, selectors and commissioners files, keys, the Zenoh config and TLS files, reference
+images, the self-test image, handover peers' keys) plus the model's envelope and the zone
+file's reference images. A file named but absent digests as ``"missing"``.
+
+The record is signed over every byte (``monitor.wire.evidence``) with a commissioner's Ed25519
+key and names the report it belongs to by the report's SHA-256. ``status_of`` accepts a record
+only when its signature is valid and its key is listed in ``[service] commissioners_file``; it
+answers the status's ``commissioned: {checksum, by, key, matches, differs, reason}`` and
+``differs`` names each part or file that is not the recorded one (``bus.operators_file``,
+``zones``, ...). No record, a forged or foreign one: ``matches`` false with the reason.
 """
 
 from __future__ import annotations
@@ -17,11 +24,24 @@ import json
 from pathlib import Path
 from typing import Any
 
-from monitor.config import CameraConfig, MonitorConfig
-from monitor.detector.envelope import file_sha256
+from monitor.config import CameraConfig, MonitorConfig, load_config
+from monitor.detector.envelope import file_sha256, sidecar_path
+from monitor.errors import ConfigError
+from monitor.health.references import zone_file_reference
+from monitor.schema import config_files
+from monitor.wire.evidence import Layout, NotSigned, open_signed, sign
+from monitor.wire.signing import Signer, key_fingerprint, load_operators
 
 RECORD_NAME = "commissioned.json"
 PARTS = ("zones_hash", "model_sha256", "settings_sha256")
+RECORD_FORMAT = "workcell.commissioned/2"
+# {"record": {...}, "key": "ed25519:...", "signature": "..."}: the block by position at the end
+RECORD_LAYOUT = Layout("commissioned-record", b',\n "key": "', b'",\n "signature": "',
+                       b'"\n}\n')
+# files the config names that are fingerprinted otherwise (the model and the zone set by their
+# own digests) or are not inputs (the recorder's output folder)
+NOT_INPUTS = frozenset({"model.path", "zones.file", "recorder.data_dir"})
+MISSING = "missing"
 
 
 def _plain(value: Any) -> Any:
@@ -68,10 +88,41 @@ def canonical(value: Any) -> bytes:
     return json.dumps(_plain(value), sort_keys=True, separators=(",", ":")).encode()
 
 
-def fingerprint(config: MonitorConfig, zones_hash: str, model_path: str | Path) -> dict:
-    """The three digests of a running (or reported) configuration."""
-    return {"zones_hash": zones_hash, "model_sha256": file_sha256(Path(model_path)),
-            "settings_sha256": settings_digest(settings_changed(config))}
+def safety_files(config: MonitorConfig, cell, model_path: str | Path) -> dict[str, Path]:
+    """Every input file that decides what the monitor does, by the name ``status`` shows."""
+    out = {k: Path(v) for k, v in config_files(config).items() if k not in NOT_INPUTS}
+    out["model envelope"] = sidecar_path(model_path)
+    for camera_id in sorted(cell.cameras) if cell is not None else ():
+        ref = zone_file_reference(cell, camera_id)
+        if ref is not None:
+            out[f"zone file camera {camera_id} reference"] = ref
+    return dict(sorted(out.items()))
+
+
+def file_digest(path: Path) -> str:
+    """SHA-256 of a file; ``"missing"`` when there is none (a named file removed is a
+    change, and one added later is one too)."""
+    try:
+        return file_sha256(path)
+    except FileNotFoundError:
+        return MISSING
+    except OSError as exc:
+        return f"unreadable ({exc.strerror})"
+
+
+def file_digests(files: dict[str, Path]) -> dict[str, str]:
+    return {name: file_digest(path) for name, path in files.items()}
+
+
+def fingerprint(config: MonitorConfig, zones_hash: str, model_path: str | Path, cell=None,
+                model_sha256: str | None = None) -> dict:
+    """The digests of a running (or reported) configuration. ``model_sha256``: the running
+    model's, taken once at start (the file on disk may be replaced; what runs is what was
+    loaded)."""
+    return {"zones_hash": zones_hash,
+            "model_sha256": model_sha256 or file_sha256(Path(model_path)),
+            "settings_sha256": settings_digest(settings_changed(config)),
+            "files": file_digests(safety_files(config, cell, model_path))}
 
 
 def record_path(config_path: str | Path) -> Path:
@@ -79,30 +130,101 @@ def record_path(config_path: str | Path) -> Path:
     return Path(config_path).parent / RECORD_NAME
 
 
-def write_record(path: Path, checksum: str, print_: dict, report_name: str, by: str) -> None:
-    """The record (atomic: written beside, then renamed)."""
-    body = {"checksum": checksum, "report": report_name, "by": by,
-            **{k: print_[k] for k in PARTS}}
+def record_bytes(report: bytes, report_name: str, by: str, print_: dict,
+                 signer: Signer) -> bytes:
+    """The signed record of a report (``report``: the signed report file's bytes)."""
+    body = {"format": RECORD_FORMAT, "report": report_name,
+            "report_sha256": hashlib.sha256(report).hexdigest(), "by": by,
+            **{k: print_[k] for k in PARTS}, "files": dict(sorted(print_["files"].items()))}
+    text = '{\n "record": ' + json.dumps(body, indent=2, sort_keys=True).replace("\n", "\n ")
+    return sign(text.encode(), RECORD_LAYOUT, signer)
+
+
+def write_record(path: Path, data: bytes) -> None:
+    """The record (atomic: written beside, then renamed, so a running monitor never reads
+    half of one)."""
     tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(body, indent=1, sort_keys=True) + "\n")
+    tmp.write_bytes(data)
     tmp.replace(path)
 
 
-def status_of(config_path: str | Path | None, running: dict) -> dict:
-    """The status's ``commissioned`` field for the ``running`` fingerprint."""
+class RecordRefused(Exception):
+    """The record is not accepted (the message says why, for the status)."""
+
+
+def read_record(path: Path, commissioners: dict) -> tuple[dict, str, str]:
+    """(the record, its commissioner's name, their key's fingerprint) when its signature is
+    valid and made by a key in ``commissioners``; ``RecordRefused`` otherwise."""
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        raise RecordRefused(f"no {path.name} beside the config: not commissioned") from None
+    except OSError as exc:
+        raise RecordRefused(f"{path}: unreadable ({exc.strerror})") from None
+    try:
+        opened = open_signed(data, RECORD_LAYOUT)
+    except NotSigned as exc:
+        raise RecordRefused(f"{path.name} is not signed ({exc}): refused") from None
+    fp = key_fingerprint(opened.key_text)
+    if not opened.valid:
+        raise RecordRefused(f"{path.name}: its signature does not match its content "
+                            "(changed after it was signed): refused")
+    name = next((n for n, k in commissioners.items() if k == opened.key), None)
+    if name is None:
+        raise RecordRefused(f"{path.name} is signed by key {fp}, which is not listed in the "
+                            "commissioners file: refused")
+    try:
+        record = json.loads(data)["record"]
+    except (ValueError, KeyError, TypeError, UnicodeDecodeError):
+        raise RecordRefused(f"{path.name}: not a record") from None
+    if not isinstance(record, dict) or record.get("format") != RECORD_FORMAT:
+        raise RecordRefused(f"{path.name}: not a {RECORD_FORMAT} record")
+    return record, name, fp
+
+
+def load_commissioners(config: MonitorConfig) -> dict:
+    """The commissioners file's keys; ``RecordRefused`` without one (nobody can commission)."""
+    path = config.service.commissioners_file
+    if not path:
+        raise RecordRefused("no [service] commissioners_file: no commissioned record is "
+                            "accepted")
+    try:
+        return load_operators(path, "commissioners file", "commissioner")
+    except ConfigError as exc:
+        raise RecordRefused(str(exc)) from None
+
+
+def differences(record: dict, running: dict) -> list[str]:
+    """The parts and files of ``running`` that are not the recorded ones, by name."""
+    out = [k.split("_")[0] for k in PARTS if record.get(k) != running.get(k)]
+    files, recorded = running.get("files") or {}, record.get("files") or {}
+    out += [name for name in sorted(set(files) | set(recorded))
+            if files.get(name) != recorded.get(name)]
+    return out
+
+
+def status_of(config_path: str | Path | None, running: dict,
+              config: MonitorConfig | None = None) -> dict:
+    """The status's ``commissioned`` field for the ``running`` fingerprint (``config``: the
+    running one, for its commissioners file; read from ``config_path`` when not given)."""
     if config_path is None:
         return {"checksum": None, "matches": False,
                 "reason": "embedded demo: no commissioned configuration"}
     path = record_path(config_path)
-    try:
-        record = json.loads(path.read_text())
-    except FileNotFoundError:
+    if not path.exists():
         return {"checksum": None, "matches": False,
                 "reason": f"no {RECORD_NAME} beside {Path(config_path).name}: not commissioned"}
-    except (OSError, ValueError, UnicodeDecodeError) as exc:
-        return {"checksum": None, "matches": False, "reason": f"{path}: unreadable ({exc})"}
-    if not isinstance(record, dict) or not isinstance(record.get("checksum"), str):
-        return {"checksum": None, "matches": False, "reason": f"{path}: not a record"}
-    differs = [k.split("_")[0] for k in PARTS if record.get(k) != running.get(k)]
-    return {"checksum": record["checksum"], "by": record.get("by"),
-            "report": record.get("report"), "matches": not differs, "differs": differs}
+    try:
+        if config is None:
+            config = load_config(config_path)
+        record, name, fp = read_record(path, load_commissioners(config))
+    except RecordRefused as exc:
+        return {"checksum": None, "matches": False, "reason": str(exc)}
+    differs = differences(record, running)
+    out = {"checksum": record.get("report_sha256"), "by": name, "key": fp,
+           "report": record.get("report"), "matches": not differs, "differs": differs}
+    if differs:
+        out["reason"] = ("not commissioned: " + ", ".join(differs)
+                         + (" differs" if len(differs) == 1 else " differ")
+                         + " from the commissioned record")
+    return out

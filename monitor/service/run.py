@@ -30,8 +30,7 @@ from monitor.health.build import inplace_check, protective_regions
 from monitor.health.references import reference_warnings
 from monitor.pipeline import Pipeline
 from monitor.policy import STOP, Command, Reason
-from monitor.service.commissioned import fingerprint
-from monitor.service.commissioned import status_of as commissioned_status
+from monitor.service.commission_watch import CommissionWatch
 from monitor.service.log import event, setup_logging
 from monitor.service.loop import LiveFeed, ServiceSink
 from monitor.service.metrics import Metrics
@@ -114,11 +113,17 @@ def _run(config_path, log_json: bool, duration: float | None, signals: StopSigna
             if test_model:
                 bus.update_status(test_model=test_model)
 
-            def commissioned(zones_hash: str) -> None:
-                """Which commissioned configuration runs (docs/commissioning.md)."""
-                running = fingerprint(config, zones_hash, pipeline.detector.model_path)
-                bus.update_status(commissioned=commissioned_status(config_path, running))
-            commissioned(cell.config_hash if cell else "")
+            # which commissioned configuration runs (docs/commissioning.md): checked now,
+            # then again on its own thread whenever the record or a fingerprinted file changes
+            watch = CommissionWatch(config_path, config, cell, pipeline.detector.model_path,
+                                    cell.config_hash if cell else "",
+                                    lambda c: bus.update_status(commissioned=c))
+            if not watch.last.get("matches"):
+                event(f"not commissioned: {watch.last.get('reason')}", logging.WARNING)
+            else:
+                event("commissioned", by=watch.last.get("by"), key=watch.last.get("key"))
+            watch.start()
+            closers.append(watch.close)
             # zone set selections (monitor/cases/): only with sets in the zone file
             cases = (CaseReceiver.for_bus(bus.session, bus.config, pipeline.case_plan)
                      if pipeline.case_plan is not None else None)
@@ -133,7 +138,7 @@ def _run(config_path, log_json: bool, duration: float | None, signals: StopSigna
                        LatestFrameGrabber, SourceOptions, open_source, test_model,
                        capacity_check or ("warn" if config_path is None
                                           else config.service.capacity_check),
-                       closers, cases, commissioned)
+                       closers, cases, watch.zones_changed)
             finally:
                 forget()
             event("shutting down: final STOP published")
@@ -211,8 +216,8 @@ def _serve(config: MonitorConfig, pipeline: Pipeline, bus: SafetyBus, expected: 
                 inplace.zones = protective_regions(cell, [c.id for c in config.cameras])
             if rec is not None:
                 rec.zones_changed(cell)
-            if commissioned is not None:  # the zones differ from the commissioned ones
-                commissioned(cell.config_hash)
+            if commissioned is not None:  # the zones may differ from the commissioned ones
+                commissioned(cell)
 
         feed.zones = LiveZones(config, zones_file_of(config), pipeline, bus, applies,
                                sink.alert, event, on_applied=applied)
