@@ -16,6 +16,9 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TypeVar
 
+import cv2
+import numpy as np
+
 T = TypeVar("T")
 
 
@@ -168,3 +171,11 @@ def protective_walk(fps: float):
                                 (5.5, -2.6, -0.8)))
     scene = scene_cell.CellScene((walker,), fps=fps, duration_s=6.0)
     return scene, parse_cell(sc.Scenario("walk", "walk in", scene).zone_data())
+
+
+def live_frame(background: np.ndarray, i: int) -> np.ndarray:
+    """Frame ``i`` of a live camera looking at ``background``: its own sensor noise (0..5
+    grey levels, seeded by ``i``), so consecutive frames differ by about 1 grey level at the
+    health checks' analysis size, as a real camera's do (a repeated picture is frozen)."""
+    noise = np.random.default_rng(i).integers(0, 6, background.shape, dtype=np.uint8)
+    return cv2.add(background, noise)
