@@ -27,6 +27,7 @@ from monitor.geometry.reaction import needed_separation_m
 from monitor.health.references import (
     choose_references,
     load_chosen_reference,
+    missing_reference_warnings,
     reference_warnings,
 )
 from monitor.service.commissioned import fingerprint, settings_changed
@@ -176,6 +177,7 @@ def _warnings(config: MonitorConfig, cell: Cell | None, status: dict | None,
         out.append(warning)
     out += [f"zone file: {w}" for w in (cell.warnings if cell else ())]
     out += reference_warnings(config, cell)
+    out += missing_reference_warnings(config, cell)
     if config.bus.allow_unsigned_resets:
         out.append("resets are accepted without an operator key")
     if status is None:
