@@ -161,6 +161,27 @@ def test_a_bright_unclipped_window_in_the_zone_raises_no_glare_fault(detector, e
     assert not [f for r in rows for f in r[3] if f.name == ENVELOPE and "glare" in f.reason]
 
 
+def test_a_dark_protective_zone_in_a_bright_view_is_outside_the_envelope(detector, envelope,
+                                                                        walk):
+    """Only the protective zone's box dimmed (a shadow, a lamp out above it), the rest of the
+    view as bright as ever: the zone's own region is outside the envelope in every frame
+    (measuring the whole view only, the zone passed; the issue's tests dimmed every pixel)."""
+    scene, cell, frames, background = walk
+    (_zone, poly), = zone_regions_px(cell, scene.camera.camera_id, ("protective",))
+    x, y, w, h = cv2.boundingRect(np.round(poly).astype(np.int32))
+
+    def shadowed(image: np.ndarray) -> np.ndarray:
+        out = image.copy()
+        out[y:y + h, x:x + w] = env.degrade(out[y:y + h, x:x + w], gain=0.4)
+        return out
+    rows = _run(detector, envelope, (scene, cell, [(shadowed(i), t) for i, t in frames],
+                                     background), {})
+    faults = [next((f for f in r[3] if f.name == ENVELOPE), None) for r in rows]
+    assert all(f is not None and "(robot-protective): too dim for the detector" in f.reason
+               for f in faults), faults
+    assert {r[1] for r in rows if r[0]} == {STOP}
+
+
 def test_envelope_of_the_synthetic_model(envelope):
     # the synthetic model's colour test (R + B - 2G) fails below ~0.7 of the light and below
     # ~0.75 of the contrast: the measured envelope must say so, not the grade table's end

@@ -340,6 +340,27 @@ def test_a_person_lost_walking_behind_a_fixture_into_the_zone_holds_it_in_time(f
     assert {z for z, _ in held(upd)} == {"slow"}
 
 
+def test_an_area_that_reached_hidden_cells_is_no_ghost_under_a_seen_persons_feet():
+    """A person lost where a fixture hides their feet; a big box (someone close to the
+    camera) then stands over all of the area, hidden cells included, for 2 s. A ghost (an
+    area wholly under seen feet, all of it in view) ends after clear_time; this one reaches
+    where the camera cannot see, so the lost person may still be there: held throughout."""
+    run = Run(hidden=hidden_rect(560, 540, 760, 720))
+    for _ in range(5):
+        upd = run.frame(person(650))
+    tid = upd.track_ids[0]
+    upd = run.frame()
+    assert held(upd) == {("stop", tid)}
+    area = run.tracker.where.areas[tid]
+    assert (area.cells & run.tracker.where.hidden).any()
+    big = [500.0, 0.0, 800.0, 720.0]  # right in front of the camera: feet band over the area
+    grid = run.tracker.where.grid
+    assert not (area.cells & ~grid.cells_under(np.array([big]), 0.0)).any()
+    for _ in range(20):
+        upd = run.frame(big)
+        assert ("stop", tid) in held(upd)
+
+
 def test_a_one_frame_flicker_near_a_lost_person_does_not_end_the_hold():
     run = Run()
     for _ in range(3):
