@@ -16,6 +16,9 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TypeVar
 
+import cv2
+import numpy as np
+
 T = TypeVar("T")
 
 
@@ -179,3 +182,11 @@ def commissioner_key(folder: Path, name: str = "anna") -> Path:
     with (Path(folder) / "commissioners").open("a") as fh:
         fh.write(f"{name} {public}\n")
     return private
+
+
+def live_frame(background: np.ndarray, i: int) -> np.ndarray:
+    """Frame ``i`` of a live camera looking at ``background``: its own sensor noise (0..5
+    grey levels, seeded by ``i``), so consecutive frames differ by about 1 grey level at the
+    health checks' analysis size, as a real camera's do (a repeated picture is frozen)."""
+    noise = np.random.default_rng(i).integers(0, 6, background.shape, dtype=np.uint8)
+    return cv2.add(background, noise)

@@ -93,6 +93,24 @@ def test_the_record_beside_the_config_and_the_status_field(tmp_path, synthetic_m
         gone["reason"]
 
 
+def test_a_real_camera_without_a_reference_is_an_open_warning(tmp_path, synthetic_model):
+    """Glare and the image conditions of a camera without a reference are judged by the model
+    envelope's absolute limits only: the report says so (the demo's synthetic camera not)."""
+    config = tmp_path / "monitor.toml"
+    config.write_text('[camera]\nid = "cam0"\nsource = "rtsp://127.0.0.1:8554/cam0"\n'
+                      f'[model]\npath = "{synthetic_model}"\n')
+    html = _report(tmp_path / "report.html", "--config", str(config))
+    warnings = html[html.index("Open warnings"):]
+    assert "camera cam0: no reference image: glare" in warnings
+    assert "no reference image" not in demo_report_text(tmp_path)
+
+
+def demo_report_text(tmp_path: Path) -> str:
+    config = tmp_path / "demo.toml"
+    config.write_text('[camera]\nsource = "synthetic:demo"\n')
+    return _report(tmp_path / "demo.html", "--config", str(config))
+
+
 @pytest.mark.slow
 def test_status_names_the_commissioned_checksum(tmp_path, synthetic_model):
     svc = Service(tmp_path, synthetic_model, "synthetic:demo",

@@ -152,11 +152,55 @@ def test_half_a_minute_of_the_looped_demo_scene_raises_nothing(reference):
 def test_frozen_feed_is_a_stop_fault_after_one_second(demo, reference):
     frames = demo[:45] + [demo[44]] * 30 + demo[45:60]  # frame 44 repeated from index 45 on
     reports = play(checker(reference), frames)
-    assert onsets(reports) == [(60, FROZEN)]  # 15 frames (1.0 s) of identical images
-    fault = reports[60].faults[0]
-    assert fault.stop and fault.source == "cam0" and "unchanged" in fault.reason
-    assert reports[74].faults and not reports[75].faults  # clears with the first new frame
+    assert onsets(reports) == [(59, FROZEN)]  # 1.0 s after the last picture that changed
+    fault = reports[59].faults[0]
+    assert fault.stop and fault.source == "cam0" and "unchanged for 1.0 s" in fault.reason
+    assert [r.picture_changed for r in reports[43:47]] == [True, True, False, False]
+    # live again from index 75: it ends once every frame has changed for 0.5 s (8 frames)
+    assert all(r.faults for r in reports[59:83]) and not reports[83].faults
+    assert "changing again" in reports[80].faults[0].reason
+    assert [r.picture_changed for r in reports[74:77]] == [False, False, True]
     assert alerts(reports) == []
+
+
+def _codec_jump(image: np.ndarray, level: int = 2) -> np.ndarray:
+    """What a keyframe does to a repeated picture: the same scene, re-encoded (here: every
+    other 16 px block ``level`` grey levels brighter, about 1 grey level of mean difference
+    at the analysis size; mp4v and H.264 give 0.3-0.8)."""
+    out = image.astype(np.int16)
+    blocks = ((np.arange(image.shape[0])[:, None] // 16 + np.arange(image.shape[1]) // 16)
+              % 2).astype(np.int16)
+    out += level * blocks[:, :, None]
+    return np.clip(out, 0, 255).astype(np.uint8)
+
+
+def test_a_keyframe_once_a_second_in_a_repeated_picture_neither_restarts_nor_ends_a_freeze(
+        demo, reference):
+    """The stream repeats frame 44 for 3 s, with a codec's keyframe every 15 frames (a lone
+    jump above frozen_diff, then the repeated keyframe picture): frozen 1.0 s after the last
+    real picture, and frozen for as long as it repeats (a jump that restarted the timer gave
+    camera_frozen 2 s late; one that ended it cleared the fault in a frozen stream)."""
+    still = demo[44][0]
+    jumped = _codec_jump(still)
+    frozen = [(jumped if (k // 15) % 2 else still, NO_BOXES) for k in range(1, 46)]
+    health = checker(reference)
+    reports = play(health, demo[:45] + frozen)
+    jump = reports[45 + 14].measures  # the jump counts as a difference beyond the noise
+    assert jump["frame_diff"] > jump["frozen_threshold"] >= 0.3
+    assert onsets(reports) == [(59, FROZEN)]
+    assert all(r.faults for r in reports[59:])
+    assert not any(r.picture_changed for r in reports[45:])
+
+
+def test_a_freeze_ends_only_after_the_picture_changes_like_a_live_camera(demo, reference):
+    """After a freeze, two frames that change (a camera stepping through a few stored frames,
+    a keyframe and its successor) do not end camera_frozen; 0.5 s of live frames do."""
+    frames = demo[:45] + [demo[44]] * 20 + [demo[50], demo[51]] + [demo[51]] * 10 + demo[52:80]
+    reports = play(checker(reference), frames)
+    assert onsets(reports) == [(59, FROZEN)]
+    first_live = 45 + 20 + 2 + 10
+    assert all(r.faults for r in reports[59:first_live + 7])
+    assert not reports[first_live + 8].faults
 
 
 @pytest.mark.parametrize("level,reason", [

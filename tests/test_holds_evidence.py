@@ -38,10 +38,18 @@ def test_a_stranger_stepping_out_where_a_hidden_person_vanished_never_ends_the_h
     assert all(s.state == STOP for s in r.scores if s.time_s >= r.entry_s)
 
 
-def test_a_hidden_walk_from_the_warning_into_the_protective_zone_is_a_stop_in_time(detector):
+@pytest.mark.parametrize("fps", [
+    pytest.param(2, id="2fps"), pytest.param(5, id="5fps", marks=pytest.mark.slow),
+    pytest.param(10, id="10fps", marks=pytest.mark.slow),
+    pytest.param(15, id="15fps", marks=pytest.mark.slow),
+    pytest.param(30, id="30fps", marks=pytest.mark.slow)])
+def test_a_hidden_walk_from_the_warning_into_the_protective_zone_is_a_stop_in_time(detector,
+                                                                                     fps):
     """Seen 1.4 m outside, then hidden behind a 2 m wall all the way into the zone: STOP no
-    later than the ground-truth entry, not when the person reappears (never, here)."""
-    r = sc.run_scenario(EVIDENCE["hidden-walk-2fps"], detector)
+    later than the ground-truth entry, not when the person reappears (never, here). At 15
+    and 30 fps the last box before the wall is a head only (27 px against 76): an area
+    growing at the pace of that sliver never reached the zone (7 and 13 missed frames)."""
+    r = sc.run_scenario(EVIDENCE[f"hidden-walk-{fps}fps"], detector)
     _assert_safe(r)
 
 

@@ -16,6 +16,7 @@ from monitor.policy import PolicyConfig
 from monitor.scene import DemoScene, Figure, draw_figure
 from monitor.types import FrameInfo
 from monitor.zones import check_persons, load_cell
+from tests.helpers import live_frame
 
 POLICY = PolicyConfig(clear_time=0.5, restart_interlock="auto")
 
@@ -24,8 +25,7 @@ def frames(n: int, fps: float = 10.0):
     scene = DemoScene()
     background = scene.background()
     for i in range(n):
-        img = background.copy()
-        img[::7, ::5] += np.uint8(i % 3)  # a live camera: consecutive frames differ
+        img = live_frame(background, i)  # a live camera: consecutive frames differ
         yield img, FrameInfo("cam0", i, i / fps, 1280, 720)
 
 

@@ -21,6 +21,7 @@ from monitor.policy import STOP, PolicyConfig, PolicyInputs, initial_state, step
 from monitor.scene import DemoScene
 from monitor.types import FrameInfo, ZoneHit, ZoneReport
 from monitor.zones import load_cell
+from tests.helpers import live_frame
 
 AUTO = PolicyConfig(restart_interlock="auto")
 
@@ -212,8 +213,7 @@ PIPE_POLICY = PolicyConfig(clear_time=0.5, restart_interlock="auto")
 def _frames(n: int, camera: str = "cam0", fps: float = 10.0, start: int = 0):
     background = DemoScene().background()
     for i in range(start, start + n):
-        img = background.copy()
-        img[::7, ::5] += np.uint8(i % 3)  # a live camera: consecutive frames differ
+        img = live_frame(background, i)  # a live camera: consecutive frames differ
         yield img, FrameInfo(camera, i, i / fps, 1280, 720)
 
 

@@ -24,6 +24,7 @@ from monitor.errors import ConfigError
 from monitor.pose.otus import OtusSample
 from monitor.pose.tool_motion import MotionLimits, ToolMotion, estimate_tool_speed
 from monitor.zones import separation as zsep
+from tests.helpers import live_frame
 
 ZERO = (0.0, 0.0, 0.0)
 
@@ -299,8 +300,7 @@ def test_pipeline_stops_for_a_lying_pose_stream(detector):
     assert resting.fault is None and resting.speed_mps == pytest.approx(0.0, abs=1e-9)
 
     def frame(i: int, with_person: bool):
-        img = background.copy()
-        img[::7, ::5] += np.uint8(i % 3)
+        img = live_frame(background, i)
         if with_person:
             feet = scene.camera.project(np.array([[*person, 0.0], [*person, 1.75]]))
             draw_figure(img, Figure((float(feet[0][0]), float(feet[0][1])),

@@ -116,6 +116,8 @@ def test_camera_loss_stops_at_once_then_frames_reset_and_clear_time_give_run(
         assert status["protective_zone"] is False and "allow_no_protective" in status["warning"]
         # the test model on a live stream, allowed: status, log and every command say so
         assert "TEST model" in status["test_model"] and camera.url in status["test_model"]
+        # a real camera without a reference: said once at start and in the status
+        assert status["without_reference"] == ["cam0"]
         # every command the policy decided (the bus's own STOPs: "not decided yet" before the
         # first step, and "pipeline handed in no command" when a loaded host stalls the loop)
         decided = [c for c in svc.commands if codes(c) not in ({"startup"}, {"stalled"})]
@@ -123,6 +125,7 @@ def test_camera_loss_stops_at_once_then_frames_reset_and_clear_time_give_run(
         log = svc.stderr_path.read_text()
         assert "the synthetic TEST model watches live camera cam0" in log
         assert "no zone file: persons cannot cause STOP" in log
+        assert log.count("camera cam0: no reference image: glare") == 1
         assert "camera lost" not in log and "camera connected" in log  # no false loss at start
 
         i_loss = len(svc.commands)  # a load stall before the loss is not this STOP

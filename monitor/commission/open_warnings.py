@@ -15,7 +15,11 @@ from monitor.config import MonitorConfig
 from monitor.detector.envelope import sidecar_path
 from monitor.detector.test_model import live_cameras
 from monitor.driver import protective_warning
-from monitor.health.references import choose_references, reference_warnings
+from monitor.health.references import (
+    choose_references,
+    missing_reference_warnings,
+    reference_warnings,
+)
 from monitor.zones import Cell
 
 
@@ -51,12 +55,11 @@ def zone_file(f: Facts) -> list[str]:
 def references(f: Facts) -> list[str]:
     """Cameras without a reference image (no "moved" or defocus check against the
     commissioned view) and cameras with two references."""
-    out = list(reference_warnings(f.config, f.cell))
+    # a real camera without one: glare and the image conditions are judged by the model
+    # envelope's absolute limits, and a view moved or blurred before start is not seen
+    out = list(reference_warnings(f.config, f.cell)) + missing_reference_warnings(f.config, f.cell)
     for camera_id, choice in sorted(choose_references(f.config, f.cell).items()):
-        if choice.path is None:
-            out.append(f"camera {camera_id}: no reference image (monitor reference capture): "
-                       "the 'moved' and defocus checks start from its first sound frame")
-        elif not Path(choice.path).is_file():
+        if choice.path is not None and not Path(choice.path).is_file():
             out.append(f"camera {camera_id}: its reference image {choice.path} is missing")
     return out
 

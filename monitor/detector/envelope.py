@@ -12,6 +12,7 @@ brightness  every pixel times a gain (exposure, light off)        ``min_gain``, 
 contrast    pixels pulled towards the image mean (haze, glare)    ``min_contrast``
 noise       Gaussian noise per pixel and channel (grey levels)    ``max_noise``
 blur        Gaussian blur (sigma in detector-input pixels)        ``max_blur``
+glare       a clipped (255) band over this share of the figure    ``max_glare``
 ==========  ====================================================  ==========================
 
 Each grade is ``TRIALS`` trials (the image shifted by fractions of the model's finest grid
@@ -59,6 +60,7 @@ GRADES: dict[str, tuple[float, ...]] = {
     "contrast": (1.0, 0.9, 0.8, 0.7, 0.6, 0.5, 0.4, 0.3, 0.2),
     "noise": (0.0, 4.0, 8.0, 12.0, 16.0, 20.0, 24.0, 32.0, 40.0),
     "blur": (0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 4.0, 5.0, 6.0),
+    "glare": (0.0, 0.025, 0.05, 0.075, 0.1, 0.15, 0.2, 0.3, 0.5, 0.75, 1.0),
 }
 
 
@@ -86,6 +88,9 @@ class Envelope:
     absolute: dict[str, float] = field(default_factory=dict)
     # axis -> ((grade, recall), ...) as measured, for the table and the docs
     recall: dict[str, tuple[tuple[float, float], ...]] = field(default_factory=dict)
+    # the largest share of the figure's box a clipped band may cover (glare, a sunlit
+    # patch); its measure (``absolute["max_saturated"]``) is the clipped share of the image
+    max_glare: float = 0.0
 
     def table(self) -> str:
         """A plain-text table of the limits and the measured recall per grade."""
@@ -95,7 +100,10 @@ class Envelope:
                  f"  contrast         >= {self.min_contrast:g} of the original",
                  f"  noise            sigma <= {self.max_noise:g} grey levels",
                  f"  blur             sigma <= {self.max_blur:g} px at the "
-                 f"{self.input_width} px model input"]
+                 f"{self.input_width} px model input",
+                 f"  glare            a clipped band over <= {self.max_glare:g} of the figure "
+                 f"(saturated share <= {self.absolute.get('max_saturated', float('nan')):g} "
+                 "of the image)"]
         for axis, rows in self.recall.items():
             cells = "  ".join(f"{g:g}:{r:.2f}" for g, r in rows)
             lines.append(f"  {axis:<10} {cells}")
@@ -104,9 +112,12 @@ class Envelope:
 
 def degrade(image_bgr: np.ndarray, gain: float = 1.0, contrast: float = 1.0,
             noise: float = 0.0, blur: float = 0.0,
-            rng: np.random.Generator | None = None) -> np.ndarray:
+            rng: np.random.Generator | None = None, glare: float = 0.0,
+            glare_box: np.ndarray | None = None) -> np.ndarray:
     """One image condition applied in the order light takes: optics (blur), the scene's
-    contrast (haze pulls every pixel towards the mean), exposure (gain), sensor noise."""
+    contrast (haze pulls every pixel towards the mean), exposure (gain), sensor noise; then
+    glare: a band across ``glare_box`` (x1, y1, x2, y2) over ``glare`` of its height, around
+    its middle, clipped to 255 (a sunlit patch on a person: the sensor saturates there)."""
     img = image_bgr.astype(np.float32)
     if blur > 0:
         img = cv2.GaussianBlur(img, (0, 0), blur)
@@ -118,6 +129,11 @@ def degrade(image_bgr: np.ndarray, gain: float = 1.0, contrast: float = 1.0,
     if noise > 0:
         rng = rng if rng is not None else np.random.default_rng(0)
         img += rng.normal(0.0, noise, img.shape).astype(np.float32)
+    if glare > 0 and glare_box is not None:
+        x1, y1, x2, y2 = (float(v) for v in np.asarray(glare_box).reshape(4))
+        mid, half = 0.5 * (y1 + y2), 0.5 * glare * (y2 - y1)
+        img[max(0, round(mid - half)):max(0, round(mid + half)),
+            max(0, round(x1)):max(0, round(x2))] = 255.0
     return np.clip(np.rint(img), 0, 255).astype(np.uint8)
 
 
@@ -149,7 +165,7 @@ def recall_at(detect: Callable[[np.ndarray], Persons], image: np.ndarray, box: n
     for k, (fx, fy) in enumerate(shifts):
         shifted, want = _shifted(image, box, fx * stride_px, fy * stride_px)
         rng = np.random.default_rng(seed * 101 + k)
-        persons = detect(degrade(shifted, rng=rng, **condition))
+        persons = detect(degrade(shifted, rng=rng, glare_box=want, **condition))
         if len(persons) and float(box_ops.iou_matrix(want[None], persons.boxes_px).max()) \
                 >= min_iou:
             hits += 1
@@ -157,7 +173,7 @@ def recall_at(detect: Callable[[np.ndarray], Persons], image: np.ndarray, box: n
 
 
 _PARAM = {"gain_low": "gain", "gain_high": "gain", "contrast": "contrast", "noise": "noise",
-          "blur": "blur"}
+          "blur": "blur", "glare": "glare"}
 
 
 def measure(detect: Callable[[np.ndarray], Persons], case: SelfTestCase,
@@ -200,8 +216,9 @@ def measure(detect: Callable[[np.ndarray], Persons], case: SelfTestCase,
                     min_contrast=limits["contrast"], max_noise=limits["noise"],
                     max_blur=limits["blur"], min_recall=min_recall,
                     input_width=input_size[0], input_height=input_size[1], source=case.source,
-                    absolute=absolute_limits(image, limits),
-                    case_sha256=case_digest(case), recall=table)
+                    absolute=absolute_limits(image, limits, box),
+                    case_sha256=case_digest(case), recall=table,
+                    max_glare=limits.get("glare", 0.0))
 
 
 def limit_measures(image_bgr: np.ndarray, envelope_limits: dict[str, float],
@@ -223,12 +240,19 @@ def limit_measures(image_bgr: np.ndarray, envelope_limits: dict[str, float],
     }
 
 
-def absolute_limits(image_bgr: np.ndarray, limits: dict[str, float]) -> dict[str, float]:
+def absolute_limits(image_bgr: np.ndarray, limits: dict[str, float],
+                    box: np.ndarray | None = None) -> dict[str, float]:
     """The limits as measures of the test image at the detector's input scale. Sharpness is
-    left out: it depends on what the image shows, so only a camera's own reference gives it."""
+    left out: it depends on what the image shows, so only a camera's own reference gives it.
+    ``max_saturated`` (with the figure's ``box``): the clipped share of the image with the
+    largest glare band the model still sees through."""
     out = limit_measures(image_bgr, limits)
     out.pop("min_sharpness")
-    return {k: round(v, 3) for k, v in out.items()}
+    if box is not None and "glare" in limits:
+        grey = cv2.cvtColor(degrade(image_bgr, glare=limits["glare"], glare_box=box),
+                            cv2.COLOR_BGR2GRAY)
+        out["max_saturated"] = imagestats.saturated(grey)
+    return {k: round(v, 4) for k, v in out.items()}
 
 
 def limits_of(envelope: Envelope) -> dict[str, float]:
@@ -273,7 +297,8 @@ def from_json(text: str, where: str) -> Envelope:
         data["recall"] = {k: tuple((float(g), float(r)) for g, r in v)
                           for k, v in data.get("recall", {}).items()}
         env = Envelope(**data)
-        values = (env.min_gain, env.max_gain, env.min_contrast, env.max_noise, env.max_blur)
+        values = (env.min_gain, env.max_gain, env.min_contrast, env.max_noise, env.max_blur,
+                  env.max_glare)
         if not all(isinstance(v, (int, float)) and np.isfinite(v) and v >= 0 for v in values):
             raise ValueError("a limit is not a finite number >= 0")
         return env
@@ -299,8 +324,8 @@ def stored(model_path: Path, model_sha256: str, case: SelfTestCase,
         return None
     env = from_json(path.read_text(), str(path))
     if env.model_sha256 != model_sha256 or env.case_sha256 != case_digest(case) \
-            or env.min_recall != min_recall:
-        return None
+            or env.min_recall != min_recall or "max_saturated" not in env.absolute:
+        return None  # (measured before glare was an axis: measured anew)
     return env
 
 

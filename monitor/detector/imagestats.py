@@ -40,12 +40,21 @@ def sharpness(grey: np.ndarray) -> float:
     return lap_std * lap_std / (grey_std * grey_std + 1.0)
 
 
+# a grey level at or above this is clipped: the sensor saturated, what stood there is gone
+CLIPPED_LEVEL = 250
+
+
+def saturated(grey: np.ndarray) -> float:
+    """Share of the pixels that are clipped (>= ``CLIPPED_LEVEL``): glare, a sunlit patch."""
+    return float(np.count_nonzero(grey >= CLIPPED_LEVEL)) / max(grey.size, 1)
+
+
 def conditions(grey: np.ndarray) -> dict[str, float]:
-    """The four measures: ``mean`` and ``spread`` (coefficient of variation: std / mean, so a
-    dimmer image has the same spread), ``noise`` and ``sharpness``."""
+    """The five measures: ``mean`` and ``spread`` (coefficient of variation: std / mean, so
+    a dimmer image has the same spread), ``noise``, ``sharpness`` and ``saturated``."""
     mean, std = luminance(grey)
     return {"mean": mean, "spread": std / max(mean, 1.0), "noise": noise_sigma(grey),
-            "sharpness": sharpness(grey)}
+            "sharpness": sharpness(grey), "saturated": saturated(grey)}
 
 
 def finite(values: dict[str, float]) -> bool:

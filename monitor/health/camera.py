@@ -51,6 +51,65 @@ class _Timer:
 
 
 
+class _Freeze:
+    """Whether the picture still changes as a live camera's does (every frame, by more than
+    the camera's own noise), on the caller's clock.
+
+    A repeated picture differs from the one before by almost nothing; a codec's keyframe in
+    a repeated picture is one frame that differs (0.3-0.8 grey levels for mp4v and H.264)
+    between two that do not. So a frame *really* changed only when it and the frame before it
+    both differ beyond the noise: a lone jump neither restarts the frozen timer nor ends a
+    freeze, and ``picture_time`` (when the picture last really changed) is the time what
+    the frame shows was seen. A freeze ends only after ``frozen_clear_s`` of frames that all
+    differ."""
+
+    LEARN = 300  # live differences kept for the camera's noise (20 s at 15 fps)
+
+    def __init__(self) -> None:
+        self.picture_time = 0.0
+        self.active = False  # camera_frozen holds
+        self.changing = True  # the newest difference was beyond the noise
+        self.really_changed = True  # this frame and the one before both were
+        self.run_since = 0.0  # the first frame of the newest run of differing frames
+        self._run = 0  # differing frames in that run
+        self._live: list[float] = []  # differences of frames that really changed
+
+    def restart(self, now: float) -> None:
+        """No earlier picture to compare with (the first frame, a blinded one): a new one."""
+        self.picture_time = self.run_since = now
+        self.active, self.changing, self.really_changed, self._run = False, True, True, 1
+
+    def threshold(self, config: HealthConfig) -> float:
+        """Grey levels a frame must differ by to count: ``frozen_diff``, or more on a noisy
+        camera (a share of a low percentile of its live differences: a walking person or a
+        moving robot raises the median, not the 10th percentile)."""
+        if len(self._live) < 10:
+            return config.frozen_diff
+        return max(config.frozen_diff,
+                   config.frozen_noise_share * float(np.percentile(self._live, 10)))
+
+    def step(self, diff: float, now: float, config: HealthConfig) -> float:
+        """One frame's difference to the one before; returns the threshold it was judged by."""
+        threshold = self.threshold(config)
+        self.changing = diff >= threshold
+        if not self.changing:
+            self._run = 0
+        elif self._run == 0:
+            self._run, self.run_since = 1, now
+        else:
+            self._run += 1
+        self.really_changed = self._run >= 2
+        if self.really_changed:
+            self.picture_time = now
+            self._live = [*self._live[-(self.LEARN - 1):], diff]
+        if not self.active:
+            self.active = (not self.really_changed
+                           and now - self.picture_time + 1e-9 >= config.frozen_after_s)
+        elif self._run >= 3 and now - self.run_since + 1e-9 >= config.frozen_clear_s:
+            self.active = False
+        return threshold
+
+
 def load_reference(path: str | Path) -> np.ndarray:
     """Read a reference image (BGR uint8); raise InputError when it is missing or unreadable."""
     path = Path(path)
@@ -106,7 +165,8 @@ class CameraHealth:
         self._ref_sharpness: float | None = None
         self._sharp_samples: list[float] = []
         self._window: np.ndarray | None = None
-        self._timers = {name: _Timer() for name in (FROZEN, BLINDED, MOVED, DEFOCUSED, "focus_ok")}
+        self._timers = {name: _Timer() for name in (BLINDED, MOVED, DEFOCUSED, "focus_ok")}
+        self._freeze = _Freeze()
         self._defocus_active = False
         self._last_moved: float | None = None  # when the moved check last ran
         self._moved_raw = False
@@ -214,11 +274,11 @@ class CameraHealth:
         t = time.perf_counter()
         frozen = None if raw_bad else self._check_frozen(small, now)
         if raw_bad:  # a black or white image has no texture: "frozen" cannot be judged
-            self._timers[FROZEN].update(False, now)
+            self._freeze.restart(now)
         timings["frozen"] = _ms(t)
         if frozen is not None:
             faults.append(frozen)
-        raw_bad = raw_bad or self._timers[FROZEN].since is not None
+        raw_bad = raw_bad or self._freeze.active or not self._freeze.changing
         self._prev_small = small
 
         if not raw_bad:
@@ -245,7 +305,8 @@ class CameraHealth:
             self._ref_small = small.astype(np.float32)  # no reference: the first sound frame
         timings["total"] = _ms(t_start)
         return HealthReport(self.camera_id, now, tuple(faults), tuple(alerts), zone_states,
-                            dict(self._measures), timings)
+                            dict(self._measures), timings,
+                            picture_changed=self._freeze.really_changed)
 
     def _due(self, now: float) -> bool:
         """Whether the moved check (the costliest) runs on this frame."""
@@ -276,17 +337,24 @@ class CameraHealth:
         return None
 
     def _check_frozen(self, small: np.ndarray, now: float) -> Fault | None:
-        cfg = self.config
+        freeze = self._freeze
         if self._prev_small is None:
+            freeze.restart(now)
             return None
         diff = float(cv2.norm(small, self._prev_small, cv2.NORM_L1)) / small.size
-        self._measures["frame_diff"] = diff
-        held = self._timers[FROZEN].update(diff < cfg.frozen_diff, now)
-        if held >= cfg.frozen_after_s:
-            return Fault(FROZEN, f"{self.camera_id}: image unchanged for {held:.1f} s (mean "
-                         f"difference {diff:.2f} < {cfg.frozen_diff:g} grey levels)",
-                         True, self.camera_id)
-        return None
+        threshold = freeze.step(diff, now, self.config)
+        self._measures.update(frame_diff=diff, frozen_threshold=threshold)
+        if not freeze.active:
+            return None
+        held = now - freeze.picture_time
+        if freeze.changing:
+            why = (f"picture changing again for {now - freeze.run_since:.1f} s, not yet "
+                   f"{self.config.frozen_clear_s:g} s like a live camera's")
+        else:
+            why = (f"mean difference {diff:.2f} < {threshold:.2g} grey levels, the camera's "
+                   "own noise")
+        return Fault(FROZEN, f"{self.camera_id}: image unchanged for {held:.1f} s ({why})",
+                     True, self.camera_id)
 
     def _check_defocus(self, small: np.ndarray, frame_bgr: np.ndarray,
                        now: float) -> list[Alert]:

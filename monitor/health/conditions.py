@@ -2,15 +2,22 @@
 
 Per frame, on the health checks' small grey image: mean luminance, spread (std / mean),
 noise and sharpness (``monitor.detector.imagestats``), for the whole view and for each protective
-zone's image region. Outside the envelope is a STOP fault ``detector_envelope`` naming the
-camera, the region and the measure ("cam0: too dim for the detector: mean luminance 38,
-envelope >= 55"); inside but within ``envelope_margin`` of an edge is a warning alert.
+zone's image region, and the clipped share (glare: a person standing in a saturated patch is
+gone) of each protective zone's region. Outside the envelope is a STOP fault
+``detector_envelope`` naming the camera, the region and the measure ("cam0: too dim for the
+detector: mean luminance 38, envelope >= 55"); inside but within ``envelope_margin`` of an
+edge is a warning alert.
 
 The envelope is in degradations (gain, contrast, noise, blur); a camera's thresholds are its
 *reference image's* measures at those degradations (``limit_measures``): the reference is its
 normal view, so "0.75 of its brightness" becomes a mean luminance. A camera without a reference
 is judged by the envelope's measures of the test figure's own image, and not for blur
 (sharpness depends on what an image shows).
+
+Saturation is judged per protective zone region (a lamp elsewhere in the view hides nobody in
+the zone), with or without a reference: the envelope's ``max_saturated`` (the clipped share of
+the test image with the largest glare band the model sees through), on top of what the
+reference's own region already has clipped (its normal view: a white sign, a lamp).
 """
 
 from __future__ import annotations
@@ -36,6 +43,7 @@ CHECKS = (
     ("spread", "min_spread", "min", "too little contrast for the detector: spread"),
     ("noise", "max_noise", "max", "too noisy for the detector: noise sigma"),
     ("sharpness", "min_sharpness", "min", "too blurred for the detector: sharpness"),
+    ("saturated", "max_saturated", "max", "too much glare for the detector: saturated share"),
 )
 
 
@@ -58,9 +66,14 @@ class Judgement:
 def camera_limits(envelope: Envelope, reference_small_bgr: np.ndarray | None,
                   frame_size: tuple[int, int], analysis_width: int,
                   regions: Sequence[Region] = ()) -> dict[str, dict[str, float]]:
-    """Thresholds per region ("view" and each zone region) in this camera's measures."""
+    """Thresholds per region ("view" and each zone region) in this camera's measures. Without
+    a reference: the envelope's absolute measures for the view, and its saturation limit for
+    each zone region."""
+    glare = envelope.absolute.get("max_saturated")
+    view = {k: v for k, v in envelope.absolute.items() if k != "max_saturated"}
     if reference_small_bgr is None:
-        return {"view": dict(envelope.absolute)}
+        return {"view": view, **({r.name: {"max_saturated": glare} for r in regions}
+                                 if glare is not None else {})}
     width, height = frame_size
     detector_scale = min(envelope.input_width / width, envelope.input_height / height)
     blur_scale = (analysis_width / width) / detector_scale  # analysis px per input px
@@ -68,7 +81,11 @@ def camera_limits(envelope: Envelope, reference_small_bgr: np.ndarray | None,
     out = {"view": limit_measures(reference_small_bgr, limits, blur_scale)}
     for r in regions:
         x1, y1, x2, y2 = r.box
-        out[r.name] = limit_measures(reference_small_bgr[y1:y2, x1:x2], limits, blur_scale)
+        patch = reference_small_bgr[y1:y2, x1:x2]
+        out[r.name] = limit_measures(patch, limits, blur_scale)
+        if glare is not None:
+            clipped = imagestats.saturated(cv2.cvtColor(patch, cv2.COLOR_BGR2GRAY))
+            out[r.name]["max_saturated"] = min(1.0, clipped + glare)
     return out
 
 
@@ -137,7 +154,9 @@ class EnvelopeWatch:
 
     def prepare(self, reference_small_bgr: np.ndarray | None, frame_size: tuple[int, int],
                 analysis_width: int, regions: Sequence[Region]) -> None:
-        self.regions = list(regions) if reference_small_bgr is not None else []
+        # without a reference a zone region is judged for saturation only (the envelope's
+        # other absolute measures are of the test image's whole view, not of a floor patch)
+        self.regions = list(regions)
         self.limits = camera_limits(self.envelope, reference_small_bgr, frame_size,
                                     analysis_width, self.regions)
 

@@ -31,8 +31,16 @@ class HealthConfig:
     # px width of the grey image the checks use (height keeps aspect)
     analysis_width: Annotated[Int, _within(64, 1280)] = 320
     lost_after_s: NonNegative = 1.0  # no frame for this long: camera_lost
-    frozen_diff: NonNegative = 0.3  # mean |difference| of consecutive frames (grey levels) ...
-    frozen_after_s: NonNegative = 1.0  # ... below that for this long: camera_frozen
+    # a frame differs from the one before "beyond the noise" when the mean |difference|
+    # (grey levels) reaches this, and this share of the camera's own live difference (the
+    # 10th percentile of its last 300 live frames; ``frozen_noise_share``) ...
+    frozen_diff: NonNegative = 0.3
+    frozen_noise_share: Annotated[Float, _within(0.0, 1.0)] = 0.25
+    # ... the picture really changed when two differences in a row did (a codec's keyframe
+    # in a repeated picture is one jump); no real change for this long: camera_frozen ...
+    frozen_after_s: NonNegative = 1.0
+    # ... which ends once the picture has changed like a live camera's (every frame) this long
+    frozen_clear_s: NonNegative = 0.5
     dark_mean: Annotated[Float, _within(0.0, 254.0)] = 25.0  # mean below this: blinded, dark
     # a pixel at or above this grey level is saturated ...
     saturated_level: Annotated[Int, _within(1, 255)] = 250

@@ -74,6 +74,22 @@ def reference_warnings(config, cell) -> list[str]:
     return [c.warning for c in choose_references(config, cell).values() if c.warning]
 
 
+def without_reference(config, cell) -> list[str]:
+    """Real cameras (any source but ``synthetic:``) without a reference image."""
+    chosen = choose_references(config, cell)
+    return [c.id for c in config.cameras
+            if chosen[c.id].path is None and not str(c.source).startswith("synthetic:")]
+
+
+def missing_reference_warnings(config, cell) -> list[str]:
+    """One line per real camera without a reference: what it is not judged by then."""
+    return [f"camera {cid}: no reference image: glare and the detector's image conditions are "
+            "judged by the model envelope's absolute limits, not this camera's normal view, "
+            "and a camera already moved, blurred or changed at start is not seen (take one "
+            "with 'monitor reference capture', name it with 'monitor zones camera set "
+            "--reference')" for cid in without_reference(config, cell)]
+
+
 def load_chosen_reference(choice: ReferenceChoice, cell) -> np.ndarray | None:
     """Read the chosen image; a zone file's must have the camera's size (one-line error)."""
     from monitor.health import load_reference

@@ -37,3 +37,7 @@ class HealthReport:
     zones: tuple[ZoneStatus, ...] = ()
     measures: dict[str, float] = field(default_factory=dict)
     timings_ms: dict[str, float] = field(default_factory=dict)
+    # this frame's picture really changed (as a live camera's does; not a repeat, nor a
+    # codec's lone keyframe jump in a repeated picture): the pipeline dates what the frame
+    # shows by the last frame that did (frame age, lost persons' times)
+    picture_changed: bool = True

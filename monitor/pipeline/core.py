@@ -278,15 +278,20 @@ class Pipeline:
                                     frame.camera_id))
         t2 = time.perf_counter()
         working = camera_working(frame.camera_id, [*faults, *extra_faults])
+        # a repeated picture shows the cell as it was when it last really changed: its
+        # persons were seen then (lost persons' times), and its age counts from then
+        shown = frame
+        if health is not None and not health.picture_changed and cam.frame_time is not None:
+            shown = replace(frame, capture_time=min(cam.frame_time, frame.capture_time))
         report, track_ids, person_ids = locate(
-            frame, persons, cam, self.prepared, self.detector, self.persons, detector_error,
+            shown, persons, cam, self.prepared, self.detector, self.persons, detector_error,
             now, tool_pose, tool_speed_mps, pose_time, self.policy, faults, working=working,
             hidden=hidden_of(self.cell, frame.camera_id, self.masks.rule(frame)),
             elsewhere=free_elsewhere(self.cameras, self.cell, frame.camera_id,
                                      frame.capture_time, self.policy.clear_time))
         t3 = time.perf_counter()
         self.applying.waiting.discard(frame.camera_id)  # this frame was checked on the new zones
-        cam.frame_time, cam.report, cam.faults = frame.capture_time, report, tuple(faults)
+        cam.frame_time, cam.report, cam.faults = shown.capture_time, report, tuple(faults)
         cam.detector_error = detector_error
         cleared = self._confirm_clear(reset, now)
         inputs = self._inputs(now, extra_faults, pose_time, reset, with_frame=True)

@@ -41,7 +41,10 @@ class CameraState:
     """What the pipeline remembers of one camera between steps."""
 
     health: CameraHealth | None = None
-    frame_time: float | None = None  # capture time of its newest processed frame
+    # capture time of what its newest processed frame shows: the frame's own, or while the
+    # picture repeats (a frozen camera, a codec's keyframe in it) that of the last frame whose
+    # picture really changed (``HealthReport.picture_changed``)
+    frame_time: float | None = None
     report: ZoneReport | None = None  # zone answer of that frame (None: unknown)
     faults: tuple[Fault, ...] = ()  # faults of that frame (health, detector, zones)
     detector_error: str | None = None

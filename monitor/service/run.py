@@ -27,7 +27,11 @@ from monitor.config import MonitorConfig, load_config
 from monitor.driver import Driver, protective_warning, settle_heap
 from monitor.geometry import describe_separation
 from monitor.health.build import inplace_check, protective_regions
-from monitor.health.references import reference_warnings
+from monitor.health.references import (
+    missing_reference_warnings,
+    reference_warnings,
+    without_reference,
+)
 from monitor.pipeline import Pipeline
 from monitor.policy import STOP, Command, Reason
 from monitor.service.commission_watch import CommissionWatch
@@ -92,6 +96,8 @@ def _run(config_path, log_json: bool, duration: float | None, signals: StopSigna
         event(f"zone file {cell.label}: {doubt}", logging.WARNING)
     for doubt in reference_warnings(config, cell):  # two references for one camera
         event(doubt, logging.WARNING)
+    for doubt in missing_reference_warnings(config, cell):  # a real camera without one
+        event(doubt, logging.WARNING)
     if config.bus.allow_unsigned_resets:
         event("resets are accepted without an operator key (embedded demo on 127.0.0.1, or "
               "allow_unsigned_resets = true): not for a production cell", logging.WARNING)
@@ -112,6 +118,9 @@ def _run(config_path, log_json: bool, duration: float | None, signals: StopSigna
                 bus.update_status(protective_zone=False, warning=warning)
             if test_model:
                 bus.update_status(test_model=test_model)
+            missing = without_reference(config, cell)
+            if missing:  # said once at start (above) and for as long as it runs here
+                bus.update_status(without_reference=missing)
 
             # which commissioned configuration runs (docs/commissioning.md): checked now,
             # then again on its own thread whenever the record or a fingerprinted file changes

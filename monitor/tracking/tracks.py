@@ -161,6 +161,14 @@ class _Record:
     was: int | None = None  # the lost track this one perhaps is (a guess; see reidentified)
     seen_as: int | None = None  # a new track that perhaps is this lost one
     left_view: bool = False
+    # (time, box height) of the last ``TALL_WINDOW_S``: a person walking behind a wall is
+    # seen smaller frame by frame, and at 15 fps the last box may be a head only; the area
+    # grows at the pace of the person's full height, not of that sliver
+    heights: list[tuple[float, float]] = field(default_factory=list)
+
+    def tall_px(self) -> float:
+        """The tallest box height of the last ``TALL_WINDOW_S`` seconds it was seen."""
+        return max((h for _, h in self.heights), default=float(self.box[3] - self.box[1]))
 
     def snapshot(self, held: tuple[HeldZone, ...]) -> Track:
         floor = None if self.floor is None else (float(self.floor[0]), float(self.floor[1]))
@@ -174,6 +182,9 @@ class _Record:
         """``person 6``, or ``person 6 (was person 1?)`` when re-identified by a guess."""
         return f"person {self.track_id}" + ("" if self.was is None else
                                              f" (was person {self.was}?)")
+
+
+TALL_WINDOW_S = 1.0
 
 
 def _box_tuple(box: np.ndarray) -> tuple[float, float, float, float]:
@@ -341,7 +352,8 @@ class PersonTracker:
             rec.left_view = self._leaving_view(rec, frame_size)
             into = self._merged_into(rec.box, boxes)
             # swallowed by a neighbour's box: hidden right behind (or in front of) them
-            self.where.lose(rec.track_id, rec.box, rec.last_seen, behind=bool(into))
+            self.where.lose(rec.track_id, rec.box, rec.last_seen, behind=bool(into),
+                            height_px=rec.tall_px())
             for row in into:  # whichever identity the merged box keeps: where it stood too
                 old_box, old_seen, left = moved.get(row, (None, 0.0, False))
                 if left and old_box is not None:
@@ -453,6 +465,8 @@ class PersonTracker:
         rec.floor = floor
         rec.box = box.copy()
         rec.last_seen = now
+        rec.heights = [(t, h) for t, h in rec.heights if now - t <= TALL_WINDOW_S]
+        rec.heights.append((now, float(box[3] - box[1])))
 
     def _merged_into(self, box: np.ndarray, boxes: np.ndarray) -> list[int]:
         """Rows of this frame's boxes that cover ``merge_ios`` or more of a lost box."""

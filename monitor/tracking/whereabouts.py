@@ -166,10 +166,11 @@ class LostArea:
     merged: tuple[int, ...] = field(default=())  # other lost tracks folded into this one
     behind: bool = False  # kept where a track stood before its box merged with another
     explained: float | None = None  # since when all of it lies under seen persons' feet
+    height_px: float = 0.0  # the person's recent full height (the last box may be partial)
 
     @property
     def box_height_px(self) -> float:
-        return max(self.box_px[3] - self.box_px[1], 1.0)
+        return max(self.box_px[3] - self.box_px[1], self.height_px, 1.0)
 
 
 class Whereabouts:
@@ -216,10 +217,13 @@ class Whereabouts:
             self.free_since[:] = np.nan
 
     def lose(self, track_id: int, box_px: np.ndarray, last_seen: float,
-             behind: bool = False) -> None:
+             behind: bool = False, height_px: float = 0.0) -> None:
         """A person lost: their area starts under their last box (joined to an area the same
         track left before). ``behind``: the track is still seen, in a box merged with a
-        neighbour's; someone may stand where it stood (only seeing that free ends it)."""
+        neighbour's; someone may stand where it stood (only seeing that free ends it).
+        ``height_px``: the person's full height in the last frames (the tracker's; a person
+        vanishing behind a wall leaves a last box of a head only): the area grows at the
+        pace of the taller of it and the last box."""
         if self.grid is None:
             raise RuntimeError("Whereabouts.lose before view(): the image size is unknown")
         seed = self.grid.cells_under(box_px, self.config.below)
@@ -229,9 +233,11 @@ class Whereabouts:
             old.cells |= seed
             old.box_px = box  # type: ignore[assignment]
             old.behind = old.behind or behind
+            old.height_px = max(old.height_px, float(height_px))
             return
         self.areas[track_id] = LostArea(track_id, float(last_seen), box,  # type: ignore[arg-type]
-                                        seed, float(last_seen), behind=behind)
+                                        seed, float(last_seen), behind=behind,
+                                        height_px=float(height_px))
 
     def found(self, track_id: int) -> bool:
         """The lost person's own track is seen again: the sighting explains the loss while
@@ -368,6 +374,7 @@ class Whereabouts:
             into = same if same is not None else kept[0]
             into.cells |= area.cells
             into.budget = max(into.budget, area.budget)
+            into.height_px = max(into.height_px, area.height_px)
             into.merged = (*into.merged, area.track_id, *area.merged)
         self.areas = {a.track_id: a for a in kept}
 
