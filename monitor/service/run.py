@@ -38,6 +38,7 @@ from monitor.service.metrics import Metrics
 from monitor.service.setup import (
     build_pipeline,
     bus_config_for,
+    capacity_per_backend,
     check_capacity,
     int8_at_start,
     reaction_budget,
@@ -76,7 +77,7 @@ def _run(config_path, log_json: bool, duration: float | None, signals: StopSigna
     config = load_config(config_path)
     if log_json is False and config.service.log_json:
         setup_logging(True)
-    pipeline, cell, expected, test_model = build_pipeline(config)
+    pipeline, cell, expected, test_model, choice = build_pipeline(config)
     if stop.is_set():  # told to stop while the model loaded: nothing opened yet
         event("stopped before start")
         return 0
@@ -84,6 +85,7 @@ def _run(config_path, log_json: bool, duration: float | None, signals: StopSigna
           cameras=",".join(f"{c.id}={c.source}" for c in config.cameras),
           zones=cell.label if cell else "none",
           config_hash=cell.config_hash if cell else "")
+    event(choice.line())
     warning = protective_warning(cell)
     if warning:
         event(warning, logging.WARNING)
@@ -101,6 +103,8 @@ def _run(config_path, log_json: bool, duration: float | None, signals: StopSigna
                                   cell.spec.separation.programmed_speed_mps,
                                   reaction_budget(config)))
     metrics = Metrics(config.service.metrics_port, config.service.metrics_host)
+    metrics.set_backend(choice.chosen.backend, choice.chosen.precision,
+                        choice.agreement.agreement if choice.agreement is not None else 1.0)
     closers: list = []  # the recorder's, run after the bus's final STOP (bounded)
     try:
         with SafetyBus(bus_config_for(config, cell), alert_limits=config.alerts) as bus:
@@ -113,6 +117,7 @@ def _run(config_path, log_json: bool, duration: float | None, signals: StopSigna
                 bus.update_status(protective_zone=False, warning=warning)
             if test_model:
                 bus.update_status(test_model=test_model)
+            bus.update_status(detector=choice.to_dict())
 
             def commissioned(zones_hash: str) -> None:
                 """Which commissioned configuration runs (docs/commissioning.md)."""
@@ -133,7 +138,7 @@ def _run(config_path, log_json: bool, duration: float | None, signals: StopSigna
                        LatestFrameGrabber, SourceOptions, open_source, test_model,
                        capacity_check or ("warn" if config_path is None
                                           else config.service.capacity_check),
-                       closers, cases, commissioned)
+                       closers, cases, commissioned, choice)
             finally:
                 forget()
             event("shutting down: final STOP published")
@@ -154,7 +159,7 @@ def shutdown_forced() -> Command:
 def _serve(config: MonitorConfig, pipeline: Pipeline, bus: SafetyBus, expected: dict, metrics,
            stop: threading.Event, duration: float | None, grabber_cls, options_cls,
            open_source, test_model: str | None = None, capacity_mode: str = "refuse",
-           closers: list | None = None, cases=None, commissioned=None) -> None:
+           closers: list | None = None, cases=None, commissioned=None, choice=None) -> None:
     # zones that follow the tool need the pose too (without it they stay at their maximum)
     following = pipeline.prepared is not None and bool(pipeline.prepared.moving)
     pose = (bus.pose_subscriber(tracker_clock=config.tracker_clock,
@@ -181,6 +186,10 @@ def _serve(config: MonitorConfig, pipeline: Pipeline, bus: SafetyBus, expected: 
             for line in capacity.warnings:
                 event(f"capacity: {line}", logging.WARNING)
             bus.update_status(capacity=capacity.to_dict())
+            per_backend = (capacity_per_backend(config, expected, capacity, choice)
+                           if choice is not None else None)
+            if per_backend is not None:
+                event(per_backend)
             int8 = int8_at_start(config, pipeline.detector, expected, stop.is_set)
             if int8 is not None:
                 event(int8.message())
