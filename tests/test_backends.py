@@ -277,3 +277,43 @@ def test_the_envelope_is_measured_with_the_backend_that_runs(model):
     assert env.sidecar_path(model, "openvino-bf16").is_file()
     reference = env.for_detector(Detector(model, DetectorConfig(threads=1)), 0.9)
     assert env.limits_of(measured) == env.limits_of(reference)  # it agreed on those figures
+
+
+def test_status_metrics_and_capacity_name_the_backend():
+    from prometheus_client import generate_latest
+
+    from monitor.cli.status_text import status_text
+    from monitor.detector.choice import Choice
+    from monitor.service.capacity import Limits, cameras_served
+    from monitor.service.metrics import Metrics
+
+    choice = Choice(OV_BF16, (trial(OV_BF16, 8.0), trial(OV_FP32, 21.0)),
+                    "2.50x faster than onnxruntime here", reference=ONNX)
+    status = {"detector": choice.to_dict()}
+    assert ("detector backend: openvino bf16, agreement 1.000 with onnxruntime (2.50x faster "
+            "than onnxruntime here)") in status_text(status).splitlines()
+    assert "detector backend: unknown (not reported)" in status_text({}).splitlines()
+    metrics = Metrics(0, "127.0.0.1")
+    metrics.set_backend("openvino", "bf16", 1.0)
+    text = generate_latest(metrics.registry).decode()
+    assert 'monitor_detector_backend{backend="openvino",precision="bf16"} 1.0' in text
+    assert "monitor_detector_backend_agreement 1.0" in text
+    # the capacity per backend: a faster detector serves at least as many cameras
+    limits = Limits(0.5, 0.3, 0.5, 1.0)
+    fast, slow = cameras_served(0.010, 1920, 1080, 10.0, limits), \
+        cameras_served(0.040, 1920, 1080, 10.0, limits)
+    assert fast[0] >= slow[0] >= 1 and fast[1] == pytest.approx(10.0)
+    assert cameras_served(2.0, 1920, 1080, 10.0, limits) == (0, 0.0)
+
+
+@pytest.mark.slow
+def test_monitor_run_says_which_backend_runs(tmp_path):
+    """The start-up line of `monitor run` (the embedded demo) names the backend, its
+    precision and agreement."""
+    from tests.helpers import run_monitor
+
+    proc = run_monitor("run", "--duration", "2", timeout=400)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    line = next((ln for ln in proc.stderr.splitlines() if "INFO detector backend " in ln), "")
+    labels = [c.label for c in available(model_facts(synthetic.ensure_model()))]
+    assert any(f"detector backend {label} (" in line for label in labels), proc.stderr[-3000:]
