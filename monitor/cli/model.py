@@ -276,8 +276,8 @@ def cmd_envelope(args: argparse.Namespace) -> int:
                                 progress=lambda axis: print(f"measuring {axis} ...",
                                                             file=sys.stderr))
     print(envelope.table())
-    if not args.print_only:
-        print(f"wrote {env.sidecar_path(model)}")
+    if not args.print_only:  # measured with the backend [detector] names (auto: onnxruntime)
+        print(f"wrote {env.sidecar_path(model, env.backend_tag(detector))}")
     return 0
 
 
