@@ -133,6 +133,36 @@ def test_auto_picks_only_an_available_agreeing_backend_and_caches_it(model):
         assert choice.chosen == ONNX and not choice.trials
 
 
+@pytest.fixture(scope="module")
+def fragile(model: Path) -> Path:
+    """A model whose persons vanish in bf16 (tests/onnx_models.py: bf16_fragile)."""
+    from tests.onnx_models import bf16_fragile
+
+    return bf16_fragile(model, model.with_name("fragile.onnx"))
+
+
+@needs_openvino
+def test_a_backend_that_disagrees_is_refused_and_auto_never_runs_it(fragile):
+    """A real disagreement: OpenVINO bf16 loses every person of this model. `auto` refuses it
+    naming the figures and runs an agreeing backend; named, it is one line at start."""
+    if OV_BF16 not in available(model_facts(fragile)):
+        pytest.skip("this CPU has no bf16")
+    config = DetectorConfig(threads=1, backend_budget_s=600)
+    det, choice = open_detector(fragile, config)
+    bf16 = next(t for t in choice.trials if t.candidate == OV_BF16)
+    assert bf16.refused == ("openvino bf16 agrees with onnxruntime on 0.000 of the persons "
+                            "(below 0.98): 36 missed, 0 extra, of 36 on 51 self-test and "
+                            "envelope figures"), bf16
+    assert choice.chosen != OV_BF16 and det.backend != OV_BF16
+    assert "openvino bf16 refused (openvino bf16 agrees with onnxruntime on 0.000" \
+        in choice.line()
+    cfg = fragile.with_name("monitor.toml")
+    cfg.write_text('[detector]\nbackend = "openvino"\nprecision = "bf16"\nthreads = 1\n')
+    line = one_line(run_here("model", "info", "--model", fragile, "--config", cfg))
+    assert line == ("monitor: error: [detector] backend 'openvino' bf16 refused: openvino "
+                    f"bf16: {bf16.refused}")
+
+
 def trial(cand: Candidate, ms: float, persons: tuple[int, int, int] = (40, 40, 40),
           refused: str | None = None) -> Trial:
     a = quantize.Agreement(51, persons[0], persons[1], persons[2], 0.99, 0.95, 20.0, ms)
