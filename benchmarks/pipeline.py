@@ -39,6 +39,7 @@ zones, health and policy do their real work. Three passes in one run:
 from __future__ import annotations
 
 import argparse
+import builtins
 import gc
 import itertools
 import json
@@ -107,6 +108,8 @@ def new_pipeline(detector: Detector, cell: Cell) -> Pipeline:
 
 
 def pct(values: list[float], q: float) -> float:
+    if not values:  # a pass that processed nothing (a host too loaded for the live pass)
+        return math.nan
     s = sorted(values)
     return s[min(len(s) - 1, max(0, math.ceil(q * len(s)) - 1))]
 
@@ -345,6 +348,7 @@ def main() -> int:
             print(f"measuring {label} ...", file=sys.stderr, flush=True)
             results[label] = run_passes(video, detector, cell, args, n)
             del detector
+            side_by_side({label: results[label]}, args, n, file=sys.stderr)  # as it goes
     if len(results) == 1:
         report_one(next(iter(results.values())), args, n)
     else:
@@ -391,9 +395,14 @@ def run_passes(video: Path, detector: Detector, cell: Cell, args, n: int) -> dic
     return {"t": t, "th": th, "dr": dr, "lat": lat, "paced": paced}
 
 
-def side_by_side(results: dict[str, dict], args, n: int) -> None:
+def side_by_side(results: dict[str, dict], args, n: int, file=None) -> None:
     """One column per backend: the throughput, stage and latency rows of ``report_one``."""
-    med = statistics.median
+    def med(values: list[float]) -> float:
+        return statistics.median(values) if values else math.nan
+
+    def print(*a, **k) -> None:  # the table to ``file``, stdout by default
+        builtins.print(*a, **k, file=file or sys.stdout)
+
     start_frames = math.ceil(args.fps * MonitorConfig().policy.clear_time)
     rows: dict[str, list[str]] = {}
 
