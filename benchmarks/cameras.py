@@ -35,7 +35,7 @@ import yaml
 from monitor.models import synthetic
 
 from monitor.config import demo_cell_path
-from monitor.detector import Detector, DetectorConfig, quantize
+from monitor.detector import Detector, DetectorConfig, open_runner, quantize
 from monitor.health import CameraHealth, HealthConfig
 from monitor.pipeline import Pipeline
 from monitor.policy import PolicyConfig
@@ -102,8 +102,12 @@ def cell_1080p(tmp: Path, ids: list[str]) -> Path:
 
 
 def run_one(model: Path, videos: list[Path], seconds: float, fps: float, batch: bool,
-            threads: int) -> dict:
-    det = Detector(model, DetectorConfig(threads=threads))
+            threads: int, candidate=None) -> dict:
+    """``candidate``: the backend to run (``monitor.detector.runners.Candidate``); None:
+    onnxruntime, the reference."""
+    config = DetectorConfig(threads=threads)
+    det = Detector(model, config, runner=None if candidate is None
+                   else open_runner(model, candidate, threads))
     ids = [f"cam{i}" for i in range(len(videos))]
     cell = load_cell(cell_1080p(videos[0].parent, ids))
     pipe = Pipeline(det, ids, PolicyConfig(), cell,

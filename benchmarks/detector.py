@@ -30,7 +30,7 @@ def bench(model: Path, threads: int, repeats: int, frame) -> dict[str, float]:
     pre, inf, post, whole, bare = [], [], [], [], []
     for _ in range(3):
         det.detect(frame)
-        det.session.run(det.output_names, feeds)
+        det.runner.run(feeds)
     for _ in range(repeats):  # interleave so both see the same machine load
         t0 = time.perf_counter()
         r = det.detect_timed(frame)
@@ -39,7 +39,7 @@ def bench(model: Path, threads: int, repeats: int, frame) -> dict[str, float]:
         inf.append(r.inference_ms)
         post.append(r.decode_ms)
         t0 = time.perf_counter()
-        det.session.run(det.output_names, feeds)
+        det.runner.run(feeds)
         bare.append((time.perf_counter() - t0) * 1e3)
     med = statistics.median
     return {"pre": med(pre), "inf": med(inf), "post": med(post), "whole": med(whole),

@@ -3,6 +3,12 @@ latency from frame capture to command published.
 
 Run: .venv/bin/python benchmarks/pipeline.py [--seconds 12] [--fps 15] [--threads 2] [--int8]
      [--square] (the 416x416 input instead of the 416x288 rectangle a 16:9 frame runs at)
+     [--backends all | auto | 'onnxruntime fp32,openvino bf16,openvino int8']
+
+``--backends all`` runs every pass below once per backend and precision this host has (for the
+fp32 and the int8 model: onnxruntime, OpenVINO fp32/bf16/int8 with the ``[openvino]`` extra,
+...) and once with what ``[detector] backend = "auto"`` chooses, and prints their rows side by
+side (monitor/detector/runners.py). "Bare inference" is then that backend's ``runner.run``.
 
 The video is the demo walk (the person enters the warning and the protective zone) rendered at
 1280x720 and scaled to 1920x1080, with the demo cell's zones and calibration scaled to match, so
@@ -33,6 +39,7 @@ zones, health and policy do their real work. Three passes in one run:
 from __future__ import annotations
 
 import argparse
+import builtins
 import gc
 import itertools
 import json
@@ -101,6 +108,8 @@ def new_pipeline(detector: Detector, cell: Cell) -> Pipeline:
 
 
 def pct(values: list[float], q: float) -> float:
+    if not values:  # a pass that processed nothing (a host too loaded for the live pass)
+        return math.nan
     s = sorted(values)
     return s[min(len(s) - 1, max(0, math.ceil(q * len(s)) - 1))]
 
@@ -135,7 +144,7 @@ def _bare(detector: Detector, image: np.ndarray) -> float:
     tensor, _ = letterbox(image, detector.layout)  # the same input the pipeline feeds
     feeds = {detector.layout.input_name: tensor}
     t0 = time.perf_counter()
-    detector.session.run(detector.output_names, feeds)
+    detector.runner.run(feeds)
     return (time.perf_counter() - t0) * 1e3
 
 
@@ -298,7 +307,7 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=12.0,
                         help="video length (the walk enters both zones by 6 s)")
-    parser.add_argument("--threads", type=int, default=2, help="onnxruntime intra-op threads")
+    parser.add_argument("--threads", type=int, default=2, help="inference threads")
     parser.add_argument("--fps", type=float, default=15.0,
                         help="the camera's frame rate (the video is rendered and paced at it)")
     parser.add_argument("--no-settle-heap", action="store_true",
@@ -309,8 +318,12 @@ def main() -> int:
     parser.add_argument("--square", action="store_true",
                         help="every frame in the full 416x416 input ([detector] "
                              "rectangular_input = false), to compare with 416x288")
+    parser.add_argument("--backends", default="onnxruntime",
+                        help="'all' (every backend and precision here, for the fp32 and the "
+                             "int8 model, and what 'auto' chooses), 'auto', or labels such as "
+                             "'onnxruntime fp32,openvino bf16,openvino int8': each backend's "
+                             "rows side by side")
     args = parser.parse_args()
-    med = statistics.median
     logging.getLogger("monitor").setLevel(logging.ERROR)  # the loop's event lines
     with tempfile.TemporaryDirectory() as tmp_name:
         tmp = Path(tmp_name)
@@ -319,22 +332,121 @@ def main() -> int:
         cell = cell_1080p(tmp)
         model = tmp / "tiny-yolov3-synthetic.onnx"  # this version's build, not a cached one
         synthetic.write_model(model)
-        if args.int8:
+        int8 = None
+        if args.int8 or args.backends == "all" or "int8" in args.backends:
             from monitor.detector import quantize
             from monitor.scene import random_frames
 
             calib = [f for f, _ in random_frames(8, seed=1000, size=SIZE)]
-            model = quantize.quantize_model(
+            int8 = quantize.quantize_model(
                 model, tmp / "m.int8.onnx", calib,
                 quantize.QuantizeOptions(ranges=synthetic.int8_ranges()))
-        detector = Detector(model, DetectorConfig(threads=args.threads,
-                                                  rectangular_input=not args.square))
-        t = throughput_inline(video, detector, cell)
-        th = throughput_threaded(video, detector, cell)
-        dr = throughput_driver(video, detector, cell)
-        lat = latency(video, detector, cell, args.seconds, settle=not args.no_settle_heap)
-        paced = paced_bare(video, detector, args.fps, n)
+        config = DetectorConfig(threads=args.threads, rectangular_input=not args.square)
+        results = {}
+        for label, detector in detectors(args.backends, model, int8 if args.int8 else None,
+                                         int8, config):
+            print(f"measuring {label} ...", file=sys.stderr, flush=True)
+            results[label] = run_passes(video, detector, cell, args, n)
+            del detector
+            side_by_side({label: results[label]}, args, n, file=sys.stderr)  # as it goes
+    if len(results) == 1:
+        report_one(next(iter(results.values())), args, n)
+    else:
+        side_by_side(results, args, n)
+    return 0
 
+
+def detectors(which: str, model: Path, only_int8: Path | None, int8: Path | None,
+              config: DetectorConfig):
+    """(label, Detector) for each backend asked for, one at a time (each freed before the
+    next opens). 'auto': what ``monitor run`` would choose here (measured, not cached)."""
+    from monitor.detector.choice import open_detector
+    from monitor.detector.runners import Candidate, available, model_facts, open_runner
+
+    base = only_int8 or model
+    if which == "auto":
+        det, choice = open_detector(base, config)
+        yield f"auto = {choice.chosen.label}", det
+        return
+    if which == "all":
+        wanted = [(base, c) for c in available(model_facts(base))]
+        if int8 is not None and only_int8 is None:
+            wanted += [(int8, c) for c in available(model_facts(int8))]
+    else:
+        wanted = []
+        for label in which.split(","):
+            cand = Candidate.parse(label.strip().replace(":", " "))
+            path = int8 if cand.precision == "int8" and int8 is not None else base
+            wanted.append((path, Candidate(cand.backend, cand.precision or "auto")))
+    for path, cand in wanted:
+        runner = open_runner(path, cand, config.threads, config.spin_wait)
+        yield runner.candidate.label, Detector(path, config, runner=runner)
+    if which == "all":
+        det, choice = open_detector(base, config)
+        yield f"auto = {choice.chosen.label}", det
+
+
+def run_passes(video: Path, detector: Detector, cell: Cell, args, n: int) -> dict:
+    t = throughput_inline(video, detector, cell)
+    th = throughput_threaded(video, detector, cell)
+    dr = throughput_driver(video, detector, cell)
+    lat = latency(video, detector, cell, args.seconds, settle=not args.no_settle_heap)
+    paced = paced_bare(video, detector, args.fps, n)
+    return {"t": t, "th": th, "dr": dr, "lat": lat, "paced": paced}
+
+
+def side_by_side(results: dict[str, dict], args, n: int, file=None) -> None:
+    """One column per backend: the throughput, stage and latency rows of ``report_one``."""
+    def med(values: list[float]) -> float:
+        return statistics.median(values) if values else math.nan
+
+    def print(*a, **k) -> None:  # the table to ``file``, stdout by default
+        builtins.print(*a, **k, file=file or sys.stdout)
+
+    start_frames = math.ceil(args.fps * MonitorConfig().policy.clear_time)
+    rows: dict[str, list[str]] = {}
+
+    def row(name: str, value: str) -> None:
+        rows.setdefault(name, []).append(value)
+
+    for r in results.values():
+        t, th, dr, lat, paced = r["t"], r["th"], r["dr"], r["lat"], r["paced"]
+        bare_ms, whole_ms = sum(t["bare"]) / n, sum(t["whole"]) / n
+        running = lat["latency"][start_frames:]
+        row("bare inference ms (mean) / fps", f"{bare_ms:.1f} / {1e3 / bare_ms:.1f}")
+        row("pipeline, decode inline: ms / fps", f"{whole_ms:.1f} / {1e3 / whole_ms:.1f}")
+        row("pipeline inline / bare", f"{bare_ms / whole_ms:.3f}")
+        row("pipeline, decode in a thread / bare", f"{bare_ms / th['ms_per_frame']:.3f}")
+        row("replay through the driver / bare", f"{bare_ms / dr['ms_per_frame']:.3f}")
+        for stage in ("read+decode", "preprocess", "inference", "decode", "zones", "health",
+                      "policy"):
+            if stage in t["stages"]:
+                row(f"stage {stage} (median ms)", f"{med(t['stages'][stage]):.2f}")
+        row("person detections (inline pass)", f"{t['persons']}")
+        lt = lat["latency"]
+        row("capture -> command median / p99 ms", f"{med(lt):.1f} / {pct(lt, 0.99):.1f}")
+        row(f"capture -> command p99 after the first {start_frames} frames",
+            f"{pct(running, 0.99):.1f}")
+        row("bare inference paced, median / p99 ms", f"{med(paced):.1f} / {pct(paced, 0.99):.1f}")
+        row("monitor's share of the p99 (after start-up - bare paced)",
+            f"{pct(running, 0.99) - pct(paced, 0.99):.1f}")
+    print(f"1080p video, {n} frames ({args.seconds:g} s, {args.fps:g} fps), model input "
+          f"{'416x416' if args.square else '416x288 (rectangular)'}, {args.threads} threads\n")
+    print("| | " + " | ".join(results) + " |")
+    print("|---|" + "---|" * len(results))
+    for name, values in rows.items():
+        print(f"| {name} | " + " | ".join(values) + " |")
+    first = next(iter(results.values()))
+    ref = sum(first["t"]["bare"]) / n
+    print("\n| backend | bare inference vs the first column |")
+    print("|---|---|")
+    for label, r in results.items():
+        print(f"| {label} | {ref / (sum(r['t']['bare']) / n):.2f}x |")
+
+
+def report_one(r: dict, args, n: int) -> None:
+    med = statistics.median
+    t, th, dr, lat, paced = r["t"], r["th"], r["dr"], r["lat"], r["paced"]
     bare_ms, whole_ms = sum(t["bare"]) / n, sum(t["whole"]) / n
     print(f"1080p video, {n} frames ({args.seconds:g} s, {args.fps:g} fps), model input "
           f"{'416x416' if args.square else '416x288 (rectangular)'} "
@@ -402,7 +514,6 @@ def main() -> int:
     print(f"\ngrabber: {lat['grabbed']} frames grabbed, {lat['dropped']} dropped (newest wins); "
           f"throughput target >= 0.95: {'met' if bare_ms / whole_ms >= 0.95 else 'missed'} "
           f"inline, {'met' if bare_ms / th['ms_per_frame'] >= 0.95 else 'missed'} threaded")
-    return 0
 
 
 if __name__ == "__main__":

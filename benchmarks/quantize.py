@@ -3,7 +3,7 @@
 Run: python benchmarks/quantize.py [--repeats N] [--choices] [--frames N]
 
 Speed table: the synthetic model at 416 and 320 in fp32 and int8 (as `monitor model build
---int8` makes it), 1 and 2 threads: median ms of a bare session.run on a letterboxed 1080p
+--int8` makes it), 1 and 2 threads: median ms of a bare run (onnxruntime) on a letterboxed 1080p
 frame (fp32 and int8 in alternating blocks of 10, so both see the same machine load) and the ratio
 (target: int8 >= 2x faster at 416 on 2 threads).
 
@@ -26,7 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from monitor.models import synthetic
 
-from monitor.detector import Detector, DetectorConfig, letterbox, open_session, quantize
+from monitor.detector import Candidate, Detector, DetectorConfig, letterbox, open_runner, quantize
 from monitor.scene import random_frames
 from monitor.scene.accuracy import Accuracy, cell_tolerance_px, score_frame
 
@@ -44,20 +44,21 @@ def speed(tmp: Path, repeats: int) -> None:
         tensor, _ = letterbox(frame, Detector(fp32).layout)
         feeds = {"images": tensor.copy()}
         for threads in (1, 2):
-            sessions = [open_session(p, threads) for p in (fp32, int8)]
+            sessions = [open_runner(p, Candidate("onnxruntime", "auto"), threads)
+                        for p in (fp32, int8)]
             times: list[list[float]] = [[], []]
             for s in sessions:
                 for _ in range(3):
-                    s.run(None, feeds)
+                    s.run(feeds)
             # blocks of 10 runs per model, alternating: both models see the same machine load,
             # and neither runs with the other's weights in the cache (interleaving single runs
             # made the int8 model ~15 % slower here: its weights were evicted each time)
             for _ in range(max(1, repeats // 10)):
                 for k, s in enumerate(sessions):
-                    s.run(None, feeds)
+                    s.run(feeds)
                     for _ in range(10):
                         t0 = time.perf_counter()
-                        s.run(None, feeds)
+                        s.run(feeds)
                         times[k].append((time.perf_counter() - t0) * 1e3)
             a, b = statistics.median(times[0]), statistics.median(times[1])
             print(f"| {size} | {threads} | {a:.1f} | {b:.1f} | {a / b:.2f}x |", flush=True)

@@ -277,3 +277,30 @@ def slow_on_marker(base: Path, path: Path, iterations: int, size: int = 512) -> 
     onnx.checker.check_model(model)
     onnx.save(model, path)
     return path
+
+
+def bf16_fragile(base: Path, path: Path, offset: float = 8000.0) -> Path:
+    """``base`` (the synthetic model) with every output passed through two 1x1 identity
+    convolutions that add ``offset`` and take it off again: exact in fp32, but a backend that
+    stores the activation in between in bf16 (8 bits of mantissa: steps of 64 at 8000) rounds
+    every logit to a multiple of 64 (to 0 here), and finds no person at all. A real model whose
+    activations run large loses precision the same way, only less."""
+    model = onnx.load(str(base))
+    g = model.graph
+    for out in g.output:
+        name = out.name
+        channels = next(d.dim_value for d in out.type.tensor_type.shape.dim[1:2])
+        for node in g.node:
+            node.output[:] = [name + ".raw" if o == name else o for o in node.output]
+        eye = np.eye(channels, dtype=np.float32).reshape(channels, channels, 1, 1)
+        g.initializer.extend([
+            numpy_helper.from_array(eye, name + ".eye"),
+            numpy_helper.from_array(np.full(channels, offset, np.float32), name + ".up"),
+            numpy_helper.from_array(np.full(channels, -offset, np.float32), name + ".down")])
+        g.node.extend([
+            helper.make_node("Conv", [name + ".raw", name + ".eye", name + ".up"],
+                             [name + ".big"]),
+            helper.make_node("Relu", [name + ".big"], [name + ".kept"]),  # keeps the convs apart
+            helper.make_node("Conv", [name + ".kept", name + ".eye", name + ".down"], [name])])
+    onnx.save(model, str(path))
+    return path

@@ -28,7 +28,32 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     info = sub.add_parser("info", help="layout, input size, classes and parameter count")
     info.add_argument("--model", type=Path, help="ONNX file (default: the synthetic model)")
     info.add_argument("--layout", help="force a layout instead of detecting it")
+    info.add_argument("--config", type=Path,
+                      help="monitor.toml: its [detector] settings (backend, precision, ...)")
     info.set_defaults(func=cmd_info)
+
+    cb = sub.add_parser(
+        "check-backend", help="check every backend and precision this host has against "
+        "onnxruntime on your own frames",
+        description="Runs your frames through onnxruntime on the CPU (the reference) and through "
+                    "every other backend and precision this host has (OpenVINO fp32/bf16, "
+                    "CUDA, ...), counts the persons they agree on as 'model quantize' does, and "
+                    "records the result beside the model (MODEL.onnx.backends.json): monitor run "
+                    "never chooses a backend that disagreed here. Exit 0 when all agree, 1 when "
+                    "one is refused (see docs/models.md, Backends).")
+    cb.add_argument("--frames", type=Path, required=True,
+                    help="a directory of images or a video from your cameras, with persons")
+    cb.add_argument("--model", type=Path, help="ONNX file (default: the config's, else the "
+                    "synthetic model)")
+    cb.add_argument("--config", type=Path, help="monitor.toml: its model and [detector] settings")
+    cb.add_argument("--backend", help="check only this backend (default: every one here)")
+    cb.add_argument("--precision", help="check only this precision (default: every one)")
+    cb.add_argument("--min-agreement", type=float,
+                    help="persons found by both / by either (default: "
+                         "detector.backend_min_agreement, 0.98)")
+    cb.add_argument("--max-frames", type=int, default=120,
+                    help="frames read from --frames at most (spread over a video)")
+    cb.set_defaults(func=cmd_check_backend)
 
     ev = sub.add_parser("eval", help="recall / precision on generated frames with ground truth")
     ev.add_argument("--model", type=Path, help="ONNX file (default: the synthetic model)")
@@ -151,10 +176,41 @@ def _detector(model: Path | None, layout: str | None = None, int8: bool = False)
     return Detector(path, DetectorConfig(layout=layout))
 
 
-def cmd_info(args: argparse.Namespace) -> int:
-    from monitor.detector import describe
+def _configured(model: Path | None, config_path: Path | None):
+    """The model and [detector] settings of ``--config`` (the model given wins), the
+    synthetic model when neither names one."""
+    import dataclasses
 
-    info = describe(_detector(args.model, args.layout))
+    from monitor.detector import DetectorConfig
+
+    detector_config = DetectorConfig()
+    if config_path is not None:
+        from monitor.config import load_config
+
+        config = load_config(config_path)
+        detector_config = config.detector
+        model = model or (Path(config.model.path) if config.model.path else None)
+    if model is None:
+        from monitor.cli.run import ensure_model
+
+        model = ensure_model()
+    return model, dataclasses.replace(detector_config)
+
+
+def cmd_info(args: argparse.Namespace) -> int:
+    import dataclasses
+
+    from monitor.detector import describe
+    from monitor.detector.choice import open_detector
+
+    model, config = _configured(args.model, args.config)
+    if args.layout:
+        config = dataclasses.replace(config, layout=args.layout)
+    detector, choice = open_detector(
+        model, config, progress=lambda text: print(f"{text} ...", file=sys.stderr))
+    info = describe(detector)
+    info["backend"] = choice.line().removeprefix("detector backend ")
+    info = {"host": choice.host or "?", **info}
     width = max(len(k) for k in info)
     for key, value in info.items():
         print(f"{key:<{width}}  {value}")
@@ -220,8 +276,8 @@ def cmd_envelope(args: argparse.Namespace) -> int:
                                 progress=lambda axis: print(f"measuring {axis} ...",
                                                             file=sys.stderr))
     print(envelope.table())
-    if not args.print_only:
-        print(f"wrote {env.sidecar_path(model)}")
+    if not args.print_only:  # measured with the backend [detector] names (auto: onnxruntime)
+        print(f"wrote {env.sidecar_path(model, env.backend_tag(detector))}")
     return 0
 
 
@@ -271,3 +327,41 @@ def cmd_quantize(args: argparse.Namespace) -> int:
         print(f"warning: written anyway (--force): {why}", file=sys.stderr)
     print(f"wrote {out}")
     return 0
+
+
+def cmd_check_backend(args: argparse.Namespace) -> int:
+    import dataclasses
+
+    from monitor.detector import quantize
+    from monitor.detector.choice import check_frames
+    from monitor.progress import progress
+
+    model, config = _configured(args.model, args.config)
+    changes = {k: v for k, v in (("backend", args.backend), ("precision", args.precision),
+                                 ("backend_min_agreement", args.min_agreement))
+               if v is not None}
+    if changes:
+        config = dataclasses.replace(config, **changes)  # validated: one line when bad
+    frames = quantize.read_frames(args.frames, args.max_frames)
+    print(f"{len(frames)} frames from {args.frames}", file=sys.stderr)
+    trials = check_frames(model, config, frames, wrap=_wrap(progress))
+    if not trials:
+        print("only onnxruntime (the reference) runs the model here: nothing to check")
+        return 0
+    print("| backend | precision | persons onnxruntime / it | found by both | missed | extra "
+          "| agreement | box IoU min | inference ms onnxruntime / it | verdict |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for t in trials:
+        a = t.agreement
+        if a is None:
+            print(f"| {t.candidate.backend} | {t.candidate.precision} | - | - | - | - | - | - "
+                  f"| - | not usable |")
+            continue
+        print(f"| {t.candidate.backend} | {t.candidate.precision} | {a.fp32_persons} / "
+              f"{a.int8_persons} | {a.both} | {a.fp32_only} | {a.int8_only} | "
+              f"{a.agreement:.3f} | {a.min_iou:.3f} | {a.fp32_ms:.1f} / {a.int8_ms:.1f} | "
+              f"{'refused' if t.refused else 'agrees'} |")
+    refused = [t for t in trials if t.refused]
+    for t in refused:
+        print(f"refused: {t.candidate.label}: {t.refused}", file=sys.stderr)
+    return 1 if refused else 0

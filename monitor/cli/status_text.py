@@ -109,6 +109,16 @@ def _commissioned(value: Any) -> str:
     return f"commissioned: NO ({reason})"
 
 
+def _detector(value: Any) -> str:
+    d = _dict(value)
+    if not d:
+        return "detector backend: unknown (not reported)"
+    agreement = _num(d.get("agreement"))
+    agrees = f", agreement {agreement:.3f} with onnxruntime" if agreement is not None else ""
+    return (f"detector backend: {d.get('backend', '?')} {d.get('precision', '?')}{agrees} "
+            f"({d.get('reason', '?')})")
+
+
 def status_text(status: dict) -> str:
     """The lines an operator reads of one monitor's status answer (``SafetyBus.status``)."""
     s = _dict(status)
@@ -128,6 +138,7 @@ def status_text(status: dict) -> str:
     mutes = [m for m in _list(s.get("muted")) if isinstance(m, dict)]
     lines.append("muted zones:" if mutes else "muted zones: none")
     lines += [_mute(m) for m in mutes]
+    lines.append(_detector(s.get("detector")))
     zones = s.get("zones_file") or "?"
     lines.append(f"zones: {zones}, config hash {s.get('config_hash') or '?'}")
     lines.append(_commissioned(s.get("commissioned")))

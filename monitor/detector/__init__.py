@@ -1,4 +1,4 @@
-"""Person detector: any tiny-YOLO style ONNX model through onnxruntime.
+"""Person detector: any tiny-YOLO style ONNX model, run by onnxruntime or OpenVINO.
 
 The output layout is found from the model's shapes and metadata (or named explicitly):
 
@@ -19,7 +19,8 @@ Boxes come back in the original frame's pixels (letterbox undone), person class 
 score threshold, a top-k cap, NMS and merging (``monitor.geometry.boxes``). NaN or infinite outputs
 raise ``DetectorError`` (never "no persons"); ``Detector.self_test`` checks the model still
 finds a known person. Modules: layouts (which layout, person classes), preprocess (letterbox),
-decode, session, selftest, config.
+decode, runners (the backend seam: "run this model on this tensor" for onnxruntime and OpenVINO),
+choice (which backend and precision runs, by measurement, gated by agreement), selftest, config.
 
 Also here: cheap statistics of a small grey image that the envelope and the camera checks are judged
 by (``imagestats.py``) and static int8 quantization calibrated on the user's frames
@@ -58,9 +59,15 @@ from monitor.detector.layouts import (
     inspect_model,
 )
 from monitor.detector.preprocess import Letterbox, Letterboxer, fitted_input, letterbox
+from monitor.detector.runners import (
+    REFERENCE,
+    BackendUnavailable,
+    Candidate,
+    Runner,
+    open_runner,
+)
 from monitor.detector.selftest import SelfTestCase, builtin_case, load_case
 from monitor.detector.selftest import check as check_self_test
-from monitor.detector.session import open_session
 from monitor.detector.shapes import OutputShapes
 from monitor.detector.test_model import TEST_MODEL_NOTE
 from monitor.errors import DetectorError, InputError
@@ -68,10 +75,11 @@ from monitor.geometry import boxes as box_ops
 from monitor.types import Fault, FrameInfo, Persons
 
 __all__ = [
-    "LAYOUTS", "TINY_ANCHORS", "TINY_MASKS", "V3_ANCHORS", "V3_MASKS", "Detection", "Detector",
-    "DetectorConfig", "DetectorError", "Letterbox", "Letterboxer", "ModelLayout", "decode",
-    "decode_darknet", "decode_end2end", "decode_yolov5", "decode_yolov8", "decode_yolox",
-    "decode_zoo", "describe", "inspect_model", "letterbox", "open_session",
+    "LAYOUTS", "TINY_ANCHORS", "TINY_MASKS", "V3_ANCHORS", "V3_MASKS", "BackendUnavailable",
+    "Candidate", "Detection", "Detector", "DetectorConfig", "DetectorError", "Letterbox",
+    "Letterboxer", "ModelLayout", "Runner", "configured_candidate", "decode", "decode_darknet",
+    "decode_end2end", "decode_yolov5", "decode_yolov8", "decode_yolox", "decode_zoo",
+    "describe", "inspect_model", "letterbox", "open_runner",
 ]
 
 log = logging.getLogger(__name__)
@@ -94,17 +102,23 @@ class Detection:
 class Detector:
     """Loads a model once, warms it up, and turns BGR frames into ``Persons``."""
 
-    def __init__(self, model_path: str | Path, config: DetectorConfig | None = None) -> None:
+    def __init__(self, model_path: str | Path, config: DetectorConfig | None = None,
+                 runner: Runner | None = None) -> None:
+        """``runner``: the backend to run the model with (``monitor.detector.choice`` picks
+        one by measurement); None: the backend the config names, onnxruntime on the CPU for
+        ``backend = "auto"`` (the choice is made by whoever opens the detector with
+        ``choice.open_detector``)."""
         self.config = config or DetectorConfig()
         self.model_path = Path(model_path)
-        self.session = open_session(model_path, self.config.threads, self.config.spin_wait)
-        self.layout, self.warning = inspect_model(self.session, self.config)
+        self.runner = runner or open_runner(model_path, configured_candidate(self.config),
+                                            self.config.threads, self.config.spin_wait)
+        self.layout, self.warning = inspect_model(self.runner, self.config)
         if self.warning:
             log.warning("%s: %s", self.model_path.name, self.warning)
-        self.output_names = [o.name for o in self.session.get_outputs()]
+        self.output_names = [o.name for o in self.runner.outputs]
         # the synthetic model: finds only the magenta test figures of monitor.scene, never a
         # real person (see monitor/detector/test_model.py)
-        meta = self.session.get_modelmeta().custom_metadata_map or {}
+        meta = self.runner.metadata
         self.test_model = "synthetic_weights" in meta
         self._letterbox = Letterboxer(self.layout)
         self.self_test_case = self._self_test_case()
@@ -129,7 +143,7 @@ class Detector:
         try:
             self.detect(probe)
             return
-        except Exception as exc:  # onnxruntime's own errors, or DetectorError from the shapes
+        except Exception as exc:  # the runtime's own errors, or DetectorError from the shapes
             why = str(exc).splitlines()[0][:200]
         log.warning("%s: declares a dynamic input size but fails at a smaller one (%s): every "
                     "frame runs in the full %dx%d input", self.model_path.name, why,
@@ -144,12 +158,16 @@ class Detector:
         cfg = self.config
         if cfg.self_test_image is not None and cfg.self_test_box is not None:
             return load_case(cfg.self_test_image, cfg.self_test_box)
-        meta = self.session.get_modelmeta().custom_metadata_map or {}
-        if "synthetic_weights" in meta:  # our synthetic model: it finds the scene's persons
+        if "synthetic_weights" in self.runner.metadata:  # ours: it finds the scene's persons
             return builtin_case()
         log.info("%s: no detector self-test (set detector.self_test_image and self_test_box; "
                  "see docs/models.md)", self.model_path.name)
         return None
+
+    @property
+    def backend(self) -> Candidate:
+        """The backend and precision that run the model."""
+        return self.runner.candidate
 
     def self_test(self) -> Fault | None:
         """Run the model on the self-test image: None if it finds the known person, else a
@@ -188,7 +206,7 @@ class Detector:
         feeds = {self.layout.input_name: tensor}
         if self.layout.kind == "zoo":
             feeds["image_shape"] = np.array([frame_hw], np.float32)
-        outputs = self.session.run(self.output_names, feeds)
+        outputs = self.runner.run(feeds)
         self._check_shapes(outputs, 1, box)
         return outputs
 
@@ -239,8 +257,8 @@ class Detector:
     @property
     def batchable(self) -> bool:
         """The model's batch dimension is dynamic: several frames can run as one batch."""
-        first = self.session.get_inputs()[0].shape[0]
-        return self.layout.kind != "zoo" and not (isinstance(first, int) and first > 0)
+        first = (self.runner.inputs[0].shape or (None,))[0]
+        return self.layout.kind != "zoo" and first is None
 
     def detect_batch_timed(self, images: list[np.ndarray],
                            frames: list[FrameInfo | None] | None = None,
@@ -269,7 +287,7 @@ class Detector:
                     for im, fr, pm in zip(images, frames, masks, strict=True)]
         tensor = np.concatenate([t for t, _ in prepared])
         t1 = time.perf_counter()
-        outputs = self.session.run(self.output_names, {self.layout.input_name: tensor})
+        outputs = self.runner.run({self.layout.input_name: tensor})
         self._check_shapes(outputs, len(images), prepared[0][1])
         t2 = time.perf_counter()
         share = (t2 - t1) * 1e3 / len(images)
@@ -323,6 +341,13 @@ class Detector:
         return Persons(boxes, scores, frame), candidates, overflow
 
 
+def configured_candidate(config: DetectorConfig) -> Candidate:
+    """The backend and precision the config names; ``auto`` is onnxruntime, the reference,
+    at the model's own precision until a measurement chooses (``monitor.detector.choice``)."""
+    backend = REFERENCE if config.backend == "auto" else config.backend
+    return Candidate(backend, config.precision)
+
+
 def describe(detector: Detector) -> dict:
     """What `monitor model info` prints."""
     import onnx
@@ -336,6 +361,7 @@ def describe(detector: Detector) -> dict:
     return {
         "model": str(detector.model_path),
         **({"test_model": TEST_MODEL_NOTE} if detector.test_model else {}),
+        "backend": detector.backend.label,
         "layout": layout.kind,
         "input": f"{layout.input_width}x{layout.input_height}" + (
             " (dynamic: each frame runs in the smallest rectangle that holds it, 16:9 at "
@@ -348,7 +374,7 @@ def describe(detector: Detector) -> dict:
         "self_test": detector.self_test_case.source if detector.self_test_case
         else "none (set detector.self_test_image and self_test_box)",
         "parameters": params,
-        "outputs": [f"{o.name} {tuple(o.shape)}" for o in detector.session.get_outputs()],
+        "outputs": [f"{o.name} {tuple(o.shape)}" for o in detector.runner.outputs],
         "anchors": list(layout.anchors) if layout.anchors else None,
         "masks": list(layout.masks) if layout.masks else None,
     }

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Annotated
+from typing import Annotated, Literal
 
 from pydantic import Field, model_validator
 
@@ -44,6 +44,19 @@ class DetectorConfig:
     # onnxruntime's workers spin after each run by default; on a 2-core box that steals the CPU
     # the rest of the pipeline (video decode, health) needs right after inference.
     spin_wait: Bool = False
+    # Which runtime runs the model (monitor/detector/runners.py, docs/models.md "Backends"):
+    # "auto" measures every backend and precision this host has at start and runs the fastest
+    # whose persons agree with onnxruntime's on the self-test figure and the envelope's
+    # degraded copies of it; a named backend must agree too, or the start is refused.
+    backend: Literal["auto", "onnxruntime", "onnxruntime-cuda", "onnxruntime-tensorrt",
+                     "onnxruntime-openvino", "openvino", "openvino-gpu"] = "auto"
+    # "auto": the fastest agreeing one (an int8 model runs int8); bf16 needs a CPU with it
+    # (AVX-512 BF16 or AMX), fp16 a GPU
+    precision: Literal["auto", "fp32", "bf16", "fp16", "int8"] = "auto"
+    # persons found by both / by either (the measure and threshold of `monitor model quantize`)
+    backend_min_agreement: Annotated[Float, Field(gt=0, le=1)] = 0.98
+    # the start-up measurement's bound (s); its result is cached per model and host
+    backend_budget_s: Annotated[Float, Field(gt=0, le=600)] = 20.0
     # Self-test: an image with one known person (x1 y1 x2 y2 in that image's pixels) the model
     # must find. Built in for the synthetic model; needed for any other model.
     self_test_image: ConfigPath = None

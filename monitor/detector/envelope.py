@@ -43,6 +43,7 @@ import cv2
 import numpy as np
 
 from monitor.detector import imagestats
+from monitor.detector.runners import REFERENCE
 from monitor.detector.selftest import SelfTestCase
 from monitor.errors import ModelError
 from monitor.geometry import boxes as box_ops
@@ -276,10 +277,20 @@ def file_sha256(path: Path) -> str:
     return digest.hexdigest()
 
 
-def sidecar_path(model_path: str | Path) -> Path:
-    """Where a model's envelope is stored: ``MODEL.onnx.envelope.json`` beside it."""
+def sidecar_path(model_path: str | Path, backend: str = "") -> Path:
+    """Where a model's envelope is stored: ``MODEL.onnx.envelope.json`` beside it, measured
+    with onnxruntime on the CPU; another backend's (``backend``, e.g. "openvino-bf16", see
+    ``backend_tag``) as ``MODEL.onnx.envelope.openvino-bf16.json``."""
     model_path = Path(model_path)
-    return model_path.with_name(model_path.name + ".envelope.json")
+    return model_path.with_name(model_path.name + (f".envelope.{backend}.json" if backend
+                                                    else ".envelope.json"))
+
+
+def backend_tag(detector) -> str:
+    """The envelope is measured with the backend that runs: "" for the reference
+    (onnxruntime at the model's own precision), else "openvino-bf16" and the like."""
+    candidate = detector.backend
+    return "" if candidate.backend == REFERENCE else f"{candidate.backend}-{candidate.precision}"
 
 
 def to_json(envelope: Envelope) -> str:
@@ -316,10 +327,10 @@ def write(envelope: Envelope, path: Path) -> Path:
 
 
 def stored(model_path: Path, model_sha256: str, case: SelfTestCase,
-           min_recall: float) -> Envelope | None:
+           min_recall: float, backend: str = "") -> Envelope | None:
     """The stored envelope when it was measured on this model, test image and minimum recall
-    (None: absent or stale)."""
-    path = sidecar_path(model_path)
+    with ``backend`` (``backend_tag``) (None: absent or stale)."""
+    path = sidecar_path(model_path, backend)
     if not path.is_file():
         return None
     env = from_json(path.read_text(), str(path))
@@ -339,7 +350,8 @@ def for_detector(detector, min_recall: float, store: bool = True,
     if case is None:
         return None
     sha = file_sha256(detector.model_path)
-    env = stored(detector.model_path, sha, case, min_recall)
+    backend = backend_tag(detector)  # measured with the backend that runs
+    env = stored(detector.model_path, sha, case, min_recall, backend)
     if env is not None:
         return env
     layout = detector.layout
@@ -349,8 +361,8 @@ def for_detector(detector, min_recall: float, store: bool = True,
     env = Envelope(**{**asdict(env), "model_sha256": sha, "recall": env.recall})
     if store:
         try:
-            write(env, sidecar_path(detector.model_path))
+            write(env, sidecar_path(detector.model_path, backend))
         except OSError as exc:
             log.warning("%s: envelope not stored (%s); measured again at the next start",
-                        sidecar_path(detector.model_path), exc)
+                        sidecar_path(detector.model_path, backend), exc)
     return env

@@ -1,7 +1,8 @@
 """Which output layout a model has, decided by evidence: shapes, metadata, a probe run.
 
 Pure helpers (:func:`classify_single_output`, :func:`resolve_person_classes`) hold the rules;
-:func:`inspect_model` gathers the evidence from an onnxruntime session.
+:func:`inspect_model` gathers the evidence from a runner (``monitor.detector.runners``), whatever
+runtime it is.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from monitor.detector.runners import runtime_message
 from monitor.errors import ConfigError, ModelError
 
 if TYPE_CHECKING:
@@ -129,10 +131,6 @@ def _name_list(names: dict[int, str], limit: int = 12) -> str:
     return "classes " + ", ".join(items[:limit]) + more
 
 
-def _meta(session) -> dict[str, str]:
-    return dict(session.get_modelmeta().custom_metadata_map or {})
-
-
 def parse_names(raw: str | None) -> dict[int, str]:
     """Class names from metadata: JSON or a Python dict literal (Ultralytics), or a list."""
     if not raw:
@@ -164,29 +162,28 @@ def _parse_list(raw: str) -> list[int]:
     return [int(v) for v in raw.strip("[]() ").replace(",", " ").split()]
 
 
-def probe_output_shapes(session, input_name: str, height: int, width: int, nhwc: bool,
+def probe_output_shapes(runner, input_name: str, height: int, width: int, nhwc: bool,
                         ) -> list[tuple[int, ...]]:
     """Output shapes of one run on a blank input: the evidence when the file declares
     symbolic (dynamic-axes) output sizes."""
     feeds = {input_name: np.zeros((1, height, width, 3) if nhwc else (1, 3, height, width),
                                   np.float32)}
-    for extra in session.get_inputs():
+    for extra in runner.inputs:
         if extra.name != input_name:
             raise ModelError(f"model input {extra.name!r} is not known; expected one image input")
     try:
-        outputs = session.run(None, feeds)
-    except Exception as exc:  # onnxruntime's own exception types
-        from monitor.detector.session import runtime_message
-
+        outputs = runner.run(feeds)
+    except Exception as exc:  # the runtime's own exception types
         raise ModelError(f"probe run at {width}x{height} failed ({runtime_message(exc)}); set "
                          f"detector.input_size to the model's input size") from None
     return [tuple(int(d) for d in np.shape(o)) for o in outputs]
 
 
-def inspect_model(session, config: DetectorConfig) -> tuple[ModelLayout, str | None]:
-    """The layout of a loaded model and a warning (or None); ModelError if none fits."""
-    inputs, outputs = session.get_inputs(), session.get_outputs()
-    meta = _meta(session)
+def inspect_model(runner, config: DetectorConfig) -> tuple[ModelLayout, str | None]:
+    """The layout of a loaded model (a ``runners.Runner``) and a warning (or None); ModelError
+    if none fits."""
+    inputs, outputs = runner.inputs, runner.outputs
+    meta = dict(runner.metadata)
     names = parse_names(meta.get("names"))
     in_names = [i.name for i in inputs]
     shapes = [tuple(o.shape) for o in outputs]
@@ -218,7 +215,7 @@ def inspect_model(session, config: DetectorConfig) -> tuple[ModelLayout, str | N
     # an output declared without any shape reads as () here, like a scalar: no detector
     # output is a scalar, so it is probed like a symbolic one
     if not all(_static(s) and s for s in shapes):
-        shapes = probe_output_shapes(session, image.name, ih, iw, nhwc)
+        shapes = probe_output_shapes(runner, image.name, ih, iw, nhwc)
         found += f" (at {iw}x{ih}: {shapes})"
         for out, shape in zip(outputs, shapes, strict=True):
             if not shape:

@@ -337,23 +337,36 @@ def match_persons(a: np.ndarray, b: np.ndarray, min_iou: float = 0.5) -> list[fl
 
 def compare(fp32, int8, frames: Iterable[np.ndarray], min_iou: float = 0.5,
             wrap: Callable[[Iterable, int, str], Iterable] | None = None) -> Agreement:
-    """Run both detectors on ``frames`` and count the persons they agree on."""
+    """Run both detectors on ``frames`` and count the persons they agree on. ``fp32`` (the
+    reference) may also be its detections on ``frames``, already run (``detect_all``)."""
     frames = list(frames)
     items: Iterable = wrap(frames, len(frames), "comparing") if wrap else frames
+    given = fp32 if isinstance(fp32, list) else None
+    ra, rb = [], []
+    for k, image in enumerate(items):
+        ra.append(given[k] if given is not None else fp32.detect_timed(image))
+        rb.append(int8.detect_timed(image))
+    return agreement_of(ra, rb, min_iou)
+
+
+def detect_all(detector, frames: Iterable[np.ndarray]) -> list:
+    """The detector's ``Detection`` on each frame (a reference compared with several)."""
+    return [detector.detect_timed(image) for image in frames]
+
+
+def agreement_of(reference: Sequence, other: Sequence, min_iou: float = 0.5) -> Agreement:
+    """Count the persons two runs (``Detection`` per frame, in the same order) agree on."""
     n_a = n_b = both = 0
     ious: list[float] = []
-    ms_a: list[float] = []
-    ms_b: list[float] = []
-    for image in items:
-        ra, rb = fp32.detect_timed(image), int8.detect_timed(image)
-        ms_a.append(ra.inference_ms)
-        ms_b.append(rb.inference_ms)
+    for ra, rb in zip(reference, other, strict=True):
         matched = match_persons(ra.persons.boxes_px, rb.persons.boxes_px, min_iou)
         n_a += len(ra.persons)
         n_b += len(rb.persons)
         both += len(matched)
         ious += matched
-    return Agreement(len(frames), n_a, n_b, both, float(np.mean(ious)) if ious else 0.0,
+    ms_a = [r.inference_ms for r in reference]
+    ms_b = [r.inference_ms for r in other]
+    return Agreement(len(reference), n_a, n_b, both, float(np.mean(ious)) if ious else 0.0,
                      min(ious) if ious else 0.0,
                      statistics.median(ms_a) if ms_a else 0.0,
                      statistics.median(ms_b) if ms_b else 0.0)

@@ -110,6 +110,7 @@ class Capacity:
     latency_s: float = 0.0  # p99 capture to decision of a frame, cameras in turn
     step_s: float = 0.0  # p99 of one step (the gap between two decisions)
     frame_gap_s: float = 0.0  # p99 gap between two decisions on a frame
+    detect_s: float = 0.0  # the measured bare detection time it was predicted from
 
     def describe(self) -> str:
         """One log line with the figures."""
@@ -201,7 +202,7 @@ def assess(detect_s: float, cameras: Sequence[CameraDemand], limits: Limits) -> 
                    f"measured): {'; '.join(problems)}; use {', '.join(hints)}, or raise the "
                    f"limit if that is safe for the cell")
     return Capacity(frame_s, cycle, age, fps, capacity_fps, refusal, tuple(warnings), latency,
-                    step_p99, frame_gap)
+                    step_p99, frame_gap, detect_s)
 
 
 def _duration(seconds: float) -> str:
@@ -221,6 +222,21 @@ def _named(cams: list[str], fps: dict[str, float]) -> str:
 def decode_time_s(width: int, height: int) -> float:
     """The allowance for reading and decoding one frame of this size (seconds)."""
     return DECODE_S_PER_MP * width * height / 1e6
+
+
+def cameras_served(detect_s: float, width: int, height: int, fps: float | None,
+                   limits: Limits, most: int = 16) -> tuple[int, float]:
+    """How many cameras of ``width`` x ``height`` at ``fps`` each (None: as fast as frames
+    come) a detector taking ``detect_s`` serves within ``limits``, and the fps each then
+    gets: (0, 0.0) when not even one. Pure."""
+    served = (0, 0.0)
+    for n in range(1, most + 1):
+        verdict = assess(detect_s, [CameraDemand(f"cam{i}", width, height, fps)
+                                    for i in range(n)], limits)
+        if verdict.refusal is not None:
+            break
+        served = (n, min(verdict.processed_fps.values()))
+    return served
 
 
 def measure_detect_s(detect: Callable[[np.ndarray], object], sizes: Sequence[tuple[int, int]],

@@ -5,7 +5,9 @@ Per camera (label ``camera``): ``monitor_fps``, ``monitor_inference_ms``,
 is readable as one gauge per state, ``monitor_state{state="STOP"} 1`` (the others 0), and as a
 level for thresholds, ``monitor_state_level`` (0 RUN, 1 SLOW, 2 STOP). ``monitor_alerts{kind}``
 counts alerts, ``monitor_commands_foreign{kind}`` the ignored commands of other senders,
-``monitor_incidents{cause}`` and ``monitor_recorder_*`` the incident recorder's work.
+``monitor_incidents{cause}`` and ``monitor_recorder_*`` the incident recorder's work;
+``monitor_detector_backend{backend,precision}`` 1 for the backend that runs the model and
+``monitor_detector_backend_agreement`` its agreement with onnxruntime.
 Dashboards only: the safety message is the command on the bus (docs/health.md).
 """
 
@@ -65,6 +67,13 @@ class Metrics:
                                "(0: stopped or off)", registry=r)
         self.recorder_dropped = Gauge("monitor_recorder_dropped_frames", "frames the recorder "
                                       "dropped to keep the safety loop at speed", registry=r)
+        # which backend runs the model (monitor/detector/choice.py) and how its persons agree
+        # with onnxruntime's on the agreement figures (1: it is onnxruntime)
+        self.backend = Gauge("monitor_detector_backend", "1 for the backend and precision that "
+                             "run the detector", ["backend", "precision"], registry=r)
+        self.backend_agreement = Gauge("monitor_detector_backend_agreement", "persons found by "
+                                       "the running backend and onnxruntime / by either",
+                                       registry=r)
         self.set_state("STOP")  # what the monitor says until its first decision
         self.server = None
         if port:
@@ -73,6 +82,10 @@ class Metrics:
             except OSError as exc:
                 raise ConfigError(f"service.metrics_port: cannot serve metrics on "
                                   f"{host}:{port}: {exc.strerror or exc}") from None
+
+    def set_backend(self, backend: str, precision: str, agreement: float) -> None:
+        self.backend.labels(backend, precision).set(1.0)
+        self.backend_agreement.set(agreement)
 
     def set_state(self, state: str) -> None:
         for s in STATES:

@@ -41,6 +41,7 @@ from monitor.service.metrics import Metrics
 from monitor.service.setup import (
     build_pipeline,
     bus_config_for,
+    capacity_per_backend,
     check_capacity,
     int8_at_start,
     reaction_budget,
@@ -79,7 +80,7 @@ def _run(config_path, log_json: bool, duration: float | None, signals: StopSigna
     config = load_config(config_path)
     if log_json is False and config.service.log_json:
         setup_logging(True)
-    pipeline, cell, expected, test_model = build_pipeline(config)
+    pipeline, cell, expected, test_model, choice = build_pipeline(config)
     if stop.is_set():  # told to stop while the model loaded: nothing opened yet
         event("stopped before start")
         return 0
@@ -87,6 +88,7 @@ def _run(config_path, log_json: bool, duration: float | None, signals: StopSigna
           cameras=",".join(f"{c.id}={c.source}" for c in config.cameras),
           zones=cell.label if cell else "none",
           config_hash=cell.config_hash if cell else "")
+    event(choice.line())
     warning = protective_warning(cell)
     if warning:
         event(warning, logging.WARNING)
@@ -106,6 +108,8 @@ def _run(config_path, log_json: bool, duration: float | None, signals: StopSigna
                                   cell.spec.separation.programmed_speed_mps,
                                   reaction_budget(config)))
     metrics = Metrics(config.service.metrics_port, config.service.metrics_host)
+    metrics.set_backend(choice.chosen.backend, choice.chosen.precision,
+                        choice.agreement.agreement if choice.agreement is not None else 1.0)
     closers: list = []  # the recorder's, run after the bus's final STOP (bounded)
     try:
         with SafetyBus(bus_config_for(config, cell), alert_limits=config.alerts) as bus:
@@ -121,6 +125,7 @@ def _run(config_path, log_json: bool, duration: float | None, signals: StopSigna
             missing = without_reference(config, cell)
             if missing:  # said once at start (above) and for as long as it runs here
                 bus.update_status(without_reference=missing)
+            bus.update_status(detector=choice.to_dict())
 
             # which commissioned configuration runs (docs/commissioning.md): checked now,
             # then again on its own thread whenever the record or a fingerprinted file changes
@@ -147,7 +152,7 @@ def _run(config_path, log_json: bool, duration: float | None, signals: StopSigna
                        LatestFrameGrabber, SourceOptions, open_source, test_model,
                        capacity_check or ("warn" if config_path is None
                                           else config.service.capacity_check),
-                       closers, cases, watch.zones_changed)
+                       closers, cases, watch.zones_changed, choice)
             finally:
                 forget()
             event("shutting down: final STOP published")
@@ -168,7 +173,7 @@ def shutdown_forced() -> Command:
 def _serve(config: MonitorConfig, pipeline: Pipeline, bus: SafetyBus, expected: dict, metrics,
            stop: threading.Event, duration: float | None, grabber_cls, options_cls,
            open_source, test_model: str | None = None, capacity_mode: str = "refuse",
-           closers: list | None = None, cases=None, commissioned=None) -> None:
+           closers: list | None = None, cases=None, commissioned=None, choice=None) -> None:
     # zones that follow the tool need the pose too (without it they stay at their maximum)
     following = pipeline.prepared is not None and bool(pipeline.prepared.moving)
     pose = (bus.pose_subscriber(tracker_clock=config.tracker_clock,
@@ -195,6 +200,10 @@ def _serve(config: MonitorConfig, pipeline: Pipeline, bus: SafetyBus, expected: 
             for line in capacity.warnings:
                 event(f"capacity: {line}", logging.WARNING)
             bus.update_status(capacity=capacity.to_dict())
+            per_backend = (capacity_per_backend(config, expected, capacity, choice)
+                           if choice is not None else None)
+            if per_backend is not None:
+                event(per_backend)
             int8 = int8_at_start(config, pipeline.detector, expected, stop.is_set)
             if int8 is not None:
                 event(int8.message())

@@ -23,7 +23,7 @@ from monitor.geometry.reaction import (
     at_start,
 )
 from monitor.pipeline import Pipeline
-from monitor.service.capacity import CameraDemand, Limits
+from monitor.service.capacity import CameraDemand, Limits, cameras_served
 from monitor.service.capacity import check as capacity_check
 from monitor.service.log import event
 from monitor.service.metrics import Metrics
@@ -52,8 +52,9 @@ def _require_fed_cameras(cell, config: MonitorConfig, zones_file: str | None) ->
 
 def build_pipeline(config: MonitorConfig):
     """Model, zones, health checker and pipeline from a validated config (I/O: files only);
-    also the warning to carry when the synthetic test model is allowed on a live camera."""
-    from monitor.detector import Detector
+    also the warning to carry when the synthetic test model is allowed on a live camera, and
+    the detector's backend choice (``monitor.detector.choice.Choice``)."""
+    from monitor.detector.choice import open_detector
     from monitor.detector.envelope import for_detector
     from monitor.health.build import camera_health
     from monitor.health.references import choose_references, load_chosen_reference
@@ -64,9 +65,16 @@ def build_pipeline(config: MonitorConfig):
     cell = load_cell(zones_file) if zones_file else None
     zone_checks(config, cell, zones_file)
     model = Path(config.model.path) if config.model.path else synthetic.ensure_model()
-    detector = Detector(model, config.detector)  # one model, shared by the cameras in turn
+    # one model, shared by the cameras in turn, on the fastest backend whose persons agree
+    # with onnxruntime's (measured once per model and host, cached beside the model)
+    sizes = [(cell.cameras[c.id].width, cell.cameras[c.id].height) if cell else (1920, 1080)
+             for c in config.cameras]
+    detector, choice = open_detector(model, config.detector,
+                                     max(sizes, key=lambda s: s[0] * s[1]),
+                                     progress=lambda text: event(f"detector backend: {text}"))
     # the light, contrast, noise and blur the model still finds a person in (measured once
-    # and stored beside the model): a camera outside it is a fault, not an empty cell
+    # with the backend that runs and stored beside the model): a camera outside it is a
+    # fault, not an empty cell
     envelope = for_detector(detector, config.health.envelope_min_recall)
     health, expected = {}, {}
     references = choose_references(config, cell)  # the zone file's wins over monitor.toml's
@@ -80,7 +88,7 @@ def build_pipeline(config: MonitorConfig):
     pipeline = Pipeline(detector, [c.id for c in config.cameras], config.policy, cell, health,
                         linking=config.tracking)
     pipeline.prepared = prepared_zones(config, cell)
-    return pipeline, cell, expected, test_model
+    return pipeline, cell, expected, test_model, choice
 
 
 def zones_file_of(config: MonitorConfig) -> str | None:
@@ -131,6 +139,32 @@ def check_capacity(config: MonitorConfig, detector, expected: dict, mode: str,
     return capacity_check(detector.detect, demands, limits, mode, stopped)
 
 
+def capacity_per_backend(config: MonitorConfig, expected: dict, capacity, choice) -> str | None:
+    """"capacity per backend (1920x1080 cameras at 10 fps): openvino bf16 3 cameras at 10.0 fps,
+    onnxruntime fp32 1 camera at 10.0 fps": the measured detection time scaled by each backend's
+    inference time against the one that runs (monitor.detector.choice), for cameras like the
+    largest configured one at its max_fps (10 fps when unset). None without other backends."""
+    if capacity is None or choice.reference is None:
+        return None
+    times = {t.candidate.label: t.ms for t in choice.trials if t.ms is not None}
+    ref = next((t.reference_ms for t in choice.trials if t.reference_ms is not None), None)
+    if ref is None:
+        return None
+    times[choice.reference.label] = ref
+    ran = times.get(choice.chosen.label, ref)
+    sizes = {c.id: expected.get(c.id) or (1920, 1080) for c in config.cameras}
+    biggest = max(config.cameras, key=lambda c: sizes[c.id][0] * sizes[c.id][1])
+    width, height = sizes[biggest.id]
+    fps = biggest.max_fps or 10.0
+    limits = Limits(config.policy.frame_timeout, config.policy.max_frame_age,
+                    config.bus.stall_timeout, config.health.lost_after_s)
+    parts = []
+    for label, ms in sorted(times.items(), key=lambda kv: kv[1]):
+        n, each = cameras_served(capacity.detect_s * ms / ran, width, height, fps, limits)
+        parts.append(f"{label} {n} camera{'' if n == 1 else 's'} at {each:.1f} fps")
+    return f"capacity per backend ({width}x{height} cameras at {fps:g} fps): " + ", ".join(parts)
+
+
 def reaction_budget(config: MonitorConfig) -> ReactionBudget:
     """The worst-case delays of this configuration (seconds): a frame may arrive as late as
     ``frame_timeout`` before the cell STOPs anyway, be ``max_frame_age`` old when decided on, a
@@ -148,15 +182,16 @@ def reaction_budget(config: MonitorConfig) -> ReactionBudget:
 def int8_at_start(config: MonitorConfig, detector, expected: dict, stopped):
     """The int8 model beside the configured one, timed against it here
     (monitor/service/int8hint.py); None without one. Never switches the model."""
-    from monitor.detector import Detector
+    from monitor.detector.choice import open_detector
     from monitor.errors import MonitorError
     from monitor.service.int8hint import int8_hint
 
     size = max((expected.get(c.id) or (1920, 1080) for c in config.cameras),
                key=lambda s: s[0] * s[1])
-    try:
+    try:  # the int8 file on its own fastest agreeing backend, as it would run
         return int8_hint(detector.model_path, detector.detect,
-                         lambda path: Detector(path, config.detector).detect, size, stopped)
+                         lambda path: open_detector(path, config.detector, size)[0].detect,
+                         size, stopped)
     except MonitorError as exc:  # an unusable int8 file is no reason not to start
         event(f"int8 model beside the model not usable: {exc}", logging.WARNING)
         return None
