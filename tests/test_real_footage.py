@@ -11,8 +11,9 @@ while one is inside. The other side, how long the cell runs while the polygon is
 is printed and only bounded weakly (issue 46 works on it).
 
 Skips (with the install command) without opencv-doc or the model's package; .ci/run installs
-both. Cost: two inferences a frame (the monitor's, the truth's) of a 640x640 YOLOv8s, 0.15 s
-each on a quiet 2-core host, 35 s of CPU in all: the slice has 30 frames (80 s at a load of 20).
+both. Cost: two inferences a frame (the monitor's, the truth's) of a 640x640 YOLOv8s, about
+0.3 s of CPU each on the 2-core development host: the slice has 30 frames, 25 s of CPU in all
+(100-110 s of wall time measured at a load of 20 on that host).
 """
 
 from __future__ import annotations
