@@ -167,6 +167,22 @@ def payload_of(f: Frame, signer=None, seq_clock=None) -> bytes:
         sink.close()
 
 
+def signed_pictures(signer, shots) -> list:
+    """Pictures of one monitor's boot, signed, as its worker sends them one after the other:
+    ``shots`` = [(camera, frame seq, capture time on the monotonic clock, colour), ...];
+    returns [(payload, signature), ...]."""
+    out: list[tuple[bytes, bytes | None]] = []
+    sink = PreviewSink(PreviewConfig(fps=2.0), lambda payload, signature: out.append(
+        (payload, signature)), "k", lambda: {"boot": "boot-1", "instance": "mon"}, signer)
+    try:
+        for k, (camera, seq, t, colour) in enumerate(shots):
+            assert sink.offer(frame(camera, seq, t, colour))
+            wait_for(lambda k=k: len(out) > k, what="the worker's picture")
+        return out
+    finally:
+        sink.close()
+
+
 def test_replayed_signed_pictures_older_than_a_second_are_never_shown_as_live(tmp_path):
     """Issue 48: the console aged a picture by its arrival, so genuinely signed pictures of the
     empty cell, recorded earlier and replayed at 10-50/s, showed in 3-5 of 8 samples while a
@@ -174,14 +190,15 @@ def test_replayed_signed_pictures_older_than_a_second_are_never_shown_as_live(tm
     clock and each camera's sequence must grow."""
     private, public, _ = new_key_pair(tmp_path / "monitor.key")
     signer, key = load_private_key(private), load_public_key(public)
-    empty = [payload_of(frame("cam0", k, time.monotonic(), (0, 200, 0)), signer)
-             for k in range(1, 9)]  # recorded: the empty cell (green), genuinely signed
+    # one boot of the monitor: 20 s ago the empty cell (green), recorded by the attacker;
+    # now a person stands inside (magenta). All genuinely signed, their sequence growing
+    t0 = time.monotonic()
+    shots = [("cam0", k, t0 - 20.0 + 0.6 * k, (0, 200, 0)) for k in range(8)] + \
+        [("cam0", 100 + k, t0 - 4.2 + 0.6 * k, (255, 0, 255)) for k in range(8)]
+    pictures = signed_pictures(signer, shots)
+    empty, person = pictures[:8], pictures[8:]
     live = LiveState(preview_keys=(key,), preview_key="k")
     renderer = LiveRenderer(live, lambda: load_cell(zone_file(tmp_path)), {}, min_render_s=0.0)
-    # later a person stands inside: the monitor's pictures are magenta
-    time.sleep(1.1)  # (the recorded ones are older than a second by then)
-    person = [payload_of(frame("cam0", 100 + k, time.monotonic(), (255, 0, 255)), signer)
-              for k in range(8)]
     samples = []
     for k, (payload, signature) in enumerate(person):
         arrival = json.loads(payload)["capture_wall"] + 0.05  # the console's clock, 50 ms on

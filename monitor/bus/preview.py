@@ -85,6 +85,7 @@ class Preview:
     signed: bool
     capture_wall: float | None = None  # None: no capture time the console can trust
     boot: str = ""
+    seq: int = -1  # the picture's sequence in its boot (grows with every picture sent)
 
 
 def read_preview(payload: bytes, signature: bytes | None, key_expr: str,
@@ -107,7 +108,8 @@ def read_preview(payload: bytes, signature: bytes | None, key_expr: str,
             not isinstance(capture, bool) and math.isfinite(capture) else None
         preview = Preview(str(body["camera"])[:64], jpeg, int(body.get("frame_seq", -1)),
                           float(body.get("wall", 0.0)), str(body.get("instance", ""))[:128],
-                          signed, capture_wall, str(body.get("boot", ""))[:128])
+                          signed, capture_wall, str(body.get("boot", ""))[:128],
+                          int(body.get("seq", -1)))
     except (ValueError, KeyError, TypeError, UnicodeDecodeError, RecursionError):
         return None
     return preview if jpeg[:2] == b"\xff\xd8" else None  # a JPEG, by its magic

@@ -4,7 +4,7 @@ snapshots, drawn.
 The picture is the monitor's live preview (``monitor.bus.preview``: a small JPEG per camera at a low
 rate, ``[preview] fps``, signed with the monitor's key; a preview not signed by a pinned key is
 not shown). It is live only while its *signed* capture time is within ``LIVE_WITHIN_S`` of the
-console's clock, and a camera's picture is replaced only by one whose signed frame sequence grows
+console's clock, and a camera's picture is replaced only by one whose signed sequence grows
 (within a boot; a new boot only with a later capture): genuinely signed pictures recorded earlier
 and sent again are refused and counted, never the live picture (issue 48: aged by arrival, a
 replayed empty cell showed in 3 to 5 of 8 samples while a person stood inside). Without a live
@@ -307,10 +307,11 @@ def _live(preview: Preview, now: float) -> bool:
 
 
 def _follows(new: Preview, last: Preview) -> bool:
-    """Whether ``new`` may replace ``last``: a later frame of the same boot, or of another
-    boot (a restarted monitor) a later capture."""
+    """Whether ``new`` may replace ``last``: a later picture of the same boot (its signed
+    ``seq`` grows with every picture; the frame's own sequence may start again when a camera
+    reconnects), or of another boot (a restarted monitor) a later capture."""
     if new.boot == last.boot and new.instance == last.instance:
-        return new.frame_seq > last.frame_seq
+        return new.seq > last.seq
     return (new.capture_wall or 0.0) > (last.capture_wall or 0.0)
 
 
