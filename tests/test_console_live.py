@@ -193,10 +193,13 @@ def test_replayed_signed_pictures_older_than_a_second_are_never_shown_as_live(tm
     # one boot of the monitor: 20 s ago the empty cell (green), recorded by the attacker;
     # now a person stands inside (magenta). All genuinely signed, their sequence growing
     t0 = time.monotonic()
+    # (the last empty picture 0.6 s before the person came: within a second of the first
+    # picture with the person, so only its lower sequence refuses it)
     shots = [("cam0", k, t0 - 20.0 + 0.6 * k, (0, 200, 0)) for k in range(8)] + \
+        [("cam0", 8, t0 - 4.8, (0, 200, 0))] + \
         [("cam0", 100 + k, t0 - 4.2 + 0.6 * k, (255, 0, 255)) for k in range(8)]
     pictures = signed_pictures(signer, shots)
-    empty, person = pictures[:8], pictures[8:]
+    empty, person = pictures[:9], pictures[9:]
     live = LiveState(preview_keys=(key,), preview_key="k")
     renderer = LiveRenderer(live, lambda: load_cell(zone_file(tmp_path)), {}, min_render_s=0.0)
     samples = []
@@ -213,8 +216,10 @@ def test_replayed_signed_pictures_older_than_a_second_are_never_shown_as_live(tm
         samples.append(img[300, 5].tolist())
     assert all(s[0] > 150 and s[1] < 60 and s[2] > 150 for s in samples), samples  # magenta
     counts = live.state()
-    assert counts["previews_stale"] == 8 * len(empty) and counts["previews_refused"] == 0
-    assert counts["previews_replayed"] == 8 + 7
+    # every replayed empty picture refused: by its time, and the one within the second by its
+    # sequence; the genuine ones sent again by their sequence
+    assert counts["previews_stale"] == 8 * len(empty) - 1 and counts["previews_refused"] == 0
+    assert counts["previews_replayed"] == 8 + 7 + 1
     # the monitor stops sending; the recorded pictures go on: none is ever live
     last = json.loads(person[-1][0])["capture_wall"]
     live.wall = lambda: last + 1.2
