@@ -233,6 +233,11 @@ def build_app(console: Console) -> Starlette:
         finally:
             checks.waiting -= 1
         if ok:
+            # guesses sent at once all pass the check above before any fails: one found right
+            # while the others began a delay is refused as they are (no parallel bypass)
+            waiting = console.logins.waiting(source.key, name)
+            if waiting is not None:
+                return None, 429, waiting.message()
             console.logins.succeeded(source.key, name)
             return name, 200, ""
         for throttle in console.logins.failed(source.key, name):
