@@ -179,6 +179,45 @@ def test_no_node_but_the_bridge_shows_up_as_a_publisher_of_its_topics(ros):
             t.undeclare()
 
 
+def test_no_wildcard_token_stands_for_a_publisher_of_the_bridges_topics(ros):
+    """Issue 48: Zenoh matches an ACL rule when it includes the message's key, so publisher
+    tokens with wildcards passed the deny rule (it includes none of them) under the allow of
+    "@ros2_lv/**", and a query for the publishers of a /workcell/ topic found them. Now a ROS
+    node holds publisher tokens only of the topics it may publish; its node, subscriber and own
+    publisher tokens still show."""
+    s = ros["sessions"]
+    z = s["ros-tools"].zid()
+    topic = wire.mangle("/workcell/cell1/speed_override")
+    wild = [f"@ros2_lv/0/{z}/0/9/MP/%/%/forger/*/x/y/::,1:,:,:,,",
+            f"@ros2_lv/0/{z}/0/9/MP/%/%/forger/**", f"@ros2_lv/0/{z}/0/9/MP/**",
+            f"@ros2_lv/0/{z}/0/9/*/%/%/forger/{topic}/x/y/::,1:,:,:,,",
+            f"@ros2_lv/0/{z}/0/9/MP/%/%/forger/$*workcell$*/x/y/::,1:,:,:,,",
+            f"@ros2_lv/0/{z}/0/9/MP/%/%/forger/%$*/x/y/::,1:,:,:,,", "@ros2_lv/**",
+            "0/workcell/**/@adv/**"]
+    node = wire.node_token(0, str(z), 0, "/", "forger")
+    own = [node, f"@ros2_lv/0/{z}/0/7/MP/%/%/forger/%joint_states/x/y/::,1:,:,:,,",
+           f"@ros2_lv/0/{z}/0/8/MS/%/%/forger/{topic}/x/y/::,1:,:,:,,",
+           f"@ros2_lv/0/{z}/0/6/MP/%/%/forger/%robot%arm%state/x/y/::,1:,:,:,,"]
+    tokens = [s["ros-tools"].liveliness().declare_token(k) for k in wild + own]
+    try:
+        def graph() -> set[str]:
+            return {str(r.ok.key_expr) for r in s["robot-driver"].liveliness().get(
+                "@ros2_lv/0/**", timeout=2.0) if r.ok is not None}
+        assert wait_for(lambda: set(own) <= graph(), timeout=20,
+                        what="the node's own tokens in the graph")
+        publishers = {str(r.ok.key_expr) for r in s["robot-driver"].liveliness().get(
+            f"@ros2_lv/0/*/*/*/MP/*/*/*/{topic}/**", timeout=2.0) if r.ok is not None}
+        assert not set(wild) & graph(), set(wild) & graph()
+        assert publishers and all(str(s["ros-bridge"].zid()) in k for k in publishers), \
+            publishers
+        adv = {str(r.ok.key_expr) for r in s["robot-driver"].liveliness().get(
+            "0/workcell/**/@adv/**", timeout=2.0) if r.ok is not None}
+        assert "0/workcell/**/@adv/**" not in adv
+    finally:
+        for t in tokens:
+            t.undeclare()
+
+
 def test_a_user_in_no_subject_can_do_nothing(ros):
     s = ros["sessions"]
     own = Samples(s["robot-driver"], OWN_KEY)

@@ -236,6 +236,25 @@ def test_the_bounded_loader_keeps_what_a_bus_message_holds():
     assert pj.load(nested, 100) == json.loads(nested)  # exactly the limit
 
 
+ENCODINGS = ("utf-8", "utf-8-sig", "utf-16", "utf-16-le", "utf-16-be", "utf-32", "utf-32-le",
+             "utf-32-be")
+
+
+@pytest.mark.parametrize("encoding", ENCODINGS)
+def test_the_bounds_hold_in_every_encoding_json_reads(encoding):
+    """Issue 48: the nesting check scanned the raw bytes, so UTF-16/32 JSON passed it (985
+    levels accepted). A U+2200 in a string is the byte 0x22 ('"') in UTF-16-BE: the old byte
+    scan took everything after it for one string and counted no bracket of 985 levels."""
+    smuggled = '["\u2200", ' + "[" * 985 + "]" * 985 + ', "\u2200"]'
+    for text in (smuggled, "[" * 900 + "]" * 900):
+        with pytest.raises(pj.PayloadError, match="nested deeper than 16 levels"):
+            pj.load(text.encode(encoding), 10**6)
+    with pytest.raises(pj.PayloadError, match="out of range"):
+        pj.load('{"a": 1e400}'.encode(encoding), 1000)
+    body = {"s": "[[[[[[[[[[[[[[[[[[[[ \u2200", "n": [1, -2.5e9], "t": True}
+    assert pj.load_object(json.dumps(body, ensure_ascii=False).encode(encoding), 1000) == body
+
+
 # ---- a bounded property test: random JSON and random bytes, never an exception ------------
 
 JSON_LEAVES = st.one_of(

@@ -119,13 +119,13 @@ def test_invalid_polygons_are_refused_with_monitor_zones_messages(tmp_path):
 def test_a_move_keeps_comments_and_refuses_a_stale_page(tmp_path):
     client, cell = _client(tmp_path)
     sha = client.get("/api/zones").json()["sha"]
-    moved = [[480.0, 530.0], [790.0, 530.0], [757.1, 403.5], [522.9, 403.5]]
+    moved = [[480.0, 535.0], [800.0, 535.0], [757.1, 403.5], [522.9, 403.5]]  # grown: no draft
     r = client.put("/api/zones/cam0-protective", json={"points_px": moved, "base": sha},
                    headers=_auth(OPERATOR, PASSWORD))
     assert r.status_code == 200, r.text
     text = cell.read_text()
     assert "# The floor squares of the two volumes above" in text  # comments kept
-    assert load_cell(cell).zone("cam0-protective").points_px[0] == (480.0, 530.0)
+    assert load_cell(cell).zone("cam0-protective").points_px[0] == (480.0, 535.0)
     # the same page saves again on the old version: refused, not silently undone
     r = client.put("/api/zones/cam0-protective", json={"points_px": moved, "base": sha},
                    headers=_auth(OPERATOR, PASSWORD))
@@ -268,7 +268,7 @@ def test_every_zone_edit_is_an_incident_of_the_recorder_and_a_locked_index_only_
     lock.execute("BEGIN EXCLUSIVE")
     try:
         started = time.monotonic()
-        r = client.put("/api/zones/aisle", json={**body, "points_px": [[900, 160], *SQUARE[1:]]},
+        r = client.put("/api/zones/aisle", json={**body, "points_px": [[900, 140], *SQUARE[1:]]},
                        headers=_auth(OPERATOR, PASSWORD))
         waited = time.monotonic() - started
     finally:
@@ -280,8 +280,9 @@ def test_every_zone_edit_is_an_incident_of_the_recorder_and_a_locked_index_only_
     assert audit[-2]["result"] == "saved"
     assert audit[-1]["event"] == "zone_edit_incident_error" and "locked" in \
         audit[-1]["incident_error"]
-    # the lock gone, the next edit is recorded again
-    r = client.put("/api/zones/aisle", json=body, headers=_auth(OPERATOR, PASSWORD))
+    # the lock gone, the next edit is recorded again (grown once more: no draft)
+    r = client.put("/api/zones/aisle", json={**body, "points_px": [[900, 130], *SQUARE[1:]]},
+                   headers=_auth(OPERATOR, PASSWORD))
     assert r.status_code == 200 and r.json()["incident"]
 
 

@@ -23,6 +23,7 @@ from monitor.console.sessions import COOKIE, Sessions
 from monitor.errors import ConfigError
 from monitor.wire.signing import key_fingerprint, public_key_text
 from monitor.zones import load_cell
+from monitor.zones.files import draft_path
 from tests.console_kit import audit_lines, basic, plain_console, zone_file
 
 SQUARE = [[900, 150], [1200, 150], [1200, 400], [900, 400]]
@@ -182,9 +183,11 @@ def test_each_level_edits_what_it_may_and_a_refusal_is_a_403_naming_the_level(ce
     assert r.status_code == 403  # but not the setup
     r = client.put("/api/setup/mute/robot-protective", json=MUTE,
                    headers=basic("ada", PASSWORD))
-    assert r.status_code == 200, r.text
-    assert load_cell(cell).zone("robot-protective").mute.max_s == 60
-    assert [e["result"] for e in audit_lines(cell_dir)][-3:] == ["saved", "forbidden", "saved"]
+    # a protective zone made mutable weakens protection: a draft for a signed apply (issue 48)
+    assert r.status_code == 202, r.text
+    assert load_cell(cell).zone("robot-protective").mute is None
+    assert load_cell(draft_path(cell)).zone("robot-protective").mute.max_s == 60
+    assert [e["result"] for e in audit_lines(cell_dir)][-3:] == ["saved", "forbidden", "draft"]
     # a wrong password is a 401 (whoever reaches the port), not a 403
     assert client.put("/api/zones/aisle", json=POLYGON,
                       headers=basic("ada", "wrong password")).status_code == 401

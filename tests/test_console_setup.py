@@ -21,6 +21,7 @@ from monitor.console.app import build_app
 from monitor.console.auth import hash_password
 from monitor.console.zones_api import file_sha
 from monitor.zones import load_cell
+from monitor.zones.files import draft_path
 from tests.console_kit import (
     CHROMIUM,
     ROOT,
@@ -91,11 +92,14 @@ def test_a_mute_edit_uses_the_cli_validation_and_is_a_draft(cell_dir):
     r = client.put("/api/setup/mute/robot-protective", headers=ADMIN,
                    json={"operators": ["anna", "bert"], "max_s": 120, "as": "warning",
                          "speed_scale": 0.1})
-    assert r.status_code == 200, r.text
-    assert "draft" in r.json()["note"]
-    mute = load_cell(cell).zone("robot-protective").mute
+    # made mutable: weaker, so it waits as the draft for a signed apply (issue 48)
+    assert r.status_code == 202, r.text
+    assert "draft" in r.json()["note"] and "signed apply" in r.json()["note"]
+    draft = draft_path(cell)
+    assert load_cell(cell).zone("robot-protective").mute is None
+    mute = load_cell(draft).zone("robot-protective").mute
     assert (mute.operators, mute.max_s, mute.speed_scale) == (("anna", "bert"), 120.0, 0.1)
-    before = cell.read_bytes()
+    before, draft_before = cell.read_bytes(), draft.read_bytes()
     # longer than a mute may be: refused by the zone file's validation, nothing written
     r = client.put("/api/setup/mute/robot-protective", headers=ADMIN,
                    json={"max_s": 7200})
@@ -104,10 +108,11 @@ def test_a_mute_edit_uses_the_cli_validation_and_is_a_draft(cell_dir):
     assert "max_s" in console_error and "3600" in console_error and "\n" not in console_error
     assert cell.read_bytes() == before
     # the command line refuses it with the same words
-    proc = subprocess.run([sys.executable, "-m", "monitor", "zones", "mute", str(cell),
+    proc = subprocess.run([sys.executable, "-m", "monitor", "zones", "mute", str(draft),
                            "robot-protective", "--max-s", "7200"], capture_output=True,
                           text=True, timeout=60)
-    assert proc.returncode == 2 and console_error in proc.stderr, proc.stderr
+    words = console_error.split(": ", 1)[1]  # after the file's name (the draft's here)
+    assert proc.returncode == 2 and words in proc.stderr, proc.stderr
     for body, words in [
         ({"unmutable": True, "max_s": 10}, "give either --operators/--max-s (allow), "
                                            "--unmutable or --remove"),
@@ -126,11 +131,13 @@ def test_a_mute_edit_uses_the_cli_validation_and_is_a_draft(cell_dir):
                  {"max_s": 60, "colour": "red"}):
         r = client.put("/api/setup/mute/robot-protective", headers=ADMIN, json=body)
         assert r.status_code == 400, (body, r.text)
-    assert cell.read_bytes() == before
+    assert cell.read_bytes() == before and draft.read_bytes() == draft_before
+    # made unmutable again: no weaker than the zone file, so into it, and the draft goes
     r = client.put("/api/setup/mute/robot-protective", headers=ADMIN, json={"unmutable": True})
     assert r.status_code == 200 and load_cell(cell).zone("robot-protective").unmutable
+    assert not draft.exists()
     results = [(e["edit"], e["result"]) for e in audit_lines(cell_dir)]
-    assert results[0] == ("edit_mute", "saved") and results[-1] == ("edit_mute", "saved")
+    assert results[0] == ("edit_mute", "draft") and results[-1] == ("edit_mute", "saved")
     assert ("edit_mute", "invalid") in results and ("edit_mute", "bad_request") in results
 
 
@@ -140,11 +147,12 @@ def test_set_rules_are_edited_with_the_zone_file_rules(cell_dir):
     r = client.put("/api/setup/rules", headers=ADMIN,
                    json={"allow": [["normal", "teach"]], "switch_over_s": 2.5,
                          "default_set": "teach", "selector_ttl_s": 5})
-    assert r.status_code == 200, r.text
-    spec = load_cell(cell).spec
+    assert r.status_code == 202, r.text  # rules changed: not proved stronger, a draft
+    draft = draft_path(cell)
+    spec = load_cell(draft).spec
     assert (spec.transitions, spec.switch_over_s, spec.default_set, spec.selector_ttl_s) == (
         (("normal", "teach"),), 2.5, "teach", 5.0)
-    before = cell.read_bytes()
+    before = draft.read_bytes()
     for body, words in [({"default_set": "nosuch"}, "nosuch"),
                         ({"switch_over_s": 100}, "switch_over_s"),
                         ({"allow": [["normal", "ghost"]]}, "ghost"),
@@ -153,21 +161,21 @@ def test_set_rules_are_edited_with_the_zone_file_rules(cell_dir):
         assert r.status_code == 422 and words in r.json()["error"], (body, r.text)
     assert client.put("/api/setup/rules", headers=ADMIN,
                       json={"allow": [["a", "b", "c"]]}).status_code == 400
-    assert cell.read_bytes() == before
+    assert draft.read_bytes() == before
     r = client.put("/api/setup/rules", headers=ADMIN, json={"any": True,
                                                             "no_selector_ttl": True})
-    assert r.status_code == 200
-    assert load_cell(cell).spec.transitions is None
+    assert r.status_code == 202
+    assert load_cell(draft).spec.transitions is None
 
 
 def test_box_corners_are_edited_in_metres_and_bad_corners_are_refused(cell_dir):
     client = TestClient(build_app(plain_console(cell_dir)))
     cell = cell_dir / "cell.yaml"
     r = client.put("/api/setup/volume/robot-protective", headers=ADMIN,
-                   json={"min_m": [-1.2, -0.8, 0], "max_m": [1.5, 1.0, 2.0]})
-    assert r.status_code == 200, r.text
+                   json={"min_m": [-1.2, -1.0, 0], "max_m": [1.5, 1.0, 2.4]})
+    assert r.status_code == 200, r.text  # grown: no weaker, into the zone file
     box = load_cell(cell).zone("robot-protective")
-    assert (box.min_m, box.max_m) == ((-1.2, -0.8, 0.0), (1.5, 1.0, 2.0))
+    assert (box.min_m, box.max_m) == ((-1.2, -1.0, 0.0), (1.5, 1.0, 2.4))
     before = cell.read_bytes()
     nan = b'{"min_m": [NaN, 0, 0], "max_m": [1, 1, 1]}'
     r = client.put("/api/setup/volume/robot-protective", content=nan,

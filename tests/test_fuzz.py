@@ -176,6 +176,72 @@ def fuzz_config(rng: random.Random, case: dict) -> None:
         parse_config({"bus": data})
 
 
+# every text encoding json.loads reads (issue 48: UTF-16 bytes passed the nesting check)
+ENCODINGS = ("utf-8", "utf-8-sig", "utf-16", "utf-16-le", "utf-16-be", "utf-32", "utf-32-le",
+             "utf-32-be")
+
+
+def encoded(rng: random.Random, payload: bytes) -> bytes:
+    """``payload`` (UTF-8 JSON) in one of the encodings JSON allows, half of the time."""
+    if rng.random() < 0.5:
+        return payload
+    try:
+        text = payload.decode("utf-8")
+    except UnicodeDecodeError:
+        return payload
+    return text.encode(rng.choice(ENCODINGS), errors="surrogatepass")
+
+
+def _depth(value, level: int = 0) -> int:
+    if isinstance(value, dict):
+        return max((_depth(v, level + 1) for v in value.values()), default=level + 1)
+    if isinstance(value, list):
+        return max((_depth(v, level + 1) for v in value), default=level + 1)
+    return level
+
+
+def fuzz_payload(rng: random.Random, case: dict) -> None:
+    """The bounded decoder of every bus message (``monitor.wire.payload``) in every encoding:
+    a value it returns never nests deeper than its bound, holds no number out of range, and
+    anything else is a ``PayloadError``."""
+    from monitor.wire import payload as pj
+
+    r = rng.random()
+    deep = rng.randint(1, 3000)
+    if r < 0.3:  # deep nesting, plain or smuggled behind a character whose bytes hold '"'
+        text = rng.choice(['["\u2200", ' + "[" * deep + "]" * deep + ', "\u2200"]',
+                           "[" * deep + "]" * deep, '{"a":' * deep + "1" + "}" * deep])
+    elif r < 0.4:
+        text = rng.choice(["1e400", "1" + "0" * 400, "NaN", "-Infinity", '"\ud800"'])
+    else:
+        text = json.dumps(mutate({"a": [1, {"b": "x"}], "s": "[{", "n": 1.5}, rng),
+                          ensure_ascii=rng.random() < 0.5)
+    raw = rng.randbytes(rng.randint(0, 60)) if rng.random() < 0.1 else \
+        text.encode(rng.choice(ENCODINGS), errors="surrogatepass")
+    case["input"] = raw[:200]
+    try:
+        value = pj.load(raw, 1 << 20)
+    except pj.PayloadError:
+        return
+    if _depth(value) > pj.MAX_DEPTH:
+        raise AssertionError(f"nested {_depth(value)} deep: past the bound {pj.MAX_DEPTH}")
+    numbers = [v for v in _leaves(value) if isinstance(v, int | float) and
+               not isinstance(v, bool)]
+    if any(not abs(v) <= pj.MAX_MAGNITUDE for v in numbers):
+        raise AssertionError("a number out of range was returned")
+
+
+def _leaves(value):
+    if isinstance(value, dict):
+        for v in value.values():
+            yield from _leaves(v)
+    elif isinstance(value, list):
+        for v in value:
+            yield from _leaves(v)
+    else:
+        yield value
+
+
 def fuzz_consumer(rng: random.Random, case: dict) -> None:
     from monitor.wire.consumer import CommandWatchdog
 
@@ -189,7 +255,7 @@ def fuzz_consumer(rng: random.Random, case: dict) -> None:
     elif r < 0.2:
         payload = json.dumps(body).encode()[: rng.randint(0, 150)]
     else:
-        payload = json.dumps(mutate(body, rng)).encode()
+        payload = encoded(rng, json.dumps(mutate(body, rng)).encode())
     case["input"] = payload
     why = dog.on_command(payload, rng.uniform(0, 10), rng.choice([None, rng.randbytes(64)]),
                          rng.choice([None, 1.8e9]))
@@ -212,7 +278,7 @@ def fuzz_resets(rng: random.Random, case: dict) -> None:
             "request_id": f"r{rng.random()}", "note": "", "confirm_clear": False,
             "wall": 1.8e9}
     payload = (rng.randbytes(rng.randint(0, 80)) if rng.random() < 0.1
-               else json.dumps(mutate(body, rng)).encode())
+               else encoded(rng, json.dumps(mutate(body, rng)).encode()))
     case["input"] = payload
     with contextlib.suppress(ResetRefused):
         gate.check(payload, rng.choice([None, b"", rng.randbytes(64)]), 1.0, 1.8e9)
@@ -244,6 +310,7 @@ def fuzz_holds(rng: random.Random, case: dict) -> None:
             ["1e400", "1" + "0" * 400, "NaN", "-Infinity", "[" * 3000])).encode()
     else:
         payload = json.dumps(mutate(body, rng)).encode()
+    payload = encoded(rng, payload)
     case["input"] = payload[:200]
     out = gate.check(key_expr, payload, Signer(key).sign(key_expr, payload), 0.0, 1.8e9)
     if out is not None and not isinstance(out, tuple):
@@ -252,7 +319,7 @@ def fuzz_holds(rng: random.Random, case: dict) -> None:
 
 TARGETS = {"otus": fuzz_otus, "pose_json": fuzz_pose_json, "zones": fuzz_zones,
            "config": fuzz_config, "consumer": fuzz_consumer, "resets": fuzz_resets,
-           "holds": fuzz_holds}
+           "holds": fuzz_holds, "payload": fuzz_payload}
 
 
 def stateful(target):
@@ -271,7 +338,7 @@ def stateful(target):
 # --- tests -----------------------------------------------------------------------------------
 
 N = {"otus": 3000, "pose_json": 3000, "zones": 300, "config": 300, "consumer": 4000,
-     "resets": 3000, "holds": 1000}
+     "resets": 3000, "holds": 1000, "payload": 3000}
 # zones and config cost ~12 ms per input (pydantic), hence fewer here.
 # Crashes found in other helpers' modules are reported, not fixed here (see the final report).
 

@@ -19,6 +19,7 @@ from monitor.config import demo_cell_path
 from monitor.scene import DemoScene, write_video
 from monitor.wire.signing import load_private_key, new_key_pair
 from monitor.zones import load_cell
+from monitor.zones.files import draft_path
 from tests.helpers import run_monitor
 from tests.processes import Service, codes
 
@@ -157,6 +158,61 @@ def test_a_signed_apply_swaps_the_zones_a_person_in_the_new_zone_stops(service):
     # the same request again is refused: that zone set is in force
     again = _ask(svc, *_signed(svc, new))
     assert not again["accepted"] and "already in force" in again["reason"]
+
+
+@pytest.mark.slow
+def test_a_console_save_that_shrinks_a_protective_zone_has_no_effect_until_a_signed_apply(
+        service):
+    """Issue 48: the admin's password, a console save (a protective zone shrunk away from the
+    person) and a restart gave SLOW with the person inside. Now the save waits as a draft: the
+    running monitor and the zone file (what a restart loads) keep the protective zone, the
+    person stays STOP, until an operator signs the draft with `monitor zones apply`."""
+    from starlette.testclient import TestClient
+
+    from monitor.console.app import Console, build_app
+    from monitor.console.audit import AuditLog
+    from monitor.console.auth import Operators, set_password
+    from monitor.console.incidents import NoIncidents
+    from monitor.console.live import LiveRenderer, LiveState
+    from monitor.console.zones_api import ZoneEditor
+    from tests.console_kit import OPERATOR, PASSWORD, basic
+
+    svc, tmp, cell, _ = service
+    if "aisle-stop" not in cell.read_text():  # run alone: the new zone of the test above
+        cell.write_text(cell.read_text() + NEW_ZONE)
+        answer = _ask(svc, *_signed(svc, load_cell(cell).config_hash))
+        assert answer["accepted"], answer
+    in_force = load_cell(cell).config_hash
+    svc.reach(len(svc.commands), lambda c: c["config_hash"] == in_force
+              and "protective_zone" in codes(c), 60, "STOP: the person in aisle-stop")
+    # the console over the service's own zone file (an operator's password)
+    set_password(tmp / "console.pw", OPERATOR, PASSWORD, "operator")
+    editor, live = ZoneEditor(cell), LiveState()
+    console = Console("t5", live, LiveRenderer(live, editor.cell, {}), editor, NoIncidents(),
+                      Operators(tmp / "console.pw"), AuditLog(tmp / "console.audit"), {})
+    client = TestClient(build_app(console))
+    before = cell.read_bytes()
+    r = client.put("/api/zones/aisle-stop", json={
+        "points_px": [[150.0, 380.0], [200.0, 380.0], [200.0, 420.0], [150.0, 420.0]],
+        "base": client.get("/api/zones").json()["sha"]}, headers=basic(OPERATOR, PASSWORD))
+    assert r.status_code == 202, r.text
+    assert "aisle-stop shrunk or moved" in r.json()["draft"]["weakens"][0]
+    assert cell.read_bytes() == before  # a restart loads the protective zone as it was
+    assert load_cell(cell).config_hash == in_force == svc.status()["config_hash"]
+    mark = len(svc.commands)
+    time.sleep(1.5)
+    assert all(c["config_hash"] == in_force and c["state"] == "STOP"
+               for c in svc.commands[mark:])  # no effect: the person is still a STOP
+    draft = draft_path(cell)
+    weaker = load_cell(draft).config_hash
+    proc = run_monitor("zones", "apply", "--operator", "tester", "--key", tmp / "tester.key",
+                       "--cell", "t5", "--connect", f"tcp/127.0.0.1:{svc.bus_port}",
+                       "--zones", draft, timeout=60)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    # the person latched the STOP in aisle-stop: on the signed zones it no longer holds them
+    svc.next_command(mark, lambda c: c["config_hash"] == weaker and c["reset_possible"], 60,
+                     "on the signed zones the person no longer in a protective zone")
+    assert not draft.exists() and load_cell(cell).config_hash == weaker  # the file is it now
 
 
 def test_the_cli_refuses_an_invalid_file_before_sending(tmp_path):

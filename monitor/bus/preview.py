@@ -9,10 +9,16 @@ loop's capture->command latency with and without it). A fault of the preview is 
 status (``preview``), never raised into the loop.
 
 The message (``workcell.safety.preview/1``): the bus envelope (cell, seq, mono, wall,
-instance, boot, config_hash), ``camera``, ``frame_seq``, ``capture_mono``, the camera's size
-(``width``, ``height``), the picture's size and the JPEG as base64 (``jpeg``); the sample's
-attachment is the Ed25519 signature of the payload with the monitor's key, as for commands
-(``monitor.wire.signing``), so a console that pins the key shows no picture someone else put there.
+instance, boot, config_hash), ``camera``, ``frame_seq``, ``capture_mono``, ``capture_wall`` (the
+capture's time on the wall clock: the frame's monotonic capture time carried over to the wall
+clock at publication; null when the frame's time is not this host's monotonic clock), the
+camera's size (``width``, ``height``), the picture's size and the JPEG as base64 (``jpeg``); the
+sample's attachment is the Ed25519 signature of the payload with the monitor's key, as for
+commands (``monitor.wire.signing``), so a console that pins the key shows no picture someone
+else put there. The capture time, the frame's sequence and the boot are under the signature:
+the console shows a picture as live only while its capture time is within a second of its own
+clock and each camera's sequence grows (``monitor.console.live``), so genuinely signed pictures
+recorded earlier and sent again are never the live picture (issue 48).
 """
 
 from __future__ import annotations
@@ -21,6 +27,7 @@ import base64
 import contextlib
 import json
 import logging
+import math
 import os
 import threading
 import time
@@ -39,13 +46,16 @@ from monitor.wire.signing import Signer, load_private_key, verify
 
 PREVIEW_SCHEMA = "workcell.safety.preview/1"
 MAX_PREVIEW_BYTES = 2_000_000  # a preview message larger than this is not read
+MAX_CAPTURE_AGE_S = 60.0  # a frame older than this at publication has no wall time we trust
 STATUS_EVERY_S = 2.0  # the counters go into the status queryable at most this often
 
 
 @section("preview")
 class PreviewConfig:
-    # pictures a second per camera; 0 = no preview (nothing is declared on the bus)
-    fps: Annotated[Float, Field(ge=0, le=5)] = 1.0
+    # pictures a second per camera; 0 = no preview (nothing is declared on the bus). The
+    # console shows a picture as live for 1 s after its capture: below ~1.5 it is "no live
+    # picture" between two pictures
+    fps: Annotated[Float, Field(ge=0, le=5)] = 2.0
     # the picture is scaled down to at most this width (its height in proportion)
     max_width: Annotated[Int, Field(ge=64, le=1920)] = 640
     jpeg_quality: Annotated[Int, Field(ge=20, le=95)] = 70
@@ -73,6 +83,9 @@ class Preview:
     wall: float
     instance: str
     signed: bool
+    capture_wall: float | None = None  # None: no capture time the console can trust
+    boot: str = ""
+    seq: int = -1  # the picture's sequence in its boot (grows with every picture sent)
 
 
 def read_preview(payload: bytes, signature: bytes | None, key_expr: str,
@@ -90,9 +103,13 @@ def read_preview(payload: bytes, signature: bytes | None, key_expr: str,
         if not isinstance(body, dict) or body.get("schema") != PREVIEW_SCHEMA:
             return None
         jpeg = base64.b64decode(str(body["jpeg"]), validate=True)
+        capture = body.get("capture_wall")
+        capture_wall = float(capture) if isinstance(capture, int | float) and \
+            not isinstance(capture, bool) and math.isfinite(capture) else None
         preview = Preview(str(body["camera"])[:64], jpeg, int(body.get("frame_seq", -1)),
                           float(body.get("wall", 0.0)), str(body.get("instance", ""))[:128],
-                          signed)
+                          signed, capture_wall, str(body.get("boot", ""))[:128],
+                          int(body.get("seq", -1)))
     except (ValueError, KeyError, TypeError, UnicodeDecodeError, RecursionError):
         return None
     return preview if jpeg[:2] == b"\xff\xd8" else None  # a JPEG, by its magic
@@ -178,9 +195,15 @@ class PreviewSink:
         info = frame.info
         jpeg, w, h = preview_jpeg(frame.image, self.config.max_width, self.config.jpeg_quality)
         self._seq += 1
+        mono, wall = self._clock(), time.time()
+        age = mono - info.capture_time
+        # the capture on the wall clock (signed): a frame time of another clock (a video's) or
+        # implausibly old gives none, and the console then never shows it as live
+        capture_wall = round(wall - age, 6) if 0.0 <= age <= MAX_CAPTURE_AGE_S else None
         body = {"schema": PREVIEW_SCHEMA, **self._who(), "seq": self._seq,
-                "mono": self._clock(), "wall": time.time(), "camera": info.camera_id,
+                "mono": mono, "wall": wall, "camera": info.camera_id,
                 "frame_seq": info.seq, "capture_mono": info.capture_time,
+                "capture_wall": capture_wall,
                 "width": info.width, "height": info.height, "jpeg_width": w,
                 "jpeg_height": h, "jpeg": base64.b64encode(jpeg).decode()}
         payload = json.dumps(body).encode()

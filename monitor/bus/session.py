@@ -74,7 +74,7 @@ from monitor.cases.muting import MuteOutcome, MuteRequest
 from monitor.policy import STOP, Command, Reason, ResetRequest
 from monitor.signals import close_bounded
 from monitor.types import Alert, Fault, Persons, ZoneReport
-from monitor.wire.alerts import AlertLimiter, AlertLimits, alert_to_dict
+from monitor.wire.alerts import AlertLimiter, AlertLimits, alert_to_dict, signed_attachment
 from monitor.wire.busconfig import (
     MODES,
     BusConfig,
@@ -415,8 +415,12 @@ class SafetyBus:
             if repeat is None:
                 return False
             body = self._envelope(self.keys.alert, ALERT_SCHEMA, alert_to_dict(alert, repeat))
-        self._put(self._pub_alert, self.keys.alert, json.dumps(body, default=str).encode(),
-                  attachment=alert.snapshot_jpeg or None)
+        payload = json.dumps(body, default=str).encode()
+        # signed like the commands (with the snapshot's sha256 in the payload): a console
+        # lists no alert someone else put here (monitor.wire.alerts)
+        signature = self._signer.sign(self.keys.alert, payload) if self._signer else None
+        self._put(self._pub_alert, self.keys.alert, payload,
+                  attachment=signed_attachment(signature, alert.snapshot_jpeg))
         return True
 
     def publish_detections(self, persons: Persons | None = None,

@@ -38,7 +38,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    f"{KEY_DIR}/<operator>.key when it exists)")
     p.add_argument("--zones", type=Path, metavar="FILE",
                    help="the zone file to validate and sign (default: the file the monitor "
-                   "runs with, from its status; on the monitor's host)")
+                   "runs with, from its status; on the monitor's host), or the draft beside it "
+                   "(cell.draft.yaml: a console edit that weakens protection; the monitor then "
+                   "makes it its zone file)")
     p.add_argument("--note", default="", help="free text for the log (default empty)")
     p.add_argument("--timeout", type=float, default=5.0,
                    help="s to wait for the monitor's answer (default 5)")

@@ -48,6 +48,7 @@ from monitor.console.live import LiveRenderer, LiveState, reference_image
 from monitor.console.logins import LoginGuard, Throttle
 from monitor.console.responses import SECURITY_HEADERS, json_response
 from monitor.console.review_api import review_routes
+from monitor.console.saves import record_save
 from monitor.console.sessions import Sessions, ViewGate
 from monitor.console.setup_routes import forbidden, setup_routes
 from monitor.console.sources import Source, TrustedProxies, request_source
@@ -137,6 +138,8 @@ def build_app(console: Console) -> Starlette:
         in_force = body.get("zone_hash") or ""
         # the file on disk and the zone set the monitor decides with: never silently apart
         body["zone_file_pending"] = bool(in_force and file_hash and in_force != file_hash)
+        # an edit that weakens protection, waiting for an operator's signed apply
+        body["zone_draft"] = console.editor.draft_info()
         body["camera_ids"] = list(console.editor.cell().cameras)
         return json_response(body)
 
@@ -177,13 +180,15 @@ def build_app(console: Console) -> Starlette:
         _, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 85])
         return Response(buf.tobytes(), media_type="image/jpeg", headers=SECURITY_HEADERS)
 
-    def edit_incident(entry: dict) -> str | None:
-        """The audited attempt as a ``zone_edit`` incident (None: no --incidents, or it could
-        not be written: then the audit log says why)."""
+    def edit_incident(entry: dict, cause: str = "zone_edit") -> str | None:
+        """The audited attempt as a ``zone_edit`` incident (``cause`` ``zone_weakened``: the
+        incident of its own of an edit that weakens protection); None: no --incidents, or it
+        could not be written: then the audit log says why."""
         if console.edits is None:
             return None
         try:
-            return console.edits.record(entry, str(console.live.state().get("state") or ""))
+            return console.edits.record(entry, str(console.live.state().get("state") or ""),
+                                        cause)
         except (OSError, sqlite3.Error) as exc:
             console.audit.record(event="zone_edit_incident_error", zone=entry.get("zone"),
                                  operator=entry.get("operator"), result=entry.get("result"),
@@ -228,6 +233,11 @@ def build_app(console: Console) -> Starlette:
         finally:
             checks.waiting -= 1
         if ok:
+            # guesses sent at once all pass the check above before any fails: one found right
+            # while the others began a delay is refused as they are (no parallel bypass)
+            waiting = console.logins.waiting(source.key, name)
+            if waiting is not None:
+                return None, 429, waiting.message()
             console.logins.succeeded(source.key, name)
             return name, 200, ""
         for throttle in console.logins.failed(source.key, name):
@@ -271,8 +281,7 @@ def build_app(console: Console) -> Starlette:
             out = await run_in_threadpool(refuse, 400, "bad_request", str(exc))
             return json_response(out, out.pop("status"))
         try:
-            cell, new, before = await run_in_threadpool(console.editor.save_polygon,
-                                                         zone_id, body)
+            saved, new = await run_in_threadpool(console.editor.save_polygon, zone_id, body)
         except ConfigError as exc:
             out = await run_in_threadpool(refuse, 422, "invalid", str(exc))
             return json_response(out, out.pop("status"))
@@ -281,17 +290,11 @@ def build_app(console: Console) -> Starlette:
                    f"{str(exc).splitlines()[0] if str(exc) else ''}"
             out = await run_in_threadpool(refuse, 500, "error", text)
             return json_response(out, out.pop("status"))
-        entry = await run_in_threadpool(
-            functools.partial(console.audit.record, zone=zone_id, operator=operator,
-                              **source.fields(), result="saved",
-                              action="added" if new else "changed", config_hash_before=before,
-                              config_hash=cell.config_hash, file=str(console.editor.path)))
-        incident = await run_in_threadpool(edit_incident, entry)
-        return json_response({"saved": zone_id, "config_hash": cell.config_hash, "audit": entry,
-                      "incident": incident, "warnings": list(cell.warnings),
-                      "note": "the running monitor keeps its zone set until an operator "
-                              "applies it (monitor zones apply; its commands name the hash in "
-                              "force)"})
+        out = await run_in_threadpool(functools.partial(
+            record_save, console, saved, zone_id, operator, source, edit_incident,
+            action="added" if new else "changed"))
+        # 202: a weakening edit is kept as a draft, in force only after a signed apply
+        return json_response(out, 202 if saved.is_draft else 200)
 
     def current_hash() -> str:
         try:

@@ -155,9 +155,10 @@ def _serve(args, host: str, port: int, tls: bool, operators, references, audit) 
     bus = _bus_config(args, instance=args.instance or default_instance("console"))
     keys = BusKeys.of(bus.key_prefix)
     dog = make_watchdog(args, bus, keys)
-    # live pictures count only when signed with a pinned monitor key (as commands do)
+    # live pictures and alerts count only when signed with a pinned monitor key (as commands)
     live = LiveState(preview_keys=tuple(load_public_key(p) for p in args.monitor_key),
-                     require_signed=not args.unauthenticated, preview_key=keys.preview)
+                     require_signed=not args.unauthenticated, preview_key=keys.preview,
+                     alert_key=keys.alert)
     console = Console(cell_name=bus.cell, live=live,
                       renderer=LiveRenderer(live, editor.cell, references), editor=editor,
                       incidents=RecorderIncidents(args.incidents) if args.incidents

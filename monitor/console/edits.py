@@ -38,16 +38,28 @@ class ZoneEditIncidents:
         self.data_dir = Path(data_dir)
         self.cell = cell
 
-    def record(self, entry: dict, state: str = "") -> str:
-        """One incident for an audit ``entry``; its id. OSError/sqlite3.Error: not written."""
+    def record(self, entry: dict, state: str = "", cause: str = CAUSE) -> str:
+        """One incident for an audit ``entry``; its id. ``cause``: ``zone_edit``, or
+        ``zone_weakened`` for the incident of its own of an edit that weakens protection
+        (saved as a draft, in force only after a signed apply). OSError/sqlite3.Error: not
+        written."""
         wall = float(entry.get("time") or time.time())
         incident_id = (time.strftime("%Y%m%dT%H%M%SZ", time.gmtime(wall))
-                       + f"-zone-{secrets.token_hex(3)}")
+                       + f"-{'weak' if cause != CAUSE else 'zone'}-{secrets.token_hex(3)}")
         operator = entry.get("operator")
         result = str(entry.get("result", ""))
         before, after = entry.get("config_hash_before", ""), entry.get("config_hash", "")
         zone = entry.get("zone", "")
-        if result == "saved":
+        if cause != CAUSE:
+            text = (f"zone edit by {operator} weakens protection: "
+                    f"{'; '.join(entry.get('weakens') or [])} (zone set {str(after)[:12]} kept "
+                    f"as the draft {entry.get('file', '')}: in force only after an operator's "
+                    "signed apply, then no longer the commissioned zone set)")
+        elif result == "draft":
+            text = (f"zone edit by {operator}: {zone} {entry.get('action', 'changed')} as a "
+                    f"draft (zone set {str(before)[:12]} -> {str(after)[:12]}, weakens "
+                    "protection: in force only after an operator's signed apply)")
+        elif result == "saved":
             text = (f"zone edit by {operator}: {zone} {entry.get('action', 'changed')} "
                     f"(zone set {str(before)[:12]} -> {str(after)[:12]}, not applied to the "
                     "running monitor until an operator signs it)")
@@ -56,11 +68,14 @@ class ZoneEditIncidents:
                     f"{entry.get('error', '')}")
         record = {
             "schema": SCHEMA, "id": incident_id, "cell": self.cell, "wall": round(wall, 3),
-            "time_s": round(wall, 3), "frame": None, "causes": [CAUSE], "state": state,
+            "time_s": round(wall, 3), "frame": None, "causes": [cause], "state": state,
             "latched": False, "describe": text, "command": None, "faults": [], "reset": None,
             "operator": operator, "zones_hash": str(before or after or ""), "config_hash": "",
             "zone_edit": {"operator": operator, "zone": zone, "result": result,
-                          "accepted": result == "saved", "message": entry.get("error", ""),
+                          "accepted": result in ("saved", "draft"),
+                          "in_force_after_signed_apply": result == "draft",
+                          "weakens": entry.get("weakens") or [],
+                          "message": entry.get("error", ""),
                           "old_hash": before, "new_hash": after,
                           "client": entry.get("client", ""),
                           "forwarded_for": entry.get("forwarded_for"),

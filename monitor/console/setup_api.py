@@ -21,7 +21,7 @@ from typing import Any
 
 from monitor import zones as zn
 from monitor.console.edit_body import BadRequest
-from monitor.console.zones_api import ZoneEditor, file_sha
+from monitor.console.zones_api import Saved, ZoneEditor, file_sha
 from monitor.errors import ConfigError
 from monitor.zones.draw import volume_outline_m
 from monitor.zones.settings import describe_mute, find_zone, rules_of, set_mute, set_rules
@@ -71,12 +71,12 @@ class SetupEditor:
     def data(self) -> dict:
         """Zone sets and rules, mute settings, and the floor outlines of the volumes (metres,
         cell frame, for the plan; boxes with their corners, editable)."""
-        cell = self.editor.cell()
+        cell = self.editor.editing_cell()  # the draft while there is one
         spec = cell.spec
         sets = [{"id": s.id, "name": s.name, "zones": list(s.zones),
                  "speed_scale": s.speed_scale, "default": s.id == spec.default_set}
                 for s in spec.sets]
-        raw = zn.read_cell_data(self.editor.path)
+        raw = zn.read_cell_data(self.editor.source())
         by_id = {z.get("id"): z for z in raw.get("zones") or [] if isinstance(z, dict)}
         mutes, volumes = [], []
         for z in cell.zones:
@@ -96,24 +96,18 @@ class SetupEditor:
                 entry.update(min_m=list(z.min_m), max_m=list(z.max_m), yaw_deg=z.yaw_deg,
                              editable=True)
             volumes.append(entry)
-        return {"file": str(self.editor.path), "sha": file_sha(self.editor.path),
+        return {"file": str(self.editor.path), "sha": file_sha(self.editor.source()),
+                "draft": self.editor.draft_info(),
                 "config_hash": cell.config_hash, "sets": sets, "rules": rules_of(spec),
                 "mutes": mutes, "volumes": volumes}
 
-    def _edit(self, base: Any, change) -> tuple[zn.Cell, str]:
-        """Apply ``change(data)`` to the file's document and save it validated; returns the new
-        cell and the config hash before. ConfigError: nothing written."""
-        with self.editor.lock:
-            if base is not None and base != file_sha(self.editor.path):
-                raise ConfigError(f"{self.editor.path}: the zone file changed since this page "
-                                  "loaded it: reload the page and edit again")
-            before = self.editor.cell().config_hash
-            data = zn.read_cell_document(self.editor.path)
-            zn.parse_cell(data, self.editor.path)  # refuse to edit a file already invalid
-            change(data)
-            return zn.write_cell_data(data, self.editor.path), before
+    def _edit(self, base: Any, change) -> Saved:
+        """Apply ``change(data)`` to the document edits start from and save it validated
+        (into the draft when it weakens protection: ``ZoneEditor.edit``). ConfigError: nothing
+        written."""
+        return self.editor.edit(base, change)
 
-    def save_mute(self, zone_id: str, body: dict) -> tuple[zn.Cell, str]:
+    def save_mute(self, zone_id: str, body: dict) -> Saved:
         """``body``: operators (names), max_s, as, speed_scale, or unmutable / remove."""
         operators = _names(body["operators"], "operators") if body.get("operators") is not None \
             else None
@@ -129,7 +123,7 @@ class SetupEditor:
                                   "max_s, unmutable or remove)")
         return self._edit(body.get("base"), change)
 
-    def save_rules(self, body: dict) -> tuple[zn.Cell, str]:
+    def save_rules(self, body: dict) -> Saved:
         """``body``: allow ([[from, to], ...]), any, none, switch_over_s, default_set,
         selector_ttl_s, no_selector_ttl; fields not given stay as they are."""
         allow = body.get("allow")
@@ -145,7 +139,7 @@ class SetupEditor:
         return self._edit(body.get("base"),
                           lambda data: set_rules(data, *args, what="zone set rules"))
 
-    def save_box(self, zone_id: str, body: dict) -> tuple[zn.Cell, str]:
+    def save_box(self, zone_id: str, body: dict) -> Saved:
         """``body``: min_m and max_m, [x, y, z] metres in the cell frame."""
         lo, hi = _corner(body.get("min_m"), "min_m"), _corner(body.get("max_m"), "max_m")
 

@@ -33,6 +33,7 @@ from monitor.console.auth import basic_credentials
 from monitor.console.edit_body import BadRequest, check_zone_id, parse_edit_body
 from monitor.console.levels import LEVELS, may, refusal, table
 from monitor.console.resetters import reset_operators
+from monitor.console.saves import record_save
 from monitor.console.sessions import COOKIE, LIFETIME_S, viewer_of
 from monitor.console.setup_api import (
     MUTE_FIELDS,
@@ -63,7 +64,7 @@ async def forbidden(console: Any, name: str, action: str, source: Source, target
     return JSONResponse({"error": why}, status_code=403, headers=headers)
 
 
-def setup_routes(console: Any, login: Login, edit_incident: Callable[[dict], str | None],
+def setup_routes(console: Any, login: Login, edit_incident: Callable[..., str | None],
                  read_body: Callable[[Request], Awaitable[bytes]], headers: dict,
                  static: Path) -> list[Route]:
     """The routes; ``login``, ``edit_incident``, ``read_body``: the app's own (one rule for
@@ -118,7 +119,7 @@ def setup_routes(console: Any, login: Login, edit_incident: Callable[[dict], str
         except BadRequest as exc:
             return await run_in_threadpool(refuse, 400, "bad_request", str(exc))
         try:
-            cell, before = await run_in_threadpool(run, body)
+            saved = await run_in_threadpool(run, body)
         except BadRequest as exc:
             return await run_in_threadpool(refuse, 400, "bad_request", str(exc))
         except ConfigError as exc:
@@ -127,14 +128,12 @@ def setup_routes(console: Any, login: Login, edit_incident: Callable[[dict], str
             text = f"the edit could not be saved: {type(exc).__name__}: " \
                    f"{str(exc).splitlines()[0] if str(exc) else ''}"
             return await run_in_threadpool(refuse, 500, "error", text)
-        entry = await run_in_threadpool(functools.partial(
-            console.audit.record, zone=target, operator=name, **source.fields(), edit=action,
-            result="saved", action="changed", config_hash_before=before,
-            config_hash=cell.config_hash, file=str(console.editor.path)))
-        incident = await run_in_threadpool(edit_incident, entry)
-        return JSONResponse({"saved": target, "config_hash": cell.config_hash, "audit": entry,
-                             "incident": incident, "warnings": list(cell.warnings),
-                             "note": NOTE}, headers=headers)
+        out = await run_in_threadpool(functools.partial(
+            record_save, console, saved, target, name, source, edit_incident, edit=action,
+            action="changed"))
+        if not saved.is_draft:
+            out["note"] = NOTE
+        return JSONResponse(out, status_code=202 if saved.is_draft else 200, headers=headers)
 
     async def save_mute(request: Request) -> Response:
         zone = request.path_params["zone"]

@@ -10,6 +10,16 @@ save is refused instead of silently undoing someone else's edit.
 
 The running ``monitor run`` does not pick the change up: it loads the zone file once at start,
 and the zone set in force is the ``config_hash`` of every command; the console shows both.
+
+An edit that weakens protection (``monitor.zones.weaken``: a protective zone removed, shrunk,
+made a mask or mutable, a mask added ...) is never written into the zone file: it goes to the
+draft beside it (``cell.draft.yaml``, ``draft_path``), which takes effect only when an operator
+signs it (``monitor zones apply --zones cell.draft.yaml``: the service promotes the draft with
+the signed hash into its zone file and applies it, ``monitor.service.zone_swap``). Why: the file
+is what a restart loads, so an unsigned weakening saved there took effect at the next restart
+(issue 48: a protective polygon made a mask, a box moved, a restart: SLOW x0.3 with a person
+inside). While a draft exists every edit starts from it; an edit that leaves it no weaker than
+the zone file is written into the file and the draft goes.
 """
 
 from __future__ import annotations
@@ -17,6 +27,8 @@ from __future__ import annotations
 import hashlib
 import math
 import threading
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -25,7 +37,9 @@ import numpy as np
 from monitor import zones as zn
 from monitor.errors import ConfigError
 from monitor.zones.draw import volume_outline_m
+from monitor.zones.files import draft_path
 from monitor.zones.schema import PolygonZone
+from monitor.zones.weaken import cell_weakenings
 
 EDITABLE_KINDS = ("protective", "warning", "mask", "watch", "occluder")
 MAX_POINTS = 1000
@@ -35,14 +49,73 @@ def file_sha(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
+@dataclass(frozen=True)
+class Saved:
+    """A saved edit: the new cell, the zone file's hash before, what it weakens (empty: it
+    was written into the zone file) and the file written (the draft when it weakens)."""
+
+    cell: zn.Cell
+    before: str
+    weakens: tuple[str, ...]
+    file: Path
+
+    @property
+    def is_draft(self) -> bool:
+        return bool(self.weakens)
+
+
 class ZoneEditor:
     """The zone file the console shows and edits; saves are serialised."""
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
+        self.draft = draft_path(self.path)
         self.lock = threading.Lock()  # every save of the file, by any editor
         self._cached: tuple[str, zn.Cell] | None = None
         self.cell()  # a broken zone file stops the console's start, with its one line
+
+    def source(self) -> Path:
+        """The file edits start from: the draft while there is one, else the zone file."""
+        return self.draft if self.draft.is_file() else self.path
+
+    def editing_cell(self) -> zn.Cell:
+        """The cell edits start from (the draft's, while there is one)."""
+        source = self.source()
+        return self.cell() if source == self.path else zn.load_cell(source)
+
+    def draft_info(self) -> dict | None:
+        """The draft waiting for a signed apply: file, hash and what it weakens (None: no
+        draft, or one that does not parse: then it is said as an error)."""
+        if not self.draft.is_file():
+            return None
+        try:
+            cell = zn.load_cell(self.draft)
+            weakens = cell_weakenings(self.cell(), cell)
+        except ConfigError as exc:
+            return {"file": str(self.draft), "error": str(exc).splitlines()[0]}
+        return {"file": str(self.draft), "config_hash": cell.config_hash, "weakens": weakens,
+                "apply": f"monitor zones apply --zones {self.draft} --operator NAME"}
+
+    def edit(self, base: Any, change: Callable[[Any], None]) -> Saved:
+        """Apply ``change(document)`` to the file edits start from and save it validated: into
+        the zone file when it weakens nothing against it, else into the draft. ``base``: the
+        sha256 of the file the page loaded (None: no check). ConfigError: nothing written."""
+        with self.lock:
+            source = self.source()
+            if base is not None and base != file_sha(source):
+                raise ConfigError(f"{source}: the zone file changed since this page loaded "
+                                  "it: reload the page and edit again")
+            live = self.cell()
+            data = zn.read_cell_document(source)
+            zn.parse_cell(data, source)  # refuse to edit a file that is already invalid
+            change(data)
+            weakens = tuple(cell_weakenings(live, zn.parse_cell(data, self.path)))
+            target = self.draft if weakens else self.path
+            cell = zn.write_cell_data(data, target)  # validates first: a fault writes nothing
+            if not weakens:
+                self.draft.unlink(missing_ok=True)  # nothing weaker waits any more
+            self._cached = None
+            return Saved(cell, live.config_hash, weakens, target)
 
     def cell(self) -> zn.Cell:
         """The file as it is on disk now (parsed again only when its bytes changed)."""
@@ -57,7 +130,7 @@ class ZoneEditor:
     def editor_data(self) -> dict:
         """Cameras, image polygons (editable) and the floor footprints of volumes, in pixels
         of each camera (shown, not edited here)."""
-        cell = self.cell()
+        cell = self.editing_cell()
         cams = [{"id": c.id, "width": c.width, "height": c.height,
                  "calibrated": c.id in cell.camera_models} for c in cell.cameras.values()]
         polygons, footprints = [], []
@@ -72,28 +145,24 @@ class ZoneEditor:
                 if px is not None:
                     footprints.append({"id": z.id, "kind": z.kind, "camera": cam_id,
                                        "enabled": z.enabled, "points_px": px})
-        return {"file": str(self.path), "sha": file_sha(self.path),
+        return {"file": str(self.path), "sha": file_sha(self.source()),
                 "config_hash": cell.config_hash, "cameras": cams, "polygons": polygons,
-                "footprints": footprints, "warnings": list(cell.warnings)}
+                "footprints": footprints, "warnings": list(cell.warnings),
+                "draft": self.draft_info()}
 
-    def save_polygon(self, zone_id: str, body: dict) -> tuple[zn.Cell, bool, str]:
+    def save_polygon(self, zone_id: str, body: dict) -> tuple[Saved, bool]:
         """Create or change the image polygon ``zone_id`` from the editor's JSON ``body``
-        (camera, kind, points_px, optional name, speed_scale, base). Returns the new cell,
-        whether the zone is new, and the config hash before. ConfigError: nothing written."""
+        (camera, kind, points_px, optional name, speed_scale, base). Returns the save and
+        whether the zone is new. ConfigError: nothing written."""
         points = _points(body.get("points_px"))
-        with self.lock:
-            base = body.get("base")
-            if base is not None and base != file_sha(self.path):
-                raise ConfigError(f"{self.path}: the zone file changed since this page loaded "
-                                  "it: reload the page and edit again")
-            before = self.cell().config_hash
-            data = zn.read_cell_document(self.path)
-            zn.parse_cell(data, self.path)  # refuse to edit a file that is already invalid
+        added: list[bool] = []
+
+        def change(data: Any) -> None:
             zones = data.setdefault("zones", [])
             index = next((k for k, z in enumerate(zones)
                           if isinstance(z, dict) and z.get("id") == zone_id), None)
-            new = index is None
-            if new:
+            added.append(index is None)
+            if index is None:
                 zone: dict[str, Any] = {"id": zone_id, "name": str(body.get("name") or ""),
                                         "kind": _kind(body.get("kind")), "shape": "polygon",
                                         "camera": str(body.get("camera") or ""),
@@ -101,23 +170,23 @@ class ZoneEditor:
                 if zone["kind"] == "warning":
                     zone["speed_scale"] = _speed(body.get("speed_scale"))
                 zones.append(zone)
-            else:
-                zone = zones[index]
-                if zone.get("shape") != "polygon":
-                    raise ConfigError(f"{self.path}: zone '{zone_id}' is a {zone.get('shape')} "
-                                      "volume: edit it with 'monitor zones edit'")
-                zone["points_px"] = points
-                if body.get("kind") is not None and body["kind"] != zone.get("kind"):
-                    zone["kind"] = _kind(body["kind"])
-                    if zone["kind"] != "warning":
-                        zone.pop("speed_scale", None)
-                if body.get("speed_scale") is not None and zone.get("kind") == "warning":
-                    zone["speed_scale"] = _speed(body["speed_scale"])
-                if body.get("name") is not None:
-                    zone["name"] = str(body["name"])
-            cell = zn.write_cell_data(data, self.path)  # validates first: a fault writes nothing
-            self._cached = None
-            return cell, new, before
+                return
+            zone = zones[index]
+            if zone.get("shape") != "polygon":
+                raise ConfigError(f"{self.path}: zone '{zone_id}' is a {zone.get('shape')} "
+                                  "volume: edit it with 'monitor zones edit'")
+            zone["points_px"] = points
+            if body.get("kind") is not None and body["kind"] != zone.get("kind"):
+                zone["kind"] = _kind(body["kind"])
+                if zone["kind"] != "warning":
+                    zone.pop("speed_scale", None)
+            if body.get("speed_scale") is not None and zone.get("kind") == "warning":
+                zone["speed_scale"] = _speed(body["speed_scale"])
+            if body.get("name") is not None:
+                zone["name"] = str(body["name"])
+
+        saved = self.edit(body.get("base"), change)
+        return saved, added[0]
 
 
 def _kind(value: Any) -> str:

@@ -7,7 +7,10 @@ request id), answers a refused one at once and queues the others for the safety 
 ``LiveZones`` is the loop side (called from ``LiveFeed.inputs``, between two steps, in the loop's
 own thread: the pipeline is never touched from another thread). For each request it re-reads
 the zone file from the service's configured path, refuses unless the file's zone-set hash is
-the signed one ("the file changed after you signed"), validates it as at start
+the signed one ("the file changed after you signed") or the draft beside it has that hash (the
+console's edits that weaken protection wait there, ``monitor.console.zones_api``: once every
+check below holds the draft becomes the zone file, so a restart loads what was signed),
+validates it as at start
 (``monitor.service.setup.zone_checks``; the cameras and their sizes must stay, they need a restart),
 builds what derives from it (prepared zones, watch regions of the health checks) and only then
 swaps it into the pipeline (``Pipeline.swap_cell``), the bus (``config_hash`` of the status and
@@ -39,6 +42,7 @@ from monitor.types import Alert
 from monitor.wire import payload as payload_json
 from monitor.wire.resets import MAX_RESET_PAYLOAD
 from monitor.wire.signing import load_operators
+from monitor.zones.files import draft_path, promote_draft
 
 APPLIED = "zones_applied"
 REFUSED = "zones_apply_refused"
@@ -186,10 +190,14 @@ class LiveZones:
             raise ApplyRefused(f"the zone file is invalid: {_line(exc)}") from None
         except OSError as exc:
             raise ApplyRefused(f"cannot read the zone file: {exc}") from None
+        draft = None  # the console's draft of an edit that weakens protection, if signed
         if cell.config_hash != req.zones_hash:
-            raise ApplyRefused(f"the file changed after you signed: you signed "
-                               f"{req.zones_hash[:12]}, {self.zones_file} has "
-                               f"{cell.config_hash[:12]} now")
+            draft = _draft_of(self.zones_file, req.zones_hash)
+            if draft is None:
+                raise ApplyRefused(f"the file changed after you signed: you signed "
+                                   f"{req.zones_hash[:12]}, {self.zones_file} has "
+                                   f"{cell.config_hash[:12]} now")
+            cell = draft
         if cell.config_hash == self.in_force:
             raise ApplyRefused(f"zone set {cell.config_hash[:12]} is already in force")
         try:
@@ -219,6 +227,16 @@ class LiveZones:
             prepared = prepared_zones(self.config, cell)
         except (ConfigError, InputError) as exc:  # InputError: a reference image missing
             raise ApplyRefused(f"the zone file is refused: {_line(exc)}") from None
+        if draft is not None:
+            # the signed draft becomes the zone file (a restart then loads what was signed),
+            # and only now: a refused apply leaves both files as they were
+            try:
+                cell = promote_draft(self.zones_file, req.zones_hash)
+            except ConfigError as exc:
+                raise ApplyRefused(f"the draft cannot become the zone file: {_line(exc)}") \
+                    from None
+            self.log("zone draft promoted", operator=req.operator, file=self.zones_file,
+                     new_hash=cell.config_hash)
         self.pipeline.swap_cell(cell, prepared, health, note=f" by {req.operator}")
         self.bus.set_config_hash(cell.config_hash)
         if self.on_applied is not None:
@@ -228,6 +246,18 @@ class LiveZones:
                  if old_cell is not None else "", new_hash=cell.config_hash,
                  request_id=req.request_id)
         return cell.config_hash
+
+
+def _draft_of(zones_file: str, signed: str):
+    """The draft beside ``zones_file`` when its zone set is ``signed`` (else None)."""
+    from monitor.zones import load_cell
+
+    draft = draft_path(zones_file)
+    try:
+        cell = load_cell(draft) if draft.is_file() else None
+    except (ConfigError, OSError):
+        return None
+    return cell if cell is not None and cell.config_hash == signed else None
 
 
 def _line(exc: BaseException) -> str:

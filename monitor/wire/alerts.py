@@ -7,15 +7,26 @@ Critical alerts use their own, shorter interval.
 
 Wire format on ``<prefix>safety/alert``: a JSON object (see ``alert_to_dict``); the optional JPEG
 snapshot travels as the sample's *attachment* (raw JPEG bytes), and ``snapshot`` in the JSON says
-``{"encoding": "image/jpeg", "bytes": N}`` so a reader knows to look there.
+``{"encoding": "image/jpeg", "bytes": N, "sha256": HEX}`` so a reader knows to look there.
+
+Signed alerts (a monitor with a signing key, issue 48): the attachment is the Ed25519 signature
+of the payload (``SIGNATURE_BYTES``, as for commands) followed by the JPEG, if any; the payload
+names the JPEG's sha256, so the signature covers the picture too. ``read_signed_alert`` checks
+both. Why: the console listed unsigned, forged alerts beside the real ones; an alert an operator
+reads (a refused reset, a mute) must be the monitor's.
 """
 
 from __future__ import annotations
 
+import hashlib
+import json
 from dataclasses import dataclass, field
+
+from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PublicKey
 
 from monitor.schema import NonNegative, section
 from monitor.types import Alert
+from monitor.wire.signing import SIGNATURE_BYTES, verify
 
 SEVERITIES = ("info", "warning", "critical")
 # the audit of muting is never held back: each start needs a signed, accepted request and a
@@ -73,8 +84,41 @@ def alert_to_dict(alert: Alert, repeat: int = 0) -> dict:
     }
     if alert.snapshot_jpeg:
         out["snapshot"] = {"encoding": "image/jpeg", "bytes": len(alert.snapshot_jpeg),
-                           "where": "attachment"}
+                           "where": "attachment",
+                           "sha256": hashlib.sha256(alert.snapshot_jpeg).hexdigest()}
     return out
+
+
+def signed_attachment(signature: bytes | None, jpeg: bytes | None) -> bytes | None:
+    """The attachment of an alert: the signature, then the JPEG (either may be missing)."""
+    if signature is None:
+        return jpeg or None
+    return signature + (jpeg or b"")
+
+
+def read_signed_alert(payload: bytes, attachment: bytes | None, key_expr: str,
+                      public_keys: tuple[Ed25519PublicKey, ...]
+                      ) -> tuple[dict, bytes | None] | None:
+    """(body, JPEG or None) of an alert signed by one of ``public_keys`` on ``key_expr``, or
+    None: unsigned, signed by another key, a JPEG that is not the one the payload names, or
+    not a JSON object."""
+    if not attachment or len(attachment) < SIGNATURE_BYTES:
+        return None
+    signature, jpeg = attachment[:SIGNATURE_BYTES], attachment[SIGNATURE_BYTES:]
+    if not any(verify(k, key_expr, payload, signature) for k in public_keys):
+        return None
+    try:
+        body = json.loads(payload)
+    except (ValueError, UnicodeDecodeError, RecursionError):
+        return None
+    if not isinstance(body, dict):
+        return None
+    snapshot = body.get("snapshot")
+    if jpeg:
+        named = snapshot.get("sha256") if isinstance(snapshot, dict) else None
+        if named != hashlib.sha256(jpeg).hexdigest():
+            return None  # a picture the signature does not cover
+    return body, jpeg or None
 
 
 def alert_from_dict(body: dict, attachment: bytes | None = None) -> Alert:

@@ -8,6 +8,12 @@ guarded some of these; ``load`` guards all of them before any field is read, and
 one in its ``PayloadError`` (a ValueError), so a caller refuses the message as invalid with a
 reason instead of letting an exception escape its handler.
 
+The bytes are decoded to text first (UTF-8, or the UTF-16/32 that ``json.loads`` also reads,
+told apart as it does by ``json.detect_encoding``) and every bound is checked on that text:
+the nesting check once scanned the raw bytes for ``[`` and ``{``, so UTF-16 bytes (each bracket
+followed by a zero byte, a zero byte that broke the string pattern) passed it nested 985 levels
+deep (issue 48); every parser after it then refused them cleanly, but only by luck.
+
 Pure functions, no imports from the project (bottom layer).
 """
 
@@ -21,8 +27,8 @@ MAX_NUMBER_CHARS = 32  # a wall time, a seq, a nanosecond stamp: all far shorter
 MAX_MAGNITUDE = 2.0**63  # |x| of any number (ns since the epoch fit; 1e400 and 10**400 do not)
 
 # the tokens that matter for depth: strings (skipped whole, escapes included) and brackets
-_DEPTH_TOKENS = re.compile(rb'"(?:[^"\\]|\\.)*"|[\[\]{}]')
-_OPEN = frozenset(b"[{")
+_DEPTH_TOKENS = re.compile(r'"(?:[^"\\]|\\.)*"|[\[\]{}]')
+_OPEN = frozenset("[{")
 
 
 class PayloadError(ValueError):
@@ -53,39 +59,52 @@ def _no_constant(name: str) -> float:
     raise PayloadError(f"{name} is not a number a bus message may hold")
 
 
-def check_depth(payload: bytes, max_depth: int = MAX_DEPTH) -> None:
-    """Refuse nesting deeper than ``max_depth`` (brackets inside strings do not count)."""
-    if payload.count(b"[") + payload.count(b"{") <= max_depth:
+def check_depth(payload: bytes | str, max_depth: int = MAX_DEPTH) -> None:
+    """Refuse nesting deeper than ``max_depth`` (brackets inside strings do not count);
+    ``payload`` is the text, or bytes that are decoded first (``decode``)."""
+    text = payload if isinstance(payload, str) else decode(payload)
+    if text.count("[") + text.count("{") <= max_depth:
         return  # too few brackets to nest that deep: no scan needed
     depth = 0
-    for m in _DEPTH_TOKENS.finditer(payload):
+    for m in _DEPTH_TOKENS.finditer(text):
         c = m.group()[0]
         if c in _OPEN:
             depth += 1
             if depth > max_depth:
                 raise PayloadError(f"nested deeper than {max_depth} levels")
-        elif c != 0x22:  # a closing bracket (0x22 '"' starts a skipped string)
+        elif c != '"':  # a closing bracket ('"' starts a skipped string)
             depth -= 1
+
+
+def decode(raw: bytes) -> str:
+    """The text of a JSON payload in any encoding JSON allows (UTF-8 with or without a BOM,
+    UTF-16 or UTF-32), as ``json.loads`` would read it. PayloadError when it is none."""
+    encoding = json.detect_encoding(raw)
+    try:
+        return raw.decode(encoding)
+    except UnicodeDecodeError:
+        raise PayloadError(f"payload is not {encoding.upper().replace('-SIG', '')} "
+                           "text") from None
 
 
 def load(payload: bytes | bytearray | memoryview, max_bytes: int,
          max_depth: int = MAX_DEPTH) -> object:
-    """The JSON value of ``payload``, bounded: at most ``max_bytes`` bytes of UTF-8, nesting
-    at most ``max_depth``, numbers of at most ``MAX_NUMBER_CHARS`` characters and magnitude
-    ``MAX_MAGNITUDE``, no NaN or Infinity. Raises ``PayloadError`` naming the first fault."""
+    """The JSON value of ``payload``, bounded: at most ``max_bytes`` bytes of JSON text (UTF-8,
+    or UTF-16/32), nesting at most ``max_depth`` (counted on the decoded text), numbers of at
+    most ``MAX_NUMBER_CHARS`` characters and magnitude ``MAX_MAGNITUDE``, no NaN or Infinity.
+    Raises ``PayloadError`` naming the first fault."""
     if not isinstance(payload, bytes | bytearray | memoryview):
         raise PayloadError(f"payload is a {type(payload).__name__}, not bytes")
     raw = bytes(payload)
     if len(raw) > max_bytes:
         raise PayloadError(f"payload has {len(raw)} bytes (at most {max_bytes})")
-    check_depth(raw, max_depth)
+    text = decode(raw)  # every bound below holds on what json reads, whatever the encoding
+    check_depth(text, max_depth)
     try:
-        return json.loads(raw, parse_int=_parse_int, parse_float=_parse_float,
+        return json.loads(text, parse_int=_parse_int, parse_float=_parse_float,
                           parse_constant=_no_constant)
     except PayloadError:
         raise
-    except UnicodeDecodeError:
-        raise PayloadError("payload is not UTF-8") from None
     except (ValueError, RecursionError):  # RecursionError: unreachable after check_depth
         raise PayloadError("payload is not JSON") from None
 

@@ -73,6 +73,13 @@ class Cell:
         return prepare_cell(self)
 
 
+def draft_path(path: str | os.PathLike) -> Path:
+    """The draft beside a zone file (``cell.yaml`` -> ``cell.draft.yaml``): an edit that
+    weakens protection waits there for an operator's signed apply (docs/console.md)."""
+    p = Path(path)
+    return p.with_name(f"{p.stem}.draft{p.suffix}")
+
+
 def load_cell(path: str | os.PathLike) -> Cell:
     """Read and validate a zone file; raises ConfigError (one line) on any fault."""
     return parse_cell(read_cell_data(path), path)
@@ -406,6 +413,21 @@ def _remove_stale_temp_files(target: Path) -> None:
         with contextlib.suppress(OSError):
             if p.is_file() and not p.is_symlink() and now - p.stat().st_mtime > STALE_TEMP_S:
                 p.unlink()
+
+
+def promote_draft(path: str | os.PathLike, expected_hash: str) -> Cell:
+    """Write the draft beside the zone file ``path`` (``draft_path``) into it, atomically and
+    keeping ``path.bak``, when the draft's zone set is ``expected_hash`` (the signed one); the
+    draft is then removed. ConfigError (one line, nothing written) otherwise."""
+    draft = draft_path(path)
+    data = read_cell_document(draft)
+    cell = parse_cell(data, path)
+    if cell.config_hash != expected_hash:
+        raise ConfigError(f"{draft}: the draft changed after you signed: you signed "
+                          f"{expected_hash[:12]}, it has {cell.config_hash[:12]} now")
+    save_cell(cell, path, data)
+    draft.unlink(missing_ok=True)
+    return load_cell(path)
 
 
 def write_cell_data(data: Any, path: str | os.PathLike) -> Cell:

@@ -43,6 +43,14 @@ async function pollState() {
   pending.textContent = "The zone file (" + s.zone_file_hash + ") differs from the zone set " +
     "the monitor decides with (" + s.zone_hash + "): it takes effect only when an operator " +
     "applies it (monitor zones apply, signed) or the monitor restarts with it.";
+  const draft = s.zone_draft;
+  if (draft) {  // an edit that weakens protection: never in force without a signed apply
+    pending.hidden = false;
+    pending.textContent = (s.zone_file_pending ? pending.textContent + " " : "") +
+      "A zone edit that weakens protection waits as the draft " + draft.file + " (" +
+      (draft.error || (draft.weakens || []).join("; ")) + "): it takes effect only when an " +
+      "operator signs it (" + (draft.apply || "monitor zones apply") + "), not at a restart.";
+  }
   const cams = s.camera_ids || [];
   if (cams.join() !== liveCameras.join()) {
     liveCameras = cams;
