@@ -16,9 +16,9 @@ import pytest
 import yaml
 
 from monitor.cli import main
-from monitor.commission.open_warnings import Facts, separation
+from monitor.commission.open_warnings import Facts, open_warnings, separation
 from monitor.commission.report import SECTIONS, verify
-from monitor.config import MonitorConfig, demo_cell_path
+from monitor.config import CameraConfig, MonitorConfig, demo_cell_path
 from monitor.service.commissioned import RECORD_NAME, read_record, status_of
 from monitor.wire.signing import load_operators, new_key_pair
 from tests.helpers import commissioner_key, one_error_line
@@ -218,3 +218,17 @@ def test_the_s_p_warning_only_where_s_p_exceeds_the_zone():
         "S_p 14.20 m is larger than the extent of protective zone small (1 m): a person "
         "entering at its edge is nearer the robot than it can stop in (enlarge the zone, or "
         "lower T_r or the programmed speed)"]
+
+
+def test_the_test_model_on_a_live_camera_and_missing_references_are_warned(tmp_path):
+    config = MonitorConfig(cameras=(CameraConfig(id="cam0", source="rtsp://127.0.0.1/x"),
+                                    CameraConfig(id="cam1", source="synthetic:demo",
+                                                 reference=str(tmp_path / "gone.png"))))
+    facts = Facts(config, None, None, [], Path("m.onnx"), True,
+                  {"s_p_configured_m": 1.0, "measured": {}}, [])
+    lines = open_warnings(facts)
+    assert any(w.startswith("the synthetic TEST model watches live camera cam0") for w in lines)
+    assert any(w.startswith("camera cam0: no reference image") for w in lines)
+    assert f"camera cam1: its reference image {tmp_path / 'gone.png'} is missing" in lines
+    assert not any("TEST model" in w for w in open_warnings(
+        Facts(config, None, None, [], Path("m.onnx"), False, facts.reaction, [])))
