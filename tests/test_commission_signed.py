@@ -228,6 +228,7 @@ def test_a_running_monitor_takes_a_new_record_and_refuses_a_foreign_one(tmp_path
         now = wait_for(lambda: (c := svc.status()["commissioned"]).get("matches") and c, 30,
                        "the new record in force", svc)
         assert now["by"] == "carla"
+        assert '"event": "commissioned"' in svc.stderr_path.read_text()  # logged as it came
         # an operator added while it runs: not commissioned, naming the file
         with (tmp_path / "operators").open("a") as fh:
             fh.write(f"eve {new_key_pair(tmp_path / 'eve.key')[2]}\n")
