@@ -12,6 +12,7 @@ from pathlib import Path
 import cv2
 import pytest
 
+from monitor.cli import main
 from monitor.commission.recording import MAX_MISSING, Recorded, check, record_walk
 from monitor.errors import InputError
 from monitor.frames import SourceOptions, open_source
@@ -81,3 +82,19 @@ def test_a_walk_recorded_from_an_http_camera_at_load_keeps_its_frames(tmp_path):
     n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
     cap.release()
     assert n == 80, figures
+
+
+def test_walk_record_refuses_a_camera_slower_than_its_fps(tmp_path, capsys):
+    """The demo camera gives 15 fps; recorded at --fps 30 half the slots repeat: refused with
+    the figures (exit 2), nothing analysed, the video kept."""
+    (tmp_path / "monitor.toml").write_text('[camera]\nsource = "synthetic:demo"\n')
+    out = tmp_path / "walk"
+    assert main(["commission", "walk", "--record", "2", "--fps", "30", "--config",
+                 str(tmp_path / "monitor.toml"), "--out", str(out), "--no-video"]) == 2
+    err = capsys.readouterr().err.splitlines()
+    errors = [line for line in err if line.startswith("monitor: error: ")]
+    assert len(errors) == 1 and "Traceback" not in "\n".join(err), err
+    error = errors[0]
+    assert "recording refused:" in error and "slots repeated or missing" in error
+    assert "against --fps 30" in error and "record at --fps" in error
+    assert (out / "walk.mp4").is_file() and not (out / "walk.json").exists()
