@@ -38,7 +38,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "walk.json, floor.png, camera-<id>.png, events.jsonl, summary.json and "
         "annotated.mp4 into --out. Prints the verdict per zone and camera; exit 1 when one "
         "FAILs (nobody detected, a protective zone never entered, too little floor walked, a "
-        "camera frozen or lost). A recording with more than 5 %% of its frames repeated or "
+        "camera frozen or lost). A recording with more than 5 % of its frames repeated or "
         "missing is refused (exit 2) with the measured figures.")
     source = p.add_mutually_exclusive_group(required=True)
     source.add_argument("--video", type=Path, help="a recorded walk (one of --video, --record "
