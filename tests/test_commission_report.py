@@ -6,16 +6,22 @@ the fingerprint's files: tests/test_commission_signed.py.)"""
 
 from __future__ import annotations
 
+import base64
 import hashlib
+import io
+import re
 import shutil
 from pathlib import Path
 
 import pytest
+import yaml
 
 from monitor.cli import main
+from monitor.commission.open_warnings import Facts, open_warnings, separation
 from monitor.commission.report import SECTIONS, verify
+from monitor.config import CameraConfig, MonitorConfig, demo_cell_path
 from monitor.service.commissioned import RECORD_NAME, read_record, status_of
-from monitor.wire.signing import load_operators
+from monitor.wire.signing import load_operators, new_key_pair
 from tests.helpers import commissioner_key, one_error_line
 from tests.processes import Service, wait_for
 
@@ -131,6 +137,7 @@ def test_status_names_the_commissioned_checksum(tmp_path, synthetic_model):
 @pytest.mark.skipif(not CHROMIUM.exists(), reason="/usr/bin/chromium missing (apt-get install "
                     "chromium chromium-driver; .ci/run installs it)")
 def test_the_report_renders_in_headless_chromium(demo_report, tmp_path):
+    import pypdf
     from selenium import webdriver
     from selenium.webdriver.chrome.service import Service as DriverService
     from selenium.webdriver.common.by import By
@@ -155,8 +162,18 @@ def test_the_report_renders_in_headless_chromium(demo_report, tmp_path):
         key = driver.find_element(By.ID, "signature-key").text
         assert key == verify(demo_report.read_bytes()).key_text
         driver.save_screenshot(str(tmp_path / "report.png"))
-        pdf = driver.print_page()  # printable: Chrome's own print to PDF (base64)
-        assert len(pdf) > 10_000
+        # printable on A4: Chrome's own print to PDF with the report's @page size
+        pdf = base64.b64decode(driver.execute_cdp_cmd(
+            "Page.printToPDF", {"preferCSSPageSize": True})["data"])
+        boxes = set(re.findall(rb"/MediaBox\s*\[0 0 ([\d.]+) ([\d.]+)\]", pdf))
+        assert {(round(float(w)), round(float(h))) for w, h in boxes} == {(595, 842)}, boxes
+        pages = [p.extract_text() for p in pypdf.PdfReader(io.BytesIO(pdf)).pages]
+        assert len(pages) >= 3, pages  # the first page, the details, the sign-off
+        for n, text in enumerate(pages, start=1):
+            assert f"page {n} of {len(pages)}" in text, text[:200]
+        assert "Verdict" in pages[0] and "Open warnings" in pages[0]
+        assert "Identity" not in pages[0] and "Identity" in pages[1]
+        assert "Sign-o" in pages[-1] and not any("Sign-o" in t for t in pages[:-1])
     finally:
         driver.quit()
 
@@ -175,3 +192,69 @@ def test_bad_inputs_are_one_line(tmp_path, capsys, args, needle):
                  "--key", str(commissioner_key(tmp_path))]) == 2
     assert needle in one_error_line(capsys)
     assert not (tmp_path / "r.html").exists()
+
+
+def test_the_report_lists_mute_rules_zone_sets_and_the_s_p_warning(tmp_path, synthetic_model,
+                                                                  capsys):
+    """A cell with a protective zone an operator may mute for 120 s and two zone sets: the
+    report names both (with who may mute, who may select), each zone's corners in numbers, and
+    warns that S_p is larger than the 1 m station; the verdict and warnings come first."""
+    data = yaml.safe_load(demo_cell_path().read_text())
+    data["zones"] = [
+        {"id": "station-a", "kind": "protective", "shape": "box",
+         "min_m": [-2.0, -1.0, 0.0], "max_m": [-1.0, 0.0, 2.2],
+         "mute": {"max_s": 120.0, "operators": ["anna"]}},
+        {"id": "station-b", "kind": "protective", "shape": "box",
+         "min_m": [1.0, -1.0, 0.0], "max_m": [2.0, 0.0, 2.2]},
+    ]
+    data["sets"] = [{"id": "A", "zones": ["station-a"]}, {"id": "B", "zones": ["station-b"]}]
+    data["default_set"] = "A"
+    (tmp_path / "cell.yaml").write_text(yaml.safe_dump(data))
+    _, _, plc = new_key_pair(tmp_path / "plc.key")
+    (tmp_path / "selectors").write_text(f"plc {plc}\n")
+    config = tmp_path / "monitor.toml"
+    config.write_text(f'[camera]\nsource = "synthetic:demo"\n[model]\npath = "{synthetic_model}"\n'
+                      '[zones]\nfile = "cell.yaml"\n[bus]\nselectors_file = "selectors"\n'
+                      '[service]\ncommissioners_file = "commissioners"\n')
+    html = _report(tmp_path / "report.html", "--config", str(config))
+    zones = html[html.index('<section id="zones"'):html.index('<section id="zone-sets"')]
+    assert "up to 120 s as warning, by anna" in zones
+    assert "Protective zones an operator may mute: station-a." in zones
+    assert "corners (-2, -1), (-1, -1), (-1, 0), (-2, 0) m; height 0 to 2.2 m" in zones
+    sets = html[html.index('<section id="zone-sets"'):html.index('<section id="pictures"')]
+    assert "<td>A</td>" in sets and "<td>B</td>" in sets and "<td>plc</td>" in sets
+    assert "<td>station-a</td>" in sets and "default" in sets
+    warnings = html[html.index('<section id="warnings"'):html.index('<div class="details">')]
+    assert "is larger than the extent of protective zone station-a (1 m)" in warnings
+    assert "is larger than the extent of protective zone station-b (1 m)" in warnings
+    assert "camera cam0: no reference image" in warnings
+    assert html.index('id="summary"') < html.index('id="warnings"') < html.index('id="zones"')
+    assert html.rindex('id="signoff"') > html.rindex('id="not-tested"')
+    out = capsys.readouterr().out
+    assert "FAIL protective zone station-a: no walk test was given" in out
+
+
+def test_the_s_p_warning_only_where_s_p_exceeds_the_zone():
+    zones = [{"id": "small", "kind": "protective", "enabled": True, "extent_m": 1.0},
+             {"id": "large", "kind": "protective", "enabled": True, "extent_m": 20.0},
+             {"id": "slow", "kind": "warning", "enabled": True, "extent_m": 1.0}]
+    facts = Facts(MonitorConfig(), None, None, [], Path("m.onnx"), False,
+                  {"s_p_configured_m": 14.2, "measured": {}}, zones)
+    assert separation(facts) == [
+        "S_p 14.20 m is larger than the extent of protective zone small (1 m): a person "
+        "entering at its edge is nearer the robot than it can stop in (enlarge the zone, or "
+        "lower T_r or the programmed speed)"]
+
+
+def test_the_test_model_on_a_live_camera_and_missing_references_are_warned(tmp_path):
+    config = MonitorConfig(cameras=(CameraConfig(id="cam0", source="rtsp://127.0.0.1/x"),
+                                    CameraConfig(id="cam1", source="synthetic:demo",
+                                                 reference=str(tmp_path / "gone.png"))))
+    facts = Facts(config, None, None, [], Path("m.onnx"), True,
+                  {"s_p_configured_m": 1.0, "measured": {}}, [])
+    lines = open_warnings(facts)
+    assert any(w.startswith("the synthetic TEST model watches live camera cam0") for w in lines)
+    assert any(w.startswith("camera cam0: no reference image") for w in lines)
+    assert f"camera cam1: its reference image {tmp_path / 'gone.png'} is missing" in lines
+    assert not any("TEST model" in w for w in open_warnings(
+        Facts(config, None, None, [], Path("m.onnx"), False, facts.reaction, [])))

@@ -228,9 +228,28 @@ def test_a_running_monitor_takes_a_new_record_and_refuses_a_foreign_one(tmp_path
         now = wait_for(lambda: (c := svc.status()["commissioned"]).get("matches") and c, 30,
                        "the new record in force", svc)
         assert now["by"] == "carla"
+        assert '"event": "commissioned"' in svc.stderr_path.read_text()  # logged as it came
         # an operator added while it runs: not commissioned, naming the file
         with (tmp_path / "operators").open("a") as fh:
             fh.write(f"eve {new_key_pair(tmp_path / 'eve.key')[2]}\n")
         changed = wait_for(lambda: not (c := svc.status()["commissioned"]).get("matches")
                            and c, 30, "the operators file change seen", svc)
         assert changed["differs"] == ["bus.operators_file"], changed
+
+
+def test_verify_takes_the_record_and_checks_the_report_it_names(cell_dir, tmp_path, capsys):
+    folder, _ = cell_dir
+    record = folder / RECORD_NAME
+    assert main(["commission", "verify", str(record), "--config",
+                 str(folder / "monitor.toml")]) == 0
+    out = capsys.readouterr().out
+    assert "the report report.html beside it is the one it names" in out
+    assert "signed by commissioner carla" in out
+    copy = tmp_path / RECORD_NAME
+    copy.write_bytes(record.read_bytes())
+    (tmp_path / "report.html").write_bytes((folder / "report.html").read_bytes() + b" ")
+    assert main(["commission", "verify", str(copy)]) == 1
+    assert "is not the report this record names" in capsys.readouterr().out
+    copy.write_bytes(record.read_bytes().replace(b'"by": "carla"', b'"by": "eve"'))
+    assert main(["commission", "verify", str(copy)]) == 1
+    assert "CHANGED" in capsys.readouterr().out

@@ -90,15 +90,20 @@ def test_init_to_a_running_two_camera_monitor_with_the_cli_alone(tmp_path):
 def test_init_writes_the_kit_with_private_keys_and_refuses_to_overwrite(tmp_path):
     video = clip(tmp_path / "v.mp4", 2, seconds=0.5)
     kit = tmp_path / "kit"
-    ok("init", kit, "--camera", f"cam0={video}", "--operator", "anna", "--operator", "ben")
+    ok("init", kit, "--camera", f"cam0={video}", "--operator", "anna", "--operator", "ben",
+       "--commissioner", "carla")
     for name in ("monitor.toml", "cell.yaml", "workcell-monitor.service", "operators",
+                 "commissioners",
                  "zenoh/peer.json5", "zenoh/router-secure.json5", "zenoh/client-secure.json5"):
         assert (kit / name).is_file(), name
-    for key in ("monitor", "anna", "ben"):
+    for key in ("monitor", "anna", "ben", "carla"):
         assert stat.S_IMODE((kit / "keys" / f"{key}.key").stat().st_mode) == 0o600
         load_private_key(kit / "keys" / f"{key}.key")
     assert stat.S_IMODE((kit / "keys").stat().st_mode) == 0o700
-    assert set(load_operators(kit / "operators")) == {"anna", "ben"}
+    assert set(load_operators(kit / "operators")) == {"anna", "ben"}  # never carla: one role
+    assert set(load_operators(kit / "commissioners")) == {"carla"}
+    assert load_config(kit / "monitor.toml").service.commissioners_file == \
+        str(kit / "commissioners")
     assert "ExecStart=" in (kit / "workcell-monitor.service").read_text()
 
     before = {p: p.read_bytes() for p in kit.rglob("*") if p.is_file()}

@@ -78,6 +78,10 @@ def test_faults_zone_sets_a_refused_reset_and_warnings_are_said():
     assert "zone sets in force: day, night (switching: their union applies)" in lines
     assert "muted zones: none" in lines
     assert "commissioned: NO (zones changed)" in lines
+    differs = status_text({"commissioned": {"checksum": "ab", "matches": False,
+                                            "differs": ["bus.operators_file"]}})
+    assert "commissioned: NO (not commissioned: bus.operators_file differ from the record)" \
+        in differs.splitlines()
     assert any(line.startswith("last reset: bob refused at ") for line in lines)
     assert "WARNING: other monitors answer for this cell: boot 77" in lines
 

@@ -12,6 +12,8 @@
 from __future__ import annotations
 
 import argparse
+import hashlib
+import json
 import sys
 from pathlib import Path
 
@@ -36,7 +38,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "walk.json, floor.png, camera-<id>.png, events.jsonl, summary.json and "
         "annotated.mp4 into --out. Prints the verdict per zone and camera; exit 1 when one "
         "FAILs (nobody detected, a protective zone never entered, too little floor walked, a "
-        "camera frozen or lost). A recording with more than 5 %% of its frames repeated or "
+        "camera frozen or lost). A recording with more than 5 % of its frames repeated or "
         "missing is refused (exit 2) with the measured figures.")
     source = p.add_mutually_exclusive_group(required=True)
     source.add_argument("--video", type=Path, help="a recorded walk (one of --video, --record "
@@ -92,11 +94,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="the report file")
     p.set_defaults(func=cmd_report)
 
-    p = sub.add_parser("verify", help="check a report's signature and name its signer",
-                       description="Exit 0 when the report's signature covers its every byte "
+    p = sub.add_parser("verify", help="check a report's (or commissioned.json's) signature and "
+                       "name its signer",
+                       description="Exit 0 when the report's (or the record's: then also the "
+                       "report it names, beside it) signature covers its every byte "
                        "and (with --key or --config) was made by that key or by a listed "
                        "commissioner; 1 when the report was changed or signed by another key.")
-    p.add_argument("report", type=Path, help="the report file")
+    p.add_argument("report", type=Path, help="the report file, or commissioned.json")
     p.add_argument("--key", type=Path, metavar="PUB", help="the commissioner's public key "
                    "file: the report must be signed by it")
     p.add_argument("--config", type=Path, help="monitor.toml: the report must be signed by a "
@@ -269,7 +273,6 @@ def _commissioner(config, args: argparse.Namespace, public_text: str) -> str:
 
 
 def cmd_verify(args: argparse.Namespace) -> int:
-    from monitor.commission.report import signer_named, verify
     from monitor.config import load_config
     from monitor.wire.evidence import NotSigned
     from monitor.wire.signing import key_fingerprint, load_operators, load_public_key
@@ -279,15 +282,18 @@ def cmd_verify(args: argparse.Namespace) -> int:
     except FileNotFoundError:
         raise InputError(f"{args.report}: no such report") from None
     try:
-        opened = verify(data)
+        opened, named, report_ok = _open_evidence(args.report, data)
     except NotSigned as exc:
         print(f"CHANGED or not signed: {args.report}: {exc}")
         return 1
     fp = key_fingerprint(opened.key_text)
-    named = signer_named(opened) or "nobody"
     if not opened.valid:
         print(f"CHANGED: {args.report}: the signature of key {fp} does not cover this content")
         return 1
+    if report_ok is not None:  # a record: the report it names, beside it
+        print(report_ok[1])
+        if not report_ok[0]:
+            return 1
     if args.key is not None:
         if load_public_key(args.key) != opened.key:
             print(f"OTHER KEY: {args.report} is intact but signed by key {fp}, not {args.key}")
@@ -306,6 +312,30 @@ def cmd_verify(args: argparse.Namespace) -> int:
             return 1
         print(f"ok: signed by commissioner {name} (key {fp}, {path}); every byte is as signed")
         return 0
-    print(f"ok: every byte is as signed by key {fp}, named in the report as {named}; pass "
+    print(f"ok: every byte is as signed by key {fp}, named in it as {named}; pass "
           "--key PUB or --config to check that it is the commissioner's key")
     return 0
+
+
+def _open_evidence(path: Path, data: bytes):
+    """(opened, the signer it names, None or (ok, line) for a record's report): a report, or
+    a commissioned.json record (then the report it names is checked by its SHA-256)."""
+    from monitor.commission.report import signer_named, verify
+    from monitor.service.commissioned import RECORD_LAYOUT
+    from monitor.wire.evidence import open_signed
+
+    if not data.startswith(b'{\n "record": '):
+        opened = verify(data)
+        return opened, signer_named(opened) or "nobody", None
+    opened = open_signed(data, RECORD_LAYOUT)
+    if not opened.valid:
+        return opened, "nobody", None
+    record = json.loads(data)["record"]
+    report = path.parent / str(record.get("report"))
+    if not report.is_file():
+        return opened, record.get("by") or "nobody", (True, f"the report it names, {report}, "
+                                                      "is not beside it (not checked)")
+    same = hashlib.sha256(report.read_bytes()).hexdigest() == record.get("report_sha256")
+    line = (f"the report {report.name} beside it is the one it names" if same else
+            f"CHANGED: {report} is not the report this record names (another SHA-256)")
+    return opened, record.get("by") or "nobody", (same, line)

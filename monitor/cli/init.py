@@ -2,8 +2,9 @@
 
 ``init`` writes monitor.toml (the commented template with the named cameras, every path relative
 to DIR), cell.yaml (the zone file with those cameras, no zones yet), the systemd unit, the Zenoh
-configs, the monitor's signing key, operator keys and the operators file, then prints what is
-left to do. It never overwrites a file unless --force, and checks every file before writing any.
+configs, the monitor's signing key, operator keys and the operators file, commissioner keys and
+the commissioners file, then prints what is left to do. It never overwrites a file unless
+--force, and checks every file before writing any.
 """
 
 from __future__ import annotations
@@ -46,6 +47,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--operator", action="append", default=[], metavar="NAME",
                    help="an operator who may reset a latched STOP: keys/NAME.key and a line in "
                    "the operators file (repeatable; default none: every reset is refused)")
+    p.add_argument("--commissioner", action="append", default=[], metavar="NAME",
+                   help="a commissioner who signs the commissioning report: keys/NAME.key and "
+                   "a line in the commissioners file (repeatable; default none: no "
+                   "commissioned record is accepted until one is listed)")
     p.add_argument("--listen", metavar="ENDPOINT",
                    help="Zenoh endpoint the monitor listens on (default: zenoh/peer.json5's, "
                    "tcp/127.0.0.1:7447)")
@@ -88,12 +93,12 @@ def _cameras(args: argparse.Namespace) -> list[KitCamera]:
     return out
 
 
-def _operators(names: list[str]) -> list[str]:
+def _operators(names: list[str], flag: str = "--operator") -> list[str]:
     for name in names:
         if not _ID.match(name):
-            raise ConfigError(f"--operator {name!r}: letters, digits, _ . - only")
+            raise ConfigError(f"{flag} {name!r}: letters, digits, _ . - only")
     if len(set(names)) != len(names):
-        raise ConfigError("--operator: a name is given twice")
+        raise ConfigError(f"{flag}: a name is given twice")
     return names
 
 
@@ -101,13 +106,20 @@ def cmd_init(args: argparse.Namespace) -> int:
     out: Path = args.dir
     cameras = _cameras(args)
     operators = _operators(args.operator)
+    commissioners = _operators(args.commissioner, "--commissioner")
+    if set(operators) & set(commissioners):
+        raise ConfigError(f"--commissioner {sorted(set(operators) & set(commissioners))[0]}: "
+                          "also an --operator; one key, one role: give the commissioner "
+                          "another name")
     if not _ID.match(args.cell):
         raise ConfigError(f"--cell {args.cell!r}: letters, digits, _ . - only")
     zenoh = sorted(kit_dir("deploy").joinpath("zenoh").glob("*.json5"))
     files = {Path("monitor.toml"), Path("cell.yaml"), Path("workcell-monitor.service"),
-             Path("operators"), Path("keys/monitor.key"), Path("keys/monitor.key.pub")}
+             Path("operators"), Path("commissioners"), Path("keys/monitor.key"),
+             Path("keys/monitor.key.pub")}
     files |= {Path("zenoh") / p.name for p in zenoh}
-    files |= {Path("keys") / f"{n}.key{s}" for n in operators for s in ("", ".pub")}
+    files |= {Path("keys") / f"{n}.key{s}" for n in operators + commissioners
+              for s in ("", ".pub")}
     existing = sorted(str(out / f) for f in files if (out / f).exists())
     if existing and not args.force:
         more = f" (and {len(existing) - 1} more)" if len(existing) > 1 else ""
@@ -135,7 +147,14 @@ def cmd_init(args: argparse.Namespace) -> int:
         _, _, text = new_key_pair(keys / f"{name}.key", force=True)
         lines.append(f"{name} {text}")
     (out / "operators").write_text("\n".join(lines) + "\n", encoding="utf-8")
-    _next_steps(out, args.cell, cameras, operators, args.listen)
+    lines = ["# commissioners whose signed commissioned.json the monitor accepts: "
+             "'<commissioner> ed25519:<base64>'",
+             "# per line (`monitor keys new --commissioner NAME`); never an operator's key"]
+    for name in commissioners:
+        _, _, text = new_key_pair(keys / f"{name}.key", force=True)
+        lines.append(f"{name} {text}")
+    (out / "commissioners").write_text("\n".join(lines) + "\n", encoding="utf-8")
+    _next_steps(out, args.cell, cameras, operators, args.listen, commissioners)
     return 0
 
 
@@ -146,10 +165,12 @@ def watch_endpoint(listen: str | None) -> str:
 
 
 def _next_steps(out: Path, cell: str, cameras: list[KitCamera], operators: list[str],
-                listen: str | None = None) -> None:
+                listen: str | None = None, commissioners: list[str] | None = None) -> None:
+    commissioners = commissioners or []
     written = ["monitor.toml", "cell.yaml", "workcell-monitor.service", "zenoh/*.json5",
-               "keys/monitor.key(.pub)"] + [f"keys/{n}.key(.pub)" for n in operators] + \
-        ["operators"]
+               "keys/monitor.key(.pub)"] + [f"keys/{n}.key(.pub)"
+                                            for n in operators + commissioners] + \
+        ["operators", "commissioners"]
     print(f"wrote {out}/: {', '.join(written)} (cell {cell}, cameras "
           f"{', '.join(f'{c.id} {c.width}x{c.height}' for c in cameras)})")
     d = str(out)
@@ -174,6 +195,12 @@ def _next_steps(out: Path, cell: str, cameras: list[KitCamera], operators: list[
     else:
         steps.append("add operators who may reset a STOP: monitor keys new --operator NAME, "
                      f"then its line into {d}/operators")
+    signer = (f"{d}/keys/{commissioners[0]}.key (then move it off this host)" if commissioners
+              else f"your key (monitor keys new --commissioner NAME, its line into "
+              f"{d}/commissioners)")
+    steps.append(f"after the walk test, sign the commissioning report: monitor commission "
+                 f"report --config {d}/monitor.toml --walk WALK_DIR --key {signer} "
+                 "(docs: monitor docs commissioning)")
     steps.append(f"controllers pin the monitor's public key {d}/keys/monitor.key.pub "
                  "(monitor docs consumer)")
     steps.append(f"try it: monitor run --config {d}/monitor.toml (monitor watch --cell {cell} "

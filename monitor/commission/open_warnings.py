@@ -75,8 +75,8 @@ def separation(f: Facts) -> list[str]:
     edge is closer than the robot can stop in."""
     worst = max([f.reaction.get("s_p_configured_m") or 0.0]
                 + [m.get("s_p_m") or 0.0 for m in (f.reaction.get("measured") or {}).values()])
-    return [f"S_p {worst:.2f} m is larger than protective zone {z['id']}'s extent of "
-            f"{z['extent_m']:g} m: a person entering at its edge is nearer the robot than it "
+    return [f"S_p {worst:.2f} m is larger than the extent of protective zone {z['id']} "
+            f"({z['extent_m']:g} m): a person entering at its edge is nearer the robot than it "
             "can stop in (enlarge the zone, or lower T_r or the programmed speed)"
             for z in f.zones if z["kind"] == "protective" and z["enabled"]
             and z.get("extent_m") and worst > z["extent_m"]]

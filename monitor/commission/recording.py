@@ -8,8 +8,10 @@ stalls) has its newest frame repeated in the slots it missed.
 The reading thread never encodes: frames go to a writer thread through a queue (a repeated slot
 is the same array again, no copy), so a slow encoder on a loaded host (one H.264 write took
 180 ms against a 100 ms slot in the trial) never makes the reader miss the camera's frames. The
-queue is bounded by memory (``QUEUE_BYTES``); should the encoder fall that far behind, the
-reader waits and the frames it then misses are counted as repeated slots, as any other.
+queue is bounded by memory (``QUEUE_BYTES``) and the writer thread runs below the reader's
+priority (a loaded host gives its CPU to taking the frames; the encoding catches up after);
+should the encoder fall that far behind, the reader waits and the frames it then misses are
+counted as repeated slots, as any other.
 
 A recording whose share of repeated or missing slots exceeds ``MAX_MISSING`` is refused
 (``check``) with the measured figures: a walk of 7 distinct frames in 400 tests nothing.
@@ -17,7 +19,9 @@ A recording whose share of repeated or missing slots exceeds ``MAX_MISSING`` is 
 
 from __future__ import annotations
 
+import contextlib
 import math
+import os
 import queue
 import threading
 import time
@@ -29,6 +33,7 @@ from monitor.replay.video import open_video_writer
 
 MAX_MISSING = 0.05  # more than this share of the slots repeated or missing: refused
 QUEUE_BYTES = 512 * 1024 * 1024  # frames waiting for the encoder, at most
+ENCODER_NICE = 10  # the writer thread's niceness: the reader comes first
 _DONE = object()
 
 
@@ -144,6 +149,10 @@ class _Encoder:
             self.waited_s += time.monotonic() - t
 
     def _run(self, shape) -> None:
+        # below the reader (Linux: a thread is a task of its own): on a loaded host the CPU
+        # goes to taking the camera's frames first; the queue holds what waits for encoding
+        with contextlib.suppress(OSError, AttributeError):
+            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), ENCODER_NICE)
         writer = None
         try:
             writer, self.codec = open_video_writer(self.path, self.fps, shape)

@@ -89,11 +89,18 @@ def merge_zone(zone_id: str, walks: Sequence[dict]) -> dict | None:
             "corners": list(corners.values()), "walks": [k + 1 for k, _ in parts]}
 
 
+def detected_frames(walk: dict) -> int:
+    """Frames of a walk with a person detected (a walk.json written before the count was kept:
+    its detected foot points)."""
+    count = walk.get("detected_frames")
+    return int(count) if count is not None else len(walk.get("seen_m") or [])
+
+
 # --- the reasons a zone FAILs: each (zone, merged, walks, limits) -> reasons -------------------
 
 def nobody_detected(zone: dict, merged: dict | None, walks: Sequence[dict],
                     limits: WalkLimits) -> list[str]:
-    if walks and not any(w.get("detected_frames") for w in walks):
+    if walks and not any(detected_frames(w) for w in walks):
         frames = sum(int(w.get("frames") or 0) for w in walks)
         return [f"nobody was detected in the walk ({frames} frames)"]
     return []
@@ -183,7 +190,7 @@ def camera_verdicts(cameras: Sequence[str], walks: Sequence[dict]) -> list[Verdi
         reasons = []
         if not own:
             reasons.append("never walked: no walk was recorded from this camera")
-        elif not any(w.get("detected_frames") for w in own):
+        elif not any(detected_frames(w) for w in own):
             reasons.append("nobody was detected in its walk")
         for w in walks:
             faults = (w.get("camera_faults") or {}).get(cam) or {}
@@ -192,6 +199,6 @@ def camera_verdicts(cameras: Sequence[str], walks: Sequence[dict]) -> list[Verdi
                                                   for f, n in sorted(faults.items()))
                                + f" during the walk of {w.get('camera')}")
         figures = {"walks": len(own), "frames": sum(int(w.get("frames") or 0) for w in own),
-                   "detected_frames": sum(int(w.get("detected_frames") or 0) for w in own)}
+                   "detected_frames": sum(detected_frames(w) for w in own)}
         out.append(Verdict(cam, "camera", FAIL if reasons else PASS, tuple(reasons), figures))
     return out

@@ -84,16 +84,20 @@ class CommissionWatch:
         since_full = 0.0
         while not self._stop.wait(self.period_s):
             since_full += self.period_s
-            stamps = tuple(_stamp(p) for p in self._watched())
-            if stamps != self._stamps or self._dirty.is_set() or since_full >= FULL_EVERY_S:
-                self._stamps, since_full = stamps, 0.0
-                self._dirty.clear()
-                try:
+            try:
+                stamps = tuple(_stamp(p) for p in self._watched())
+                if stamps != self._stamps or self._dirty.is_set() \
+                        or since_full >= FULL_EVERY_S:
+                    self._stamps, since_full = stamps, 0.0
+                    self._dirty.clear()
                     self.check()
-                except Exception as exc:  # a bad file must never end the watch silently
-                    self.last = {"checksum": None, "matches": False,
-                                 "reason": f"the commissioned state cannot be checked: {exc}"}
-                    self.publish(self.last)
+            except Exception as exc:  # never a silent end with "yes" left standing
+                self._stamps = None  # check again at the next period
+                failed = {"checksum": None, "matches": False,
+                          "reason": f"the commissioned state cannot be checked: {exc}"}
+                if failed != self.last:
+                    self.last = failed
+                    self.publish(failed)
 
     def close(self) -> None:
         self._stop.set()

@@ -129,13 +129,15 @@ def _run(config_path, log_json: bool, duration: float | None, signals: StopSigna
 
             # which commissioned configuration runs (docs/commissioning.md): checked now,
             # then again on its own thread whenever the record or a fingerprinted file changes
+            def commissioned(state: dict) -> None:
+                bus.update_status(commissioned=state)
+                if state.get("matches"):
+                    event("commissioned", by=state.get("by"), key=state.get("key"),
+                          report=state.get("report"))
+                else:
+                    event(f"not commissioned: {state.get('reason')}", logging.WARNING)
             watch = CommissionWatch(config_path, config, cell, pipeline.detector.model_path,
-                                    cell.config_hash if cell else "",
-                                    lambda c: bus.update_status(commissioned=c))
-            if not watch.last.get("matches"):
-                event(f"not commissioned: {watch.last.get('reason')}", logging.WARNING)
-            else:
-                event("commissioned", by=watch.last.get("by"), key=watch.last.get("key"))
+                                    cell.config_hash if cell else "", commissioned)
             watch.start()
             closers.append(watch.close)
             # zone set selections (monitor/cases/): only with sets in the zone file

@@ -1,6 +1,7 @@
 """What goes over the bus, as formats and rules, below every stage that sends or checks it.
 
-Owns: Ed25519 keys and signatures (``signing``), the one bounded JSON decoder for bus payloads
+Owns: Ed25519 keys and signatures (``signing``), files signed over every byte (``evidence``:
+the commissioning report and record), the one bounded JSON decoder for bus payloads
 (``payload``), what every signed request checks (``signed_requests``) and how its answer is read
 (``answers``), operator resets (``resets``), the consumer rule for ``safety/command``
 (``consumer``, ``cell_consumer``), the ``[bus]`` settings and key expressions (``busconfig``),
