@@ -109,7 +109,7 @@ TARGETS = {
         # the bus decoder's bounds (nesting, numbers, size)
         Target("payload", ("monitor/wire/payload.py",),
                ("tests/test_bus_parsers.py", "tests/test_evidence_gaps.py", "-k",
-                "decoder or loader or refusal or hostile")),
+                "decoder or depth or loader or refusal or hostile")),
         # the robot-side adapters: what a PLC / OPC UA client / ROS node reads (pure functions;
         # the servers around them are tested on the wire, far too slowly to run per mutant)
         Target("modbus", ("monitor/adapters/modbus_map.py",),
