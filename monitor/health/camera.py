@@ -353,15 +353,14 @@ class CameraHealth:
         self._measures.update(frame_diff=diff, frozen_threshold=threshold)
         if not freeze.active:
             return None
-        held = now - freeze.picture_time
         if freeze.changing:
-            why = (f"picture changing again for {now - freeze.run_since:.1f} s, not yet "
-                   f"{self.config.frozen_clear_s:g} s like a live camera's")
+            reason = (f"image was frozen, picture changing again for "
+                      f"{now - freeze.run_since:.1f} s, not yet {self.config.frozen_clear_s:g} "
+                      "s like a live camera's")
         else:
-            why = (f"mean difference {diff:.2f} < {threshold:.2g} grey levels, the camera's "
-                   "own noise")
-        return Fault(FROZEN, f"{self.camera_id}: image unchanged for {held:.1f} s ({why})",
-                     True, self.camera_id)
+            reason = (f"image unchanged for {now - freeze.picture_time:.1f} s (mean difference "
+                      f"{diff:.2f} < {threshold:.2g} grey levels, the camera's own noise)")
+        return Fault(FROZEN, f"{self.camera_id}: {reason}", True, self.camera_id)
 
     def _check_defocus(self, small: np.ndarray, frame_bgr: np.ndarray,
                        now: float) -> list[Alert]:
