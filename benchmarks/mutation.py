@@ -109,7 +109,7 @@ TARGETS = {
         # the bus decoder's bounds (nesting, numbers, size)
         Target("payload", ("monitor/wire/payload.py",),
                ("tests/test_bus_parsers.py", "tests/test_evidence_gaps.py", "-k",
-                "decoder or loader or refusal or hostile")),
+                "decoder or depth or loader or refusal or hostile")),
         # the robot-side adapters: what a PLC / OPC UA client / ROS node reads (pure functions;
         # the servers around them are tested on the wire, far too slowly to run per mutant)
         Target("modbus", ("monitor/adapters/modbus_map.py",),
@@ -229,6 +229,10 @@ EQUIVALENT: dict[str, str] = {
         "break vs continue on a camera without a tracker: every camera gets one in __init__",
     "monitor.geometry.boxes.x_merge_boxes__mutmut_12":
         "reshape(None) of the empty 1-D score array is the same (0,) array",
+    # the bus decoder (monitor/wire/payload.py)
+    "monitor.wire.payload.x_check_depth__mutmut_6":
+        "the shortcut for payloads with few brackets at < instead of <=: exactly max_depth "
+        "brackets are scanned instead of skipped, and the scan finds no deeper nesting either",
     # the Modbus register map (monitor/adapters/modbus_map.py)
     "monitor.adapters.modbus_map.x__set_bits__mutmut_12":
         "table[:16] vs [:15]: the 16th set's own bit would be 15, the 'other' bit it gets",

@@ -138,3 +138,21 @@ def test_the_bus_decoder_refuses_the_first_level_past_16(depth):
             with pytest.raises(pj.PayloadError, match="nested deeper than 16 levels"):
                 pj.load(payload, 1000)
     assert pj.MAX_DEPTH == 16
+
+
+@pytest.mark.parametrize("payload, deepest", [
+    pytest.param(b"[" + b"[" * 15 + b"]" * 15 + b"," + b"[" * 15 + b"]" * 15 + b"]", 16,
+                 id="two-16-deep-branches"),
+    pytest.param(b"[" + b"[]," * 20 + b"[" * 15 + b"]" * 15 + b"]", 16, id="siblings-then-16"),
+    pytest.param(b"[" + b"[]," * 20 + b"[" * 16 + b"]" * 16 + b"]", 17, id="siblings-then-17"),
+    pytest.param(b"[[[]," + b"[" * 15 + b"]" * 15 + b"]]", 17, id="17-after-a-close"),
+])
+def test_the_depth_is_the_deepest_nesting_not_the_bracket_count(payload, deepest):
+    """More than 16 brackets in all, nested at most 16 deep, decode; 17 deep anywhere (after
+    siblings, after a closing bracket) is refused: the scan counts each level once, up and
+    down."""
+    if deepest <= pj.MAX_DEPTH:
+        assert pj.load(payload, 1000) is not None
+    else:
+        with pytest.raises(pj.PayloadError, match="nested deeper than 16 levels"):
+            pj.load(payload, 1000)

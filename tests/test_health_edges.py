@@ -104,3 +104,33 @@ def test_frozen_only_below_the_difference_limit(changed_rows, frozen):
     if frozen:
         assert faults[0].stop and faults[0].source == "cam0"
         assert "mean difference 0.20 < 0.3 grey levels" in faults[0].reason
+
+
+def test_frozen_is_judged_against_the_cameras_own_noise():
+    """A noisy camera (live frames differ by about 9 grey levels) whose picture then repeats
+    with a re-encoding's flicker of about 1.3 grey levels every frame: far above frozen_diff,
+    far below the camera's own noise. Frozen 1 s after its last live frame; judged by
+    frozen_diff alone (frozen_noise_share 0) the flicker looks live and it never is."""
+    rng = np.random.default_rng(0)
+    base = textured(120, 30).astype(np.int16)
+
+    def frame(sigma: float) -> np.ndarray:
+        noisy = base + np.rint(rng.normal(0.0, sigma, base.shape)).astype(np.int16)
+        return grey(np.clip(noisy, 0, 255).astype(np.uint8))
+
+    still = frame(0.0)
+    for share, frozen in ((0.25, True), (0.0, False)):
+        h = health(frozen_noise_share=share)
+        reports = [h.check(frame(8.0), k / 10) for k in range(30)]  # 3 s live at 10 fps
+        reports += [h.check(frame(1.2) if k % 2 else still, 3.0 + k / 10)
+                    for k in range(1, 21)]
+        flicker = reports[-1].measures["frame_diff"]
+        assert 0.3 < flicker < 2.0
+        assert reports[29].measures["frozen_threshold"] == (
+            pytest.approx(2.0, abs=0.6) if share else 0.3)
+        faults = [any(f.name == FROZEN for f in r.faults) for r in reports]
+        if frozen:  # the last live difference is 3.1 s (into the first flicker frame)
+            assert reports[faults.index(True)].time == pytest.approx(4.1)
+            assert all(faults[faults.index(True):])
+        else:
+            assert not any(faults)

@@ -68,6 +68,7 @@ def test_faults_zone_sets_a_refused_reset_and_warnings_are_said():
                             "operator reset"}]}
     text = status_text(_status(
         command=command, signed=False, other_monitors=["boot 77"], muted=[],
+        without_reference=["cam1"],
         commissioned={"checksum": None, "matches": False, "reason": "zones changed"},
         last_reset={"operator": "bob", "accepted": False, "message": "refused: x",
                     "wall": STARTED}))
@@ -84,6 +85,8 @@ def test_faults_zone_sets_a_refused_reset_and_warnings_are_said():
         in differs.splitlines()
     assert any(line.startswith("last reset: bob refused at ") for line in lines)
     assert "WARNING: other monitors answer for this cell: boot 77" in lines
+    assert "WARNING: no reference image for cam1: glare and image conditions judged by the " \
+        "model envelope's absolute limits only" in lines
 
 
 @pytest.mark.parametrize("status", [

@@ -159,6 +159,10 @@ def _warnings(s: dict) -> list[str]:
         out.append(f"other monitors answer for this cell: {', '.join(map(str, others))}")
     if s.get("test_model"):
         out.append(str(s["test_model"]))
+    missing = _list(s.get("without_reference"))
+    if missing:  # glare and image conditions judged by the envelope's absolute limits only
+        out.append(f"no reference image for {', '.join(map(str, missing))}: glare and image "
+                   "conditions judged by the model envelope's absolute limits only")
     if s.get("warning"):
         out.append(str(s["warning"]))
     if s.get("protective_zone") is False and not s.get("warning"):

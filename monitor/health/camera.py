@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections import deque
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -64,6 +65,7 @@ class _Freeze:
     differ."""
 
     LEARN = 300  # live differences kept for the camera's noise (20 s at 15 fps)
+    RELEARN = 15  # ... their percentile taken anew after this many (1 s at 15 fps)
 
     def __init__(self) -> None:
         self.picture_time = 0.0
@@ -72,7 +74,10 @@ class _Freeze:
         self.really_changed = True  # this frame and the one before both were
         self.run_since = 0.0  # the first frame of the newest run of differing frames
         self._run = 0  # differing frames in that run
-        self._live: list[float] = []  # differences of frames that really changed
+        # differences of frames that really changed
+        self._live: deque[float] = deque(maxlen=self.LEARN)
+        self._noise: float | None = None  # their 10th percentile (every ``RELEARN`` frames)
+        self._learned = 0
 
     def restart(self, now: float) -> None:
         """No earlier picture to compare with (the first frame, a blinded one): a new one."""
@@ -83,10 +88,9 @@ class _Freeze:
         """Grey levels a frame must differ by to count: ``frozen_diff``, or more on a noisy
         camera (a share of a low percentile of its live differences: a walking person or a
         moving robot raises the median, not the 10th percentile)."""
-        if len(self._live) < 10:
+        if self._noise is None:
             return config.frozen_diff
-        return max(config.frozen_diff,
-                   config.frozen_noise_share * float(np.percentile(self._live, 10)))
+        return max(config.frozen_diff, config.frozen_noise_share * self._noise)
 
     def step(self, diff: float, now: float, config: HealthConfig) -> float:
         """One frame's difference to the one before; returns the threshold it was judged by."""
@@ -101,7 +105,10 @@ class _Freeze:
         self.really_changed = self._run >= 2
         if self.really_changed:
             self.picture_time = now
-            self._live = [*self._live[-(self.LEARN - 1):], diff]
+            self._live.append(diff)
+            self._learned += 1
+            if len(self._live) >= 10 and (self._noise is None or self._learned >= self.RELEARN):
+                self._noise, self._learned = float(np.percentile(self._live, 10)), 0
         if not self.active:
             self.active = (not self.really_changed
                            and now - self.picture_time + 1e-9 >= config.frozen_after_s)
@@ -346,15 +353,14 @@ class CameraHealth:
         self._measures.update(frame_diff=diff, frozen_threshold=threshold)
         if not freeze.active:
             return None
-        held = now - freeze.picture_time
         if freeze.changing:
-            why = (f"picture changing again for {now - freeze.run_since:.1f} s, not yet "
-                   f"{self.config.frozen_clear_s:g} s like a live camera's")
+            reason = (f"image was frozen, picture changing again for "
+                      f"{now - freeze.run_since:.1f} s, not yet {self.config.frozen_clear_s:g} "
+                      "s like a live camera's")
         else:
-            why = (f"mean difference {diff:.2f} < {threshold:.2g} grey levels, the camera's "
-                   "own noise")
-        return Fault(FROZEN, f"{self.camera_id}: image unchanged for {held:.1f} s ({why})",
-                     True, self.camera_id)
+            reason = (f"image unchanged for {now - freeze.picture_time:.1f} s (mean difference "
+                      f"{diff:.2f} < {threshold:.2g} grey levels, the camera's own noise)")
+        return Fault(FROZEN, f"{self.camera_id}: {reason}", True, self.camera_id)
 
     def _check_defocus(self, small: np.ndarray, frame_bgr: np.ndarray,
                        now: float) -> list[Alert]:
