@@ -476,7 +476,16 @@ def open_detector(model_path: str | Path, config: DetectorConfig | None = None,
                     reference=reference.backend)
     if chosen == reference.backend:
         return reference, choice
-    detector = opened.get(chosen) or _open(model_path, config, chosen, facts)
+    try:
+        detector = opened.get(chosen) or _open(model_path, config, chosen, facts)
+    except MonitorError as exc:
+        if config.backend != "auto":
+            raise
+        # measured here before, not usable now (a GPU gone, a driver changed): the reference
+        log.warning("%s: %s no longer opens (%s): running %s", model_path.name, chosen.label,
+                    exc, reference.backend.label)
+        return reference, dataclasses.replace(choice, chosen=reference.backend,
+                                              reason=f"{chosen.label} did not open")
     return detector, choice
 
 
