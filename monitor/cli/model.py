@@ -179,8 +179,6 @@ def _detector(model: Path | None, layout: str | None = None, int8: bool = False)
 def _configured(model: Path | None, config_path: Path | None):
     """The model and [detector] settings of ``--config`` (the model given wins), the
     synthetic model when neither names one."""
-    import dataclasses
-
     from monitor.detector import DetectorConfig
 
     detector_config = DetectorConfig()
@@ -194,7 +192,7 @@ def _configured(model: Path | None, config_path: Path | None):
         from monitor.cli.run import ensure_model
 
         model = ensure_model()
-    return model, dataclasses.replace(detector_config)
+    return model, detector_config
 
 
 def cmd_info(args: argparse.Namespace) -> int:

@@ -58,9 +58,9 @@ from monitor.errors import ConfigError, MonitorError
 
 log = logging.getLogger(__name__)
 
-FORMAT = 1
+FORMAT = 2  # 2: trials carry the side-by-side time ratio
 MARGIN = 0.9  # another backend runs only at <= 0.9 of the reference's measured time
-TIMED_ROUNDS = 3
+TIMED_ROUNDS = 5
 _PARAM = {"gain_low": "gain", "gain_high": "gain", "contrast": "contrast", "noise": "noise",
           "blur": "blur"}
 # the CPU flags that change which kernels a runtime picks (and so its speed and rounding)
@@ -85,6 +85,15 @@ class Trial:
     agreement: Agreement | None = None
     where: str = ""
     refused: str | None = None
+    # its time over the reference's: the median over rounds of the two run side by side (the
+    # same load on both), None: ms / reference_ms
+    ratio: float | None = None
+
+    @property
+    def speed_ratio(self) -> float:
+        if self.ratio is not None:
+            return self.ratio
+        return self.ms / self.reference_ms if self.ms and self.reference_ms else 9.0
 
     def to_dict(self) -> dict:
         out: dict = {"backend": self.candidate.backend, "precision": self.candidate.precision}
@@ -92,6 +101,8 @@ class Trial:
             out["ms"] = round(self.ms, 2)
         if self.reference_ms is not None:
             out["reference_ms"] = round(self.reference_ms, 2)
+        if self.ratio is not None:
+            out["ratio"] = round(self.ratio, 3)
         if self.agreement is not None:
             out["agreement"] = _agreement_dict(self.agreement)
             out["where"] = self.where
@@ -105,7 +116,7 @@ class Trial:
         return cls(Candidate(data["backend"], data["precision"]), data.get("ms"),
                    data.get("reference_ms"),
                    Agreement(**agreement) if agreement is not None else None,
-                   data.get("where", ""), data.get("refused"))
+                   data.get("where", ""), data.get("refused"), data.get("ratio"))
 
 
 @dataclass(frozen=True)
@@ -324,16 +335,24 @@ def _open(model_path: Path, config: DetectorConfig, candidate: Candidate,
 
 
 def timed(detectors: Sequence[Detector], frame: np.ndarray, rounds: int = TIMED_ROUNDS,
-          ) -> list[float]:
-    """Median inference ms of each detector on ``frame``: rounds of a block per detector (one
-    run that brings its weights back into the caches, then two timed), so load that comes and
-    goes hits all alike and none is timed with another's weights in the cache."""
+          ) -> tuple[list[float], list[float]]:
+    """Median inference ms of each detector on ``frame``, and each one's time over the
+    first one's: rounds of a block per detector (one run that brings its weights back into
+    the caches, then two timed, the quicker counting: load only ever makes a run slower), and
+    the ratio of two blocks run side by side taken per round, its median over the rounds (load
+    that comes and goes hits both alike)."""
     times: list[list[float]] = [[] for _ in detectors]
+    ratios: list[list[float]] = [[] for _ in detectors]
     for _ in range(rounds):
+        best = []
         for k, det in enumerate(detectors):
             det.detect(frame)
-            times[k] += [det.detect_timed(frame).inference_ms for _ in range(2)]
-    return [statistics.median(t) for t in times]
+            runs = [det.detect_timed(frame).inference_ms for _ in range(2)]
+            times[k] += runs
+            best.append(min(runs))
+        for k in range(len(detectors)):
+            ratios[k].append(best[k] / best[0] if best[0] > 0 else 9.0)
+    return [statistics.median(t) for t in times], [statistics.median(r) for r in ratios]
 
 
 def measure(model_path: Path, config: DetectorConfig, candidates: Sequence[Candidate],
@@ -378,8 +397,9 @@ def measure(model_path: Path, config: DetectorConfig, candidates: Sequence[Candi
         if why is not None:
             trials.append(Trial(cand, agreement=agreement, where=where, refused=why))
             continue
-        ms, ref_ms = timed([det, reference], frame)
-        trials.append(Trial(cand, ms, ref_ms, agreement, where if agreement else ""))
+        (ref_ms, ms), (_, ratio) = timed([reference, det], frame)
+        trials.append(Trial(cand, ms, ref_ms, agreement, where if agreement else "",
+                            ratio=ratio))
         opened[cand] = det
     return trials, opened
 
@@ -418,14 +438,14 @@ def decide(reference: Candidate, trials: Sequence[Trial], frames: dict[str, Tria
             raise BackendRefused(f"[detector] backend {config.backend!r}"
                                  f"{'' if config.precision == 'auto' else ' ' + config.precision}"
                                  f" refused: {'; '.join(reasons) or 'not measured'}")
-        best = min(ok, key=lambda t: t.ms)
+        best = min(ok, key=lambda t: t.speed_ratio)
         return best.candidate, "named in [detector], agrees"
     if not eligible:
         why = "nothing else agreed" if has_case or frames else \
             "no self-test image to check other backends on"
         return reference, f"{why}"
-    best = min(eligible, key=lambda t: t.ms / t.reference_ms if t.reference_ms else 9.0)
-    ratio = best.ms / best.reference_ms if best.reference_ms else 9.0
+    best = min(eligible, key=lambda t: t.speed_ratio)
+    ratio = best.speed_ratio
     if ratio > MARGIN:
         return reference, (f"fastest other: {best.candidate.label} at {ratio:.2f} of its "
                            f"time, not below {MARGIN:g}")
@@ -476,7 +496,16 @@ def open_detector(model_path: str | Path, config: DetectorConfig | None = None,
                     reference=reference.backend)
     if chosen == reference.backend:
         return reference, choice
-    detector = opened.get(chosen) or _open(model_path, config, chosen, facts)
+    try:
+        detector = opened.get(chosen) or _open(model_path, config, chosen, facts)
+    except MonitorError as exc:
+        if config.backend != "auto":
+            raise
+        # measured here before, not usable now (a GPU gone, a driver changed): the reference
+        log.warning("%s: %s no longer opens (%s): running %s", model_path.name, chosen.label,
+                    exc, reference.backend.label)
+        return reference, dataclasses.replace(choice, chosen=reference.backend,
+                                              reason=f"{chosen.label} did not open")
     return detector, choice
 
 
