@@ -92,6 +92,7 @@ def main(argv: list[str]) -> int:
                 rows.append((f"{name} {fps:g} fps", [*s.row(),
                                                      f"{time.perf_counter() - t1:.0f}"]))
                 print(f"{rows[-1][0]}: {' '.join(rows[-1][1])}", flush=True)
+                print(f"  STOP while seen empty, by first reason: {s.held_by()}", flush=True)
                 if s.missed_stop_frames:
                     print(f"  missed STOP at clip frames {s.missed_stop_frames}", flush=True)
     print()
