@@ -1,7 +1,8 @@
 """Run every benchmark, one after the other, and print their tables plus each run's peak memory.
 
 Run: python benchmarks/all.py [NAME ...]   (default: every name in ORDER; ``--long`` adds the
-long evaluations: mutation testing, 100k-input fuzzing, 20-run shutdown, the scenario set).
+long evaluations: mutation testing, 100k-input fuzzing, 20-run shutdown, the scenario set,
+the real footage through the real model).
 Benchmarks measure; they are not tests. Close other work first: the machine has 2 cores.
 """
 
@@ -16,7 +17,7 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 ORDER = ("detector", "quantize", "zones", "tracks", "zone_files", "bus", "health", "frames",
          "pipeline", "cameras", "capacity")
-LONG = ("mutation", "fuzz", "shutdown", "shutdown_service", "scenarios")
+LONG = ("mutation", "fuzz", "shutdown", "shutdown_service", "scenarios", "real_footage")
 
 
 def main(argv: list[str]) -> int:

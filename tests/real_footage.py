@@ -249,6 +249,7 @@ class Step:
     state: str
     reset: bool | None  # a reset answered at this step: accepted or not
     lost_holds: int  # lost persons held in a zone
+    why: str  # the first reason's code (what holds a STOP: protective_zone, person_lost, ...)
 
 
 def steps_of(results: list) -> list[Step]:
@@ -258,7 +259,8 @@ def steps_of(results: list) -> list[Step]:
         cmd = r.command
         out.append(Step(r.frame.seq if r.frame is not None else None, r.now, cmd.state,
                         cmd.reset.accepted if cmd.reset is not None else None,
-                        sum(x.code == "person_lost" for x in cmd.reasons)))
+                        sum(x.code == "person_lost" for x in cmd.reasons),
+                        cmd.reasons[0].code if cmd.reasons else ""))
     return out
 
 
@@ -275,6 +277,8 @@ class Score:
     released_empty_s: float = 0.0  # of that, RUN or SLOW
     released_s: float = 0.0  # RUN or SLOW at all (frame steps)
     holds_at_end: int = 0  # lost persons still held in a zone at the last step
+    # STOP while the truth sees the polygon empty, in seconds, by the command's first reason
+    stopped_empty_by: dict[str, float] = field(default_factory=dict)
 
     def row(self) -> list[str]:
         return [str(self.frames), str(self.inside_frames), str(len(self.missed_stop_frames)),
@@ -282,6 +286,12 @@ class Score:
                 str(len(self.accepted_inside)),
                 *(f"{self.seconds.get(s, 0.0):.1f}" for s in ("RUN", "SLOW", "STOP")),
                 f"{self.empty_s:.1f}", f"{self.released_empty_s:.1f}", str(self.holds_at_end)]
+
+
+    def held_by(self) -> str:
+        """What held the STOPs while the polygon was seen empty: 'person_lost 2.4 s, ...'."""
+        parts = sorted(self.stopped_empty_by.items(), key=lambda kv: -kv[1])
+        return ", ".join(f"{code or 'none'} {t:.1f} s" for code, t in parts) or "nothing"
 
 
 HEADER = ["frames", "inside (truth)", "missed STOP", "resets req/acc", "accepted inside",
@@ -305,6 +315,8 @@ def score(steps: list[Step], inside: list[bool], fps: float, seconds: dict[str, 
             if not inside[i]:
                 s.empty_s += 1.0 / fps
                 s.released_empty_s += released / fps
+                if step.state == "STOP":
+                    s.stopped_empty_by[step.why] = s.stopped_empty_by.get(step.why, 0.0) + 1 / fps
             s.released_s += released / fps
         if step.reset:  # accepted (None: no reset answered at this step)
             s.resets_accepted += 1

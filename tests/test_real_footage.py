@@ -102,4 +102,5 @@ def test_time_released_while_the_protective_zone_is_seen_empty_is_recorded(run: 
     bound: the cell is never released for longer than the polygon was seen empty."""
     s = run.score
     print("\n" + rf.table([("vtest slice 5 fps", s.row())]))
+    print(f"STOP while seen empty, by first reason: {s.held_by()}")
     assert s.released_s <= s.empty_s + 1e-6
