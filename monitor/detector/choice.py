@@ -62,7 +62,7 @@ FORMAT = 2  # 2: trials carry the side-by-side time ratio
 MARGIN = 0.9  # another backend runs only at <= 0.9 of the reference's measured time
 TIMED_ROUNDS = 5
 _PARAM = {"gain_low": "gain", "gain_high": "gain", "contrast": "contrast", "noise": "noise",
-          "blur": "blur"}
+          "blur": "blur", "glare": "glare"}
 # the CPU flags that change which kernels a runtime picks (and so its speed and rounding)
 _FLAG_PREFIXES = ("avx", "amx", "fma", "f16c", "sse4", "vnni")
 # settings that only change how the choice is made or how fast, not what the model computes
@@ -203,12 +203,20 @@ def agreement_figures(case: SelfTestCase, input_size: tuple[int, int],
         return cv2.warpAffine(image, m, (image.shape[1], image.shape[0]),
                               flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
 
+    def box(k: int) -> np.ndarray:
+        """The figure's box in ``shifted(k)``: where a glare band is laid."""
+        fx, fy = shifts[k % len(shifts)]
+        x1, y1, x2, y2 = (v * scale for v in case.box_px)
+        dx, dy = fx * stride_px, fy * stride_px
+        return np.array((x1 + dx, y1 + dy, x2 + dx, y2 + dy))
+
     figures = [shifted(k) for k in range(len(shifts))]
     k = 0
     for n, (axis, steps) in enumerate(GRADES.items()):
         for g, grade in enumerate(steps[1:], start=1):
             rng = np.random.default_rng(n * 1000 + g)
-            figures.append(degrade(shifted(k), rng=rng, **{_PARAM[axis]: grade}))
+            figures.append(degrade(shifted(k), rng=rng, glare_box=box(k),
+                                   **{_PARAM[axis]: grade}))
             k += 1
     return figures
 
