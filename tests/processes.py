@@ -61,6 +61,18 @@ def one_inference_thread(config: str) -> str:
     return with_default(config, "detector", ONE_THREAD)
 
 
+# onnxruntime, the reference backend, in every monitor a Service starts unless the test names
+# its own: these tests check the loop, and `auto` would first measure every backend the host
+# has (and then the envelope with the chosen one) for each new model file, which on a loaded
+# host comes in front of the bus opening; tests/test_backends.py checks `auto` in `monitor run`
+REFERENCE_BACKEND = 'backend = "onnxruntime"\n'
+
+
+def reference_backend(config: str) -> str:
+    """A monitor.toml text with ``[detector] backend = "onnxruntime"`` unless it names one."""
+    return with_default(config, "detector", REFERENCE_BACKEND)
+
+
 def capped_rate(config: str) -> str:
     """A monitor.toml text whose one ``[camera]`` is processed at most ``TEST_FPS`` times a
     second, unless it sets its own ``max_fps`` (configs with ``[[camera]]`` are left alone)."""
@@ -116,13 +128,13 @@ class Service:
         (tmp / "operators").write_text(f"tester {public}\n")
         self.config = tmp / "monitor.toml"
         extra = _load_tolerant(extra)
-        self.config.write_text(capped_rate(one_inference_thread(
+        self.config.write_text(reference_backend(capped_rate(one_inference_thread(
             f'[camera]\nsource = "{camera}"\n{camera_lines}'
             f'[model]\npath = "{model}"\n'
             + ("allow_test_model = true\n" if allow_test_model else "")
             + f'[bus]\ncell = "t5"\ninstance = "svc-test"\noperators_file = "operators"\n'
             f'listen = ["tcp/127.0.0.1:{self.bus_port}"]\n'
-            f'[service]\nmetrics_port = {self.metrics_port}\n{CAPACITY}' + extra)))
+            f'[service]\nmetrics_port = {self.metrics_port}\n{CAPACITY}' + extra))))
         self.stderr_path = tmp / "service.log"
         self.commands: list[dict] = []
         self.detections: list[dict] = []
