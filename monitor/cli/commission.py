@@ -90,6 +90,7 @@ def _model_path(config, model: Path | None) -> Path:
 
 
 def cmd_walk(args: argparse.Namespace) -> int:
+    from monitor.commission.cut_feet import FEET_HIDDEN_TEXT, walk_passes_hidden_feet
     from monitor.commission.walk_video import walk_video
     from monitor.config import load_config
     from monitor.detector import Detector
@@ -121,7 +122,9 @@ def cmd_walk(args: argparse.Namespace) -> int:
                               annotate=not args.no_video, progress=sys.stderr.isatty(),
                               policy=config.policy, health=config.health,
                               tick_s=config.service.tick_s,
-                              allow_no_protective=config.zones.allow_no_protective)
+                              allow_no_protective=config.zones.allow_no_protective,
+                              reference=_walk_reference(config, cell,
+                                                        args.camera or recorded_from))
     result, pictures = walk_video(video, detector, cell, settings, args.cell_size, args.truth)
     for z in result.zones:
         cover = (f"{z.seen_cells}/{z.cells} floor cells seen, {len(z.blind_spots)} blind"
@@ -133,8 +136,25 @@ def cmd_walk(args: argparse.Namespace) -> int:
         print(f"{z.kind} {z.zone_id}: {cover}; entries {len(z.entries)} (to "
               f"{'STOP' if z.kind == 'protective' else 'SLOW'}: {times}); gaps {len(z.gaps)}"
               f"{corners}")
+        if z.feet_hidden:
+            print(f"{z.kind} {z.zone_id}: {len(z.feet_hidden)} floor cells where the walker's "
+                  f"feet were hidden ({FEET_HIDDEN_TEXT})")
+    if not walk_passes_hidden_feet(result.zones):
+        print("the walk does not pass: a fixture the zone file does not declare hides feet in "
+              "a protective zone (docs/occlusion.md)")
     print(f"outputs: {args.out}/ (walk.json, {', '.join(sorted(pictures.values()))})")
     return 0
+
+
+def _walk_reference(config, cell, camera_id: str | None):
+    """The walked camera's commissioning reference (None: none): its edges tell boxes cut
+    off by a fixture the zone file does not declare."""
+    from monitor.health.references import choose_reference, load_chosen_reference
+    from monitor.zones.cameras import choose_camera
+
+    camera = choose_camera(cell.cameras, camera_id, cell.label)
+    configured = next((c.reference for c in config.cameras if c.id == camera), None)
+    return load_chosen_reference(choose_reference(camera, configured, cell), cell)
 
 
 def _record(args: argparse.Namespace, config) -> Path:

@@ -143,6 +143,8 @@ def _warnings(s: dict) -> list[str]:
         out.append(f"other monitors answer for this cell: {', '.join(map(str, others))}")
     if s.get("test_model"):
         out.append(str(s["test_model"]))
+    if s.get("changes_unwatched"):  # no commissioning reference (docs/occlusion.md)
+        out.append(str(s["changes_unwatched"]))
     if s.get("warning"):
         out.append(str(s["warning"]))
     if s.get("protective_zone") is False and not s.get("warning"):

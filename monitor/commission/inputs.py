@@ -15,6 +15,7 @@ import cv2
 import numpy as np
 
 from monitor import __version__
+from monitor.commission.cut_feet import hidden_feet_doubts
 from monitor.commission.floor import zone_floors
 from monitor.commission.pictures import camera_picture, floor_picture
 from monitor.commission.walk_video import read_walk
@@ -190,6 +191,7 @@ def _warnings(config: MonitorConfig, cell: Cell | None, status: dict | None,
     else:
         if walk.get("zones_hash") != (cell.config_hash if cell else ""):
             out.append("the walk test was made with other zones than these")
+        out += hidden_feet_doubts(walk)
         for z in walk.get("zones", []):
             if z.get("kind") == "protective" and z.get("blind_spots"):
                 out.append(f"zone {z['zone_id']}: {len(z['blind_spots'])} floor cells no "

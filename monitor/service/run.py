@@ -40,6 +40,7 @@ from monitor.service.setup import (
     bus_config_for,
     check_capacity,
     int8_at_start,
+    no_reference_note,
     reaction_budget,
     reaction_sink,
     zones_file_of,
@@ -93,6 +94,9 @@ def _run(config_path, log_json: bool, duration: float | None, signals: StopSigna
         event(f"zone file {cell.label}: {doubt}", logging.WARNING)
     for doubt in reference_warnings(config, cell):  # two references for one camera
         event(doubt, logging.WARNING)
+    unwatched = no_reference_note(pipeline, config.cameras)
+    if unwatched:  # what changed since commissioning is not noticed (docs/occlusion.md)
+        event(unwatched, logging.WARNING)
     if config.bus.allow_unsigned_resets:
         event("resets are accepted without an operator key (embedded demo on 127.0.0.1, or "
               "allow_unsigned_resets = true): not for a production cell", logging.WARNING)
@@ -113,6 +117,8 @@ def _run(config_path, log_json: bool, duration: float | None, signals: StopSigna
                 bus.update_status(protective_zone=False, warning=warning)
             if test_model:
                 bus.update_status(test_model=test_model)
+            bus.update_status(changes_watched=sorted(pipeline.objects),
+                              changes_unwatched=unwatched or None)
 
             def commissioned(zones_hash: str) -> None:
                 """Which commissioned configuration runs (docs/commissioning.md)."""
