@@ -126,3 +126,31 @@ def test_the_object_check_says_nothing_without_a_reference(detector):
                         references={"cam0": crate_scene().scene.reference()})
     assert set(with_ref.objects) == {"cam0"}
     assert dataclasses.is_dataclass(with_ref.objects["cam0"])
+
+
+@pytest.mark.slow
+def test_the_demo_walk_with_its_first_frame_as_reference_raises_no_object_alert(detector):
+    # the robot arm moves in the protective zone's image region: its column is left out
+    from monitor.config import demo_cell_path
+    from monitor.scene import DemoScene
+    from monitor.zones import load_cell
+
+    scene = DemoScene(fps=5.0)
+    cell = load_cell(demo_cell_path())
+    first, truth = next(iter(scene.frames()))
+    assert not truth.persons
+
+    def walk(references):
+        pipe = Pipeline(detector, "cam0", PolicyConfig(), cell, references=references)
+        states, alerts = [], []
+        for img, t in scene.frames():
+            res = pipe.process(img, FrameInfo("cam0", t.index, t.time_s, 1280, 720), t.time_s)
+            states.append(res.command.state)
+            alerts += [a for a in res.alerts if a.kind.startswith("object")]
+        return states, alerts
+
+    states, alerts = walk({"cam0": first})
+    plain, _ = walk(None)
+    assert not alerts, [a.message for a in alerts]
+    for state in ("RUN", "SLOW"):
+        assert abs(states.count(state) - plain.count(state)) <= 0.05 * len(states)

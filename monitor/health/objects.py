@@ -39,6 +39,7 @@ from monitor.health.draw import encode_jpeg
 from monitor.types import Alert, Fault
 from monitor.zones import volume_outline_m
 from monitor.zones.masks import zone_regions_px
+from monitor.zones.schema import RobotBaseSpec
 
 ANALYSIS_WIDTH = 320
 OBJECT_PLACED = "object_placed"
@@ -321,8 +322,9 @@ def objects_of(cell, references) -> dict[str, ZoneObjects]:
             ref = cv2.resize(ref, (spec.width, spec.height), interpolation=cv2.INTER_AREA)
         model = cell.camera_models.get(cid)
         masks = [p for _, p in zone_regions_px(cell, cid, ("mask",))]
+        column = robot_column_px(cell, cid)
         out[cid] = ZoneObjects(cid, regions, ref, model.pixel_to_floor if model else None,
-                               exclude_px=masks)
+                               exclude_px=[*masks, *([column] if column is not None else [])])
     return out
 
 
@@ -341,3 +343,25 @@ def accept_objects(watches, reset, now: float) -> tuple[Alert, ...]:
                       "objects": [{"camera": cid, "zones": list(o.zone_ids),
                                    "floor_m": list(o.floor_m) if o.floor_m else None,
                                    "box_px": list(o.box_px)} for cid, o in accepted]}),)
+
+
+# the robot moves above its base: its column (the base cylinder up to this height) is no place
+# to look for objects (an arm in another pose than on the reference is no crate)
+ROBOT_COLUMN_M = 3.0
+
+
+def robot_column_px(cell, camera_id: str) -> np.ndarray | None:
+    """The image hull (full-resolution pixels) of the robot base's cylinder from the floor up
+    to ``ROBOT_COLUMN_M`` (None: the camera cannot project it)."""
+    model = cell.camera_models.get(camera_id)
+    if model is None or not model.can_project_3d:
+        return None
+    base = cell.spec.robot_base or RobotBaseSpec()
+    a = np.linspace(0.0, 2 * np.pi, 16, endpoint=False)
+    ring = np.c_[base.center_m[0] + base.radius_m * np.cos(a),
+                 base.center_m[1] + base.radius_m * np.sin(a)]
+    pts = np.r_[np.c_[ring, np.zeros(len(a))], np.c_[ring, np.full(len(a), ROBOT_COLUMN_M)]]
+    px, front = model.project(pts)
+    if not front.all():
+        return None
+    return cv2.convexHull(px.astype(np.float32)).reshape(-1, 2)
