@@ -33,7 +33,15 @@ from monitor.errors import ConfigError
 from monitor.pipeline import Pipeline
 from monitor.policy import STOP, PolicyConfig, ResetRequest
 from monitor.scene import Camera, Figure, box_of, draw_figure
-from monitor.scene.cell import Block, CellScene, CutOut, Platform, Walker, zone_data
+from monitor.scene.cell import (
+    SCENE_ROBOT_BASE,
+    Block,
+    CellScene,
+    CutOut,
+    Platform,
+    Walker,
+    zone_data,
+)
 from monitor.types import FrameInfo
 from monitor.zones import parse_cell
 
@@ -67,6 +75,8 @@ class Scenario:
 
     def zone_data(self) -> dict:
         data = zone_data(self.scene, PROTECTIVE)
+        # the painted robot hides nobody (a scene with a pedestal adds it as a block)
+        data["robot_base"] = dict(SCENE_ROBOT_BASE)
         if not self.declare_occluders:
             data["zones"] = [z for z in data["zones"] if z["kind"] != "occluder"]
         if not self.declare_floors:

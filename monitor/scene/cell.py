@@ -40,6 +40,8 @@ from monitor.scene import (
     render_background,
 )
 
+# the scenes' robot is painted into the background and hides nobody (persons are drawn over
+# it, some stand where the default 0.5 m base would be): a token base says so
 SCENE_ROBOT_BASE = {"radius_m": 0.1, "height_m": 0.1}
 POSTURE_HEIGHT = {"standing": 1.0, "kneeling": 0.72, "crouching": 0.58}  # of standing height
 SCENE_CAMERA = Camera.look_at(
@@ -350,8 +352,8 @@ def camera_calibration(cam: Camera) -> dict:
 def zone_data(scene: CellScene, protective: tuple[tuple[float, float], tuple[float, float]]
               = ((-1.0, -1.0), (1.0, 1.0)), warning_half_m: float = 2.5) -> dict:
     """A zone file (as data) for a scene: its camera, a protective box around the robot, a
-    warning square, every occluding block as an ``occluder`` and a token robot base
-    (``SCENE_ROBOT_BASE``: the painted robot hides nobody)."""
+    warning square, and every occluding block as an ``occluder`` (the default robot base; the
+    scenario suite declares ``SCENE_ROBOT_BASE``)."""
     cam = scene.camera
     (x0, y0), (x1, y1) = protective
     zones = [
@@ -367,11 +369,7 @@ def zone_data(scene: CellScene, protective: tuple[tuple[float, float], tuple[flo
     data = {"version": 1, "name": "scenario",
             "cameras": [{"id": cam.camera_id, "width": cam.width, "height": cam.height,
                          "calibration": camera_calibration(cam)}],
-            "zones": zones,
-            # the scene's robot is painted into the background and hides nobody (persons are
-            # drawn over it, some stand where the default 0.5 m base would be): the file says
-            # so with a token base; a scene with a real pedestal adds it as a block
-            "robot_base": dict(SCENE_ROBOT_BASE)}
+            "zones": zones}
     if scene.platforms:
         data["floors"] = [{"id": p.floor_id, "height_m": p.height_m, "points_m": [
             [p.min_m[0], p.min_m[1]], [p.max_m[0], p.min_m[1]], [p.max_m[0], p.max_m[1]],
