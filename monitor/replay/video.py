@@ -297,9 +297,9 @@ class VideoSink:
     band the zone check used (the floor ranges drawn are the ones checked)."""
 
     def __init__(self, path: Path, fps: float, cell: Cell | None, camera_id: str, watch: list,
-                 foot_band_px: tuple[float, float] = (0.0, 0.0)):
+                 foot_band_px: tuple[float, float] = (0.0, 0.0), prepared=None):
         self.path, self.fps = path, fps
-        self.annotator = Annotator(cell, camera_id, watch, foot_band_px)
+        self.annotator = Annotator(cell, camera_id, watch, foot_band_px, prepared=prepared)
         self.writer = None
         self.codec: str | None = None
 
@@ -436,7 +436,8 @@ def replay(video: str | Path, detector: Detector, cell: Cell | None, settings: R
     video_sink = None
     if settings.annotate:
         band = (0.0, detector.foot_uncertainty_px(*expected)) if expected else (0.0, 0.0)
-        video_sink = VideoSink(out / "annotated.mp4", fps, cell, camera_id, watch, band)
+        video_sink = VideoSink(out / "annotated.mp4", fps, cell, camera_id, watch, band,
+                               prepared=pipeline.prepared)
         sinks.append(video_sink)
     if publish is not None:
         sinks.append(CallbackSink(publish))
