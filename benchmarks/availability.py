@@ -3,6 +3,7 @@ where a hidden person vanished, a hidden walk, a flickering detector at 1, 2 and
 persons crossing) through the real pipeline, a reset every 0.5 s.
 
 Run: .venv/bin/python benchmarks/availability.py [NAME ...]
+     .venv/bin/python benchmarks/availability.py --visibility [NAME ...]  (issue 44's cost)
 Per scene: missed-STOP frames (must be 0), resets accepted with a person inside (must be 0),
 resets refused although nobody has been inside the protective zone for clear_time plus a reset
 period ("refused free": availability lost), frames with a hold and nobody in the scene, STOP
@@ -11,6 +12,7 @@ frames with every person in clear view more than 1 m outside, and the wall time.
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 import time
 
@@ -44,5 +46,49 @@ def main(names: list[str]) -> int:
     return 1 if bad else 0
 
 
+# what the monitor saw before issue 44: no reference, a standing 1 m person whose head shows
+BEFORE = {"reference": False, "person": (("crouching_height_m", 1.0), ("visible_fraction", 0.05))}
+
+
+def visibility(names: list[str]) -> int:
+    """The cost of the new visibility (docs/occlusion.md, "What seen means"): the suite's
+    scenes now and as the monitor saw before (no commissioning reference; hidden floor for a
+    standing 1 m person with the head in view, ``BEFORE``). Frames in RUN / SLOW / STOP, missed
+    STOP, resets accepted inside, resets refused although nobody was inside."""
+    detector = Detector(synthetic.ensure_model())
+    rows = [("scene", "RUN now/before", "SLOW now/before", "STOP now/before",
+             "missed STOP now/before", "accepted inside now/before",
+             "refused free now/before")]
+    bad = 0
+    for scenario in sc.scenarios(5.0) + sc.behind_scenarios(5.0):
+        if names and scenario.name not in names:
+            continue
+        now = sc.run_scenario(scenario, detector)
+        before = sc.run_scenario(dataclasses.replace(scenario, **BEFORE), detector)
+        bad += now.missed_stop_frames + now.resets_accepted_inside
+
+        def count(r, state):
+            return sum(s.state == state for s in r.scores)
+
+        rows.append((scenario.name, *(f"{count(now, st)}/{count(before, st)}"
+                                      for st in ("RUN", "SLOW", "STOP")),
+                     f"{now.missed_stop_frames}/{before.missed_stop_frames}",
+                     f"{now.resets_accepted_inside}/{before.resets_accepted_inside}",
+                     f"{now.resets_refused_free}/{before.resets_refused_free}"))
+    _print(rows)
+    return 1 if bad else 0
+
+
+def _print(rows) -> None:
+    widths = [max(len(row[i]) for row in rows) for i in range(len(rows[0]))]
+    for k, row in enumerate(rows):
+        print("  ".join(c.ljust(w) for c, w in zip(row, widths, strict=True)).rstrip())
+        if k == 0:
+            print("  ".join("-" * w for w in widths))
+
+
 if __name__ == "__main__":
-    sys.exit(main(sys.argv[1:]))
+    args = sys.argv[1:]
+    if args[:1] == ["--visibility"]:  # 5 fps, the whole suite: a few minutes
+        sys.exit(visibility(args[1:]))
+    sys.exit(main(args))

@@ -183,7 +183,10 @@ def test_a_hidden_person_keeps_the_stop_and_refuses_resets(detector, gap):
         assert len(r.persons) == 0
     back = step(inside)  # seen again: the same person, a seen hit
     assert back.track_ids == (tid,)
-    assert not any(h.lost for h in back.zone_report.hits)
+    assert ("robot-protective", tid, False) in {(h.zone_id, h.track_id, h.lost)
+                                                for h in back.zone_report.hits}
+    # their area stays: it reached the floor right behind the 1 m robot base, where a
+    # crouching person is hidden from this camera (docs/occlusion.md, "What seen means")
     for _ in range(2):  # gone: the hold stays until the zone is seen free or an operator looks
         gone = step(empty)
         assert gone.command.state == "STOP"

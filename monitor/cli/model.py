@@ -71,7 +71,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "synthetic model, detector.self_test_image for yours) in graded steps of "
                     "brightness, contrast, noise and blur, and stores the limits within which "
                     "the model still finds the person (MODEL.onnx.envelope.json); monitor run "
-                    "STOPs when a camera's image leaves them (docs/health.md).")
+                    "STOPs when a camera's image leaves them (docs/health.md). Beside it, the "
+                    "share of the figure the model needs in view, hidden from below and from "
+                    "the side (MODEL.onnx.visible.json, docs/occlusion.md).")
     en.add_argument("--model", type=Path, help="ONNX file (default: the synthetic model)")
     en.add_argument("--config", type=Path,
                     help="monitor.toml: its model, detector self-test image and "
@@ -246,7 +248,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
 
 def cmd_envelope(args: argparse.Namespace) -> int:
-    from monitor.detector import Detector, DetectorConfig
+    from monitor.detector import Detector, DetectorConfig, visible
     from monitor.detector import envelope as env
     from monitor.health import HealthConfig
 
@@ -274,8 +276,13 @@ def cmd_envelope(args: argparse.Namespace) -> int:
                                 progress=lambda axis: print(f"measuring {axis} ...",
                                                             file=sys.stderr))
     print(envelope.table())
+    # beside it: how much of a person the model needs in view (docs/occlusion.md)
+    needed = visible.for_detector(detector, min_recall, store=not args.print_only)
+    if needed is not None:
+        print(needed.table())
     if not args.print_only:  # measured with the backend [detector] names (auto: onnxruntime)
         print(f"wrote {env.sidecar_path(model, env.backend_tag(detector))}")
+        print(f"wrote {visible.sidecar_path(model)}")
     return 0
 
 

@@ -163,6 +163,8 @@ def _warnings(s: dict) -> list[str]:
     if missing:  # glare and image conditions judged by the envelope's absolute limits only
         out.append(f"no reference image for {', '.join(map(str, missing))}: glare and image "
                    "conditions judged by the model envelope's absolute limits only")
+    if s.get("changes_unwatched"):  # no commissioning reference (docs/occlusion.md)
+        out.append(str(s["changes_unwatched"]))
     if s.get("warning"):
         out.append(str(s["warning"]))
     if s.get("protective_zone") is False and not s.get("warning"):

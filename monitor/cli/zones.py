@@ -432,6 +432,23 @@ def _print_coverage(cell: zn.Cell, label: object) -> None:
                   f"{math.floor(100 * (1 - c.unseen_floor_fraction)):d} % of its floor "
                   f"({c.floor_m2:.2f} m² outside occluders), "
                   f"{100 * (1 - c.unseen_volume_fraction):.0f} % of its volume up to {top:g} m")
+            if c.hidden_crouch_m2 > c.unseen_floor_m2:
+                p = cell.spec.person
+                print(f"{label}: zone '{z.id}': a crouching person ({p.smallest_height_m:g} m, "
+                      f"{100 * p.needed_fraction:.0f} % in view for the detector) is hidden "
+                      f"from every camera on {c.hidden_crouch_m2:.2f} m² "
+                      f"({100 * c.hidden_crouch_fraction:.0f} %) of its floor"
+                      f"{_floor_extent(c.hidden_crouch_xy_m, c.sample_m)}: a person lost "
+                      "there is held until an operator confirms the cell clear "
+                      "(docs/occlusion.md)")
+
+
+def _floor_extent(xy_m: np.ndarray, sample_m: tuple[float, float]) -> str:
+    if not len(xy_m):
+        return ""
+    half = np.asarray(sample_m) / 2
+    lo, hi = xy_m.min(axis=0) - half, xy_m.max(axis=0) + half
+    return f" (within x {lo[0]:.1f}..{hi[0]:.1f} m, y {lo[1]:.1f}..{hi[1]:.1f} m)"
 
 
 def _horizon_text(model: geo.CameraModel) -> str:

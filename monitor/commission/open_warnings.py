@@ -10,6 +10,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from monitor.commission.cut_feet import hidden_feet_doubts
 from monitor.commission.verdict import DEFAULT_LIMITS, WalkLimits, merge_zone
 from monitor.config import MonitorConfig
 from monitor.detector.envelope import sidecar_path
@@ -100,6 +101,7 @@ def walk(f: Facts) -> list[str]:
     for k, w in enumerate(f.walks):
         if w.get("zones_hash") != zones_hash:
             out.append(f"walk {k + 1} ({w.get('video')}) was made with other zones than these")
+        out += hidden_feet_doubts(w)
         if not w.get("truth") and any(z.get("entries") for z in w.get("zones", [])):
             out.append(f"walk {k + 1}: time to STOP is 0 by construction without ground truth "
                        "(the entry is the first detection; the frames the detector missed "

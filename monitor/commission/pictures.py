@@ -2,7 +2,9 @@
 was seen in, the blind spots) and each camera's image with the same cells drawn in it.
 
 Colours: seen cells green, visible cells the walk never saw a person in grey, blind spots red
-(crossed in the camera images), zone outlines in the colours of ``monitor zones preview``.
+(crossed in the camera images), cells where the walker's feet were hidden by an undeclared
+fixture crossed in magenta ("feet hidden here: declare an occluder", ``cut_feet``), zone
+outlines in the colours of ``monitor zones preview``.
 PNG bytes from OpenCV: the same inputs give the same bytes.
 """
 
@@ -13,6 +15,7 @@ from collections.abc import Sequence
 import cv2
 import numpy as np
 
+from monitor.commission.cut_feet import draw_feet_hidden
 from monitor.commission.floor import ZoneFloor
 from monitor.commission.walk import WalkResult
 from monitor.zones import Cell, draw_zones, volume_outline_m
@@ -72,10 +75,18 @@ def floor_picture(cell: Cell, floors: Sequence[ZoneFloor], walk: WalkResult | No
     if walk is not None and walk.seen_m:
         for p in np.round(px(np.array(walk.seen_m))).astype(int):
             cv2.circle(img, (int(p[0]), int(p[1])), 2, (30, 30, 30), -1)
+    if walk is not None:  # where the walker's feet were hidden by an undeclared fixture
+        h = half_cell(floors)
+        draw_feet_hidden(img, [(px(np.array(c) - h)[0], px(np.array(c) + h)[0])
+                               for z in walk.zones for c in z.feet_hidden])
     o = np.round(px(np.zeros(2))[0]).astype(int)
     cv2.drawMarker(img, (int(o[0]), int(o[1])), (0, 0, 0), cv2.MARKER_CROSS, 12, 1)
     _legend(img, walk is not None)
     return _png(img)
+
+
+def half_cell(floors: Sequence[ZoneFloor]) -> float:
+    return floors[0].cell_m / 2 if floors else 0.125
 
 
 def camera_picture(image_bgr: np.ndarray, cell: Cell, camera_id: str,

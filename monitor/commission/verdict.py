@@ -157,9 +157,27 @@ def camera_not_walked(zone: dict, merged: dict | None, walks: Sequence[dict],
     return []
 
 
+def feet_hidden(zone: dict, merged: dict | None, walks: Sequence[dict],
+                limits: WalkLimits) -> list[str]:
+    """A protective zone where the walker's box was cut off by something the zone file does not
+    declare (``cut_feet``, docs/occlusion.md): the floor behind it is not what the file says."""
+    if zone.get("kind") != "protective":
+        return []
+    out = []
+    for k, w in enumerate(walks):
+        for z in w.get("zones", []):
+            cells = z.get("feet_hidden") or []
+            if z.get("zone_id") == zone.get("id") and cells:
+                out.append(f"{len(cells)} floor cells where the walker's feet were hidden by "
+                           f"a fixture the zone file does not declare (walk {k + 1}): "
+                           "declare an occluder there")
+    return out
+
+
 ZoneCheck = Callable[[dict, "dict | None", Sequence[dict], WalkLimits], list[str]]
 ZONE_CHECKS: tuple[ZoneCheck, ...] = (nobody_detected, camera_not_walked, never_entered,
-                                      entries_without_stop, little_walked, camera_faults)
+                                      entries_without_stop, little_walked, camera_faults,
+                                      feet_hidden)
 
 
 def zone_verdicts(zones: Sequence[dict], walks: Sequence[dict],

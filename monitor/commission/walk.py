@@ -25,6 +25,9 @@ in detection. Pure (``WalkRecorder`` only collects what the pipeline decided).
   corner; a corner visited but never seen is one where a crouching person cannot cause a STOP.
   Without: the frames with a detected foot point within ``CORNER_M`` of it (``frames_near``
   None).
+* **feet hidden**: zone cells along the floor range of a box cut off at the bottom by a
+  horizontal edge of the commissioning reference that no declared occluder explains
+  (``monitor.commission.cut_feet``): "feet hidden here: declare an occluder".
 * **gap**: frames between two detections of a person (from the first detection to the last)
   with nobody detected, longer than 1.5 frame intervals; it belongs to the zones the person
   was last seen in.
@@ -34,15 +37,17 @@ from __future__ import annotations
 
 import itertools
 import statistics
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from monitor.commission.cut_feet import undeclared_cuts
 from monitor.commission.floor import ZoneFloor, feet_on_floor
 from monitor.commission.truth import TruthFrame, aligned
 from monitor.policy import SLOW, STOP
 from monitor.zones import Cell
+from monitor.zones.prepare import with_references
 
 GAP_FACTOR = 1.5  # a gap is longer than this many frame intervals
 CORNER_M = 0.5  # "at a corner": within this distance of it (two 0.25 m floor cells)
@@ -60,6 +65,8 @@ class StepSample:
     persons: int = 0  # persons detected and not masked in this frame
     feet_m: tuple[tuple[float, float], ...] = ()  # their floor points
     faults: tuple[tuple[str, str], ...] = ()  # (source, fault) of the command's camera faults
+    # floor points where a box was cut off by an undeclared fixture (``cut_feet``)
+    cut_m: tuple[tuple[float, float], ...] = ()
 
 
 @dataclass(frozen=True)
@@ -105,6 +112,8 @@ class ZoneWalk:
     entries: tuple[Entry, ...]
     gaps: tuple[Gap, ...]
     corners: tuple[Corner, ...] = ()
+    # cells where the walker's box was cut off by an undeclared fixture (``cut_feet``)
+    feet_hidden: tuple[tuple[float, float], ...] = ()
 
     @property
     def visible_fraction(self) -> float | None:
@@ -150,9 +159,13 @@ class WalkResult:
 class WalkRecorder:
     """A driver sink (or replay ``publish`` callback) that keeps a ``StepSample`` per step."""
 
-    def __init__(self, cell: Cell) -> None:
+    def __init__(self, cell: Cell, references: Mapping[str, np.ndarray | None] | None = None,
+                 band_px: tuple[float, float] = (0.0, 0.0)) -> None:
         self.cell = cell
         self.samples: list[StepSample] = []
+        # each camera's commissioning reference: boxes cut off by an undeclared fixture
+        self.prepared = with_references(cell.prepared, references) if references else None
+        self.band_px = band_px
 
     def __call__(self, result) -> None:
         cmd = result.command
@@ -171,9 +184,11 @@ class WalkRecorder:
         rows = [i for i in range(len(result.persons)) if i not in masked]
         boxes = result.persons.boxes_px[rows]
         feet = feet_on_floor(self.cell, frame.camera_id, boxes, frame.width, frame.height)
+        cut = undeclared_cuts(self.prepared, frame.camera_id, boxes, self.band_px)
         self.samples.append(StepSample(
             result.now, True, cmd.state, named, hits, len(rows),
-            tuple((float(x), float(y)) for x, y in feet), faults))
+            tuple((float(x), float(y)) for x, y in feet), faults,
+            tuple((float(x), float(y)) for x, y in cut)))
 
 
 def analyse(samples: Sequence[StepSample], floors: Sequence[ZoneFloor],
@@ -237,7 +252,18 @@ def _zone(samples: Sequence[StepSample], frames: Sequence[StepSample], detected:
     corners = tuple(_corner(c, floor, frames, truth) for c in floor.corners_m)
     return ZoneWalk(zone_id, kind, len(floor.centres_m), int(floor.visible.sum()),
                     int(seen.sum()), _points(blind), _points(unvisited), entries, own_gaps,
-                    corners)
+                    corners, _points(floor.centres_m[_cells_hit(floor, frames, "cut_m")]))
+
+
+def _cells_hit(floor: ZoneFloor, frames: Sequence[StepSample], attr: str) -> np.ndarray:
+    """(K,) bool: the zone's cells with a point of the frames' ``attr`` on them."""
+    hit = np.zeros(len(floor.centres_m), dtype=bool)
+    for s in frames:
+        points = getattr(s, attr)
+        if points:
+            k = floor.cell_of(np.array(points))
+            hit[k[k >= 0]] = True
+    return hit
 
 
 def _corner(corner: np.ndarray, floor: ZoneFloor, frames: Sequence[StepSample],

@@ -41,7 +41,9 @@ def walk_video(video: str | Path, detector, cell: Cell, settings: ReplaySettings
     camera_id = choose_camera(cell.cameras, settings.camera_id, cell.label)
     policy = dataclasses.replace(settings.policy, restart_interlock="auto")
     settings = dataclasses.replace(settings, policy=policy, camera_id=camera_id)
-    recorder = WalkRecorder(cell)
+    band = (0.0, detector.foot_uncertainty_px(cell.cameras[camera_id].width,
+                                              cell.cameras[camera_id].height))
+    recorder = WalkRecorder(cell, {camera_id: settings.reference}, band)
     replay(video, detector, cell, settings, publish=recorder)
     floors = zone_floors(cell, cell_m)
     alarm_images = [(z.id, z.kind) for z in cell.zones

@@ -128,6 +128,14 @@ class OccluderColumns:
         for outline in outlines_px:
             pts = np.round(np.asarray(outline, float) * 16).astype(np.int32)
             cv2.fillPoly(mask, [pts], 1, cv2.LINE_8, shift=4)
+        return cls.of_mask(mask)
+
+    @classmethod
+    def of_mask(cls, mask: np.ndarray) -> OccluderColumns:
+        """The columns of any (H, W) mask of edge pixels (e.g. the reference image's
+        horizontal edges, ``monitor.geometry.edges``), dilated by ``EDGE_TOLERANCE_PX``."""
+        mask = np.asarray(mask).astype(np.uint8)
+        height, width = mask.shape
         r = math.ceil(EDGE_TOLERANCE_PX)
         mask = cv2.dilate(mask, np.ones((2 * r + 1, 2 * r + 1), np.uint8))
         counts = np.zeros((height + 1, width), np.int32)
@@ -147,14 +155,18 @@ def feet_may_be_hidden(boxes_px: np.ndarray, model: geo.CameraModel | None, widt
                        height: int, occluder_outlines_px: Sequence[np.ndarray] = (),
                        min_height_m: float = 1.0, band_hi_px: float = 0.0,
                        occluder_columns: OccluderColumns | None = None,
-                       bottom_floor: tuple[np.ndarray, np.ndarray] | None = None
+                       bottom_floor: tuple[np.ndarray, np.ndarray] | None = None,
+                       edge_columns: OccluderColumns | None = None
                        ) -> np.ndarray:
     """(N,) bool: the feet of each box may be hidden, by the image's bottom edge, an occluder
-    (the box bottom, or up to ``band_hi_px`` below it, on an occluder's image outline), or
-    because the box is shorter than a person of ``min_height_m`` at the floor point its bottom
-    implies (a pinhole calibration is needed for the last two). ``occluder_columns`` is the
-    prepared form of ``occluder_outlines_px`` (faster); give one or the other.
-    ``bottom_floor``: ``model.pixel_to_floor`` of the boxes' bottom-centres, when known."""
+    (the box bottom, or up to ``band_hi_px`` below it, on an occluder's image outline), a
+    horizontal edge of the commissioning reference (``edge_columns``: a fixture's top edge,
+    declared or not, between ``band_hi_px`` above the box bottom and just below it, in the
+    middle half of the box), or because the box is shorter than a person of ``min_height_m``
+    at the floor point its bottom implies (a pinhole calibration is needed for the outlines and
+    the height). ``occluder_columns`` is the prepared form of ``occluder_outlines_px``
+    (faster); give one or the other. ``bottom_floor``: ``model.pixel_to_floor`` of the boxes'
+    bottom-centres, when known."""
     boxes = np.asarray(boxes_px, float).reshape(-1, 4)
     n = len(boxes)
     hidden = boxes[:, 3] >= height - EDGE_TOLERANCE_PX
@@ -166,6 +178,8 @@ def feet_may_be_hidden(boxes_px: np.ndarray, model: geo.CameraModel | None, widt
         occluder_columns = OccluderColumns.build(occluder_outlines_px, width, height)
     if occluder_columns is not None:
         hidden |= occluder_columns.meets(u, boxes[:, 3], boxes[:, 3] + reach)
+    if edge_columns is not None:
+        hidden |= on_reference_edge(boxes, edge_columns, band_hi_px)
     if model is not None and model.can_project_3d:
         if bottom_floor is None:
             bottom_floor = model.pixel_to_floor(np.column_stack((u, boxes[:, 3])))
@@ -180,20 +194,39 @@ def feet_may_be_hidden(boxes_px: np.ndarray, model: geo.CameraModel | None, widt
     return hidden
 
 
+def on_reference_edge(boxes_px: np.ndarray, edge_columns: OccluderColumns,
+                      band_hi_px: float = 0.0) -> np.ndarray:
+    """(N,) bool: the lower edge of each box lies on a horizontal edge of the reference
+    (``edge_columns``, ``OccluderColumns.of_mask`` of ``geometry.edges.horizontal_edges``):
+    in one of three columns across the middle half of the box, between ``band_hi_px`` above
+    its bottom (where the visible feet may end: the detector's box error) and
+    ``EDGE_TOLERANCE_PX`` below it."""
+    boxes = np.asarray(boxes_px, float).reshape(-1, 4)
+    out = np.zeros(len(boxes), dtype=bool)
+    y0 = boxes[:, 3] - max(band_hi_px, 0.0) - EDGE_TOLERANCE_PX
+    y1 = boxes[:, 3] + EDGE_TOLERANCE_PX
+    for share in (0.25, 0.5, 0.75):
+        u = boxes[:, 0] + share * (boxes[:, 2] - boxes[:, 0])
+        out |= edge_columns.meets(u, y0, y1)
+    return out
+
+
 def place_persons(boxes_px: np.ndarray, model: geo.CameraModel, width: int, height: int, *,
                   band_px: tuple[float, float] = (0.0, 0.0),
                   height_range_m: tuple[float, float] = (1.0, 2.0),
                   occluder_outlines_px: Sequence[np.ndarray] = (),
                   occluder_columns: OccluderColumns | None = None,
                   camera_centre: np.ndarray | None = None,
-                  floors: Sequence[FloorRegion] = ()) -> Placement:
+                  floors: Sequence[FloorRegion] = (),
+                  edge_columns: OccluderColumns | None = None) -> Placement:
     """Where each box's person may stand (see the module docstring).
 
     ``band_px`` = (lo, hi): the feet lie ``lo`` .. ``hi`` pixels above the box's bottom edge.
     ``occluder_columns`` and ``camera_centre`` are prepared forms (built once per camera) of
     ``occluder_outlines_px`` and ``camera_centre_m(model)``. ``floors``: raised or sunken floor
     regions (``monitor.geometry.floors``); a foot or head sight line that meets one adds that
-    position, and the range spans every candidate (pinhole cameras only).
+    position, and the range spans every candidate (pinhole cameras only). ``edge_columns``:
+    the commissioning reference's horizontal edges (``on_reference_edge``), or None.
     """
     boxes = np.asarray(boxes_px, float).reshape(-1, 4)
     n = len(boxes)
@@ -208,7 +241,8 @@ def place_persons(boxes_px: np.ndarray, model: geo.CameraModel, width: int, heig
     bottom_px = y_near.copy()
     bottom = (near, ok[n:]) if lo == 0.0 else None
     hidden = feet_may_be_hidden(boxes, model, width, height, occluder_outlines_px,
-                                height_range_m[0], hi, occluder_columns, bottom)
+                                height_range_m[0], hi, occluder_columns, bottom,
+                                edge_columns)
     centre = camera_centre if camera_centre is not None else camera_centre_m(model)
     stand_lo, stand_hi = np.zeros(n), np.zeros(n)
     floors = tuple(floors) if centre is not None and model.can_project_3d else ()

@@ -19,6 +19,7 @@ from monitor.cases import sets as cases
 from monitor.cases.muting import MuteOutcome, MuteRequest, Mutes
 from monitor.detector import Detector
 from monitor.health import CameraHealth
+from monitor.health.objects import accept_objects, objects_of
 from monitor.pipeline.data import CameraState, StepResult
 from monitor.pipeline.evidence import ZonesApplying, policy_inputs
 from monitor.pipeline.fault_alerts import FaultAlerts, one_line
@@ -44,6 +45,7 @@ from monitor.tracking.tracks import Hold, PersonTracker, TrackerConfig
 from monitor.types import Alert, Fault, FrameInfo, Persons
 from monitor.zones import Cell
 from monitor.zones.masks import MaskRule
+from monitor.zones.prepare import PreparedCell, with_references
 
 
 class Pipeline:
@@ -63,7 +65,8 @@ class Pipeline:
                  cell: Cell | None = None,
                  health: CameraHealth | Mapping[str, CameraHealth] | None = None,
                  zone_error: str | None = None, tracking: TrackerConfig | None = None,
-                 linking: CellPersonsConfig | None = None) -> None:
+                 linking: CellPersonsConfig | None = None,
+                 references: Mapping[str, np.ndarray | None] | None = None) -> None:
         ids = (camera_id,) if isinstance(camera_id, str) else tuple(camera_id)
         if not ids:
             raise ValueError("a pipeline needs at least one camera")
@@ -72,7 +75,17 @@ class Pipeline:
         self.camera_id = ids[0]
         self.policy = policy
         self.cell = cell
+        # each camera's commissioning reference (BGR; None: none): its horizontal edges tell
+        # a box cut off by a fixture, declared or not (monitor.geometry.edges)
+        self.references = {cid: img for cid, img in (references or {}).items()
+                           if img is not None}
         self.prepared = cell.prepared if cell is not None else None
+        # objects put into the zones since commissioning, per camera with a reference
+        # (monitor.health.objects); the cameras without one are named by ``no_reference``
+        self.objects = objects_of(cell, self.references)
+        # the visible share of a person the detector was measured to need
+        # (monitor.detector.visible; None: the zone file's person.visible_fraction)
+        self.visible_fraction: float | None = None
         if isinstance(health, CameraHealth):
             health = {ids[0]: health}
         self.cameras = {cid: CameraState((health or {}).get(cid), tracker=PersonTracker(
@@ -95,6 +108,16 @@ class Pipeline:
         # after a zone swap: STOP until every camera has a frame on the new zones
         # (``swap_cell``)
         self.applying = ZonesApplying()
+
+    @property
+    def prepared(self) -> PreparedCell | None:
+        """The prepared zones the zone check uses, with the references' edges."""
+        return self._prepared
+
+    @prepared.setter
+    def prepared(self, prepared: PreparedCell | None) -> None:
+        self._prepared = with_references(prepared, self.references) \
+            if prepared is not None and self.references else prepared
 
     def request_mutes(self, requests: Sequence[MuteRequest], now: float
                       ) -> tuple[MuteOutcome, ...]:
@@ -276,8 +299,17 @@ class Pipeline:
             except Exception as exc:  # health unknown: fail towards STOP
                 faults.append(Fault("health_check_error", one_line(exc), True,
                                     frame.camera_id))
-        t2 = time.perf_counter()
         working = camera_working(frame.camera_id, [*faults, *extra_faults])
+        watch = self.objects.get(frame.camera_id)
+        object_alerts: list[Alert] = []
+        if watch is not None:  # what changed since commissioning (no person, lasting)
+            try:
+                object_alerts = watch.check(image, persons.boxes_px, now, working)
+                faults.extend(watch.faults())
+            except Exception as exc:  # unknown: fail towards STOP
+                faults.append(Fault("object_check_error", one_line(exc), True,
+                                    frame.camera_id))
+        t2 = time.perf_counter()
         # a repeated picture shows the cell as it was when it last really changed: its
         # persons were seen then (lost persons' times), and its age counts from then
         shown = frame
@@ -286,7 +318,8 @@ class Pipeline:
         report, track_ids, person_ids = locate(
             shown, persons, cam, self.prepared, self.detector, self.persons, detector_error,
             now, tool_pose, tool_speed_mps, pose_time, self.policy, faults, working=working,
-            hidden=hidden_of(self.cell, frame.camera_id, self.masks.rule(frame)),
+            hidden=hidden_of(self.cell, frame.camera_id, self.masks.rule(frame),
+                             self.visible_fraction, watch),
             elsewhere=free_elsewhere(self.cameras, self.cell, frame.camera_id,
                                      frame.capture_time, self.policy.clear_time))
         t3 = time.perf_counter()
@@ -297,7 +330,7 @@ class Pipeline:
         inputs = self._inputs(now, extra_faults, pose_time, reset, with_frame=True)
         command = self._decide(inputs, now)
         outcomes, mute_alerts = self.mute_desk.take_events()
-        alerts = (*cleared, *mute_alerts, *(health.alerts if health else ()),
+        alerts = (*cleared, *mute_alerts, *(health.alerts if health else ()), *object_alerts,
                   *self._fault_alerts(inputs.faults, detector_error, now, image))
         t4 = time.perf_counter()
         stage.update(detect=(t1 - t0) * 1e3, health=(t2 - t1) * 1e3, zones=(t3 - t2) * 1e3,
@@ -323,8 +356,40 @@ class Pipeline:
     def _confirm_clear(self, reset: ResetRequest | None, now: float) -> tuple[Alert, ...]:
         """An operator's confirm-clear reset drops every hold of a lost person
         (``holds.confirm_clear``), before the policy judges the reset as usual."""
-        return confirm_clear(reset, self.state.latched_by, self.cameras, self.persons,
-                             self.handover, now)
+        behind = self._behind_objects() if reset is not None and reset.confirm_clear else {}
+        alerts = confirm_clear(reset, self.state.latched_by, self.cameras, self.persons,
+                               self.handover, now)
+        if alerts:  # the operator looked: the objects standing now are accepted too
+            alerts = (*alerts, *accept_objects(self.objects, reset, now))
+            # nobody can look behind an object: a lost person whose area reaches its shadow
+            # stays held until that is seen free (the object moved, another camera)
+            for cid, areas in behind.items():
+                cam = self.cameras[cid]
+                if cam.tracker is None:
+                    continue
+                cam.tracker.where.areas.update(areas)
+                if cam.report is not None:
+                    cam.report = replace(cam.report, hits=(*cam.report.hits,
+                                                           *cam.tracker.held_hits()))
+        return alerts
+
+    def _behind_objects(self) -> dict[str, dict]:
+        """Per camera, the lost persons' areas that reach into an object's shadow."""
+        out: dict[str, dict] = {}
+        for cid, watch in self.objects.items():
+            cam = self.cameras.get(cid)
+            where = cam.tracker.where if cam is not None and cam.tracker is not None else None
+            if where is None or where.grid is None or not watch.objects:
+                continue
+            grid = where.grid
+            spec = self.cell.cameras[cid] if self.cell is not None else None
+            scale = np.array([spec.width / grid.width, spec.height / grid.height]) \
+                if spec is not None else np.ones(2)
+            shadow = watch.hidden_cells(grid.centres() * scale).reshape(grid.shape)
+            kept = {tid: a for tid, a in where.areas.items() if (a.cells & shadow).any()}
+            if kept:
+                out[cid] = kept
+        return out
 
     def _fault_alerts(self, faults: tuple[Fault, ...], detector_error: str | None, now: float,
                       image: np.ndarray | None) -> tuple[Alert, ...]:

@@ -11,6 +11,7 @@ from collections.abc import Callable, Mapping
 import numpy as np
 
 from monitor.detector import Detector
+from monitor.health.objects import ZoneObjects
 from monitor.pipeline.data import CameraState
 from monitor.pipeline.fault_alerts import one_line
 from monitor.policy import PolicyConfig
@@ -18,6 +19,7 @@ from monitor.tracking.cell_persons import CellPersons, Who
 from monitor.tracking.whereabouts import FootGrid, FreeElsewhere
 from monitor.types import Fault, FrameInfo, Persons, ZoneReport
 from monitor.zones import Cell, check_persons
+from monitor.zones.check import placement
 from monitor.zones.masks import MaskRule
 from monitor.zones.moving import ToolState
 from monitor.zones.visibility import hidden_feet
@@ -48,20 +50,33 @@ def zones_of(prepared, detector: Detector, frame: FrameInfo, tool_pose, tool_spe
     return check
 
 
-def hidden_of(cell: Cell | None, camera_id: str, rule: MaskRule | None
+def hidden_of(cell: Cell | None, camera_id: str, rule: MaskRule | None,
+              measured_fraction: float | None = None, objects: ZoneObjects | None = None
               ) -> tuple[Callable[[FootGrid], np.ndarray] | None, object]:
     """The camera's hidden foot cells for a grid of its image (``zones.visibility``), and
-    the key under which they stay valid (the zone set and the mask rule)."""
+    the key under which they stay valid (the zone set, the mask rule, the fraction).
+    ``measured_fraction``: the visible share the detector was measured to need
+    (``monitor.detector.visible``); the larger of it and the zone file's is used.
+    ``objects``: the camera's objects placed since commissioning (their shadows hidden too)."""
     if cell is None:
         return None, None
     model = cell.camera_models.get(camera_id)
     masks = rule.polygons if rule is not None else ()
     margin = rule.margin_px if rule is not None else 0.0
+    fraction = max(cell.spec.person.needed_fraction, measured_fraction or 0.0)
 
     def hidden(grid: FootGrid) -> np.ndarray:
-        return hidden_feet(grid.centres(), (grid.width, grid.height), model, cell.spec,
-                           cell.meshes, masks, margin).reshape(grid.shape)
-    return hidden, (id(cell), id(rule))
+        centres = grid.centres()
+        out = hidden_feet(centres, (grid.width, grid.height), model, cell.spec,
+                          cell.meshes, masks, margin, fraction)
+        if objects is not None and objects.objects:
+            spec = cell.cameras.get(camera_id)
+            scale = np.array([spec.width / grid.width, spec.height / grid.height]) \
+                if spec is not None else np.ones(2)
+            out |= objects.hidden_cells(centres * scale)
+        return out.reshape(grid.shape)
+    version = objects.version if objects is not None else None
+    return hidden, (id(cell), id(rule), fraction, id(objects), version)
 
 
 def free_elsewhere(cameras: Mapping[str, CameraState], cell: Cell | None, camera_id: str,
@@ -100,6 +115,21 @@ def free_elsewhere(cameras: Mapping[str, CameraState], cell: Cell | None, camera
             out |= hit
         return out
     return seen_free
+
+
+def cut_feet_rows(prepared, camera_id: str, boxes_px: np.ndarray,
+                  foot_px: float) -> np.ndarray | None:
+    """(N,) per box: the lowest image row its feet may be on when the box may be cut off at
+    the bottom (a fixture, declared or seen in the reference, the image edge, a box too
+    short: placed from the head as a range towards the camera); NaN where the feet are in
+    view. None without a calibration of the camera."""
+    boxes = np.asarray(boxes_px, np.float64).reshape(-1, 4)
+    if prepared is None or not len(boxes):
+        return None
+    place = placement(prepared, camera_id, boxes, (0.0, foot_px))
+    if place is None:
+        return None
+    return np.where(place.hidden, place.feet_bottom_px, np.nan)
 
 
 def camera_working(camera_id: str, faults: list[Fault] | tuple[Fault, ...]) -> bool:
@@ -142,12 +172,15 @@ def locate(frame: FrameInfo, persons: Persons, cam: CameraState, prepared, detec
         # unless zones follow the tool or the separation uses its pose (then: this frame)
         static = prepared is not None and not prepared.moving and tool_pose is None
         try:
+            cut = cut_feet_rows(prepared, frame.camera_id, persons.boxes_px,
+                                detector.foot_uncertainty_px(frame.width, frame.height))
             update = cam.tracker.update(
                 persons, report, frame.capture_time, (frame.width, frame.height),
                 zones_of(prepared, detector, frame, tool_pose, tool_speed_mps, tool_state),
                 working=working and report is not None, hidden=hidden[0],
                 hidden_key=hidden[1], clear_time=policy.clear_time,
-                zones_key=id(prepared) if static else None, free_elsewhere=elsewhere)
+                zones_key=id(prepared) if static else None, free_elsewhere=elsewhere,
+                feet_bottom_px=cut)
             named = cell_persons.name(frame.camera_id, cam.tracker, update, frame.capture_time)
             report, track_ids, person_ids = named.report, update.track_ids, named.person_ids
             for line in named.lines:  # holds begun, guesses (said once, holds stay)

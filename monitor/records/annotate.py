@@ -124,8 +124,11 @@ class Annotator:
     ``hold_s`` seconds (also those decided on timer ticks between frames)."""
 
     def __init__(self, cell: Cell | None, camera_id: str, watch: list,
-                 foot_band_px: tuple[float, float] = (0.0, 0.0), hold_s: float = HOLD_S):
+                 foot_band_px: tuple[float, float] = (0.0, 0.0), hold_s: float = HOLD_S,
+                 prepared=None):
         self.cell, self.camera_id, self.watch = cell, camera_id, watch
+        # the prepared zones the pipeline checked with (its reference's edges included)
+        self.prepared = prepared
         self.foot_band_px = foot_band_px
         self.hold_s = hold_s
         self.recent: list[tuple[float, str]] = []
@@ -140,14 +143,14 @@ class Annotator:
             return None
         shown = tuple(x for _, x in self.recent[-MAX_EVENT_ROWS:])
         return annotate(image, result, self.cell, self.camera_id, self.watch, shown,
-                        self.foot_band_px, self.zone_cache)
+                        self.foot_band_px, self.zone_cache, prepared=self.prepared)
 
 
 def annotate(image: np.ndarray, result: StepResult, cell: Cell | None, camera_id: str,
              watch: list, events: tuple[str, ...] = (),
              foot_band_px: tuple[float, float] = (0.0, 0.0),
-             zone_cache: ZoneDrawCache | None = None, when: TimeText | None = None
-             ) -> tuple[np.ndarray, Drawn]:
+             zone_cache: ZoneDrawCache | None = None, when: TimeText | None = None,
+             prepared=None) -> tuple[np.ndarray, Drawn]:
     """The frame with everything drawn on (see the module docstring), and what was drawn.
     ``when``: times as text (header, description); None: seconds of the video."""
     h, w = image.shape[:2]
@@ -164,7 +167,8 @@ def annotate(image: np.ndarray, result: StepResult, cell: Cell | None, camera_id
         draw_health(out, result.health, watch, text_top=top + 22)
         faults = tuple(f"{f.name}: {f.reason}"[:90] for f in result.health.faults)
     ids = person_ids(result)
-    labels_drawn, ranges = _draw_persons(out, result, cell, camera_id, ids, foot_band_px)
+    labels_drawn, ranges = _draw_persons(out, result, cell, camera_id, ids, foot_band_px,
+                                         prepared)
     legend = tuple(kind for kind, _ in draw_legend(out, top + 4, LEGEND_KINDS))
     header = header_text(result, camera_id, when)
     _draw_header(out, header, events)
@@ -183,14 +187,14 @@ def _worst_kind(result: StepResult) -> dict[int, str]:
 
 
 def _draw_persons(out: np.ndarray, result: StepResult, cell: Cell | None, camera_id: str,
-                  ids: tuple[int | str, ...], foot_band_px: tuple[float, float]
-                  ) -> tuple[tuple[str, ...], tuple[FloorRange, ...]]:
+                  ids: tuple[int | str, ...], foot_band_px: tuple[float, float],
+                  prepared=None) -> tuple[tuple[str, ...], tuple[FloorRange, ...]]:
     persons = result.persons
     if persons is None or not len(persons):
         return (), ()
     in_zone = _worst_kind(result)
     ranges = floor_ranges(cell, camera_id, persons.boxes_px, ids, sorted(in_zone),
-                          foot_band_px) if cell is not None else ()
+                          foot_band_px, prepared=prepared) if cell is not None else ()
     texts = []
     for k, (x1, y1, x2, y2) in enumerate(persons.boxes_px):
         colour = COLOURS_BGR.get(in_zone.get(k, ""), PERSON_BGR)
@@ -216,13 +220,14 @@ def _draw_persons(out: np.ndarray, result: StepResult, cell: Cell | None, camera
 
 def floor_ranges(cell: Cell, camera_id: str, boxes_px: np.ndarray, ids: tuple[int | str, ...],
                  rows: list[int], foot_band_px: tuple[float, float] = (0.0, 0.0),
-                 samples: int = 16) -> tuple[FloorRange, ...]:
+                 samples: int = 16, prepared=None) -> tuple[FloorRange, ...]:
     """The floor range behind each zone hit of ``rows``: the placement the zone check used
     (``monitor.zones.check.placement``, same boxes and foot band), its nearest..farthest
     segment on the cell floor projected back into the image. A camera without calibration
     (image zones only) has no floor range: none."""
     rows = [r for r in rows if 0 <= r < len(boxes_px)]
-    place = placement(cell.prepared, camera_id, boxes_px, foot_band_px) if rows else None
+    prep = prepared if prepared is not None else cell.prepared
+    place = placement(prep, camera_id, boxes_px, foot_band_px) if rows else None
     model = cell.camera_models.get(camera_id)
     if place is None or model is None:
         return ()

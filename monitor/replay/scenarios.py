@@ -33,7 +33,15 @@ from monitor.errors import ConfigError
 from monitor.pipeline import Pipeline
 from monitor.policy import STOP, PolicyConfig, ResetRequest
 from monitor.scene import Camera, Figure, box_of, draw_figure
-from monitor.scene.cell import Block, CellScene, CutOut, Platform, Walker, zone_data
+from monitor.scene.cell import (
+    SCENE_ROBOT_BASE,
+    Block,
+    CellScene,
+    CutOut,
+    Platform,
+    Walker,
+    zone_data,
+)
 from monitor.types import FrameInfo
 from monitor.zones import parse_cell
 
@@ -59,9 +67,16 @@ class Scenario:
     # frames the detector misses: it is shown the empty cell instead (a real detector that
     # flickers); the ground truth still has the persons there
     missed: frozenset[int] = frozenset()
+    # the monitor has the commissioning reference of the empty cell (fixtures included, even
+    # those the zone file leaves out): its horizontal edges tell boxes cut off by a fixture
+    reference: bool = True
+    # ``person:`` settings of the zone file (e.g. (("crouching_height_m", 1.0),))
+    person: tuple[tuple[str, float], ...] = ()
 
     def zone_data(self) -> dict:
         data = zone_data(self.scene, PROTECTIVE)
+        # the painted robot hides nobody (a scene with a pedestal adds it as a block)
+        data["robot_base"] = dict(SCENE_ROBOT_BASE)
         if not self.declare_occluders:
             data["zones"] = [z for z in data["zones"] if z["kind"] != "occluder"]
         if not self.declare_floors:
@@ -71,6 +86,8 @@ class Scenario:
                 if z["kind"] in ("protective", "warning"):
                     z["unobserved_ok"] = True
         data["zones"] += [dict(z) for z in self.extra_zones]
+        if self.person:
+            data["person"] = {**data.get("person", {}), **dict(self.person)}
         return data
 
 
@@ -198,7 +215,53 @@ def scenarios(fps: float = 10.0) -> list[Scenario]:
     out += low_rate_scenarios()
     out += edge_scenarios(fps)
     out += evidence_scenarios()
+    out += hidden_floor_scenarios(fps)
+    out += changed_cell_scenarios(fps)
     return out
+
+
+def hidden_floor_scenarios(fps: float = 10.0) -> list[Scenario]:
+    """What a camera truly sees (docs/occlusion.md, "What seen means"): a person standing
+    0.4 m inside the far side of the protective zone behind a 1.15 m bench inside it, the bench
+    left out of the zone file (only the commissioning reference shows it) and declared; a
+    1.75 m person crouching behind a declared 1 m bench inside the zone with a sliver of the
+    head in view, and a 1.6 m person wholly hidden there. The held area behind a declared
+    bench stays until an operator confirms the cell clear: false STOPs are not scored there."""
+    tall = Block("bench", (-0.4, -0.6, 0.0), (1.4, -0.15, 1.15))
+    stand = (_walk((0.0, 2.6, 0.6), (1.5, 0.6, 0.6), (7.5, 0.6, 0.6), (9.0, 2.6, 0.6)),)
+    low = Block("bench", (-0.4, -0.6, 0.0), (1.4, -0.15, 1.0))
+    out = [Scenario(
+        f"bench-inside-{kind}", f"stands 6 s behind a 1.15 m bench inside the protective zone "
+        f"(about half in view), the bench {kind} in the zone file",
+        CellScene(stand, (tall,), fps=fps, duration_s=9.0), unobserved_ok=True,
+        declare_occluders=kind == "declared", check_false_stops=kind != "declared")
+        for kind in ("undeclared", "declared")]
+    for name, height, what in (("crouch-behind-bench", 1.75, "a 1.75 m person crouches "
+                                "(a sliver of the head in view)"),
+                               ("hidden-behind-bench", 1.6, "a 1.6 m person crouches wholly "
+                                "hidden")):
+        walker = _walk((0.0, 2.6, 0.05), (1.5, 0.7, 0.05), (9.0, 0.7, 0.05),
+                       (10.5, 2.6, 0.05), height_m=height, poses=((2.0, 8.0, "crouching"),))
+        out.append(Scenario(
+            name, f"{what} 6 s right behind a declared 1 m bench inside the protective zone",
+            CellScene((walker,), (low,), fps=fps, duration_s=11.0), unobserved_ok=True,
+            check_false_stops=False))
+    return out
+
+
+def changed_cell_scenarios(fps: float = 10.0) -> list[Scenario]:
+    """What changed since commissioning (docs/occlusion.md): a 1 m crate put into the
+    protective zone after the reference was taken, not in the zone file; a person (1.6 m)
+    walks in at 5 s and crouches right behind it, wholly hidden. The crate holds the cell
+    (STOP, resets refused) until an operator accepts it; false STOPs are not scored."""
+    crate = Block("crate", (0.1, -0.75, 0.0), (0.9, -0.35, 1.0), (60, 80, 150), occluder=False,
+                  after_reference=True)
+    walker = _walk((0.0, 2.6, -0.1), (5.0, 2.6, -0.1), (6.5, 0.5, -0.1), (12.0, 0.5, -0.1),
+                   height_m=1.6, poses=((7.0, 12.0, "crouching"),))
+    return [Scenario("crate-after-reference", "a crate put into the protective zone after "
+                     "commissioning; a person crouches behind it",
+                     CellScene((walker,), (crate,), fps=fps, duration_s=12.0),
+                     unobserved_ok=True, check_false_stops=False)]
 
 
 def edge_scenarios(fps: float = 10.0) -> list[Scenario]:
@@ -361,7 +424,8 @@ def run_scenario(scenario: Scenario, detector, policy=None,
     cell = parse_cell(scenario.zone_data())
     policy = policy or PolicyConfig()
     cam = scenario.scene.camera
-    pipe = Pipeline(detector, cam.camera_id, policy, cell)
+    references = {cam.camera_id: scenario.scene.reference()} if scenario.reference else None
+    pipe = Pipeline(detector, cam.camera_id, policy, cell, references=references)
     radius = cell.spec.person.radius_m
     grace = policy.clear_time + RESET_PERIOD_S + 0.2
     scores: list[FrameScore] = []
@@ -465,5 +529,15 @@ def select(names: Iterable[str] | None, fps: float = 10.0) -> list[Scenario]:
     return [pool[n] for n in names]
 
 
-__all__ = ["Scenario", "ScenarioResult", "behind_scenarios", "evidence_scenarios",
-           "format_table", "run_scenario", "scenarios", "select"]
+__all__ = [
+    "Scenario",
+    "ScenarioResult",
+    "behind_scenarios",
+    "changed_cell_scenarios",
+    "evidence_scenarios",
+    "format_table",
+    "hidden_floor_scenarios",
+    "run_scenario",
+    "scenarios",
+    "select",
+]

@@ -26,7 +26,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from monitor.detector import Detector
+from monitor.detector import Detector, visible
 from monitor.detector.envelope import for_detector
 from monitor.driver import Driver, Step, StepInputs, require_protective_zone
 from monitor.errors import InputError
@@ -297,9 +297,9 @@ class VideoSink:
     band the zone check used (the floor ranges drawn are the ones checked)."""
 
     def __init__(self, path: Path, fps: float, cell: Cell | None, camera_id: str, watch: list,
-                 foot_band_px: tuple[float, float] = (0.0, 0.0)):
+                 foot_band_px: tuple[float, float] = (0.0, 0.0), prepared=None):
         self.path, self.fps = path, fps
-        self.annotator = Annotator(cell, camera_id, watch, foot_band_px)
+        self.annotator = Annotator(cell, camera_id, watch, foot_band_px, prepared=prepared)
         self.writer = None
         self.codec: str | None = None
 
@@ -422,7 +422,11 @@ def replay(video: str | Path, detector: Detector, cell: Cell | None, settings: R
         if settings.health is not None else None
     health = camera_health(settings.health, camera_id, settings.reference, cell, envelope) \
         if settings.health is not None else None
-    pipeline = Pipeline(detector, camera_id, settings.policy, cell, health)
+    pipeline = Pipeline(detector, camera_id, settings.policy, cell, health,
+                        references={camera_id: settings.reference})
+    needed = visible.for_detector(detector, settings.health.envelope_min_recall) \
+        if settings.health is not None else None
+    pipeline.visible_fraction = needed.needed if needed is not None else None
     pipeline.when = video_time  # reason texts name a time where annotated.mp4 shows it
     summary = ReplaySummary(str(video), zones=cell.label if cell is not None else None)
     fps = reader.fps or 10.0
@@ -432,7 +436,8 @@ def replay(video: str | Path, detector: Detector, cell: Cell | None, settings: R
     video_sink = None
     if settings.annotate:
         band = (0.0, detector.foot_uncertainty_px(*expected)) if expected else (0.0, 0.0)
-        video_sink = VideoSink(out / "annotated.mp4", fps, cell, camera_id, watch, band)
+        video_sink = VideoSink(out / "annotated.mp4", fps, cell, camera_id, watch, band,
+                               prepared=pipeline.prepared)
         sinks.append(video_sink)
     if publish is not None:
         sinks.append(CallbackSink(publish))

@@ -22,7 +22,7 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
@@ -40,6 +40,9 @@ from monitor.scene import (
     render_background,
 )
 
+# the scenes' robot is painted into the background and hides nobody (persons are drawn over
+# it, some stand where the default 0.5 m base would be): a token base says so
+SCENE_ROBOT_BASE = {"radius_m": 0.1, "height_m": 0.1}
 POSTURE_HEIGHT = {"standing": 1.0, "kneeling": 0.72, "crouching": 0.58}  # of standing height
 SCENE_CAMERA = Camera.look_at(
     "cam0", (640, 360), np.array([[450.0, 0, 320], [0, 450.0, 180], [0, 0, 1]]),
@@ -92,6 +95,8 @@ class Block:
     max_m: tuple[float, float, float]
     colour: tuple[int, int, int] = (70, 95, 115)
     occluder: bool = True
+    # put into the cell after the commissioning reference was taken: not in ``reference()``
+    after_reference: bool = False
 
 
 @dataclass(frozen=True)
@@ -165,6 +170,13 @@ class CellScene:
         if self.robot:
             base = cam.project(np.array([[0.0, 0.0, 0.9]]))[0]
             draw_robot(img, (int(base[0]), int(base[1])), cam.height / 720 * 1.4, 0.3)
+        return img
+
+    def reference(self) -> np.ndarray:
+        """The commissioning reference: the empty cell with its fixtures and cut-outs (no
+        persons, no noise), as ``monitor reference capture`` takes it."""
+        before = replace(self, blocks=tuple(b for b in self.blocks if not b.after_reference))
+        img, _ = before.render(before.background(), -1, -math.inf)
         return img
 
     def frames(self) -> Iterator[tuple[np.ndarray, CellFrameTruth]]:
@@ -340,7 +352,8 @@ def camera_calibration(cam: Camera) -> dict:
 def zone_data(scene: CellScene, protective: tuple[tuple[float, float], tuple[float, float]]
               = ((-1.0, -1.0), (1.0, 1.0)), warning_half_m: float = 2.5) -> dict:
     """A zone file (as data) for a scene: its camera, a protective box around the robot, a
-    warning square, and every occluding block as an ``occluder``."""
+    warning square, and every occluding block as an ``occluder`` (the default robot base; the
+    scenario suite declares ``SCENE_ROBOT_BASE``)."""
     cam = scene.camera
     (x0, y0), (x1, y1) = protective
     zones = [
@@ -366,6 +379,7 @@ def zone_data(scene: CellScene, protective: tuple[tuple[float, float], tuple[flo
 
 __all__ = [
     "SCENE_CAMERA",
+    "SCENE_ROBOT_BASE",
     "WORKWEAR_BGR",
     "Block",
     "CellFrameTruth",

@@ -44,6 +44,7 @@ from monitor.service.setup import (
     capacity_per_backend,
     check_capacity,
     int8_at_start,
+    no_reference_note,
     reaction_budget,
     reaction_sink,
     zones_file_of,
@@ -100,6 +101,9 @@ def _run(config_path, log_json: bool, duration: float | None, signals: StopSigna
         event(doubt, logging.WARNING)
     for doubt in missing_reference_warnings(config, cell):  # a real camera without one
         event(doubt, logging.WARNING)
+    unwatched = no_reference_note(pipeline, config.cameras)
+    if unwatched:  # what changed since commissioning is not noticed (docs/occlusion.md)
+        event(unwatched, logging.WARNING)
     if config.bus.allow_unsigned_resets:
         event("resets are accepted without an operator key (embedded demo on 127.0.0.1, or "
               "allow_unsigned_resets = true): not for a production cell", logging.WARNING)
@@ -126,6 +130,8 @@ def _run(config_path, log_json: bool, duration: float | None, signals: StopSigna
             if missing:  # said once at start (above) and for as long as it runs here
                 bus.update_status(without_reference=missing)
             bus.update_status(detector=choice.to_dict())
+            bus.update_status(changes_watched=sorted(pipeline.objects),
+                              changes_unwatched=unwatched or None)
 
             # which commissioned configuration runs (docs/commissioning.md): checked now,
             # then again on its own thread whenever the record or a fingerprinted file changes

@@ -54,6 +54,7 @@ def build_pipeline(config: MonitorConfig):
     """Model, zones, health checker and pipeline from a validated config (I/O: files only);
     also the warning to carry when the synthetic test model is allowed on a live camera, and
     the detector's backend choice (``monitor.detector.choice.Choice``)."""
+    from monitor.detector import visible
     from monitor.detector.choice import open_detector
     from monitor.detector.envelope import for_detector
     from monitor.health.build import camera_health
@@ -78,15 +79,20 @@ def build_pipeline(config: MonitorConfig):
     envelope = for_detector(detector, config.health.envelope_min_recall)
     health, expected = {}, {}
     references = choose_references(config, cell)  # the zone file's wins over monitor.toml's
+    references_bgr = {}
     for cam in config.cameras:
-        reference = load_chosen_reference(references[cam.id], cell)
+        reference = references_bgr[cam.id] = load_chosen_reference(references[cam.id], cell)
         health[cam.id] = camera_health(config.health, cam.id, reference, cell, envelope)
         expected[cam.id] = (cell.cameras[cam.id].width, cell.cameras[cam.id].height) \
             if cell else None
     test_model = require_real_model(detector.test_model, config.cameras,
                                     config.model.allow_test_model)
     pipeline = Pipeline(detector, [c.id for c in config.cameras], config.policy, cell, health,
-                        linking=config.tracking)
+                        linking=config.tracking, references=references_bgr)
+    # the share of a person the model needs in view (measured once, stored beside the model):
+    # floor where less of a crouching person shows is never seen free
+    needed = visible.for_detector(detector, config.health.envelope_min_recall)
+    pipeline.visible_fraction = needed.needed if needed is not None else None
     pipeline.prepared = prepared_zones(config, cell)
     return pipeline, cell, expected, test_model, choice
 
@@ -227,3 +233,16 @@ def reaction_sink(config: MonitorConfig, pipeline: Pipeline, capacity, bus: Safe
             alert(a)
     return ReactionSink(MeasuredBudget(allowances), watch, alert, bus.update_status,
                         metrics.registry, config.reaction.check_period_s, verdicts)
+
+
+def no_reference_note(pipeline, cameras) -> str | None:
+    """The start-up and status note for cameras without a commissioning reference: neither
+    objects put into the zones since commissioning nor fixtures the zone file leaves out are
+    noticed there (docs/occlusion.md, "What seen means"). None: every camera has one."""
+    missing = [c.id for c in cameras if c.id not in pipeline.references]
+    if not missing or pipeline.cell is None:
+        return None
+    return (f"camera {', '.join(missing)}: no commissioning reference: objects put into the "
+            "protective and warning zones since commissioning are not noticed, and a fixture "
+            "the zone file leaves out does not tell cut-off feet (make one with 'monitor "
+            "reference capture' and set it with 'monitor zones camera set --reference')")

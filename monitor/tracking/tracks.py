@@ -169,6 +169,7 @@ class _Record:
     def tall_px(self) -> float:
         """The tallest box height of the last ``TALL_WINDOW_S`` seconds it was seen."""
         return max((h for _, h in self.heights), default=float(self.box[3] - self.box[1]))
+    feet_bottom: float = math.nan  # a cut-off box: the lowest row its hidden feet may be on
 
     def snapshot(self, held: tuple[HeldZone, ...]) -> Track:
         floor = None if self.floor is None else (float(self.floor[0]), float(self.floor[1]))
@@ -292,8 +293,8 @@ class PersonTracker:
                frame_size: tuple[int, int], zones_of: ZonesOf | None = None, *,
                working: bool = True, hidden: HiddenCells | None = None,
                hidden_key: object = None, clear_time: float = 1.0,
-               zones_key: object = None, free_elsewhere: FreeElsewhere | None = None
-               ) -> TrackUpdate:
+               zones_key: object = None, free_elsewhere: FreeElsewhere | None = None,
+               feet_bottom_px: np.ndarray | None = None) -> TrackUpdate:
         """Associate this frame's persons with the tracks; return their ids and the report
         with track ids on the seen hits plus one lost hit per held zone.
 
@@ -306,6 +307,8 @@ class PersonTracker:
         is seen free. ``hidden(grid)``: the cells no person could be seen in (recomputed
         when ``hidden_key`` changes). A cell is free once seen free for ``clear_time``, by
         this camera or (``free_elsewhere``, floor points; needs ``to_floor``) another one.
+        ``feet_bottom_px`` (per row; NaN: feet in view): how far below a cut-off box its
+        hidden feet may be (``Whereabouts.update``).
         """
         boxes = np.asarray(persons.boxes_px, np.float64).reshape(-1, 4)
         n = len(boxes)
@@ -320,6 +323,8 @@ class PersonTracker:
             xy, located = self.to_floor(_bottom_centre(boxes))
             floors = [np.asarray(xy[i], np.float64) if located[i] else None for i in range(n)]
 
+        cut_rows = np.full(n, np.nan) if feet_bottom_px is None \
+            else np.asarray(feet_bottom_px, np.float64).reshape(-1)
         seen_now = set(rows_to_id)
         moved: dict[int, tuple[np.ndarray, float, bool]] = {}  # row -> old box, time, left
         for row, tid in enumerate(rows_to_id):
@@ -328,6 +333,7 @@ class PersonTracker:
                 rec = self._records[tid] = _Record(tid, boxes[row].copy(), now)
                 rec.zones = row_zones[row] if row_zones is not None else ()
                 self._place(rec, boxes[row], floors[row], now, first=True)
+                rec.feet_bottom = float(cut_rows[row])
                 for new, old in self._reidentified:
                     if new == tid and old in self._records:
                         rec.was = old
@@ -344,6 +350,7 @@ class PersonTracker:
                 moved[row] = (old_box, old_seen, bool(left))
                 rec.zones = row_zones[row]
             rec.lost, rec.seen_as, rec.left_view = False, None, False
+            rec.feet_bottom = float(cut_rows[row])
 
         for rec in self._records.values():
             if rec.track_id in seen_now or rec.lost:
@@ -353,13 +360,13 @@ class PersonTracker:
             into = self._merged_into(rec.box, boxes)
             # swallowed by a neighbour's box: hidden right behind (or in front of) them
             self.where.lose(rec.track_id, rec.box, rec.last_seen, behind=bool(into),
-                            height_px=rec.tall_px())
+                            height_px=rec.tall_px(), feet_bottom_px=rec.feet_bottom)
             for row in into:  # whichever identity the merged box keeps: where it stood too
                 old_box, old_seen, left = moved.get(row, (None, 0.0, False))
                 if left and old_box is not None:
                     self.where.lose(rows_to_id[row], old_box, old_seen, behind=True)
         self.where.update(now, boxes, working, clear_time, zones_of, zones_key,
-                          free_elsewhere, self.to_floor)
+                          free_elsewhere, self.to_floor, feet_bottom_px)
 
         for tid in [t for t, r in self._records.items() if r.lost and t not in self.where.areas
                     and now - r.last_seen > self.config.forget_after_s]:

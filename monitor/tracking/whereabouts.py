@@ -217,16 +217,22 @@ class Whereabouts:
             self.free_since[:] = np.nan
 
     def lose(self, track_id: int, box_px: np.ndarray, last_seen: float,
-             behind: bool = False, height_px: float = 0.0) -> None:
+             behind: bool = False, height_px: float = 0.0,
+             feet_bottom_px: float = math.nan) -> None:
         """A person lost: their area starts under their last box (joined to an area the same
         track left before). ``behind``: the track is still seen, in a box merged with a
         neighbour's; someone may stand where it stood (only seeing that free ends it).
         ``height_px``: the person's full height in the last frames (the tracker's; a person
         vanishing behind a wall leaves a last box of a head only): the area grows at the
-        pace of the taller of it and the last box."""
+        pace of the taller of it and the last box. ``feet_bottom_px``: the last box was cut
+        off, its feet may be down to this row."""
         if self.grid is None:
             raise RuntimeError("Whereabouts.lose before view(): the image size is unknown")
         seed = self.grid.cells_under(box_px, self.config.below)
+        if math.isfinite(feet_bottom_px):
+            x1, _, x2, y2 = (float(v) for v in np.asarray(box_px, np.float64).reshape(4))
+            seed |= self.grid.cells_under(np.array([x1, y2, x2, max(y2, feet_bottom_px)]),
+                                          0.0, band=1.0)
         box = tuple(float(v) for v in np.asarray(box_px, np.float64).reshape(4))
         old = self.areas.get(track_id)
         if old is not None:
@@ -260,8 +266,8 @@ class Whereabouts:
     # ---------------------------------------------------------------------------------------
     def update(self, now: float, boxes_px: np.ndarray, working: bool, clear_time: float,
                zones_of: ZonesOf | None, zones_key: object = None,
-               free_elsewhere: FreeElsewhere | None = None, to_floor: ToFloor | None = None
-               ) -> None:
+               free_elsewhere: FreeElsewhere | None = None, to_floor: ToFloor | None = None,
+               feet_bottom_px: np.ndarray | None = None) -> None:
         """One frame at ``now``: ``boxes_px`` are the persons seen in it; ``working`` is False
         when the camera's view cannot be trusted (a STOP fault of the camera or detector).
         Then every area grows, loses the cells seen free for ``clear_time``, and learns the
@@ -269,11 +275,23 @@ class Whereabouts:
         kept while ``zones_key`` stays the same, None: this frame only). With a calibration
         (``to_floor``) the cells another working camera has seen free for ``clear_time``
         (``free_elsewhere``, on the floor) are removed too: space a working camera sees empty
-        is free, whichever camera it is."""
+        is free, whichever camera it is. ``feet_bottom_px`` (per box; NaN: feet in view): the
+        lowest image row the feet of a box cut off at the bottom may be on (placed as a range
+        towards the camera): the cells down to it are not seen free, and such a person never
+        explains a lost person's area (they may stand anywhere there)."""
         if self.grid is None or self.free_since is None or self.hidden is None:
             raise RuntimeError("Whereabouts.update before view(): the image size is unknown")
         grid, cfg = self.grid, self.config
-        occupied = grid.cells_under(boxes_px, 0.0)
+        boxes = np.asarray(boxes_px, np.float64).reshape(-1, 4)
+        cut = np.zeros(len(boxes), bool) if feet_bottom_px is None \
+            else np.isfinite(np.asarray(feet_bottom_px, np.float64).reshape(-1))
+        explains = grid.cells_under(boxes[~cut], 0.0)
+        occupied = explains | grid.cells_under(boxes[cut], 0.0)
+        if cut.any():  # where the hidden feet may be, below the box, down to the range's end
+            below = boxes[cut].copy()
+            below[:, 1] = below[:, 3]
+            below[:, 3] = np.maximum(below[:, 3], np.asarray(feet_bottom_px)[cut])
+            occupied |= grid.cells_under(below, 0.0, band=1.0)
         seen_free = ~self.hidden & ~occupied if working else np.zeros(grid.shape, bool)
         start = np.isnan(self.free_since)
         self.free_since[seen_free & start] = now
@@ -300,7 +318,7 @@ class Whereabouts:
             # who flickered out and came back under a new id); not the place a merged track
             # stood, and never one that reaches where the camera cannot see
             if working and not area.behind and area.cells.any() \
-                    and not (area.cells & (self.hidden | ~occupied)).any():
+                    and not (area.cells & (self.hidden | ~explains)).any():
                 area.explained = now if area.explained is None else area.explained
                 if now - area.explained >= clear_time - 1e-9:
                     area.cells[:] = False

@@ -193,7 +193,8 @@ def placement(prep: PreparedCell, camera_id: str, boxes_px: np.ndarray,
                              height_range_m=prep.height_range_m,
                              occluder_columns=prep.occluder_columns.get(camera_id),
                              camera_centre=prep.camera_centres.get(camera_id),
-                             floors=prep.floors)
+                             floors=prep.floors,
+                             edge_columns=prep.reference_edges.get(camera_id))
 
 
 def _volume_hits(prep: PreparedCell, place: occ.Placement) -> list[ZoneHit]:

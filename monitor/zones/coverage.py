@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -54,6 +54,15 @@ class ZoneCoverage:
     unseen_volume_m3: float
     unseen_floor_xy_m: np.ndarray  # (K, 2) floor samples no camera observes
     sample_m: tuple[float, float] = (FLOOR_STEP_M, FLOOR_STEP_M)  # floor sample cell size
+    # floor where no camera sees enough of the smallest posture (``person.crouching_height_m``,
+    # ``person.visible_fraction``) for the detector: a lost person there is held until an
+    # operator confirms the cell clear (monitor/zones/visibility.py); the unseen floor included
+    hidden_crouch_m2: float = 0.0
+    hidden_crouch_xy_m: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+
+    @property
+    def hidden_crouch_fraction(self) -> float:
+        return self.hidden_crouch_m2 / self.floor_m2 if self.floor_m2 > 0 else 0.0
 
     @property
     def unseen_floor_fraction(self) -> float:
@@ -139,6 +148,40 @@ def heads_observed(model: geo.CameraModel, floor_xy_m: np.ndarray, head_m: float
     return out
 
 
+FIGURE_ROWS = 8  # heights sampled on a person, floor to head
+FIGURE_COLUMNS = (-1.0, 0.0, 1.0)  # across the sight line, in person radii
+
+
+def figure_visible(model: geo.CameraModel, floor_xy_m: np.ndarray, height_m: float,
+                   fraction: float, radius_m: float, contain: Contain) -> np.ndarray:
+    """(N,) bool: at least ``fraction`` of a person of ``height_m`` standing at each floor
+    point is in view of this camera past every occluder: of points spread over the person
+    (``FIGURE_ROWS`` heights from the feet to the head, on the axis and ``radius_m`` to
+    either side across the sight line) that share has a free sight line. A bench hides the
+    lower rows, a cabinet's edge the columns on one side. Image bounds are not judged here
+    (``heads_observed`` does); a camera that cannot project heights sees everything."""
+    pts = np.asarray(floor_xy_m, float).reshape(-1, 2)
+    n = len(pts)
+    centre = camera_centre_m(model)
+    if centre is None or not model.can_project_3d or not n:
+        return np.ones(n, dtype=bool)
+    d = pts - centre[:2]
+    norm = np.hypot(d[:, 0], d[:, 1])
+    across = np.c_[-d[:, 1], d[:, 0]] / np.where(norm > 1e-9, norm, 1.0)[:, None]
+    across[norm <= 1e-9] = (1.0, 0.0)
+    zs = height_m * (np.arange(FIGURE_ROWS) + 0.5) / FIGURE_ROWS
+    zs[-1] = height_m  # the top of the head: what shows first over a fixture
+    k = len(FIGURE_COLUMNS)
+    offsets = np.asarray(FIGURE_COLUMNS, float) * radius_m
+    # (n, columns, rows, 3) points on the person
+    xy = pts[:, None, :] + offsets[None, :, None] * across[:, None, :]
+    body = np.concatenate([np.repeat(xy[:, :, None, :], len(zs), axis=2),
+                           np.broadcast_to(zs[None, None, :, None], (n, k, len(zs), 1))],
+                          axis=3).reshape(-1, 3)
+    free = sight_free(model, body, contain).reshape(n, -1)
+    return free.mean(axis=1) >= fraction - 1e-9
+
+
 def points_observed(model: geo.CameraModel, points_m: np.ndarray, contain: Contain
                     ) -> np.ndarray:
     """(N,) bool: this camera sees the cell points (in front, in the image, sight line free)."""
@@ -175,6 +218,7 @@ def zone_coverage(zone, spec: CellSpec, models: Mapping[str, geo.CameraModel],
     contain = occluders_contain(occluders, meshes)
     h_min, h_max = spec.person.height_range_m
     radius = spec.person.radius_m
+    smallest, fraction = spec.person.smallest_height_m, spec.person.needed_fraction
     lo, hi = (np.asarray(v, float) for v in _zone_floor_bounds(zone, meshes))
     z_lo, z_hi = _zone_z_range(zone, meshes)
     if not (np.all(np.isfinite(hi - lo)) and math.isfinite(z_hi - z_lo)):
@@ -190,6 +234,16 @@ def zone_coverage(zone, spec: CellSpec, models: Mapping[str, geo.CameraModel],
     for model in models.values():
         if unseen.any():
             unseen[unseen] = ~heads_observed(model, pts[unseen], h_min, radius, contain)
+    # the smallest posture (crouching): enough of it in view for the detector
+    crouch = np.ones(len(pts), dtype=bool)
+    for model in models.values():
+        todo = np.flatnonzero(crouch)
+        if not len(todo):
+            break
+        ok = heads_observed(model, pts[todo], smallest, radius, contain)
+        if ok.any():
+            ok[ok] = figure_visible(model, pts[todo][ok], smallest, fraction, radius, contain)
+        crouch[todo[ok]] = False
     # volume: the zone from the floor (or its bottom) up to head height
     top = min(z_hi, h_max)
     vol_unseen = vol_total = 0.0
@@ -209,7 +263,8 @@ def zone_coverage(zone, spec: CellSpec, models: Mapping[str, geo.CameraModel],
         vol_total = len(vol) * vcell * dz
         vol_unseen = float(hidden.sum()) * vcell * dz
     return ZoneCoverage(zone.id, zone.kind, len(pts) * cell_area,
-                        float(unseen.sum()) * cell_area, vol_total, vol_unseen, pts[unseen], cell)
+                        float(unseen.sum()) * cell_area, vol_total, vol_unseen, pts[unseen], cell,
+                        float(crouch.sum()) * cell_area, pts[crouch])
 
 
 def _zone_floor_bounds(z, meshes) -> tuple[np.ndarray, np.ndarray]:

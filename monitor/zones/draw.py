@@ -12,6 +12,7 @@ import numpy as np
 
 from monitor import geometry as geo
 from monitor.errors import ConfigError
+from monitor.zones.coverage import figure_visible, occluders_contain
 from monitor.zones.files import Cell
 from monitor.zones.labels import Rect, place_labels
 from monitor.zones.moving import cell_from_zone, follows_tool, max_zone, transform_points
@@ -345,9 +346,11 @@ class ZoneDrawCache:
 def shadow_image(cell: Cell, camera_id: str, width: int, height: int, step_px: int = 8
                  ) -> np.ndarray | None:
     """(height, width) bool: image pixels whose floor point lies in the camera's shadow behind
-    the cell's occluders (monitor/geometry/occlusion.py), or None without occluders or calibration.
-    Evaluated every ``step_px`` pixels of the camera and scaled to ``width`` x ``height``."""
-    from monitor.geometry.occlusion import shadow_mask, standable  # occlusion imports prepare: late
+    the cell's occluders: less of the smallest posture than the detector needs is in view
+    there (``coverage.figure_visible``, the visibility the lost persons' areas use), or None
+    without occluders or calibration. Evaluated every ``step_px`` pixels of the camera and
+    scaled to ``width`` x ``height``."""
+    from monitor.geometry.occlusion import standable  # occlusion imports prepare: late
 
     occluders = cell.spec.occluder_zones()  # the robot base included
     model = cell.camera_models.get(camera_id)
@@ -362,7 +365,10 @@ def shadow_image(cell: Cell, camera_id: str, width: int, height: int, step_px: i
     idx = np.flatnonzero(ok)
     if len(idx):
         pts = floor[idx]
-        mask[idx] = shadow_mask(cell, camera_id, pts) & standable(occluders, cell.meshes, pts)
+        p = cell.spec.person
+        seen = figure_visible(model, pts, p.smallest_height_m, p.needed_fraction, p.radius_m,
+                              occluders_contain(occluders, cell.meshes))
+        mask[idx] = ~seen & standable(occluders, cell.meshes, pts)
     small = mask.reshape(len(vs), len(us)).astype(np.uint8)
     return cv2.resize(small, (width, height), interpolation=cv2.INTER_NEAREST).astype(bool)
 

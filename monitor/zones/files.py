@@ -447,6 +447,14 @@ def _camera_data(camera: CameraSpec) -> dict:
     return d
 
 
+def _person_data(spec: CellSpec) -> dict:
+    d = spec.person.model_dump(mode="json")
+    for key in ("crouching_height_m", "visible_fraction"):
+        if d.get(key) is None:  # only when given: older files keep their hash
+            d.pop(key, None)
+    return d
+
+
 def config_hash(spec: CellSpec, meshes_sha: Mapping[str, str] | None = None) -> str:
     """Stable, order-independent name of the active configuration.
 
@@ -476,7 +484,7 @@ def config_hash(spec: CellSpec, meshes_sha: Mapping[str, str] | None = None) -> 
         "version": spec.version,
         "cameras": sorted((_camera_data(c) for c in spec.cameras), key=lambda c: c["id"]),
         "zones": sorted(zones, key=lambda z: z["id"]),
-        "person": spec.person.model_dump(mode="json"),
+        "person": _person_data(spec),
         "separation": spec.separation.model_dump(mode="json"),
         "tool": tool,
     }

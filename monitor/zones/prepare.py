@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import cv2
@@ -12,6 +12,7 @@ import fcl
 import numpy as np
 
 from monitor import geometry as geo
+from monitor.geometry.edges import horizontal_edges
 from monitor.geometry.floors import FloorRegion
 from monitor.geometry.occlusion import (
     OccluderColumns,
@@ -125,6 +126,9 @@ class PreparedCell:
     camera_centres: Mapping[str, np.ndarray | None] = field(default_factory=dict)
     floors: tuple[FloorRegion, ...] = ()  # raised or sunken floor regions (platforms, pits)
     moving: tuple[Any, ...] = ()  # zones that follow the tool (moving_check.MovingZone)
+    # per camera: the commissioning reference's long horizontal edges (fixture tops, declared
+    # or not: a box ending on one may have its feet hidden); empty without a reference
+    reference_edges: Mapping[str, OccluderColumns] = field(default_factory=dict)
 
 
 def prepare_cell(cell: CellData) -> PreparedCell:
@@ -175,6 +179,23 @@ def prepare_cell(cell: CellData) -> PreparedCell:
         floors=floors,
         moving=prepare_moving(cell),
     )
+
+
+def with_references(prep: PreparedCell, references: Mapping[str, np.ndarray | None]
+                    ) -> PreparedCell:
+    """``prep`` with the horizontal edges of each camera's commissioning reference (BGR, any
+    size with the camera's aspect: resized to the camera's) for the hidden-feet test
+    (``monitor.geometry.edges``). Cameras without a reference keep none."""
+    edges: dict[str, OccluderColumns] = dict(prep.reference_edges)
+    for cid, image in references.items():
+        cam = prep.cell.cameras.get(cid)
+        if image is None or cam is None:
+            continue
+        img = np.asarray(image)
+        if (img.shape[1], img.shape[0]) != (cam.width, cam.height):
+            img = cv2.resize(img, (cam.width, cam.height), interpolation=cv2.INTER_AREA)
+        edges[cid] = OccluderColumns.of_mask(horizontal_edges(img))
+    return replace(prep, reference_edges=edges)
 
 
 def floor_corners_m(region: FloorRegion) -> np.ndarray:

@@ -208,6 +208,13 @@ ZoneSpec = Annotated[
 ]
 
 
+# a 1.55 m adult crouching (0.58 of the standing height): the smallest posture protected
+CROUCHING_HEIGHT_M = 0.9
+# the share of a person (top down, or from one side) the detector needs in view, until measured
+# (the synthetic model's measured value, docs/occlusion.md "The visible fraction")
+VISIBLE_FRACTION = 0.4
+
+
 class PersonSpec(_Strict):
     """Person cylinder; ``position_uncertainty_m`` (Z_d) widens it for zone checks."""
 
@@ -217,6 +224,27 @@ class PersonSpec(_Strict):
     # heights a person's head may be at (crouching .. tall): a box whose feet may be hidden is
     # placed from its top over this whole range (monitor/geometry/occlusion.py)
     height_range_m: tuple[float, float] = (1.0, 2.0)
+    # the smallest posture the monitor must protect, as its head height (m): a person
+    # crouching. Floor counts as seen by a camera only where ``visible_fraction`` of such a
+    # person is in view (monitor/zones/visibility.py); None: CROUCHING_HEIGHT_M
+    crouching_height_m: float | None = Field(default=None, gt=0.0, le=3.0)
+    # the share of a person the detector needs in view to find them (measured beside the
+    # operating envelope, ``monitor model envelope``; the service uses the larger of the two);
+    # None: VISIBLE_FRACTION
+    visible_fraction: float | None = Field(default=None, gt=0.0, le=1.0)
+
+    @property
+    def smallest_height_m(self) -> float:
+        """Head height of the smallest posture to protect: crouching, or the shortest
+        standing person when that is lower."""
+        crouch = CROUCHING_HEIGHT_M if self.crouching_height_m is None \
+            else self.crouching_height_m
+        return float(min(crouch, self.height_range_m[0]))
+
+    @property
+    def needed_fraction(self) -> float:
+        """The visible share of a person the detector needs (the zone file's or the default)."""
+        return VISIBLE_FRACTION if self.visible_fraction is None else float(self.visible_fraction)
 
 
 class SeparationSpec(_Strict):

@@ -1,0 +1,367 @@
+"""What changed since commissioning: objects put into the protective and warning zones after the
+camera's reference was taken (a crate, a trolley, a parts bin) hide the floor behind them.
+
+The laser scanner's answer, for a camera: watch the reference contour and stop when the scene
+changes. Each frame the image regions of the protective and warning volumes (their image
+hulls from the floor up, at an analysis width of ``ANALYSIS_WIDTH`` px) are compared with the
+commissioning reference, the frame's lighting first matched to it (gain and offset fitted on
+the unchanged pixels, as the watch zones do: ``monitor.health.scene``), so that a light switched
+down to x0.7 changes nothing. Pixels under a detected person's box (grown by a margin) say
+nothing: persons are not objects. A pixel that has stayed changed for ``persist_s`` is a
+*lasting* change; a connected region of lasting change of at least ``min_area`` whose bottom
+lies on a zone's floor is an **object** standing there:
+
+* the floor it hides is unseen: the camera's hidden foot cells (``hidden_cells``) gain the
+  cells from its top row down to its bottom row under its columns, so a person lost behind it
+  is held until an operator confirms the cell clear (docs/tracking.md);
+* an alert (``object_placed``, with a snapshot that outlines it) names the camera, the zone and
+  the floor place once, when it appears;
+* while it stands in a protective zone unaccepted, a STOP fault (``object_in_zone``) refuses
+  every reset, until an operator accepts it with a confirm-clear reset (signed by the
+  operator's key and in the audit log like every reset); accepted, it stays an occluder (its
+  shadow stays held until seen free) but no longer holds the cell by itself;
+* when the region is back to the reference for ``clear_s`` the object is gone.
+
+Without a reference nothing is compared (the first frame would make any object part of the
+scene): the service says so at start and in its status.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from monitor.health.draw import encode_jpeg
+from monitor.types import Alert, Fault
+from monitor.zones import volume_outline_m
+from monitor.zones.masks import zone_regions_px
+from monitor.zones.schema import RobotBaseSpec
+
+ANALYSIS_WIDTH = 320
+OBJECT_PLACED = "object_placed"
+OBJECT_GONE = "object_gone"
+OBJECT_IN_ZONE = "object_in_zone"
+
+
+@dataclass(frozen=True)
+class ObjectConfig:
+    """Thresholds of the object check (defaults: a crate of 0.4 m at 7 m on a 640 px camera is
+    about 300 analysis pixels; a person standing still is excluded by their box)."""
+
+    diff: float = 30.0  # grey levels (largest channel) after the lighting fit
+    persist_s: float = 3.0  # changed this long without a break: a lasting change
+    clear_s: float = 2.0  # an object unchanged against the reference this long is gone
+    min_area_px: float = 120.0  # analysis pixels of one lasting region
+    person_margin: float = 0.2  # person boxes grown by this share of their size
+
+
+@dataclass(frozen=True)
+class ZoneRegion:
+    """A protective or warning volume on one camera: its image hull from the floor up (where
+    an object in it shows) and its floor footprint's image polygon (where it stands)."""
+
+    zone_id: str
+    kind: str
+    hull_px: np.ndarray  # (K, 2) full-resolution pixels
+    floor_px: np.ndarray  # (M, 2)
+
+
+@dataclass
+class SceneObject:
+    """One object found in a zone: its box (full-resolution pixels), the floor point under
+    its bottom centre (None: not placeable), the zones it stands in."""
+
+    object_id: int
+    box_px: tuple[int, int, int, int]
+    floor_m: tuple[float, float] | None
+    zone_ids: tuple[str, ...]
+    protective: bool
+    since: float
+    accepted_by: str | None = None
+    last_changed: float = 0.0
+
+    def place(self) -> str:
+        where = "" if self.floor_m is None else \
+            f" at x {self.floor_m[0]:.1f} m, y {self.floor_m[1]:.1f} m"
+        return f"{', '.join(self.zone_ids)}{where} (image box {list(self.box_px)})"
+
+
+@dataclass
+class ZoneObjects:
+    """The object check of one camera (module docstring). ``to_floor``: the calibration's
+    ``pixel_to_floor`` (None: objects are placed in the image only)."""
+
+    camera_id: str
+    regions: Sequence[ZoneRegion] = field(repr=False)
+    reference_bgr: np.ndarray = field(repr=False)
+    to_floor: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]] | None = \
+        field(default=None, repr=False)
+    config: ObjectConfig = field(default_factory=ObjectConfig)
+    # image regions (full-resolution polygons) never compared: the cell's mask zones (a robot
+    # arm that moves in view is masked there)
+    exclude_px: Sequence[np.ndarray] = field(default=(), repr=False)
+    objects: dict[int, SceneObject] = field(default_factory=dict)
+    version: int = 0  # changes whenever the set of objects (their boxes) changes
+
+    def __post_init__(self) -> None:
+        h, w = self.reference_bgr.shape[:2]
+        self._size = (w, h)
+        self._scale = w / ANALYSIS_WIDTH  # full-resolution px per analysis px
+        small = (ANALYSIS_WIDTH, max(1, round(h / self._scale)))
+        self._small = small
+        self._ref = cv2.resize(self.reference_bgr, small,
+                               interpolation=cv2.INTER_AREA).astype(np.float32)
+        mask = np.zeros((small[1], small[0]), np.uint8)
+        for r in self.regions:
+            cv2.fillPoly(mask, [np.round(r.hull_px / self._scale).astype(np.int32)], 1)
+        for poly in self.exclude_px:
+            cv2.fillPoly(mask, [np.round(np.asarray(poly) / self._scale).astype(np.int32)], 0)
+        self._watch = mask.astype(bool)
+        self._since = np.full(mask.shape, np.nan)  # when each pixel started to differ
+        self._next_id = 1
+
+    # ---------------------------------------------------------------------------------------
+    def check(self, image_bgr: np.ndarray, person_boxes_px: np.ndarray, now: float,
+              camera_ok: bool = True) -> list[Alert]:
+        """One frame: update the lasting changes and the objects; the alerts of objects that
+        appeared or went. Without ``camera_ok`` (an unsound image) nothing is decided."""
+        if not camera_ok or not self._watch.any():
+            return []
+        h, w = image_bgr.shape[:2]
+        if (w, h) != self._size:
+            image_bgr = cv2.resize(image_bgr, self._size, interpolation=cv2.INTER_AREA)
+        frame = cv2.resize(image_bgr, self._small, interpolation=cv2.INTER_AREA
+                           ).astype(np.float32)
+        free = self._watch.copy()
+        for x1, y1, x2, y2 in np.asarray(person_boxes_px, np.float64).reshape(-1, 4):
+            m = self.config.person_margin
+            gx, gy = m * (x2 - x1), m * (y2 - y1)
+            a = np.floor(np.array([x1 - gx, y1 - gy]) / self._scale).astype(int)
+            b = np.ceil(np.array([x2 + gx, y2 + gy]) / self._scale).astype(int)
+            free[max(a[1], 0):max(b[1], 0), max(a[0], 0):max(b[0], 0)] = False
+        changed = self._changed(frame, free)
+        # a pixel under a person says nothing: its streak is kept, neither broken nor begun
+        self._since[free & ~changed] = np.nan
+        start = free & changed & np.isnan(self._since)
+        self._since[start] = now
+        with np.errstate(invalid="ignore"):
+            lasting = (now - self._since >= self.config.persist_s - 1e-9) & self._watch
+        return self._objects(lasting, changed | ~free, now, image_bgr)
+
+    def _changed(self, frame: np.ndarray, free: np.ndarray) -> np.ndarray:
+        ref = self._ref
+        if free.sum() < 50:
+            return np.zeros(free.shape, bool)
+        cur, bg = frame[free].ravel(), ref[free].ravel()
+        # lighting: the gain and offset that map the reference onto this frame, fitted on the
+        # pixels a median offset already explains (a changed region does not bend the fit)
+        offset = float(np.median(cur - bg))
+        use = np.abs(cur - bg - offset) < 2 * self.config.diff
+        gain = 1.0
+        if use.sum() >= 30:
+            x, y = bg[use].astype(np.float64), cur[use].astype(np.float64)
+            var = float(x.var())
+            if var >= 25.0:
+                gain = min(max(float(np.cov(x, y, bias=True)[0, 1]) / var, 0.5), 2.0)
+            offset = float(y.mean() - gain * x.mean())
+        predicted = gain * ref + offset
+        excess = np.abs(frame - predicted).max(axis=2)
+        return (excess > self.config.diff) & self._watch
+
+    def _objects(self, lasting: np.ndarray, not_back: np.ndarray, now: float,
+                 image_bgr: np.ndarray) -> list[Alert]:
+        cfg = self.config
+        alerts: list[Alert] = []
+        n, _, stats, _ = cv2.connectedComponentsWithStats(lasting.astype(np.uint8), 8)
+        found: list[tuple[int, int, int, int]] = []
+        for k in range(1, n):
+            x, y, w, h, area = (int(v) for v in stats[k])
+            if area >= cfg.min_area_px:
+                s = self._scale
+                found.append((math.floor(x * s), math.floor(y * s), math.ceil((x + w) * s),
+                              math.ceil((y + h) * s)))
+        for box in found:
+            old = next((o for o in self.objects.values() if _overlap(o.box_px, box)), None)
+            if old is not None:
+                old.last_changed = now
+                if old.box_px != box:
+                    old.box_px = box
+                    self.version += 1
+                continue
+            obj = self._new(box, now)
+            if obj is None:
+                continue
+            self.objects[obj.object_id] = obj
+            self.version += 1
+            alerts.append(self._placed_alert(obj, image_bgr, now))
+        for oid in list(self.objects):
+            obj = self.objects[oid]
+            x1, y1, x2, y2 = (round(v / self._scale) for v in obj.box_px)
+            if not not_back[y1:y2, x1:x2].any():
+                if now - obj.last_changed >= cfg.clear_s - 1e-9:
+                    del self.objects[oid]
+                    self.version += 1
+                    alerts.append(Alert(OBJECT_GONE, "info", f"{self.camera_id}: the object "
+                                        f"in {obj.place()} is gone (the view matches the "
+                                        "reference again)", self.camera_id, now, None,
+                                        {"zones": list(obj.zone_ids), "box_px": list(obj.box_px)}))
+            else:
+                obj.last_changed = now
+        return alerts
+
+    def _new(self, box: tuple[int, int, int, int], now: float) -> SceneObject | None:
+        """An object at ``box`` if its bottom centre stands on a zone's floor (else None: a
+        change up in the air, on the wall or the robot, is not an object on the floor)."""
+        foot = np.array([[(box[0] + box[2]) / 2, box[3]]], float)
+        zones = tuple(r.zone_id for r in self.regions
+                      if cv2.pointPolygonTest(r.floor_px.astype(np.float32).reshape(-1, 1, 2),
+                                              (float(foot[0, 0]), float(foot[0, 1])), True)
+                      >= -2.0)
+        if not zones:
+            return None
+        floor = None
+        if self.to_floor is not None:
+            xy, ok = self.to_floor(foot)
+            floor = (float(xy[0][0]), float(xy[0][1])) if ok[0] else None
+        protective = any(r.kind == "protective" for r in self.regions if r.zone_id in zones)
+        obj = SceneObject(self._next_id, box, floor, zones, protective, now, None, now)
+        self._next_id += 1
+        return obj
+
+    def _placed_alert(self, obj: SceneObject, image_bgr: np.ndarray, now: float) -> Alert:
+        img = image_bgr.copy()
+        x1, y1, x2, y2 = obj.box_px
+        cv2.rectangle(img, (x1 - 3, y1 - 3), (x2 + 3, y2 + 3), (0, 0, 255), 3)
+        cv2.putText(img, f"{self.camera_id}: object in {', '.join(obj.zone_ids)}", (10, 30),
+                    cv2.FONT_HERSHEY_SIMPLEX, 0.8, (0, 0, 255), 2)
+        what = "protective" if obj.protective else "warning"
+        message = (f"{self.camera_id}: an object not in the commissioning reference stands "
+                   f"in {what} zone {obj.place()}: the floor behind it is not seen"
+                   + ("; resets are refused until an operator accepts it (confirm-clear)"
+                      if obj.protective else ""))
+        return Alert(OBJECT_PLACED, "warning", message, self.camera_id, now,
+                     encode_jpeg(img, 1280, 80),
+                     {"zones": list(obj.zone_ids), "box_px": list(obj.box_px),
+                      "floor_m": list(obj.floor_m) if obj.floor_m else None})
+
+    # ---------------------------------------------------------------------------------------
+    def faults(self) -> list[Fault]:
+        """STOP faults of the unaccepted objects in protective zones."""
+        return [Fault(OBJECT_IN_ZONE, f"{self.camera_id}: object in {o.place()} since "
+                      f"{o.since:.1f} s, not in the commissioning reference (accept it with a "
+                      "confirm-clear reset once looked at)", True, self.camera_id)
+                for o in self.objects.values() if o.protective and o.accepted_by is None]
+
+    def accept(self, operator: str) -> list[SceneObject]:
+        """An operator confirmed the cell clear: the objects standing now are accepted."""
+        out = [o for o in self.objects.values() if o.accepted_by is None]
+        for o in out:
+            o.accepted_by = operator
+        return out
+
+    def hidden_cells(self, centres_px: np.ndarray) -> np.ndarray:
+        """(N,) bool: foot positions (full-resolution pixels) behind or in an object: under
+        its columns, from its top row down to its bottom row (a person standing there shows
+        less than the box's height above it)."""
+        pts = np.asarray(centres_px, float).reshape(-1, 2)
+        out = np.zeros(len(pts), bool)
+        for o in self.objects.values():
+            x1, y1, x2, y2 = o.box_px
+            out |= (pts[:, 0] >= x1) & (pts[:, 0] <= x2) & (pts[:, 1] >= y1) \
+                & (pts[:, 1] <= y2)
+        return out
+
+
+def _overlap(a: tuple[int, int, int, int], b: tuple[int, int, int, int]) -> bool:
+    return a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]
+
+
+def zone_regions(cell, camera_id: str) -> list[ZoneRegion]:
+    """The enabled protective and warning volumes of ``cell`` as ``camera_id`` sees them
+    (a calibration that projects heights is needed; none otherwise). Zones that follow the
+    tool are left out (they move with it)."""
+    model = cell.camera_models.get(camera_id)
+    if model is None or not model.can_project_3d:
+        return []
+    out = []
+    for z in cell.zones:
+        if not (z.enabled and z.is_volume and z.kind in ("protective", "warning")) \
+                or getattr(z, "follow", None) is not None:
+            continue
+        pts = np.concatenate(volume_outline_m(z, cell))
+        px, front = model.project(pts)
+        if not front.all():
+            continue
+        bottom = pts[:, 2] <= pts[:, 2].min() + 1e-6
+        floor_pts = pts[bottom].copy()
+        floor_pts[:, 2] = 0.0
+        fpx, _ = model.project(floor_pts)
+        out.append(ZoneRegion(z.id, z.kind,
+                              cv2.convexHull(px.astype(np.float32)).reshape(-1, 2),
+                              cv2.convexHull(fpx.astype(np.float32)).reshape(-1, 2)))
+    return out
+
+
+def objects_of(cell, references) -> dict[str, ZoneObjects]:
+    """The object check of every camera of ``cell`` with a reference (``references``: camera
+    id -> BGR image, any size with the camera's aspect)."""
+    out: dict[str, ZoneObjects] = {}
+    if cell is None:
+        return out
+    for cid, image in (references or {}).items():
+        spec = cell.cameras.get(cid)
+        regions = zone_regions(cell, cid) if spec is not None else []
+        if image is None or not regions:
+            continue
+        ref = np.asarray(image)
+        if (ref.shape[1], ref.shape[0]) != (spec.width, spec.height):
+            ref = cv2.resize(ref, (spec.width, spec.height), interpolation=cv2.INTER_AREA)
+        model = cell.camera_models.get(cid)
+        masks = [p for _, p in zone_regions_px(cell, cid, ("mask",))]
+        column = robot_column_px(cell, cid)
+        out[cid] = ZoneObjects(cid, regions, ref, model.pixel_to_floor if model else None,
+                               exclude_px=[*masks, *([column] if column is not None else [])])
+    return out
+
+
+def accept_objects(watches, reset, now: float) -> tuple[Alert, ...]:
+    """An operator's confirm-clear reset (signed, audited like every reset) accepts every
+    object standing now: the alert says which (the commissioned view has changed)."""
+    accepted = [(cid, o) for cid, w in watches.items() for o in w.accept(reset.operator)]
+    if not accepted:
+        return ()
+    what = "; ".join(o.place() for _, o in accepted)
+    return (Alert("objects_accepted", "warning", f"operator {reset.operator} accepted "
+                  f"objects not in the commissioning reference: {what} (the cell has "
+                  "changed since commissioning; their shadow stays held until seen free)",
+                  "pipeline", now, details={
+                      "operator": reset.operator, "request_id": reset.request_id,
+                      "objects": [{"camera": cid, "zones": list(o.zone_ids),
+                                   "floor_m": list(o.floor_m) if o.floor_m else None,
+                                   "box_px": list(o.box_px)} for cid, o in accepted]}),)
+
+
+# the robot moves above its base: its column (the base cylinder up to this height) is no place
+# to look for objects (an arm in another pose than on the reference is no crate)
+ROBOT_COLUMN_M = 3.0
+
+
+def robot_column_px(cell, camera_id: str) -> np.ndarray | None:
+    """The image hull (full-resolution pixels) of the robot base's cylinder from the floor up
+    to ``ROBOT_COLUMN_M`` (None: the camera cannot project it)."""
+    model = cell.camera_models.get(camera_id)
+    if model is None or not model.can_project_3d:
+        return None
+    base = cell.spec.robot_base or RobotBaseSpec()
+    a = np.linspace(0.0, 2 * np.pi, 16, endpoint=False)
+    ring = np.c_[base.center_m[0] + base.radius_m * np.cos(a),
+                 base.center_m[1] + base.radius_m * np.sin(a)]
+    pts = np.r_[np.c_[ring, np.zeros(len(a))], np.c_[ring, np.full(len(a), ROBOT_COLUMN_M)]]
+    px, front = model.project(pts)
+    if not front.all():
+        return None
+    return cv2.convexHull(px.astype(np.float32)).reshape(-1, 2)
