@@ -22,7 +22,7 @@ from monitor.health import CameraHealth
 from monitor.pipeline.data import CameraState, StepResult
 from monitor.pipeline.evidence import ZonesApplying, policy_inputs
 from monitor.pipeline.fault_alerts import FaultAlerts, one_line
-from monitor.pipeline.holds import confirm_clear, holds_of
+from monitor.pipeline.holds import confirm_clear, explain_refusal, holds_of
 from monitor.pipeline.locate import camera_working, free_elsewhere, hidden_of, locate
 from monitor.pipeline.masking import MaskRules, MaskTally, with_touching
 from monitor.pipeline.mutes import MuteDesk
@@ -288,8 +288,9 @@ class Pipeline:
         self.applying.waiting.discard(frame.camera_id)  # this frame was checked on the new zones
         cam.frame_time, cam.report, cam.faults = frame.capture_time, report, tuple(faults)
         cam.detector_error = detector_error
-        cleared = self._confirm_clear(reset, now)
-        inputs = self._inputs(now, extra_faults, pose_time, reset, with_frame=True)
+        cleared, dropped = self._confirm_clear(reset, now, extra_faults)
+        inputs = self._inputs(now, extra_faults, pose_time, reset, with_frame=True,
+                              lost_dropped=dropped)
         command = self._decide(inputs, now)
         outcomes, mute_alerts = self.mute_desk.take_events()
         alerts = (*cleared, *mute_alerts, *(health.alerts if health else ()),
@@ -304,8 +305,9 @@ class Pipeline:
     def tick(self, now: float, pose_time: float | None = None,
              reset: ResetRequest | None = None, extra_faults: tuple[Fault, ...] = ()) -> StepResult:
         """Evaluate timers with no new frame (frame timeout, clear time, resets, camera lost)."""
-        cleared = self._confirm_clear(reset, now)
-        inputs = self._inputs(now, extra_faults, pose_time, reset, with_frame=False)
+        cleared, dropped = self._confirm_clear(reset, now, extra_faults)
+        inputs = self._inputs(now, extra_faults, pose_time, reset, with_frame=False,
+                              lost_dropped=dropped)
         command = self._decide(inputs, now)
         detector_error = next((c.detector_error for c in self.cameras.values()
                                if c.detector_error), None)
@@ -315,28 +317,34 @@ class Pipeline:
                                   *self._fault_alerts(inputs.faults, detector_error, now, None)),
                           mute_outcomes=outcomes, mutes=self.mute_desk.holding(now))
 
-    def _confirm_clear(self, reset: ResetRequest | None, now: float) -> tuple[Alert, ...]:
+    def _confirm_clear(self, reset: ResetRequest | None, now: float,
+                       extra_faults: tuple[Fault, ...] = ()) -> tuple[tuple[Alert, ...], bool]:
         """An operator's confirm-clear reset drops every hold of a lost person
-        (``holds.confirm_clear``), before the policy judges the reset as usual."""
+        (``holds.confirm_clear``; refused while a camera is in fault), before the policy
+        judges the reset as usual, in the same step."""
         return confirm_clear(reset, self.state.latched_by, self.cameras, self.persons,
-                             self.handover, now)
+                             self.handover, now, extra_faults)
 
     def _fault_alerts(self, faults: tuple[Fault, ...], detector_error: str | None, now: float,
                       image: np.ndarray | None) -> tuple[Alert, ...]:
         return self.fault_alerts.alerts(faults, detector_error, now, image)
 
     def _inputs(self, now: float, extra: tuple[Fault, ...], pose_time: float | None,
-                reset: ResetRequest | None, with_frame: bool) -> PolicyInputs:
+                reset: ResetRequest | None, with_frame: bool, lost_dropped: bool = False
+                ) -> PolicyInputs:
         """The policy's evidence: every camera's newest answer, merged towards danger."""
-        return policy_inputs(
+        return replace(policy_inputs(
             self.cameras, now, extra=extra, pose_time=pose_time, reset=reset,
             with_frame=with_frame, applying=self.applying, handover=self.handover,
             zone_sets=self.zone_sets, mute_desk=self.mute_desk, zone_error=self.zone_error,
             latch_nonce=lambda: self.latch_nonces(self.state.latches + 1)
-            if self.latch_nonces is not None else "")
+            if self.latch_nonces is not None else ""), lost_dropped=lost_dropped)
 
     def _decide(self, inputs: PolicyInputs, now: float) -> Command:
         self.state, command = step(self.state, inputs, now, self.policy, self.when)
+        # a refusal for a lost person says what ends that hold (docs/tracking.md)
+        command = explain_refusal(command, self.cameras, self.persons, self.cell,
+                                  self.policy.clear_time)
         if self.zone_sets.in_force is not None:
             command = replace(command, zone_sets=self.zone_sets.in_force.sets)
         return command

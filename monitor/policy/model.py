@@ -153,6 +153,10 @@ class PolicyInputs:
     # the zones muted at this step, one ``Reason("muted", ...)`` each (the caller has already
     # applied the mutes to ``zone_report``): shown in every command while they hold
     mutes: tuple[Reason, ...] = ()
+    # an operator's confirm-clear dropped every lost person's hold before this step: a step
+    # without a frame, which carries the last frame's causes, carries them without the lost
+    # persons (so the confirm-clear's own reset is judged without them: one step)
+    lost_dropped: bool = False
 
 
 @dataclass(frozen=True)
