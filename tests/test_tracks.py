@@ -474,3 +474,20 @@ def test_a_person_seen_again_in_clear_view_after_passing_behind_a_fixture_ends_t
     assert upd.track_ids == (a,) and ("stop", a) in seen(upd)
     assert not held(upd) and not run.tracker.holds
     assert ended == [(a, "seen again")]
+
+
+def test_a_fresh_loss_merged_into_an_old_area_keeps_its_own_bounded_life():
+    """Two lost persons' areas that nest are joined (named by the longest lost); the union
+    lives as long as its youngest loss, so a person lost just now is never released by an
+    older loss's bounded life."""
+    from monitor.tracking.whereabouts import Whereabouts
+
+    where = Whereabouts()
+    where.view(W, H)
+    where.lose(1, np.array(person(650)), 0.0)
+    where.update(0.0, np.zeros((0, 4)), True, 1.0, None)
+    where.areas[1].age_s = 100.0  # long past its life
+    where.lose(2, np.array(person(650)), 0.0)
+    where._merge_alike()
+    (area,) = where.areas.values()
+    assert area.age_s == 0.0

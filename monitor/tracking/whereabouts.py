@@ -416,6 +416,8 @@ class Whereabouts:
                 continue
             into = same if same is not None else kept[0]
             into.cells |= area.cells
+            # the union lives as long as its youngest loss (a fresh loss never ends early)
+            into.age_s = min(into.age_s, area.age_s)
             into.budget = max(into.budget, area.budget)
             into.merged = (*into.merged, area.track_id, *area.merged)
         self.areas = {a.track_id: a for a in kept}
