@@ -305,3 +305,27 @@ def test_monitor_model_envelope_writes_the_sidecar_and_refuses_a_model_without_s
     assert stored.min_recall == 0.75 and stored.model_sha256 == env.file_sha256(model)
     proc = run_monitor("model", "envelope", "--model", yolov8_like(tmp_path / "y.onnx"))
     assert_one_line_error(proc, "no self-test image to measure on")
+
+
+def test_a_model_with_no_blur_margin_faults_no_normal_frame_and_says_so_at_measuring(
+        detector, envelope, walk):
+    """A real model whose recall falls at the first blur grade (issue 46: a YOLOv8 on a
+    user's self-test image measured max_blur 0): unchanged footage at normal light, with
+    the camera's reference image, gives no envelope fault (before, the limit was the
+    reference's own sharpness, and every slightly softer frame was outside). The lack of
+    margin is said when the envelope is measured, and the dim walk is still a STOP."""
+    import dataclasses
+
+    no_blur = dataclasses.replace(envelope, max_blur=0.0)
+    scene, cell, frames, background = walk
+    soft = [(env.degrade(img, blur=0.4) if k % 3 == 0 else img, truth)
+            for k, (img, truth) in enumerate(frames)]  # focus breathing, compression
+    rows = _run(detector, no_blur, (scene, cell, soft, background), {})
+    assert not [f for r in rows for f in r[3] if f.name == ENVELOPE], \
+        next(f.reason for r in rows for f in r[3] if f.name == ENVELOPE)
+    assert {r[1] for r in rows if r[0]} == {STOP}
+    (warning,) = no_blur.no_margin()
+    assert "least blur" in warning and warning in no_blur.table()
+    assert not envelope.no_margin()
+    dim = _run(detector, no_blur, walk, DIM)
+    assert all(any(f.name == ENVELOPE for f in r[3]) for r in dim)

@@ -7,13 +7,14 @@ from __future__ import annotations
 import logging
 
 import numpy as np
+import pytest
 
 from monitor.config import demo_cell_path
 from monitor.health import CameraHealth, HealthConfig
 from monitor.pipeline import Pipeline
-from monitor.policy import PolicyConfig, ResetRequest
+from monitor.policy import RUN, PolicyConfig, ResetRequest
 from monitor.scene import DemoScene, Figure, draw_figure
-from monitor.types import FrameInfo
+from monitor.types import Fault, FrameInfo
 from monitor.zones import load_cell
 
 AUTO = PolicyConfig(clear_time=0.2, restart_interlock="auto", frame_timeout=5.0,
@@ -59,9 +60,59 @@ def test_confirm_clear_on_a_tick_drops_the_hold_and_its_reset_is_judged(detector
                      "zones": [z.zone_id for z in hold.zones]}]}
     assert message in caplog.text
     assert pipe.holds["cam0"] == ()
-    # the reset came with the tick: the policy judged it (the hold was the only cause)
+    # the reset came with the tick: the policy judged it (the hold was the only cause) and
+    # accepted it in that step (before, the tick carried the last frame's lost person)
     assert result.command.reset is not None and result.command.reset.operator == "bob"
+    assert result.command.reset.accepted, result.command.reset.message
     assert result.now == 0.45
+
+
+def _held_pipeline(detector) -> Pipeline:
+    """A person seen inside the protective zone (STOP, latched), then gone: a hold."""
+    pipe = Pipeline(detector, "cam0", PolicyConfig(clear_time=0.2), load_cell(demo_cell_path()))
+    person = inside()
+    for i in range(3):
+        pipe.process(person, frame(i, i / 10), i / 10)
+    pipe.process(empty(), frame(3, 0.3), 0.3)
+    assert pipe.holds["cam0"]
+    return pipe
+
+
+def test_one_confirm_clear_between_frames_is_accepted_and_the_cell_runs(detector):
+    """`monitor reset --confirm-clear` once, arriving between two frames: accepted in that
+    step, every hold dropped, the confirm-clear alert raised (the audit), and the empty cell
+    runs after clear_time without another reset."""
+    pipe = _held_pipeline(detector)
+    result = pipe.tick(0.35, reset=ResetRequest("bob", 0.35, "c1", confirm_clear=True))
+    assert result.command.reset.accepted, result.command.reset.message
+    assert pipe.holds["cam0"] == ()
+    assert [a.kind for a in result.alerts].count("confirm_clear") == 1
+    nobody = empty()
+    states = [pipe.process(nobody, frame(4 + i, 0.4 + i / 10), 0.4 + i / 10).command.state
+              for i in range(6)]
+    assert states[-1] == RUN, states
+
+
+@pytest.mark.parametrize("fault", [
+    Fault("selftest_failed", "self-test: the test figure was not found", True, "detector"),
+    Fault("camera_blinded", "cam0: contrast too low", True, "cam0")], ids=["detector", "camera"])
+@pytest.mark.parametrize("on_tick", [True, False], ids=["tick", "frame"])
+def test_a_confirm_clear_with_a_camera_in_fault_is_refused_and_drops_nothing(
+        detector, fault, on_tick):
+    """A camera in fault shows nothing: an operator's look at its picture cannot confirm the
+    cell clear. The confirm-clear is refused, every hold stays, and an alert says why."""
+    pipe = _held_pipeline(detector)
+    reset = ResetRequest("bob", 0.4, "c1", confirm_clear=True)
+    if on_tick:
+        result = pipe.tick(0.4, reset=reset, extra_faults=(fault,))
+    else:
+        result = pipe.process(empty(), frame(4, 0.4), 0.4, reset=reset, extra_faults=(fault,))
+    assert result.command.reset is not None and not result.command.reset.accepted
+    assert pipe.holds["cam0"], "a hold was dropped"
+    (alert,) = [a for a in result.alerts if a.kind == "confirm_clear_refused"]
+    assert fault.name in alert.message and "no hold dropped" in alert.message
+    assert alert.details["cameras"] == [f"cam0 ({fault.name}: {fault.reason})"]
+    assert not [a for a in result.alerts if a.kind == "confirm_clear"]
 
 
 def test_confirm_clear_with_nobody_held_says_so(detector):

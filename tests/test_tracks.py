@@ -4,6 +4,7 @@ touches occupied until the camera has seen them free (monitor/tracking/whereabou
 from __future__ import annotations
 
 import functools
+import math
 
 import numpy as np
 import pytest
@@ -445,3 +446,72 @@ def test_ids_survive_a_pillar_at_two_frames_per_second(detector):
         hidden += not len(persons.boxes_px)
     assert hidden >= 1  # the pillar hid the person in at least one frame
     assert len(ids) >= 6 and set(ids) == {1}
+
+
+# --- areas bounded by what was seen (issue 46) ------------------------------------------------
+
+
+def test_an_area_riding_behind_passers_by_ends_after_its_bounded_life():
+    """A, near the camera, is lost where B, further away, walks to and fro across the zone
+    for 20 s. A's area grows into the cells B's feet keep covering (someone can walk hidden
+    behind another person) and follows B, but not for ever: once the time a walker needs to
+    cross the picture has passed and the area reaches no hidden cell, it ends (before, it
+    rode behind B to the end, holding the zone)."""
+    run = Run(fps=10.0)
+    small = {"h": 180, "w": 60, "bottom": 600}
+    for _ in range(3):
+        upd = run.frame(person(650, bottom=700, h=400, w=140), person(650, **small))
+    a = upd.track_ids[0]
+    held_at, rules, life = [], [], None
+    for k in range(200):  # B walks to and fro at up to 235 px/s (8 s a round)
+        upd = run.frame(person(650 + 300 * math.sin(2 * math.pi * k / 80), **small))
+        if life is None:
+            life = run.tracker.where.life_s(run.tracker.where.areas[a])
+        held_at += [(k + 1) / 10] if ("stop", a) in held(upd) else []
+        rules += [rule for tid, rule in upd.ended_by if tid == a]
+    assert held_at and held_at[0] == 0.1  # hidden behind B at first: held
+    assert max(held_at) <= life + 1.0, (max(held_at), life)
+    assert rules == ["bounded life"] and not run.tracker.holds
+
+
+def test_a_person_seen_again_in_clear_view_after_passing_behind_a_fixture_ends_the_area():
+    """The name link: A walks behind a low cabinet inside the zone and out on the other
+    side within the tracker's buffer (0.5 s), ByteTrack keeping the id: the area ends, also
+    where it reached behind the cabinet. A stranger stepping out after longer stays held
+    (test_a_stranger_where_the_lost_one_vanished_never_ends_the_hold)."""
+    run = Run(hidden=hidden_rect(540, 500, 630, 720))
+    x = 400.0
+    for _ in range(8):  # walks right at 250 px/s, then behind the cabinet
+        upd = run.frame(person(x, bottom=600))
+        x += 25
+    a = upd.track_ids[0]
+    for _ in range(4):
+        upd = run.frame()
+        x += 25
+    assert ("stop", a) in held(upd)
+    assert run.tracker.where.areas[a].cells[run.tracker.where.hidden].any()
+    ended = []
+    for _ in range(3):
+        upd = run.frame(person(x, bottom=600))
+        ended += upd.ended_by
+        x += 25
+    assert upd.track_ids == (a,) and ("stop", a) in seen(upd)
+    assert not held(upd) and not run.tracker.holds
+    assert ended == [(a, "seen again")]
+
+
+def test_a_fresh_loss_merged_into_an_old_area_keeps_its_own_bounded_life():
+    """Two lost persons' areas that nest are joined (named by the longest lost); the union
+    lives as long as its youngest loss, so a person lost just now is never released by an
+    older loss's bounded life."""
+    from monitor.tracking.whereabouts import Whereabouts
+
+    where = Whereabouts()
+    where.view(W, H)
+    where.lose(1, np.array(person(650)), 0.0)
+    where.update(0.0, np.zeros((0, 4)), True, 1.0, None)
+    where.areas[1].age_s = 100.0  # long past its life
+    where.lose(2, np.array(person(650)), 0.0)
+    where._merge_alike()
+    (area,) = where.areas.values()
+    assert area.age_s == 0.0

@@ -23,7 +23,7 @@ from monitor.health.objects import accept_objects, objects_of
 from monitor.pipeline.data import CameraState, StepResult
 from monitor.pipeline.evidence import ZonesApplying, policy_inputs
 from monitor.pipeline.fault_alerts import FaultAlerts, one_line
-from monitor.pipeline.holds import confirm_clear, holds_of
+from monitor.pipeline.holds import confirm_clear, explain_refusal, holds_of
 from monitor.pipeline.locate import camera_working, free_elsewhere, hidden_of, locate
 from monitor.pipeline.masking import MaskRules, MaskTally, with_touching
 from monitor.pipeline.mutes import MuteDesk
@@ -326,8 +326,9 @@ class Pipeline:
         self.applying.waiting.discard(frame.camera_id)  # this frame was checked on the new zones
         cam.frame_time, cam.report, cam.faults = shown.capture_time, report, tuple(faults)
         cam.detector_error = detector_error
-        cleared = self._confirm_clear(reset, now)
-        inputs = self._inputs(now, extra_faults, pose_time, reset, with_frame=True)
+        cleared, dropped = self._confirm_clear(reset, now, extra_faults)
+        inputs = self._inputs(now, extra_faults, pose_time, reset, with_frame=True,
+                              lost_dropped=dropped)
         command = self._decide(inputs, now)
         outcomes, mute_alerts = self.mute_desk.take_events()
         alerts = (*cleared, *mute_alerts, *(health.alerts if health else ()), *object_alerts,
@@ -342,8 +343,9 @@ class Pipeline:
     def tick(self, now: float, pose_time: float | None = None,
              reset: ResetRequest | None = None, extra_faults: tuple[Fault, ...] = ()) -> StepResult:
         """Evaluate timers with no new frame (frame timeout, clear time, resets, camera lost)."""
-        cleared = self._confirm_clear(reset, now)
-        inputs = self._inputs(now, extra_faults, pose_time, reset, with_frame=False)
+        cleared, dropped = self._confirm_clear(reset, now, extra_faults)
+        inputs = self._inputs(now, extra_faults, pose_time, reset, with_frame=False,
+                              lost_dropped=dropped)
         command = self._decide(inputs, now)
         detector_error = next((c.detector_error for c in self.cameras.values()
                                if c.detector_error), None)
@@ -353,13 +355,15 @@ class Pipeline:
                                   *self._fault_alerts(inputs.faults, detector_error, now, None)),
                           mute_outcomes=outcomes, mutes=self.mute_desk.holding(now))
 
-    def _confirm_clear(self, reset: ResetRequest | None, now: float) -> tuple[Alert, ...]:
+    def _confirm_clear(self, reset: ResetRequest | None, now: float,
+                       extra_faults: tuple[Fault, ...] = ()) -> tuple[tuple[Alert, ...], bool]:
         """An operator's confirm-clear reset drops every hold of a lost person
-        (``holds.confirm_clear``), before the policy judges the reset as usual."""
+        (``holds.confirm_clear``; refused while a camera is in fault), before the policy
+        judges the reset as usual, in the same step."""
         behind = self._behind_objects() if reset is not None and reset.confirm_clear else {}
-        alerts = confirm_clear(reset, self.state.latched_by, self.cameras, self.persons,
-                               self.handover, now)
-        if alerts:  # the operator looked: the objects standing now are accepted too
+        alerts, dropped = confirm_clear(reset, self.state.latched_by, self.cameras,
+                                        self.persons, self.handover, now, extra_faults)
+        if dropped:  # the operator looked: the objects standing now are accepted too
             alerts = (*alerts, *accept_objects(self.objects, reset, now))
             # nobody can look behind an object: a lost person whose area reaches its shadow
             # stays held until that is seen free (the object moved, another camera)
@@ -371,7 +375,10 @@ class Pipeline:
                 if cam.report is not None:
                     cam.report = replace(cam.report, hits=(*cam.report.hits,
                                                            *cam.tracker.held_hits()))
-        return alerts
+        # holds kept behind an object: the policy must judge this step with the carried
+        # causes, not as if every lost person had been dropped (a reset between frames would
+        # otherwise pass them by)
+        return alerts, dropped and not any(behind.values())
 
     def _behind_objects(self) -> dict[str, dict]:
         """Per camera, the lost persons' areas that reach into an object's shadow."""
@@ -396,17 +403,21 @@ class Pipeline:
         return self.fault_alerts.alerts(faults, detector_error, now, image)
 
     def _inputs(self, now: float, extra: tuple[Fault, ...], pose_time: float | None,
-                reset: ResetRequest | None, with_frame: bool) -> PolicyInputs:
+                reset: ResetRequest | None, with_frame: bool, lost_dropped: bool = False
+                ) -> PolicyInputs:
         """The policy's evidence: every camera's newest answer, merged towards danger."""
-        return policy_inputs(
+        return replace(policy_inputs(
             self.cameras, now, extra=extra, pose_time=pose_time, reset=reset,
             with_frame=with_frame, applying=self.applying, handover=self.handover,
             zone_sets=self.zone_sets, mute_desk=self.mute_desk, zone_error=self.zone_error,
             latch_nonce=lambda: self.latch_nonces(self.state.latches + 1)
-            if self.latch_nonces is not None else "")
+            if self.latch_nonces is not None else ""), lost_dropped=lost_dropped)
 
     def _decide(self, inputs: PolicyInputs, now: float) -> Command:
         self.state, command = step(self.state, inputs, now, self.policy, self.when)
+        # a refusal for a lost person says what ends that hold (docs/tracking.md)
+        command = explain_refusal(command, self.cameras, self.persons, self.cell,
+                                  self.policy.clear_time)
         if self.zone_sets.in_force is not None:
             command = replace(command, zone_sets=self.zone_sets.in_force.sets)
         return command

@@ -5,15 +5,23 @@ every hold of a *lost* person (docs/tracking.md)."""
 from __future__ import annotations
 
 import logging
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import replace
 
+import cv2
+import numpy as np
+
 from monitor.pipeline.data import CameraState
-from monitor.policy import Latch, ResetRequest, stale_latch
+from monitor.policy import Command, Latch, ResetRequest, stale_latch
+from monitor.policy.causes import stops
+from monitor.policy.machine import CONFIRM_CLEAR_HINT
 from monitor.tracking.cell_persons import CellPersons
 from monitor.tracking.handover import HandedHolds
 from monitor.tracking.tracks import Hold
-from monitor.types import Alert
+from monitor.tracking.whereabouts import Whereabouts
+from monitor.types import Alert, Fault
+from monitor.zones import Cell
+from monitor.zones.masks import zone_regions_px
 
 log = logging.getLogger("monitor.pipeline")  # the pipeline's log, as before the split
 
@@ -25,17 +33,127 @@ def holds_of(cameras: Mapping[str, CameraState], persons: CellPersons
             for cid, cam in cameras.items() if cam.tracker}
 
 
+def unseen_regions(cell: Cell | None, camera_id: str, where: Whereabouts,
+                   cells: np.ndarray) -> list[str]:
+    """The occluders and mask zones behind (or in) which the hidden ``cells`` of an area lie,
+    by their ids; "a spot behind a fixture" when none of their outlines holds them (the
+    robot base, or an uncalibrated view)."""
+    grid = where.grid
+    if grid is None or not cells.any():
+        return []
+    names: list[str] = []
+    cam = cell.cameras.get(camera_id) if cell is not None else None
+    if cell is not None and cam is not None:
+        scale = np.array([cam.width / grid.width, cam.height / grid.height])
+        pts = grid.centres()[cells.ravel()] * scale
+        for zone, poly in zone_regions_px(cell, camera_id, ("occluder", "mask")):
+            p = np.asarray(poly, np.float32).reshape(-1, 1, 2)
+            if any(cv2.pointPolygonTest(p, (float(x), float(y)), False) >= 0
+                   for x, y in pts):
+                names.append(zone.id)
+    return names or ["a spot behind a fixture"]
+
+
+def remedies(cameras: Mapping[str, CameraState], persons: CellPersons, cell: Cell | None,
+             clear_time: float) -> list[str]:
+    """For every hold, what ends it: where its person may be that no camera sees, whether
+    waiting ends it, and what does (the refusal of a reset says it)."""
+    out = []
+    for cid, cam in cameras.items():
+        if cam.tracker is None:
+            continue
+        where = cam.tracker.where
+        for h in cam.tracker.holds:
+            area = where.areas.get(h.track_id)
+            if area is None or where.hidden is None:
+                continue
+            who = persons.hold(cid, h).who or h.track_id
+            hidden = area.cells & where.hidden
+            if hidden.any():
+                names = ", ".join(unseen_regions(cell, cid, where, hidden))
+                brief = where.last_time is not None and where.last_time - h.lost_since \
+                    <= cam.tracker.config.lost_track_s
+                out.append(f"person {who} may be behind {names}, not seen by {cid} nor any "
+                           "other camera: waiting does not end it; a second camera that sees "
+                           "there" + (", the person seen walking out in clear view now"
+                                      if brief else "")
+                           + ", or `monitor reset --confirm-clear` after looking at the live "
+                           "picture does")
+            else:
+                until = h.lost_since + where.life_s(area)
+                out.append(f"person {who} may be where {cid} sees: waiting ends it once {cid} "
+                           f"has seen the zone free for {clear_time:g} s, at the latest "
+                           f"{until - h.lost_since:.0f} s after the loss (a walker's time to "
+                           "leave the picture); or `monitor reset --confirm-clear` after "
+                           "looking at the live picture")
+    return out
+
+
+def explain_refusal(command: Command, cameras: Mapping[str, CameraState],
+                    persons: CellPersons, cell: Cell | None, clear_time: float) -> Command:
+    """A reset refused for a lost person says what ends each hold (``remedies``) instead of
+    the policy's general hint."""
+    reset = command.reset
+    hint = f" ({CONFIRM_CLEAR_HINT})"
+    if reset is None or reset.accepted or hint not in reset.message:
+        return command
+    said = remedies(cameras, persons, cell, clear_time)
+    if not said:
+        return command
+    message = reset.message.replace(hint, " (" + "; ".join(said) + ")")
+    return replace(command, reset=replace(reset, message=message))
+
+
+def cameras_in_fault(cameras: Mapping[str, CameraState], now: float,
+                     extra: Iterable[Fault] = ()) -> list[str]:
+    """Each camera that cannot show the cell now, with why: no frame yet, lost, a detector
+    error, or a STOP fault of the camera or the detector in its newest frame (or in
+    ``extra``, this step's own faults)."""
+    extra = tuple(extra)
+    out = []
+    for cid, cam in cameras.items():
+        why = None
+        if cam.frame_time is None:
+            why = "no frame yet"
+        elif cam.detector_error:
+            why = f"detector error: {cam.detector_error}"
+        else:
+            lost = cam.health.check_lost(now, cam.frame_time) if cam.health is not None \
+                else None
+            bad = [f for f in (*cam.faults, *extra, *((lost,) if lost else ()))
+                   if stops(f) and f.source in (cid, "detector")]
+            if bad:
+                why = f"{bad[0].name}: {bad[0].reason}"
+        if why is not None:
+            out.append(f"{cid} ({why})")
+    return out
+
+
 def confirm_clear(reset: ResetRequest | None, latched_by: Latch | None,
                   cameras: Mapping[str, CameraState], persons: CellPersons,
-                  handover: HandedHolds | None, now: float) -> tuple[Alert, ...]:
+                  handover: HandedHolds | None, now: float,
+                  extra: Iterable[Fault] = ()) -> tuple[tuple[Alert, ...], bool]:
     """An operator looked and confirms the cell clear: drop every hold of a *lost* person
     (seen persons keep their hits), before the policy judges the reset as usual. The
     cameras' trackers and zone answers (and the handed-over holds) change in place; the
-    alert says what was dropped."""
+    alert says what was dropped. Returns the alerts and whether the holds were dropped
+    (the policy then judges the reset without them, also in a step without a frame).
+
+    Refused, dropping nothing, while a camera is in fault (``cameras_in_fault``): the
+    operator's look at the live picture is worth no more than the picture, and a camera in
+    fault shows nothing (the policy refuses the reset for the fault too)."""
     if reset is None or not reset.confirm_clear:
-        return ()
+        return (), False
     if stale_latch(reset, latched_by) is not None:
-        return ()  # made for another latch: the policy refuses it; it may drop nothing
+        return (), False  # made for another latch: the policy refuses it; it drops nothing
+    faulty = cameras_in_fault(cameras, now, extra)
+    if faulty:
+        message = (f"operator {reset.operator}'s confirm-clear refused: a camera in fault "
+                   f"cannot show the cell clear: {'; '.join(faulty)}; no hold dropped")
+        log.warning(message)
+        return (Alert("confirm_clear_refused", "warning", message, "pipeline", now, details={
+            "operator": reset.operator, "request_id": reset.request_id, "note": reset.note,
+            "cameras": faulty}),), False
     dropped: list[tuple[str, Hold]] = []
     for cid, cam in cameras.items():
         if cam.tracker is None:
@@ -53,4 +171,4 @@ def confirm_clear(reset: ResetRequest | None, latched_by: Latch | None,
         "operator": reset.operator, "request_id": reset.request_id, "note": reset.note,
         "dropped": [{"camera": cid, "person": h.who, "track_id": h.track_id,
                      "lost_since": h.lost_since,
-                     "zones": [z.zone_id for z in h.zones]} for cid, h in dropped]}),)
+                     "zones": [z.zone_id for z in h.zones]} for cid, h in dropped]}),), True

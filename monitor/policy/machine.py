@@ -115,6 +115,16 @@ def arbitrate_reset(req: ResetRequest | None, stop_causes: tuple[Reason, ...],
     return ResetOutcome(req.operator, True, "reset accepted", req.request_id), None
 
 
+def without_lost(seen: FrameCauses) -> FrameCauses:
+    """The carried causes without those of lost persons (``person_lost``, and a lost person's
+    warning zone: a warning reason with ``since``), after a confirm-clear dropped their holds.
+    The speed scale stays (it is only ever lower than without them, for clear_time)."""
+    return FrameCauses(tuple(r for r in seen.stops if r.code != "person_lost"),
+                       tuple(r for r in seen.slows
+                             if not (r.code == "warning_zone" and r.since is not None)),
+                       seen.scale)
+
+
 def has_cleared(seen: float | None, now: float, config: PolicyConfig) -> bool:
     """True when the cause last seen at ``seen`` has been absent for ``clear_time``."""
     return seen is None or now - seen >= config.clear_time
@@ -183,6 +193,8 @@ def step(state: PolicyState, inputs: PolicyInputs, now: float,
     # no new frame is no evidence of a clear cell: carry the last frame's zone causes
     seen = frame_causes(inputs.zone_report) if has_frame else FrameCauses(
         state.frame_stops, state.frame_slows, state.frame_scale)
+    if not has_frame and inputs.lost_dropped:
+        seen = without_lost(seen)
     stop_causes = fail_safe_causes(inputs, now, config, state.last_frame, has_frame)
     # zone causes first: the person is what an operator must act on
     stop_causes = seen.stops + stop_causes

@@ -160,6 +160,10 @@ class PolicyInputs:
     # any holds, naming them (the scanners' rule: muting suspends a field, it never makes a
     # reset with a person inside acceptable; docs/muting.md)
     muted_stops: tuple[Reason, ...] = ()
+    # an operator's confirm-clear dropped every lost person's hold before this step: a step
+    # without a frame, which carries the last frame's causes, carries them without the lost
+    # persons (so the confirm-clear's own reset is judged without them: one step)
+    lost_dropped: bool = False
 
 
 @dataclass(frozen=True)

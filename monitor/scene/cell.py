@@ -66,6 +66,9 @@ class Walker:
     leave_s: float = math.inf
     floor_z_m: float = 0.0  # the surface the person stands on (a platform's height)
     poses: tuple[tuple[float, float, str], ...] = ()
+    # frame indices in which a detector misses this person (a real detector's flicker): the
+    # figure is not drawn there, the ground truth keeps the person as if drawn
+    unseen_frames: frozenset[int] = frozenset()
 
     def position_at(self, t: float) -> tuple[float, float]:
         return path_position(self.path, t)
@@ -212,7 +215,8 @@ class CellScene:
                 mask = np.zeros(shape, np.uint8)
                 posture = self.walkers[k].posture_at(t)
                 draw_posed(mask, fig, posture, colours=((255,),) * 4)
-                draw_posed(img, fig, posture)
+                if index not in self.walkers[k].unseen_frames:
+                    draw_posed(img, fig, posture)
                 owner[mask > 0] = k
             elif kind == "block":
                 drawn = _draw_block(img, cam, self.blocks[k])

@@ -94,6 +94,9 @@ class CellPersons:
         lines = list(self.update(camera_id, tracker.tracks, update.track_ids, now,
                                  calibrated=tracker.to_floor is not None))
         lines += [self.hold(camera_id, h).describe() for h in update.started]
+        rules = dict(update.ended_by)
+        lines += [f"hold of person {self.hold(camera_id, h).who} ended "
+                  f"({rules.get(h.track_id, 'seen free')})" for h in update.ended]
         for new, old in update.reidentified:  # a guess: said, the hold stays
             n, o = self.who(camera_id, new), self.who(camera_id, old)
             lines.append(f"person {n} (was person {o}?) seen near where person {o} was lost; "

@@ -39,6 +39,7 @@ from monitor.tracking.whereabouts import (
     Whereabouts,
     WhereaboutsConfig,
     ZonesOf,
+    grow,
     union_zones,
 )
 from monitor.types import Persons, ZoneHit, ZoneReport
@@ -146,6 +147,9 @@ class TrackUpdate:
     ended: tuple[Hold, ...] = ()  # holds ended in this frame (their zones were seen free)
     # (new id, lost id): a new person near a lost one that holds a zone, perhaps the same
     reidentified: tuple[tuple[int, int], ...] = ()
+    # (track id, rule) of every lost person's area that ended in this frame: "seen free",
+    # "seen again", "under seen persons", "bounded life" (monitor.tracking.whereabouts)
+    ended_by: tuple[tuple[int, str], ...] = ()
 
 
 @dataclass
@@ -165,11 +169,12 @@ class _Record:
     # seen smaller frame by frame, and at 15 fps the last box may be a head only; the area
     # grows at the pace of the person's full height, not of that sliver
     heights: list[tuple[float, float]] = field(default_factory=list)
+    feet_bottom: float = math.nan  # a cut-off box: the lowest row its hidden feet may be on
+    byte_id: int = -1  # the last sighting's ByteTrack id (-1: none)
 
     def tall_px(self) -> float:
         """The tallest box height of the last ``TALL_WINDOW_S`` seconds it was seen."""
         return max((h for _, h in self.heights), default=float(self.box[3] - self.box[1]))
-    feet_bottom: float = math.nan  # a cut-off box: the lowest row its hidden feet may be on
 
     def snapshot(self, held: tuple[HeldZone, ...]) -> Track:
         floor = None if self.floor is None else (float(self.floor[0]), float(self.floor[1]))
@@ -230,6 +235,7 @@ class PersonTracker:
         self._intervals: list[float] = []  # the last frame intervals (s), for the frame rate
         self._reidentified: list[tuple[int, int]] = []
         self._guessed: set[int] = set()  # rows given a lost track's id by nearness, not ByteTrack
+        self._byte_ids: dict[int, int] = {}  # row -> ByteTrack's id in the newest frame
         self.where = Whereabouts(self.config.areas())
 
     def _buffer_frames(self, fps: float) -> int:
@@ -281,6 +287,7 @@ class PersonTracker:
         are untouched). Returns the holds dropped."""
         dropped = self.holds
         self.where.drop()
+        self.where.take_ended()  # said by the confirm-clear alert
         return dropped
 
     def blind(self) -> None:
@@ -331,6 +338,7 @@ class PersonTracker:
             rec = self._records.get(tid)
             if rec is None:
                 rec = self._records[tid] = _Record(tid, boxes[row].copy(), now)
+                rec.byte_id = self._byte_ids.get(row, -1)
                 rec.zones = row_zones[row] if row_zones is not None else ()
                 self._place(rec, boxes[row], floors[row], now, first=True)
                 rec.feet_bottom = float(cut_rows[row])
@@ -339,12 +347,17 @@ class PersonTracker:
                         rec.was = old
                         self._records[old].seen_as = tid
                 continue
-            # seen again: its area ends only while all of it is in view (a flicker); an area
-            # that reached behind a fixture stays (someone else may have stepped out)
-            if row not in self._guessed:
-                self.where.found(tid)
+            # seen again by the tracker's own association: its area ends while all of it is
+            # in view (a flicker), or when the person is seen in clear view (the name link:
+            # the same person came out from behind the fixture)
+            # (only within the tracker's own buffer, ``lost_track_s``, and only when the
+            # track has not been given to a box by a guess since the loss: after longer
+            # behind a fixture, a person stepping out there may as well be someone else)
+            if row not in self._guessed and self._same_person(rec, row, boxes, now):
+                self.where.found(tid, self._clear_view(rec, row, boxes, now, frame_size))
             old_box, old_seen = rec.box.copy(), rec.last_seen
             self._place(rec, boxes[row], floors[row], now, first=False)
+            rec.byte_id = self._byte_ids.get(row, -1)
             if row_zones is not None:
                 left = {z.zone_id for z in rec.zones} - {z.zone_id for z in row_zones[row]}
                 moved[row] = (old_box, old_seen, bool(left))
@@ -380,7 +393,9 @@ class PersonTracker:
             seen_hits = tuple(replace(h, track_id=rows_to_id[h.person])
                               if 0 <= h.person < n else h for h in report.hits)
             out = replace(report, hits=seen_hits + self.held_hits())
-        return TrackUpdate(tuple(rows_to_id), out, started, ended, tuple(self._reidentified))
+        rules = tuple((a.track_id, rule) for a, rule in self.where.take_ended())
+        return TrackUpdate(tuple(rows_to_id), out, started, ended, tuple(self._reidentified),
+                           rules)
 
     # ---------------------------------------------------------------------------------------
     def _associate(self, boxes: np.ndarray, scores: np.ndarray, now: float) -> list[int]:
@@ -393,6 +408,7 @@ class PersonTracker:
         n = len(boxes)
         self._guessed = set()
         byte_ids = np.full(n, -1, np.int64)
+        self._byte_ids: dict[int, int] = {}
         if n:
             dets = self._sv.Detections(xyxy=boxes.astype(np.float32), confidence=scores.astype(
                 np.float32), data={"row": np.arange(n)})
@@ -442,6 +458,7 @@ class PersonTracker:
                         break
             if byte_ids[row] >= 0:
                 self._by_byte_id[int(byte_ids[row])] = ids[row]
+                self._byte_ids[row] = int(byte_ids[row])
         return [int(t) for t in ids]
 
     def _row_zones(self, report: ZoneReport | None, n: int
@@ -484,6 +501,45 @@ class PersonTracker:
         h = np.minimum(box[3], boxes[:, 3]) - np.maximum(box[1], boxes[:, 1])
         cover = np.clip(w, 0, None) * np.clip(h, 0, None) / area
         return np.flatnonzero(cover >= self.config.merge_ios).tolist()
+
+    def _same_person(self, rec: _Record, row: int, boxes: np.ndarray, now: float) -> bool:
+        """The row is the lost track's own person again, as far as a tracker can say: the
+        same ByteTrack track as at the last sighting (not only an id that ByteTrack's track
+        was once mapped to: in a busy scene a merged box's ByteTrack track passes on to a
+        passer-by while the id went with the person), standing within a walk of the loss's
+        area since the loss."""
+        area = self.where.areas.get(rec.track_id)
+        grid = self.where.grid
+        if area is None or grid is None or rec.byte_id < 0 \
+                or self._byte_ids.get(row, -2) != rec.byte_id:
+            return False
+        cfg = self.config
+        reach_px = cfg.walk_speed_mps / cfg.height_m * area.box_height_px * cfg.reach_margin \
+            * max(0.0, now - area.lost_since)
+        steps = math.ceil(min(reach_px / grid.cell_px, grid.nx + grid.ny))
+        return bool((grid.cells_under(boxes[row], 0.0) & grow(area.cells, steps)).any())
+
+    def _clear_view(self, rec: _Record, row: int, boxes: np.ndarray, now: float,
+                    frame_size: tuple[int, int]) -> bool:
+        """Seen again in clear view soon enough to be the name link: within ByteTrack's
+        buffer (``lost_track_s``; after longer behind a fixture a person stepping out there
+        may as well be someone else) and never after a sighting since the loss, the whole
+        box inside the image (off its borders), its feet on cells the camera sees (none
+        hidden) and no other box of the frame over it."""
+        area = self.where.areas.get(rec.track_id)
+        if area is None or abs(area.lost_since - rec.last_seen) > 1e-9 \
+                or now - rec.last_seen > self.config.lost_track_s + 1e-9:
+            return False
+        w, h = frame_size
+        m = self.config.edge_margin_px
+        box = boxes[row]
+        x1, y1, x2, y2 = (float(v) for v in box)
+        if not (x1 > m and y1 > m and x2 < w - m and y2 < h - m):
+            return False
+        grid, hidden = self.where.grid, self.where.hidden
+        if grid is None or hidden is None or (grid.cells_under(box, 0.0) & hidden).any():
+            return False
+        return not self._merged_into(box, np.delete(boxes, row, axis=0))
 
     def _leaving_view(self, rec: _Record, frame_size: tuple[int, int]) -> bool:
         """Box at the left, right or bottom image border and moving outwards across it. Not

@@ -84,6 +84,10 @@ class WhereaboutsConfig:
     reach_margin: float = 1.5
     below: float = 0.25  # feet hidden by a low fixture: up to this share of the box below it
     max_areas: int = 32  # more lost persons than this on one camera: the newest are merged
+    # the bounded life of an area that reaches no hidden cell: the time a person walking at
+    # walk_speed_mps needs to cross the camera's seen floor, within these bounds (seconds)
+    life_min_s: float = 4.0
+    life_max_s: float = 30.0
 
 
 @dataclass(frozen=True)
@@ -167,6 +171,8 @@ class LostArea:
     behind: bool = False  # kept where a track stood before its box merged with another
     explained: float | None = None  # since when all of it lies under seen persons' feet
     height_px: float = 0.0  # the person's recent full height (the last box may be partial)
+    age_s: float = 0.0  # working time since the loss (the bounded life counts it)
+    ended_by: str = ""  # the rule that ended the area (when it has ended)
 
     @property
     def box_height_px(self) -> float:
@@ -188,6 +194,8 @@ class Whereabouts:
         self._zone_key: object = None
         self.last_time: float | None = None  # capture time of the last frame judged
         self._floor: tuple[np.ndarray, np.ndarray] | None = None  # grid centres on the floor
+        # areas ended since the last ``take_ended``, each with the rule that ended it
+        self.ended: list[tuple[LostArea, str]] = []
 
     # ---------------------------------------------------------------------------------------
     def view(self, width: int, height: int,
@@ -205,6 +213,25 @@ class Whereabouts:
             self.hidden = (np.zeros(self.grid.shape, bool) if hidden is None
                            else np.asarray(hidden(self.grid), bool).reshape(self.grid.shape))
             self._hidden_key = key
+
+    def take_ended(self) -> list[tuple[LostArea, str]]:
+        """The areas ended since the last call, each with the rule that ended it ("seen
+        free", "seen again", "bounded life", "confirm-clear", ...)."""
+        out, self.ended = self.ended, []
+        return out
+
+    def life_s(self, area: LostArea) -> float:
+        """The bounded life of ``area``: the time a person walking at ``walk_speed_mps``
+        needs to cross the camera's picture where they were lost (the image diagonal in box
+        heights of the last box, a ``height_m`` person: further away a person is smaller and
+        needs longer), within ``life_min_s`` .. ``life_max_s``."""
+        cfg = self.config
+        if self.grid is None:
+            return cfg.life_max_s
+        extent = math.hypot(self.grid.width, self.grid.height) / area.box_height_px \
+            * cfg.height_m
+        life = extent / max(cfg.walk_speed_mps, 1e-6)
+        return float(min(max(life, cfg.life_min_s), cfg.life_max_s))
 
     def free_now(self) -> np.ndarray | None:
         """(ny, nx) bool: the cells seen free for ``clear_time`` as of the last frame (None:
@@ -245,22 +272,27 @@ class Whereabouts:
                                         seed, float(last_seen), behind=behind,
                                         height_px=float(height_px))
 
-    def found(self, track_id: int) -> bool:
-        """The lost person's own track is seen again: the sighting explains the loss while
-        everything the area covers is in view (a flicker, a short miss); an area that has
-        reached cells the camera cannot see (behind a cabinet) stays: someone else may have
-        come out. True when the area ended."""
+    def found(self, track_id: int, clear_view: bool = False) -> bool:
+        """The lost person's own track is seen again (the tracker's association, never a box
+        given the id for being near): the sighting explains the loss while everything the
+        area covers is in view (a flicker, a short miss), or when the person is seen again in
+        clear view (``clear_view``: the whole box in the image, its feet on cells the camera
+        sees), also after walking behind a fixture: the name link says it is the same person.
+        The place a merged track stood (``behind``) stays. True when the area ended."""
         area = self.areas.get(track_id)
-        if area is None or area.behind or self.hidden is None \
-                or (area.cells & self.hidden).any():
+        if area is None or area.behind or self.hidden is None:
+            return False
+        if not clear_view and (area.cells & self.hidden).any():
             return False
         del self.areas[track_id]
+        self.ended.append((area, "seen again"))
         return True
 
     def drop(self) -> list[LostArea]:
         """An operator confirmed the cell clear: every area ends."""
         dropped = list(self.areas.values())
         self.areas.clear()
+        self.ended.extend((a, "confirm-clear") for a in dropped)
         return dropped
 
     # ---------------------------------------------------------------------------------------
@@ -306,13 +338,23 @@ class Whereabouts:
             area.budget += reach_px / grid.cell_px if math.isfinite(reach_px) else grid.nx
             steps = min(int(area.budget), grid.nx + grid.ny)
             area.budget -= int(area.budget)
+            area.age_s = area.age_s + dt if working else 0.0
+            young = area.age_s < self.life_s(area) - 1e-9
+            # where a person may be that the camera does not show: behind a fixture, behind
+            # a seen person (only within the bounded life: nobody walks hidden behind others
+            # for ever), anywhere while the camera is in fault. Between two frames nothing
+            # is observed, so the area reaches as far as a walk; but a cell the camera shows
+            # free now holds nobody it could see, so the area grows only into cells it does
+            # not show, never through other persons' trails on open floor
+            unseen = self.hidden | (occupied & young) if working \
+                else np.ones(grid.shape, bool)
             # where a merged track stood does not walk: a person hidden behind a neighbour
             # who moves on is seen (or merges again); it ends once seen free
             grown = grow(area.cells, 0 if area.behind else steps)
             if floor is not None:  # in pixels near the horizon a step is metres: on the floor
                 grown = self._within_walk(area.cells, grown, floor,
                                           cfg.walk_speed_mps * cfg.reach_margin * dt)
-            area.cells = grown & ~free
+            area.cells = (area.cells | (grown & unseen)) & ~free
             area.updated = now
             # a ghost: all of it in view, under seen persons' feet for clear_time (a person
             # who flickered out and came back under a new id); not the place a merged track
@@ -322,13 +364,20 @@ class Whereabouts:
                 area.explained = now if area.explained is None else area.explained
                 if now - area.explained >= clear_time - 1e-9:
                     area.cells[:] = False
+                    area.ended_by = "under seen persons"
             else:
                 area.explained = None
+            # the bounded life: an area that reaches no hidden cell, past the time a walker
+            # needs to leave the seen floor, holds nobody who could not have been seen
+            if not young and area.cells.any() and not (area.cells & self.hidden).any():
+                area.cells[:] = False
+                area.ended_by = "bounded life"
         self._free, self.last_time = free, now
         if free_elsewhere is not None and floor is not None:
             self._clear_elsewhere(free_elsewhere, floor)
         for tid in [t for t, a in self.areas.items() if not a.cells.any()]:
-            del self.areas[tid]
+            area = self.areas.pop(tid)
+            self.ended.append((area, area.ended_by or "seen free"))
         self._merge_alike()
         if zones_key is None or zones_key != self._zone_key:
             self._zone_cache.clear()
@@ -391,6 +440,8 @@ class Whereabouts:
                 continue
             into = same if same is not None else kept[0]
             into.cells |= area.cells
+            # the union lives as long as its youngest loss (a fresh loss never ends early)
+            into.age_s = min(into.age_s, area.age_s)
             into.budget = max(into.budget, area.budget)
             into.height_px = max(into.height_px, area.height_px)
             into.merged = (*into.merged, area.track_id, *area.merged)
