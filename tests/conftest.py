@@ -16,9 +16,28 @@ def synthetic_model(tmp_path_factory: pytest.TempPathFactory) -> Path:
     def build(folder: Path) -> Path:
         path = folder / "tiny-yolov3-synthetic.onnx"
         synthetic.write_model(path)
+        prepare_backends(path)
         return path
 
     return built_once(tmp_path_factory, "synthetic-model", build)
+
+
+def prepare_backends(path: Path) -> None:
+    """With more backends than onnxruntime here (the [openvino] extra), measure `auto`'s
+    choice for the shared model once, at the thread counts the tests' configs use, and the
+    envelope with the chosen backend: as a deployed monitor's later starts, the tests' `monitor
+    run`s then open it at once instead of each first one measuring (tens of seconds on a loaded
+    host, before the bus opens). tests/test_backends.py measures on its own copies."""
+    from monitor.detector import DetectorConfig
+    from monitor.detector.choice import open_detector
+    from monitor.detector.envelope import for_detector
+    from monitor.detector.runners import available, model_facts
+
+    if len(available(model_facts(path))) == 1:
+        return
+    for threads in (1, 2):
+        det, _ = open_detector(path, DetectorConfig(threads=threads, backend_budget_s=600))
+        for_detector(det, 0.9)
 
 
 @pytest.fixture(scope="session")
