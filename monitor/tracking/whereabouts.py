@@ -171,6 +171,7 @@ class LostArea:
     behind: bool = False  # kept where a track stood before its box merged with another
     explained: float | None = None  # since when all of it lies under seen persons' feet
     age_s: float = 0.0  # working time since the loss (the bounded life counts it)
+    latest_loss: float | None = None  # the latest loss joined into this area (None: its own)
     ended_by: str = ""  # the rule that ended the area (when it has ended)
 
     @property
@@ -418,6 +419,8 @@ class Whereabouts:
             into.cells |= area.cells
             # the union lives as long as its youngest loss (a fresh loss never ends early)
             into.age_s = min(into.age_s, area.age_s)
+            into.latest_loss = max(into.latest_loss or into.lost_since,
+                                   area.latest_loss or area.lost_since)
             into.budget = max(into.budget, area.budget)
             into.merged = (*into.merged, area.track_id, *area.merged)
         self.areas = {a.track_id: a for a in kept}
