@@ -172,6 +172,7 @@ class LostArea:
     explained: float | None = None  # since when all of it lies under seen persons' feet
     height_px: float = 0.0  # the person's recent full height (the last box may be partial)
     age_s: float = 0.0  # working time since the loss (the bounded life counts it)
+    latest_loss: float | None = None  # the latest loss joined into this area (None: its own)
     ended_by: str = ""  # the rule that ended the area (when it has ended)
 
     @property
@@ -442,6 +443,8 @@ class Whereabouts:
             into.cells |= area.cells
             # the union lives as long as its youngest loss (a fresh loss never ends early)
             into.age_s = min(into.age_s, area.age_s)
+            into.latest_loss = max(into.latest_loss or into.lost_since,
+                                   area.latest_loss or area.lost_since)
             into.budget = max(into.budget, area.budget)
             into.height_px = max(into.height_px, area.height_px)
             into.merged = (*into.merged, area.track_id, *area.merged)
