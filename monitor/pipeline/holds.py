@@ -11,6 +11,7 @@ from dataclasses import replace
 import cv2
 import numpy as np
 
+from monitor.health.objects import OBJECT_IN_ZONE
 from monitor.pipeline.data import CameraState
 from monitor.policy import Command, Latch, ResetRequest, stale_latch
 from monitor.policy.causes import stops
@@ -120,8 +121,10 @@ def cameras_in_fault(cameras: Mapping[str, CameraState], now: float,
         else:
             lost = cam.health.check_lost(now, cam.frame_time) if cam.health is not None \
                 else None
+            # an object standing in a zone since commissioning is no fault of the camera: it
+            # shows the cell, and the operator's confirm-clear is what accepts the object
             bad = [f for f in (*cam.faults, *extra, *((lost,) if lost else ()))
-                   if stops(f) and f.source in (cid, "detector")]
+                   if stops(f) and f.source in (cid, "detector") and f.name != OBJECT_IN_ZONE]
             if bad:
                 why = f"{bad[0].name}: {bad[0].reason}"
         if why is not None:
