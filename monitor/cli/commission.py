@@ -57,6 +57,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--cell-size", type=float, default=0.25, metavar="M",
                    help="floor cell size in metres")
     p.add_argument("--no-video", action="store_true", help="no annotated.mp4 (faster)")
+    p.add_argument("--min-walked", type=float, default=MIN_WALKED, metavar="SHARE",
+                   help="share of each protective zone's visible floor this walk must have "
+                   "seen a person on, else that zone FAILs (the report merges several walks)")
     p.add_argument("--truth", type=Path, metavar="FILE", help="the video's ground truth (the "
                    "truth.json of a generated walk): entries then count from the first frame "
                    "a person truly stands in the zone, detected or not")
@@ -117,7 +120,7 @@ def _model_path(config, model: Path | None) -> Path:
 def cmd_walk(args: argparse.Namespace) -> int:
     from monitor.commission.cut_feet import FEET_HIDDEN_TEXT, walk_passes_hidden_feet
     from monitor.commission.details import zones as zone_details
-    from monitor.commission.verdict import camera_verdicts, zone_verdicts
+    from monitor.commission.verdict import WalkLimits, camera_verdicts, zone_verdicts
     from monitor.commission.walk_video import read_walk, walk_video
     from monitor.config import load_config
     from monitor.detector import Detector
@@ -127,6 +130,8 @@ def cmd_walk(args: argparse.Namespace) -> int:
 
     if not 0.05 <= args.cell_size <= 2.0:
         raise InputError(f"--cell-size {args.cell_size:g}: must be within [0.05, 2] m")
+    if not 0.0 <= args.min_walked <= 1.0:
+        raise InputError(f"--min-walked {args.min_walked:g}: a share within [0, 1]")
     if args.video is not None and not args.video.is_file():
         raise InputError(f"{args.video}: no such video")
     if args.record is not None and not 1.0 <= args.record <= 3600.0:
@@ -178,7 +183,7 @@ def cmd_walk(args: argparse.Namespace) -> int:
     print(f"outputs: {args.out}/ (walk.json, {', '.join(sorted(pictures.values()))})")
     data = read_walk(args.out)
     ours = [z for z in zone_details(cell) if z["camera"] in (None, data["camera"])]
-    verdicts = [v.to_dict() for v in zone_verdicts(ours, [data])
+    verdicts = [v.to_dict() for v in zone_verdicts(ours, [data], WalkLimits(args.min_walked))
                 + camera_verdicts([data["camera"]], [data])]
     _print_verdict(verdicts)
     failed = feet_hidden or any(v["verdict"] == "FAIL" for v in verdicts)
