@@ -116,11 +116,13 @@ def test_a_detector_error_frame_is_no_seen_free_frame_for_a_lost_persons_area(
         if i in bad:
             assert res.command.state == STOP and res.zone_report is None
     assert held[10], "the person's area holds the zone once lost"
+    # (when it is released is not asserted: this person stands in front of the demo cell's
+    # robot base, whose shadow hides a crouching person (issue 44), so the area may stay held
+    # until a confirm-clear; what this test guards is that no failed frame released it early)
     if errors:
-        assert all(held[i] for i in range(20, 30)), held
-        assert not held[30] and not held[31], held
+        assert all(held[i] for i in range(20, 30)), sorted(k for k, v in held.items() if v)
     else:
-        assert held[19] and not held[20] and not held[25], held
+        assert all(held[i] for i in range(10, 20)), sorted(k for k, v in held.items() if v)
 
 
 # --- the bus decoder's nesting bound --------------------------------------------------------

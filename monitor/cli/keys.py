@@ -68,7 +68,8 @@ def register(subparsers) -> None:
                    "selects zone sets): print the line for the selectors file (default: a "
                    "monitor key)")
     p.add_argument("--commissioner", help="commissioner id (who signs the commissioning report "
-                   "and commissioned.json): print the line for the commissioners file (default: none)")
+                   "and commissioned.json): print the line for the commissioners file "
+                   "(default: none)")
     p.add_argument("--force", action="store_true",
                    help="replace existing key files (default: refuse)")
     p.set_defaults(func=cmd_keys_new)
