@@ -35,6 +35,7 @@ from monitor.frames import Frame
 from monitor.pipeline import Pipeline, StepResult
 from monitor.policy import ResetRequest
 from monitor.types import Fault
+from monitor.wire.object_accepts import ObjectAccept
 
 
 def settle_heap() -> int:
@@ -65,6 +66,8 @@ class StepInputs:
     tool_speed_mps: float | None = None
     pose_time: float | None = None
     mutes: tuple[MuteRequest, ...] = ()  # verified mute requests (judged by the pipeline)
+    # verified acceptances of objects since commissioning (judged by the pipeline)
+    accepts: tuple[ObjectAccept, ...] = ()
     # zone set selections and refused selection requests (monitor/cases/), oldest first
     case_events: tuple = ()
 
@@ -266,8 +269,11 @@ class Driver:
         return self._emit(result, frame)
 
     def _judge_mutes(self, inputs: StepInputs, now: float) -> StepInputs:
-        """Mute requests are judged before the step's decision, even a stalled one (their
-        outcomes ride on its result; the bus answers them)."""
+        """Mute requests and acceptances of objects are judged before the step's decision,
+        even a stalled one (their outcomes ride on its result; the bus answers them)."""
+        if inputs.accepts:  # the same for acceptances of objects since commissioning
+            self.pipeline.accept_objects(inputs.accepts, now)
+            inputs = dataclasses.replace(inputs, accepts=())
         if not inputs.mutes:
             return inputs
         self.pipeline.request_mutes(inputs.mutes, now)
@@ -304,7 +310,8 @@ class Driver:
             result, frame=processed.frame, persons=processed.persons,
             zone_report=processed.zone_report, health=processed.health,
             alerts=(*processed.alerts, *result.alerts), stage_ms=processed.stage_ms,
-            mute_outcomes=(*processed.mute_outcomes, *result.mute_outcomes))
+            mute_outcomes=(*processed.mute_outcomes, *result.mute_outcomes),
+            accept_outcomes=(*processed.accept_outcomes, *result.accept_outcomes))
 
     def _stalled(self, gap: float, inputs: StepInputs, processed: StepResult | None = None,
                  frame: Frame | None = None) -> Step:

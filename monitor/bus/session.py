@@ -16,6 +16,8 @@ Keys (``prefix`` defaults to ``workcell/<cell>/``):
 ``<prefix>safety/mute``             queryable: signed mute requests
                                     (``monitor.cases.mute_requests``; docs/muting.md)
 ``<prefix>safety/zones/apply``     queryable: signed zone applies (``monitor.service.zone_swap``)
+``<prefix>safety/objects/accept``  queryable: signed acceptances of objects since commissioning
+                                    (``monitor.wire.object_accepts``; docs/occlusion.md)
 ``<prefix>safety/alive/<instance>`` liveliness token of the running monitor
 ``<prefix>tracker/pose``            tool pose samples (``monitor.pose.stream``)
 =================================  =========================================================
@@ -67,6 +69,7 @@ from collections.abc import Callable
 
 import zenoh
 
+from monitor.bus.accept_desk import AcceptDesk
 from monitor.bus.peers import DuplicateMonitor, PeerWatch
 from monitor.bus.reset_desk import RESET_ANSWER_SCHEMA, ResetDesk
 from monitor.cases.mute_requests import MuteDesk, MuteGate
@@ -85,6 +88,7 @@ from monitor.wire.busconfig import (
     zenoh_error,
 )
 from monitor.wire.consumer import COMMAND_SCHEMA, CommandWatchdog, Verdict
+from monitor.wire.object_accepts import AcceptGate, AcceptOutcome, ObjectAccept
 from monitor.wire.resets import RESET_SCHEMA, ResetGate, ResetPolicy, latch_of, reset_payload
 from monitor.wire.signing import Signer, load_operators, load_private_key
 
@@ -166,6 +170,9 @@ class SafetyBus:
                                   config.allow_unsigned_resets, config.reset_window_s)),
             self.keys.reset, config.reset_answer_s, clock, self._lock, self._signer,
             {"instance": config.instance})
+        self._accepts = AcceptDesk(AcceptGate(operators, config.cell, self.keys.objects_accept,
+                                              config.reset_window_s), config.reset_answer_s,
+                                   self._signer, self._resets.who)
         self._peers = PeerWatch(
             cell=config.cell, role=config.role, instance=config.instance,
             alive_key=self.keys.alive, command_key=self.keys.command,
@@ -211,6 +218,7 @@ class SafetyBus:
                 s.declare_subscriber(self.keys.reset, lambda sample: self._resets.on_sample(
                     sample, self._boot, self._latch_now)),
                 s.declare_queryable(self.keys.mute, self._on_mute_query),
+                s.declare_queryable(self.keys.objects_accept, self._on_accept_query),
                 s.declare_subscriber(self.keys.command,
                                      lambda sample: self._peers.on_command(sample, self._boot),
                                      allowed_origin=zenoh.Locality.REMOTE),
@@ -247,6 +255,7 @@ class SafetyBus:
         finally:
             self._resets.answer_all("the monitor is shutting down")
             self._mutes.answer_all("the monitor is shutting down")
+            self._accepts.answer_all("the monitor is shutting down")
             self.closed_cleanly = close_bounded(session, timeout, [*self._entities, self._token])
 
     @property
@@ -402,6 +411,7 @@ class SafetyBus:
                 self._put_command(self._heartbeat_command(), heartbeat=True)
                 self._resets.expire()
                 self._mutes.expire(self._clock())
+                self._accepts.expire(self._clock())
                 self._flush_refused_alerts()
             except Exception:  # keep beating; the failure is counted by _put
                 with self._lock:
@@ -455,7 +465,8 @@ class SafetyBus:
         return latch_of(self._latest)
 
     def _flush_refused_alerts(self) -> None:
-        alerts = self._resets.drain_alerts() + self._mutes.drain_alerts()
+        alerts = (self._resets.drain_alerts() + self._mutes.drain_alerts()
+                  + self._accepts.drain_alerts())
         foreign = self._peers.foreign_alert("bus")
         for alert in [*alerts, *([foreign] if foreign else [])]:
             self.publish_alert(alert)
@@ -474,6 +485,21 @@ class SafetyBus:
         payload = query.payload.to_bytes() if query.payload is not None else b""
         signature = query.attachment.to_bytes() if query.attachment is not None else None
         self._mutes.take(payload, signature, query, self._clock(), self._boot)
+
+    # --- acceptances of objects since commissioning (monitor.bus.accept_desk) --------------
+
+    def poll_accepts(self) -> tuple[ObjectAccept, ...]:
+        """Verified acceptances since the last call, for the pipeline to judge."""
+        return self._accepts.poll()
+
+    def answer_accept(self, outcome: AcceptOutcome) -> None:
+        """The pipeline's judgement of an acceptance, as the answer to its query."""
+        self._accepts.answer(outcome)
+
+    def _on_accept_query(self, query: zenoh.Query) -> None:
+        payload = query.payload.to_bytes() if query.payload is not None else b""
+        signature = query.attachment.to_bytes() if query.attachment is not None else None
+        self._accepts.take(payload, signature, query, self._clock(), self._boot)
 
     # --- status ------------------------------------------------------------------------------
 
@@ -500,6 +526,8 @@ class SafetyBus:
                 "put_errors": dict(self._counters["errors"]),
                 "resets_invalid": self._resets.invalid, "resets_refused": self._resets.refused,
                 "mutes_accepted": self._mutes.accepted, "mutes_refused": self._mutes.refused,
+                "objects_accepted": self._accepts.accepted,
+                "object_accepts_refused": self._accepts.refused,
                 # operators' queries waiting for the pipeline's answer (a stalled loop: > 0)
                 "resets_waiting": len(self._resets.pending), "mutes_waiting": self._mutes.waiting,
                 "commands_foreign": self.foreign_commands(),

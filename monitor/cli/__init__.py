@@ -39,6 +39,7 @@ COMMAND_MODULES = (
     "monitor.console.cli",
     "monitor.cli.incidents",
     "monitor.cli.mute",
+    "monitor.cli.objects",
     "monitor.cli.cases",
     "monitor.cli.commission",
 )
@@ -56,7 +57,8 @@ COMMANDS = {
     "replay": "monitor.cli.run", "run": "monitor.cli.run", "eval": "monitor.cli.eval",
     "docs": "monitor.cli.init", "init": "monitor.cli.init", "console": "monitor.console.cli",
     "incidents": "monitor.cli.incidents", "mute": "monitor.cli.mute",
-    "case": "monitor.cli.cases", "commission": "monitor.cli.commission",
+    "objects": "monitor.cli.objects", "case": "monitor.cli.cases",
+    "commission": "monitor.cli.commission",
 }
 DEBUG_HELP = "show the full traceback on errors (anywhere on the command line)"
 

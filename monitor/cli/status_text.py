@@ -109,6 +109,27 @@ def _commissioned(value: Any) -> str:
     return f"commissioned: NO ({reason})"
 
 
+def changed_lines(value: Any) -> list[str]:
+    """The objects standing since commissioning (``changed_since_commissioning``): one line
+    each, accepted or not; nothing when none stands."""
+    out = []
+    for o in (o for o in _list(value) if isinstance(o, dict)):
+        floor = _list(o.get("floor_m"))
+        at = (f"x {_num(floor[0]):.1f} m, y {_num(floor[1]):.1f} m" if len(floor) == 2
+              and _num(floor[0]) is not None and _num(floor[1]) is not None
+              else f"image box {o.get('box_px', '?')}")
+        zones = ", ".join(map(str, _list(o.get("zones")))) or "?"
+        if o.get("accepted_by"):
+            how = f"accepted by {o['accepted_by']} at {_wall(o.get('accepted_wall'))}"
+        elif o.get("protective"):
+            how = f"NOT accepted: STOP, resets refused until `{o.get('accept') or '?'}`"
+        else:
+            how = f"not accepted: `{o.get('accept') or '?'}`"
+        out.append(f"cell changed since commissioning: object at {at} in {zones} on "
+                   f"{o.get('camera', '?')} ({how})")
+    return out
+
+
 def _detector(value: Any) -> str:
     d = _dict(value)
     if not d:
@@ -142,6 +163,7 @@ def status_text(status: dict) -> str:
     zones = s.get("zones_file") or "?"
     lines.append(f"zones: {zones}, config hash {s.get('config_hash') or '?'}")
     lines.append(_commissioned(s.get("commissioned")))
+    lines += changed_lines(s.get("changed_since_commissioning"))
     reset = _dict(s.get("last_reset"))
     if reset:
         verdict = "accepted" if reset.get("accepted") is True else "refused"

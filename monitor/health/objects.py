@@ -17,8 +17,10 @@ lies on a zone's floor is an **object** standing there:
 * an alert (``object_placed``, with a snapshot that outlines it) names the camera, the zone and
   the floor place once, when it appears;
 * while it stands in a protective zone unaccepted, a STOP fault (``object_in_zone``) refuses
-  every reset, until an operator accepts it with a confirm-clear reset (signed by the
-  operator's key and in the audit log like every reset); accepted, it stays an occluder (its
+  every reset, until an operator accepts it by its own signed request (``monitor objects
+  accept --camera C --zone Z``: ``monitor.wire.object_accepts``, judged by
+  ``monitor.health.acceptance``, alerted and so in the events file); a reset, confirm-clear
+  or not, never accepts an object. Accepted, it stays an occluder declared at run time (its
   shadow stays held until seen free) but no longer holds the cell by itself;
 * when the region is back to the reference for ``clear_s`` the object is gone.
 
@@ -37,6 +39,7 @@ import numpy as np
 
 from monitor.health.draw import encode_jpeg
 from monitor.types import Alert, Fault
+from monitor.wire.object_accepts import accept_command
 from monitor.zones import volume_outline_m
 from monitor.zones.masks import zone_regions_px
 from monitor.zones.schema import RobotBaseSpec
@@ -83,6 +86,8 @@ class SceneObject:
     since: float
     accepted_by: str | None = None
     last_changed: float = 0.0
+    accepted_at: float | None = None  # the caller's clock (monotonic, or the video's)
+    accepted_wall: float | None = None  # the acceptance's Unix time (for the status)
 
     def place(self) -> str:
         where = "" if self.floor_m is None else \
@@ -241,7 +246,8 @@ class ZoneObjects:
         what = "protective" if obj.protective else "warning"
         message = (f"{self.camera_id}: an object not in the commissioning reference stands "
                    f"in {what} zone {obj.place()}: the floor behind it is not seen"
-                   + ("; resets are refused until an operator accepts it (confirm-clear)"
+                   + ("; resets are refused until an operator has looked and accepts it: "
+                      + accept_command(self.camera_id, obj.zone_ids[0])
                       if obj.protective else ""))
         return Alert(OBJECT_PLACED, "warning", message, self.camera_id, now,
                      encode_jpeg(img, 1280, 80),
@@ -252,24 +258,36 @@ class ZoneObjects:
     def faults(self) -> list[Fault]:
         """STOP faults of the unaccepted objects in protective zones."""
         return [Fault(OBJECT_IN_ZONE, f"{self.camera_id}: object in {o.place()} since "
-                      f"{o.since:.1f} s, not in the commissioning reference (accept it with a "
-                      "confirm-clear reset once looked at)", True, self.camera_id)
+                      f"{o.since:.1f} s, not in the commissioning reference (look at it, then "
+                      f"accept it: {accept_command(self.camera_id, self._protective_zone(o))})",
+                      True, self.camera_id)
                 for o in self.objects.values() if o.protective and o.accepted_by is None]
 
-    def accept(self, operator: str) -> list[SceneObject]:
-        """An operator confirmed the cell clear: the objects standing now are accepted."""
-        out = [o for o in self.objects.values() if o.accepted_by is None]
+    def _protective_zone(self, obj: SceneObject) -> str:
+        kinds = {r.zone_id: r.kind for r in self.regions}
+        return next((z for z in obj.zone_ids if kinds.get(z) == "protective"), obj.zone_ids[0])
+
+    def accept(self, zone_id: str, operator: str, now: float, wall: float
+               ) -> list[SceneObject]:
+        """An operator looked and accepts the objects standing in ``zone_id`` now (those not
+        accepted yet); the ones accepted are returned."""
+        out = [o for o in self.objects.values()
+               if o.accepted_by is None and zone_id in o.zone_ids]
         for o in out:
-            o.accepted_by = operator
+            o.accepted_by, o.accepted_at, o.accepted_wall = operator, now, wall
         return out
 
-    def hidden_cells(self, centres_px: np.ndarray) -> np.ndarray:
+    def hidden_cells(self, centres_px: np.ndarray, unaccepted_only: bool = False
+                     ) -> np.ndarray:
         """(N,) bool: foot positions (full-resolution pixels) behind or in an object: under
         its columns, from its top row down to its bottom row (a person standing there shows
-        less than the box's height above it)."""
+        less than the box's height above it). ``unaccepted_only``: behind the objects no
+        operator has accepted yet."""
         pts = np.asarray(centres_px, float).reshape(-1, 2)
         out = np.zeros(len(pts), bool)
         for o in self.objects.values():
+            if unaccepted_only and o.accepted_by is not None:
+                continue
             x1, y1, x2, y2 = o.box_px
             out |= (pts[:, 0] >= x1) & (pts[:, 0] <= x2) & (pts[:, 1] >= y1) \
                 & (pts[:, 1] <= y2)
@@ -326,23 +344,6 @@ def objects_of(cell, references) -> dict[str, ZoneObjects]:
         out[cid] = ZoneObjects(cid, regions, ref, model.pixel_to_floor if model else None,
                                exclude_px=[*masks, *([column] if column is not None else [])])
     return out
-
-
-def accept_objects(watches, reset, now: float) -> tuple[Alert, ...]:
-    """An operator's confirm-clear reset (signed, audited like every reset) accepts every
-    object standing now: the alert says which (the commissioned view has changed)."""
-    accepted = [(cid, o) for cid, w in watches.items() for o in w.accept(reset.operator)]
-    if not accepted:
-        return ()
-    what = "; ".join(o.place() for _, o in accepted)
-    return (Alert("objects_accepted", "warning", f"operator {reset.operator} accepted "
-                  f"objects not in the commissioning reference: {what} (the cell has "
-                  "changed since commissioning; their shadow stays held until seen free)",
-                  "pipeline", now, details={
-                      "operator": reset.operator, "request_id": reset.request_id,
-                      "objects": [{"camera": cid, "zones": list(o.zone_ids),
-                                   "floor_m": list(o.floor_m) if o.floor_m else None,
-                                   "box_px": list(o.box_px)} for cid, o in accepted]}),)
 
 
 # the robot moves above its base: its column (the base cylinder up to this height) is no place

@@ -19,7 +19,8 @@ from monitor.cases import sets as cases
 from monitor.cases.muting import MuteOutcome, MuteRequest, Mutes
 from monitor.detector import Detector
 from monitor.health import CameraHealth
-from monitor.health.objects import accept_objects, objects_of
+from monitor.health.acceptance import judge_accept
+from monitor.health.objects import objects_of
 from monitor.pipeline.data import CameraState, StepResult
 from monitor.pipeline.evidence import ZonesApplying, policy_inputs
 from monitor.pipeline.fault_alerts import FaultAlerts, one_line
@@ -43,6 +44,7 @@ from monitor.tracking.cell_persons import CellPersons, CellPersonsConfig
 from monitor.tracking.handover import HandedHolds
 from monitor.tracking.tracks import Hold, PersonTracker, TrackerConfig
 from monitor.types import Alert, Fault, FrameInfo, Persons
+from monitor.wire.object_accepts import AcceptOutcome, ObjectAccept
 from monitor.zones import Cell
 from monitor.zones.masks import MaskRule
 from monitor.zones.prepare import PreparedCell, with_references
@@ -83,6 +85,9 @@ class Pipeline:
         # objects put into the zones since commissioning, per camera with a reference
         # (monitor.health.objects); the cameras without one are named by ``no_reference``
         self.objects = objects_of(cell, self.references)
+        # operators' acceptances of those objects judged since the last step: their outcomes
+        # (the bus answers them) and alerts ride on the next StepResult
+        self._accepts: list[tuple[AcceptOutcome, Alert]] = []
         # the visible share of a person the detector was measured to need
         # (monitor.detector.visible; None: the zone file's person.visible_fraction)
         self.visible_fraction: float | None = None
@@ -132,6 +137,21 @@ class Pipeline:
         the next decision uses them. Without sets in the zone file they are ignored
         (none are received then: without sets every zone applies, the most protection)."""
         self.zone_sets.take_events(events, now)
+
+    def accept_objects(self, requests: Sequence[ObjectAccept], now: float
+                       ) -> tuple[AcceptOutcome, ...]:
+        """Judge operators' acceptances of objects since commissioning at ``now`` (before
+        this step's decision: an accepted object's fault is gone from it on). The outcomes
+        and alerts also ride on the next ``StepResult``."""
+        zones = [z.id for z in self.cell.zones if z.kind in ("protective", "warning")] \
+            if self.cell is not None else []
+        judged = [judge_accept(self.objects, self.camera_ids, zones, r, now) for r in requests]
+        self._accepts.extend(judged)
+        return tuple(o for o, _ in judged)
+
+    def _take_accepts(self) -> tuple[tuple[AcceptOutcome, ...], tuple[Alert, ...]]:
+        judged, self._accepts = self._accepts, []
+        return tuple(o for o, _ in judged), tuple(a for _, a in judged)
 
     @property
     def mutes(self) -> Mutes:
@@ -331,14 +351,15 @@ class Pipeline:
                               lost_dropped=dropped)
         command = self._decide(inputs, now)
         outcomes, mute_alerts = self.mute_desk.take_events()
-        alerts = (*cleared, *mute_alerts, *(health.alerts if health else ()), *object_alerts,
-                  *self._fault_alerts(inputs.faults, detector_error, now, image))
+        accepts, accept_alerts = self._take_accepts()
+        alerts = (*cleared, *mute_alerts, *accept_alerts, *(health.alerts if health else ()),
+                  *object_alerts, *self._fault_alerts(inputs.faults, detector_error, now, image))
         t4 = time.perf_counter()
         stage.update(detect=(t1 - t0) * 1e3, health=(t2 - t1) * 1e3, zones=(t3 - t2) * 1e3,
                      policy=(t4 - t3) * 1e3)
         return StepResult(now, command, self._changed(command), frame, persons, cam.report,
                           health, inputs.faults, alerts, stage, track_ids, tally.masked,
-                          outcomes, self.mute_desk.holding(now), person_ids)
+                          outcomes, self.mute_desk.holding(now), person_ids, accepts)
 
     def tick(self, now: float, pose_time: float | None = None,
              reset: ResetRequest | None = None, extra_faults: tuple[Fault, ...] = ()) -> StepResult:
@@ -350,10 +371,12 @@ class Pipeline:
         detector_error = next((c.detector_error for c in self.cameras.values()
                                if c.detector_error), None)
         outcomes, mute_alerts = self.mute_desk.take_events()
+        accepts, accept_alerts = self._take_accepts()
         return StepResult(now, command, self._changed(command), faults=inputs.faults,
-                          alerts=(*cleared, *mute_alerts,
+                          alerts=(*cleared, *mute_alerts, *accept_alerts,
                                   *self._fault_alerts(inputs.faults, detector_error, now, None)),
-                          mute_outcomes=outcomes, mutes=self.mute_desk.holding(now))
+                          mute_outcomes=outcomes, mutes=self.mute_desk.holding(now),
+                          accept_outcomes=accepts)
 
     def _confirm_clear(self, reset: ResetRequest | None, now: float,
                        extra_faults: tuple[Fault, ...] = ()) -> tuple[tuple[Alert, ...], bool]:
@@ -363,10 +386,11 @@ class Pipeline:
         behind = self._behind_objects() if reset is not None and reset.confirm_clear else {}
         alerts, dropped = confirm_clear(reset, self.state.latched_by, self.cameras,
                                         self.persons, self.handover, now, extra_faults)
-        if dropped:  # the operator looked: the objects standing now are accepted too
-            alerts = (*alerts, *accept_objects(self.objects, reset, now))
-            # nobody can look behind an object: a lost person whose area reaches its shadow
-            # stays held until that is seen free (the object moved, another camera)
+        if dropped:  # never accepts an object (that is its own request: accept_objects)
+            # behind an object no operator has accepted, nobody has looked: a lost person
+            # whose area reaches its shadow stays held until that is seen free (the object
+            # moved, another camera). An accepted one is an occluder declared at run time:
+            # looked at, like a fixture of the zone file, the confirm-clear releases it
             for cid, areas in behind.items():
                 cam = self.cameras[cid]
                 if cam.tracker is None:
@@ -381,7 +405,8 @@ class Pipeline:
         return alerts, dropped and not any(behind.values())
 
     def _behind_objects(self) -> dict[str, dict]:
-        """Per camera, the lost persons' areas that reach into an object's shadow."""
+        """Per camera, the lost persons' areas that reach into the shadow of an object no
+        operator has accepted."""
         out: dict[str, dict] = {}
         for cid, watch in self.objects.items():
             cam = self.cameras.get(cid)
@@ -392,7 +417,8 @@ class Pipeline:
             spec = self.cell.cameras[cid] if self.cell is not None else None
             scale = np.array([spec.width / grid.width, spec.height / grid.height]) \
                 if spec is not None else np.ones(2)
-            shadow = watch.hidden_cells(grid.centres() * scale).reshape(grid.shape)
+            shadow = watch.hidden_cells(grid.centres() * scale, unaccepted_only=True
+                                        ).reshape(grid.shape)
             kept = {tid: a for tid, a in where.areas.items() if (a.cells & shadow).any()}
             if kept:
                 out[cid] = kept

@@ -11,6 +11,7 @@ from monitor.policy import Command
 from monitor.tracking.cell_persons import Who
 from monitor.tracking.tracks import PersonTracker
 from monitor.types import Alert, Fault, FrameInfo, Persons, ZoneReport
+from monitor.wire.object_accepts import AcceptOutcome
 
 
 @dataclass(frozen=True)
@@ -34,6 +35,9 @@ class StepResult:
     mute_outcomes: tuple[MuteOutcome, ...] = ()
     mutes: tuple[Mute, ...] = ()
     person_ids: tuple[Who, ...] = ()  # the cell person of each row (monitor.tracking.cell_persons)
+    # operators' acceptances of objects since commissioning judged since the previous step
+    # (the bus answers them; monitor.wire.object_accepts)
+    accept_outcomes: tuple[AcceptOutcome, ...] = ()
 
 
 @dataclass

@@ -122,7 +122,8 @@ def cameras_in_fault(cameras: Mapping[str, CameraState], now: float,
             lost = cam.health.check_lost(now, cam.frame_time) if cam.health is not None \
                 else None
             # an object standing in a zone since commissioning is no fault of the camera: it
-            # shows the cell, and the operator's confirm-clear is what accepts the object
+            # shows the cell (the confirm-clear drops the holds outside the object's shadow;
+            # the object itself is accepted by its own request, monitor.wire.object_accepts)
             bad = [f for f in (*cam.faults, *extra, *((lost,) if lost else ()))
                    if stops(f) and f.source in (cid, "detector") and f.name != OBJECT_IN_ZONE]
             if bad:

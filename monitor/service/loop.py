@@ -17,6 +17,7 @@ from monitor.bus.session import SafetyBus
 from monitor.detector.test_model import TEST_MODEL_REASON
 from monitor.driver import Step, StepInputs
 from monitor.health import LOST
+from monitor.health.acceptance import changed_cell, changed_signature
 from monitor.pipeline import StepResult
 from monitor.policy import Reason
 from monitor.service.log import command_fields, event
@@ -131,7 +132,8 @@ class LiveFeed:
         return StepInputs(reset=resets[-1] if resets else None,
                           extra_faults=tuple(faults), tool_pose=tool_pose,
                           tool_speed_mps=tool_speed, pose_time=pose_time,
-                          mutes=self.bus.poll_mutes(), case_events=case_events)
+                          mutes=self.bus.poll_mutes(), case_events=case_events,
+                          accepts=self.bus.poll_accepts())
 
     def camera_faults(self) -> tuple[Fault, ...]:
         """A loss a grabber has seen (read/open error, wrong size, end of stream) is a STOP
@@ -173,6 +175,10 @@ class ServiceSink:
         self.when = wall_clock()  # the policy's monotonic times as the operator's local time
         self.recorder = None  # the incident recorder, for its status and gauges
         self.last_mutes: tuple | None = None  # the muted zones last put in the status
+        # each camera's objects since commissioning (``Pipeline.objects``): the status's
+        # ``changed_since_commissioning`` whenever one appears, goes or is accepted
+        self.objects: dict = {}
+        self.last_objects: tuple | None = None
 
     def on_step(self, step: Step) -> None:
         result = step.result
@@ -184,7 +190,10 @@ class ServiceSink:
         self.bus.publish_command(cmd, decided_at=step.decided_at)
         for outcome in result.mute_outcomes:  # the pipeline's judgement answers the request
             self.bus.answer_mute(outcome)
+        for accepted in result.accept_outcomes:  # so is the judgement of an acceptance
+            self.bus.answer_accept(accepted)
         self.mute_status(result)
+        self.objects_status()
         if step.frame is not None:
             # the body's "frame" holds camera, seq, capture time and size (no override here)
             self.bus.publish_detections(result.persons, result.zone_report)
@@ -219,6 +228,15 @@ class ServiceSink:
              "speed_scale": m.scale if m.as_ == "warning" else None, "max_s": m.max_s,
              "duration_s": m.end - m.start, "until_wall": wall + (m.end - result.now),
              "until": self.when(m.end), "request_id": m.request_id} for m in result.mutes])
+
+    def objects_status(self) -> None:
+        """The objects standing since commissioning in the status, whenever they change
+        (``monitor status``: "cell changed since commissioning: ...")."""
+        signature = changed_signature(self.objects)
+        if signature == self.last_objects:
+            return
+        self.last_objects = signature
+        self.bus.update_status(changed_since_commissioning=changed_cell(self.objects))
 
     def alert(self, alert: Alert) -> None:
         self.metrics.alerts.labels(alert.kind).inc()

@@ -217,6 +217,7 @@ def _serve(config: MonitorConfig, pipeline: Pipeline, bus: SafetyBus, expected: 
                 event(int8.message())
                 bus.update_status(int8=int8.to_dict())
         sink = ServiceSink(bus, metrics, grabbers, notice=test_model)
+        sink.objects = pipeline.objects  # what changed since commissioning, in the status
         recorder = None
         if config.recorder.enabled:  # an optional extra: never a reason not to command
             from monitor.incidents.live import start_recorder

@@ -30,7 +30,8 @@ KeyChunk = Annotated[Text, AfterValidator(_key_chunk)]
 # chunks under ``safety/`` that are keys of their own: a role by one of these names would mix
 # its keys with the cell's (``safety/<role>/...``)
 RESERVED_ROLES = frozenset({"alive", "alert", "case", "command", "detections", "holds",
-                            "incidents", "mute", "preview", "reset", "status", "zones"})
+                            "incidents", "mute", "objects", "preview", "reset", "status",
+                            "zones"})
 
 
 def checked_role(value: str) -> str:
@@ -136,6 +137,8 @@ class BusKeys:
     holds: str = ""  # signed holds of persons lost inside zones (monitor.bus.holds)
     case: str = ""  # signed zone set selections, one key per cell (monitor.cases.receiver)
     preview: str = ""  # small live pictures per camera for the console (monitor.bus.preview)
+    # signed acceptances of objects since commissioning (monitor.wire.object_accepts)
+    objects_accept: str = ""
     role: str = ""
 
     @classmethod
@@ -151,7 +154,7 @@ class BusKeys:
                    reset=s + "reset", alive=p + "safety/alive" + (f"/{role}" if role else ""),
                    pose=p + "tracker/pose", mute=s + "mute", zones_apply=s + "zones/apply",
                    holds=s + "holds", case=p + "safety/case", preview=s + "preview",
-                   role=role)
+                   objects_accept=s + "objects/accept", role=role)
 
 
 def zenoh_config(bus: BusConfig) -> zenoh.Config:

@@ -1,0 +1,168 @@
+"""An operator's acceptance of an object that appeared in a zone since commissioning, on
+``<prefix>safety/objects/accept``: the signed wire format and the bus-side gate
+(docs/occlusion.md, "Objects since commissioning").
+
+An object standing in a protective zone that the commissioning reference does not show holds
+the cell in STOP (``object_in_zone``) and refuses every reset until an operator has looked at
+it and accepts it, by its own request, never as a side effect of a reset: ``monitor objects
+accept --camera cam0 --zone robot-protective``. Accepted, the object becomes an occluder
+declared at run time (the floor behind it stays unseen, a person lost there stays held until
+seen free); the reset is then judged as usual.
+
+Modelled on mutes (``monitor.cases.mute_requests``): a Zenoh query whose payload is UTF-8 JSON
+and whose attachment is the Ed25519 signature (``monitor.wire.signing.signed_message(<accept
+key>, payload)``) of an operator listed in the operators file. The bus refuses, before the
+pipeline sees it and with one line in the answer: an unknown operator, a missing or wrong
+signature, another cell, another boot of the monitor, a wall time more than ``window_s`` off
+the monitor's clock, a request id seen before (``monitor.wire.signed_requests``). Never
+unsigned: a monitor without an operators file refuses every acceptance (even one that allows
+unsigned resets in the lab). The pipeline then judges whether there is such an object
+(``monitor.health.acceptance``) and its outcome is the answer.
+
+Payload::
+
+    {"schema": "workcell.safety.object-accept/1", "cell": "cell1", "camera": "cam0",
+     "zone": "robot-protective", "operator": "anna", "note": "crate of parts, looked behind",
+     "request_id": "anna-1732400000.123-5f3a", "wall": 1732400000.123, "boot": "4dee..."}
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import math
+import os
+import time
+from dataclasses import dataclass
+
+from monitor.wire import payload as payload_json
+from monitor.wire.signed_requests import (
+    RequestIds,
+    RequestKind,
+    check_cell,
+    check_signer,
+    check_window,
+)
+
+ACCEPT_SCHEMA = "workcell.safety.object-accept/1"
+ACCEPT_ANSWER_SCHEMA = "workcell.safety.object-accept-answer/1"
+MAX_PAYLOAD = 4 * 1024
+MAX_FIELD = 256
+
+
+class AcceptRefused(ValueError):
+    """An acceptance the bus refuses; the message is the reason told to the sender."""
+
+
+ACCEPT = RequestKind("object acceptance", "object acceptances", AcceptRefused)
+
+
+def accept_command(camera: str, zone: str) -> str:
+    """The command that accepts an object (named by every refusal an object causes)."""
+    return f"monitor objects accept --camera {camera} --zone {zone}"
+
+
+@dataclass(frozen=True)
+class ObjectAccept:
+    """A verified acceptance request. ``time``: when it arrived (the monitor's monotonic
+    clock); ``wall``: the sender's Unix time (checked within the window of the monitor's)."""
+
+    operator: str
+    camera: str
+    zone: str
+    request_id: str
+    time: float
+    wall: float
+    note: str = ""
+
+
+@dataclass(frozen=True)
+class AcceptOutcome:
+    """The pipeline's judgement of one acceptance (the answer to its query)."""
+
+    request: ObjectAccept
+    accepted: bool
+    reason: str
+    objects: tuple[dict, ...] = ()  # the objects accepted: camera, zones, floor_m, box_px
+
+
+def accept_payload(operator: str, camera: str, zone: str, *, cell: str, boot: str,
+                   note: str = "", request_id: str = "", wall: float | None = None) -> bytes:
+    """An acceptance request body; ``request_id`` defaults to a fresh unique id, ``boot`` is
+    the monitor's boot from its status."""
+    wall = time.time() if wall is None else wall
+    rid = request_id or f"{operator}-{wall:.3f}-{os.urandom(3).hex()}"
+    return json.dumps({"schema": ACCEPT_SCHEMA, "cell": cell, "camera": camera, "zone": zone,
+                       "operator": operator, "note": note, "request_id": rid, "wall": wall,
+                       "boot": boot}).encode()
+
+
+class AcceptGate:
+    """Checks signature, cell, boot, clock window and request id of acceptances; remembers
+    request ids (not thread-safe: the bus's desk holds a lock)."""
+
+    def __init__(self, operators: dict | None, cell: str, key_expr: str,
+                 window_s: float = 30.0) -> None:
+        self.operators = operators
+        self.cell = cell
+        self.key_expr = key_expr
+        self.window_s = window_s
+        self._ids = RequestIds(window_s)
+
+    def check(self, payload: bytes, signature: bytes | None, received: float,
+              wall_now: float | None = None, *, boot: str | None = None) -> ObjectAccept:
+        """An ObjectAccept (``time`` = ``received``) or AcceptRefused with the reason."""
+        wall_now = time.time() if wall_now is None else wall_now
+        body = _parse(payload)
+        operator = body["operator"]
+        check_signer(ACCEPT, self.operators, operator, self.key_expr, payload, signature)
+        check_cell(ACCEPT, body["cell"], self.cell)
+        if boot is not None and body["boot"] != boot:
+            raise AcceptRefused(f"request names monitor boot {body['boot']!r}, this monitor "
+                                f"runs boot {boot!r} (a request from before a restart?)")
+        check_window(ACCEPT, body["wall"], wall_now, self.window_s)
+        self._ids.use(ACCEPT, body["request_id"], wall_now, body["wall"])
+        return ObjectAccept(operator, body["camera"], body["zone"], body["request_id"],
+                            received, body["wall"], body["note"])
+
+
+def _parse(payload: bytes) -> dict:
+    if len(payload) > MAX_PAYLOAD:
+        raise AcceptRefused("object acceptance too large")
+    try:
+        body = payload_json.load(payload, MAX_PAYLOAD)
+    except payload_json.PayloadError as exc:
+        raise AcceptRefused(f"object acceptance refused: {exc}") from None
+    if not isinstance(body, dict) or body.get("schema") != ACCEPT_SCHEMA:
+        raise AcceptRefused(f"object acceptance is not a {ACCEPT_SCHEMA} object")
+    out: dict = {}
+    for key in ("operator", "request_id", "camera", "zone", "cell", "boot"):
+        value = body.get(key)
+        if not isinstance(value, str) or not value.strip() or len(value) > MAX_FIELD:
+            raise AcceptRefused(f"object acceptance without a valid {key}")
+        out[key] = value.strip() if key == "operator" else value
+    wall = body.get("wall")
+    if isinstance(wall, bool) or not isinstance(wall, int | float) or not _finite(wall):
+        raise AcceptRefused("object acceptance without a valid wall")
+    out["wall"] = float(wall)
+    note = body.get("note", "")
+    if not isinstance(note, str) or len(note) > 4 * MAX_FIELD:
+        raise AcceptRefused("object acceptance with a malformed note")
+    out["note"] = note
+    return out
+
+
+def _finite(value: int | float) -> bool:
+    try:
+        return math.isfinite(value)
+    except OverflowError:
+        return False
+
+
+def operator_of(payload: bytes) -> str | None:
+    """The operator a (possibly refused) payload names, for the refusal's alert."""
+    with contextlib.suppress(Exception):
+        op = payload_json.load_object(payload, MAX_PAYLOAD).get("operator")
+        if isinstance(op, str) and op.strip():
+            return op.strip()[:64]
+    return None
