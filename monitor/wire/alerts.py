@@ -30,8 +30,10 @@ from monitor.wire.signing import SIGNATURE_BYTES, verify
 
 SEVERITIES = ("info", "warning", "critical")
 # the audit of muting is never held back: each start needs a signed, accepted request and a
-# zone has one mute at a time, so they cannot flood the bus (docs/muting.md)
-UNLIMITED_KINDS = frozenset({"zone_muted", "zone_unmuted"})
+# zone has one mute at a time, so they cannot flood the bus (docs/muting.md); nor is an
+# operator's acceptance of an object since commissioning: signed, and once per object
+# (docs/occlusion.md)
+UNLIMITED_KINDS = frozenset({"zone_muted", "zone_unmuted", "object_accepted"})
 
 
 @section("alerts")
