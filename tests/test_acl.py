@@ -39,6 +39,7 @@ ACCESS = {
     "reset": ({"operator1"}, {"operator1"}, {"monitor"}),
     "mute": (set(), {"operator1"}, {"monitor"}),
     "zones_apply": (set(), {"operator1"}, {"monitor"}),
+    "objects_accept": (set(), {"operator1"}, {"monitor"}),
     "case": ({"robot"}, {"robot"}, {"monitor"}),
     "alive": (set(), set(), set()),  # liveliness tokens: checked on their own
 }
