@@ -23,7 +23,13 @@ from monitor.health.objects import accept_objects, objects_of
 from monitor.pipeline.data import CameraState, StepResult
 from monitor.pipeline.evidence import ZonesApplying, policy_inputs
 from monitor.pipeline.fault_alerts import FaultAlerts, one_line
-from monitor.pipeline.holds import confirm_clear, explain_refusal, holds_of
+from monitor.pipeline.holds import (
+    area_views,
+    confirm_clear,
+    explain_refusal,
+    holds_of,
+    unseen_views,
+)
 from monitor.pipeline.locate import camera_working, free_elsewhere, hidden_of, locate
 from monitor.pipeline.masking import MaskRules, MaskTally, with_touching
 from monitor.pipeline.mutes import MuteDesk
@@ -338,7 +344,9 @@ class Pipeline:
                      policy=(t4 - t3) * 1e3)
         return StepResult(now, command, self._changed(command), frame, persons, cam.report,
                           health, inputs.faults, alerts, stage, track_ids, tally.masked,
-                          outcomes, self.mute_desk.holding(now), person_ids)
+                          outcomes, self.mute_desk.holding(now), person_ids,
+                          area_views(self.cameras, self.persons, self.cell),
+                          unseen_views(self.cameras))
 
     def tick(self, now: float, pose_time: float | None = None,
              reset: ResetRequest | None = None, extra_faults: tuple[Fault, ...] = ()) -> StepResult:
@@ -353,7 +361,9 @@ class Pipeline:
         return StepResult(now, command, self._changed(command), faults=inputs.faults,
                           alerts=(*cleared, *mute_alerts,
                                   *self._fault_alerts(inputs.faults, detector_error, now, None)),
-                          mute_outcomes=outcomes, mutes=self.mute_desk.holding(now))
+                          mute_outcomes=outcomes, mutes=self.mute_desk.holding(now),
+                          areas=area_views(self.cameras, self.persons, self.cell),
+                          unseen=unseen_views(self.cameras))
 
     def _confirm_clear(self, reset: ResetRequest | None, now: float,
                        extra_faults: tuple[Fault, ...] = ()) -> tuple[tuple[Alert, ...], bool]:
