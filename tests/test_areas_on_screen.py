@@ -99,3 +99,50 @@ def test_the_annotated_frame_hatches_what_the_camera_cannot_see(hidden_step):
     assert purple.sum() > 50
     grown = cv2.dilate(where.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
     assert not (purple & ~grown).any()
+
+
+def test_the_consoles_live_payload_carries_the_areas_and_its_view_draws_them(hidden_step,
+                                                                             tmp_path):
+    """The detections message of the step (as the service publishes it) carries the area; the
+    console's state lists it (person, zones, the unseen region, waiting does not end it) and
+    its drawn view fills it, and a message without areas draws none."""
+    import json
+
+    import yaml
+
+    from monitor.bus.session import detections_body
+    from monitor.console.live import LiveRenderer, LiveState
+    from monitor.pipeline.area_views import areas_body
+    from monitor.zones import load_cell
+
+    res, _, _, camera, area = hidden_step
+    zones = tmp_path / "cell.yaml"
+    zones.write_text(yaml.safe_dump(EVIDENCE["stranger-2fps"].zone_data()))
+    views = {}
+    for name, body in (("areas", areas_body(res.areas, res.unseen, camera)), ("none", {})):
+        live = LiveState(clock=lambda: 0.0, require_signed=False)  # fresh whatever the load
+        persons = replace(res.persons, frame=res.frame)  # as the service's frame carries it
+        live.on_detections(json.dumps({**detections_body(persons, res.zone_report),
+                                       **body}).encode())
+        renderer = LiveRenderer(live, lambda: load_cell(zones), {}, min_render_s=0.0)
+        views[name] = cv2.imdecode(np.frombuffer(renderer.jpeg(camera), np.uint8),
+                                   cv2.IMREAD_COLOR).astype(int)
+        state = live.state()
+        assert camera in state["areas"], (state, persons.frame)
+        listed = state["areas"][camera]
+        if name == "none":
+            assert listed == []
+            continue
+        mine = next(a for a in listed if a["person"] == str(area.who) or
+                    a["person"] == area.who)
+        assert "robot-protective" in mine["zones"] and mine["regions"] == ["cabinet"]
+        assert mine["waiting_ends"] is False
+    h, w = views["none"].shape[:2]
+    inside = cell_mask_px(area.cells, area.cell_px, area.frame_size, (w, h))
+    core = cv2.erode(inside.astype(np.uint8), np.ones((9, 9), np.uint8)).astype(bool)
+    # yellow (BGR 0, 230, 255) over the picture: red and green up, blue down
+    gain = (views["areas"][core] - views["none"][core]).mean(axis=0)
+    assert gain[2] > 40 and gain[1] > 40 and gain[0] < 0, gain
+    far = ~cv2.dilate(inside.astype(np.uint8), np.ones((25, 25), np.uint8)).astype(bool)
+    far &= ~cell_mask_px(res.unseen[0].cells, area.cell_px, area.frame_size, (w, h))
+    assert np.abs(views["areas"][far] - views["none"][far]).mean() < 1.0

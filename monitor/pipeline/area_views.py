@@ -78,3 +78,21 @@ def outlines_px(cells: np.ndarray, cell_px: float) -> list[list[list[float]]]:
         pts = (pts + (pts % 2 == 1)) * (cell_px / 2.0)
         out.append([[round(float(x), 1), round(float(y), 1)] for x, y in pts])
     return out
+
+
+def areas_body(areas: tuple[AreaView, ...], unseen: tuple[UnseenView, ...], camera_id: str
+               ) -> dict:
+    """The detections message's share of one camera's areas (the console draws them): each
+    area's outline in the camera frame's pixels, the person, the zones it holds, the unseen
+    regions it reaches and whether waiting can end it; and the outline of what the camera
+    cannot see."""
+    return {
+        "areas": [{"person": a.who, "track_id": a.track_id, "lost_since": a.lost_since,
+                   "zones": list(a.zones), "regions": list(a.regions),
+                   "waiting_ends": a.waiting_ends,
+                   "outlines_px": outlines_px(a.cells, a.cell_px),
+                   "hidden_px": outlines_px(a.hidden, a.cell_px)}
+                  for a in areas if a.camera_id == camera_id],
+        "unseen_px": [poly for v in unseen if v.camera_id == camera_id
+                      for poly in outlines_px(v.cells, v.cell_px)],
+    }
