@@ -41,6 +41,8 @@ RIGHTS = [  # (level, action, allowed): every pair, written out
     ("viewer", "edit_sets", False), ("viewer", "edit_volume", False),
     ("viewer", "mark_reviewed", False), ("operator", "mark_reviewed", True),
     ("admin", "mark_reviewed", True),
+    ("viewer", "confirm_clear", False), ("operator", "confirm_clear", True),
+    ("admin", "confirm_clear", True),
     ("operator", "view", True), ("operator", "edit_zone", True),
     ("operator", "edit_mute", False), ("operator", "edit_sets", False),
     ("operator", "edit_volume", False),

@@ -508,6 +508,7 @@ def _draw_hidden(image: np.ndarray, cell: zn.Cell, camera: str) -> int:
     """Hatch the foot positions where this camera cannot see a person (behind an occluder,
     in a mask): the cells a lost person's area never loses by this camera's view."""
     # the tracker's grid only for a preview: `monitor zones list` starts without it
+    from monitor.records.areas_draw import hatch_cells
     from monitor.tracking.tracks import TrackerConfig
     from monitor.tracking.whereabouts import FootGrid
     from monitor.zones.masks import zone_regions_px
@@ -518,13 +519,8 @@ def _draw_hidden(image: np.ndarray, cell: zn.Cell, camera: str) -> int:
     masks = [p for _, p in zone_regions_px(cell, camera, ("mask",))]
     hidden = hidden_feet(grid.centres(), (w, h), cell.camera_models.get(camera), cell.spec,
                          cell.meshes, masks).reshape(grid.shape)
-    c = grid.cell_px
-    for j, i in zip(*np.nonzero(hidden), strict=True):
-        x0, y0 = int(i * c), int(j * c)
-        x1, y1 = int((i + 1) * c), int((j + 1) * c)
-        cv2.line(image, (x0, y1), (x1, y0), (180, 0, 180), 1, cv2.LINE_AA)
-        cv2.line(image, (x0, y0), (x1, y1), (180, 0, 180), 1, cv2.LINE_AA)
-    return int(hidden.sum())
+    # the look of the replay's and the console's unseen hatching (monitor.records.areas_draw)
+    return hatch_cells(image, hidden, grid.cell_px, (w, h))
 
 
 def cmd_hash(args: argparse.Namespace) -> int:

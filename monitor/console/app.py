@@ -14,7 +14,9 @@ zone editor (pages); ``/api/state``, ``/api/live/{camera}.jpg``,
 ``/api/incidents/{id}/export`` (a zip), ``/api/zones``, ``/api/zones/{camera}/image.jpg``
 (read-only; no login on loopback); ``PUT /api/zones/{id}`` and
 ``POST /api/incidents/{id}/reviewed`` (an operator's credential; audited, accepted or
-refused). The incident review's routes are in ``review_api.py``.
+refused); ``POST /api/confirm-clear`` (an operator's confirm-clear after looking at the live
+pictures, signed with their reset key: ``confirm_routes.py``). The incident review's routes
+are in ``review_api.py``.
 User levels and the setup page: ``setup_routes.py``; off loopback every ``GET`` of
 ``/api/`` needs a login (``sessions.py``).
 """
@@ -41,6 +43,8 @@ from starlette.staticfiles import StaticFiles
 
 from monitor.console.audit import AuditLog, bounded
 from monitor.console.auth import Operators, basic_credentials
+from monitor.console.confirm_clear import ConfirmClear
+from monitor.console.confirm_routes import confirm_routes
 from monitor.console.edit_body import MAX_BODY, BadRequest, check_zone_id, parse_edit_body
 from monitor.console.edits import ZoneEditIncidents
 from monitor.console.incidents import IncidentSource
@@ -89,6 +93,8 @@ class Console:
     reset_operators: Path | None = None  # the monitor's operators file, shown read-only
     # whose X-Forwarded-For is believed (--trusted-proxy; default none): sources.py
     trusted_proxies: TrustedProxies = field(default_factory=TrustedProxies)
+    # the operators' confirm-clear (--reset-key NAME=FILE): None, the console sends none
+    confirm: ConfirmClear | None = None
 
 
 class LoginChecks:
@@ -315,6 +321,7 @@ def build_app(console: Console) -> Starlette:
         Route("/api/zones/{camera}/image.jpg", zone_image),
         Route("/api/zones/{id}", save_zone, methods=["PUT"]),
         *setup_routes(console, login, edit_incident, read_body, SECURITY_HEADERS, STATIC),
+        *confirm_routes(console, login, read_body, SECURITY_HEADERS),
         Mount("/static", StaticFiles(directory=STATIC), name="static"),
     ]
     return Starlette(routes=routes, middleware=[

@@ -46,6 +46,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--operators", dest="reset_operators", type=Path, metavar="FILE",
                    help="the monitor's operators file (bus.operators_file): the setup page "
                    "lists who may reset, read-only (default: none, not shown)")
+    p.add_argument("--reset-key", action="append", default=[], metavar="NAME=FILE",
+                   help="an operator's private reset key (NAME as in the monitor's operators "
+                   "file): a console user NAME at the operator level may then confirm the cell "
+                   "clear from the live page, signed with it (repeatable; default: none, the "
+                   "console sends no confirm-clear)")
     p.add_argument("--audit", type=Path, metavar="FILE",
                    help="audit log of edits, JSON lines (default: ZONEFILE.audit.jsonl)")
     p.add_argument("--trusted-proxy", action="append", default=[], metavar="ADDRESS",
@@ -126,6 +131,9 @@ def cmd_console(args: argparse.Namespace) -> int:
     operators = Operators(args.passwords)
     args.trusted_proxies = TrustedProxies(args.trusted_proxy)  # a bad one: one line, no start
     references = _references(args.reference)
+    from monitor.console.confirm_clear import reset_keys
+
+    args.reset_signers = reset_keys(args.reset_key)  # a bad one: one line, nothing started
     audit = AuditLog(args.audit or args.zones.with_name(args.zones.name + ".audit.jsonl"))
     # off loopback viewing needs a login too (the live picture shows people): sessions.py
     args.view_login = not is_loopback(host)
@@ -176,6 +184,12 @@ def _serve(args, host: str, port: int, tls: bool, operators, references, audit) 
     console.on_alert = on_alert
     app = build_app(console)
     session = open_session(bus)
+    if args.reset_signers:  # confirm-clear from the live page (confirm_clear.py)
+        from monitor.console.confirm_clear import ConfirmClear
+
+        console.confirm = ConfirmClear(
+            session, keys, args.reset_signers, cell=bus.cell if bus.prefix is None else "",
+            monitor_keys=tuple(load_public_key(p) for p in args.monitor_key) or None)
     stop = threading.Event()
     entities: list = []
     try:

@@ -8,16 +8,20 @@ configurator such as SICK Safety Designer):
   anyway); on loopback the pages stay open as before (whoever can reach 127.0.0.1 can read the
   zone file and the recorder's files too).
 * ``operator``: may also edit the image polygons of the zone file (drafts): what a password
-  holder could do before levels existed. A passwords-file line without a level (the format
-  before levels, ``name:scrypt$...``) is an operator: an upgrade takes no right away.
+  holder could do before levels existed; and confirm the cell clear after looking at the
+  fresh live pictures (``monitor/console/confirm_clear.py``), signed with that operator's own
+  reset key, which the console holds only when started with ``--reset-key NAME=FILE``. A
+  passwords-file line without a level (the format before levels, ``name:scrypt$...``) is an
+  operator: an upgrade takes no right away.
 * ``admin``: may also change the cell's setup: a zone's mute setting (who may mute it, for how
   long, as what), the zone sets' switching rules, and the corners of cell-space volumes.
   Why these need more than an operator: a mute setting decides who may switch protection off,
   and a volume or a set rule changes where and when protection applies for every camera at
   once; a polygon edit changes one camera's view of one zone.
 
-No level grants a reset, a mute, a zone set selection or an apply: those stay with the signed
-requests of the monitor's operators file (Ed25519 keys, ``bus.operators_file``), the one source
+No level grants a plain reset, a mute, a zone set selection or an apply, and the confirm-clear
+is not granted by the level alone: those stay with the signed requests of the monitor's operators
+file (Ed25519 keys, ``bus.operators_file``), the one source
 of truth for who may reset. The console only shows that file (names and key fingerprints,
 read-only; ``monitor/console/resetters.py``), and every saved edit stays a draft on disk until an
 operator applies it with ``monitor zones apply`` (signed).
@@ -36,6 +40,7 @@ ACTIONS: dict[str, tuple[str, str]] = {
     "view": ("viewer", "view the console"),
     "edit_zone": ("operator", "edit zone polygons"),
     "mark_reviewed": ("operator", "mark an incident reviewed"),
+    "confirm_clear": ("operator", "confirm the cell clear after looking at the live picture"),
     "edit_mute": ("admin", "change a zone's mute setting"),
     "edit_sets": ("admin", "change the zone sets' switching rules"),
     "edit_volume": ("admin", "change a cell-space volume"),

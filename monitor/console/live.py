@@ -12,8 +12,9 @@ picture the view says "no live picture" in red over the snapshot of a recent ale
 camera, else the camera's reference image (``--reference cam0=FILE``). Alerts count only when
 signed by a pinned key (``monitor.wire.alerts.read_signed_alert``): the others are dropped and
 counted (``alerts_refused``), never listed. Over it the console
-draws the zones (the same drawing as ``monitor zones preview``), the zones hit and the person
-boxes of the newest detections. The state and its reasons come from the consumer rule
+draws the zones (the same drawing as ``monitor zones preview``), the zones hit, the person
+boxes of the newest detections and the lost persons' areas they carry (``live_areas``: why the
+cell is held). The state and its reasons come from the consumer rule
 (``monitor.adapters.follower``): signed by the monitor's key, STOP on silence, exactly what a
 robot-side adapter would follow, never the raw message.
 
@@ -37,6 +38,7 @@ import numpy as np
 
 from monitor.adapters.snapshot import SafetySnapshot
 from monitor.bus.preview import MAX_PREVIEW_BYTES, Preview, read_preview
+from monitor.console.live_areas import area_list, draw_live_areas
 from monitor.types import Alert
 from monitor.wire.alerts import read_signed_alert
 from monitor.zones.draw import draw_zones
@@ -145,6 +147,8 @@ class LiveState:
             snap = self.snapshot
             alerts = list(self.alerts)[:10]
             seen = {cam: self.clock() - t for cam, (_, t) in self.detections.items()}
+            fresh = {cam: body for cam, (body, t) in self.detections.items()
+                     if self.clock() - t <= DETECTIONS_FRESH_S}
             now = self.wall()
             pictures = {cam: p for cam, p in self.previews.items()}
             counts = {"previews_refused": self.previews_refused,
@@ -157,7 +161,9 @@ class LiveState:
             # the signed capture's age on the console's clock, and whether it is live now
             "preview_age_s": {c: round(now - p.capture_wall, 2) for c, p in pictures.items()
                               if p.capture_wall is not None},
-            "live_picture": {c: _live(p, now) for c, p in pictures.items()}, **counts}
+            "live_picture": {c: _live(p, now) for c, p in pictures.items()},
+            # where lost persons could be, per camera of fresh detections: why it is held
+            "areas": {c: area_list(_json(b)) for c, b in fresh.items()}, **counts}
         if snap is not None:
             body.update(asdict(snap))
         return body
@@ -247,6 +253,8 @@ class LiveRenderer:
             img = draw_zones(img, cell, camera, hits)
             cam = cell.cameras[camera]
             if fresh:
+                sx, sy = img.shape[1] / cam.width, img.shape[0] / cam.height
+                draw_live_areas(img, det or {}, sx, sy)
                 _draw_boxes(img, det or {}, img.shape[1] / cam.width, img.shape[0] / cam.height)
             note = f"{camera}: {label}; " + (
                 "detections now" if fresh else

@@ -24,7 +24,13 @@ from monitor.health.objects import objects_of
 from monitor.pipeline.data import CameraState, StepResult
 from monitor.pipeline.evidence import ZonesApplying, policy_inputs
 from monitor.pipeline.fault_alerts import FaultAlerts, one_line
-from monitor.pipeline.holds import confirm_clear, explain_refusal, holds_of
+from monitor.pipeline.holds import (
+    area_views,
+    confirm_clear,
+    explain_refusal,
+    holds_of,
+    unseen_views,
+)
 from monitor.pipeline.locate import camera_working, free_elsewhere, hidden_of, locate
 from monitor.pipeline.masking import MaskRules, MaskTally, with_touching
 from monitor.pipeline.mutes import MuteDesk
@@ -359,7 +365,9 @@ class Pipeline:
                      policy=(t4 - t3) * 1e3)
         return StepResult(now, command, self._changed(command), frame, persons, cam.report,
                           health, inputs.faults, alerts, stage, track_ids, tally.masked,
-                          outcomes, self.mute_desk.holding(now), person_ids, accepts)
+                          outcomes, self.mute_desk.holding(now), person_ids, accepts,
+                          area_views(self.cameras, self.persons, self.cell),
+                          unseen_views(self.cameras))
 
     def tick(self, now: float, pose_time: float | None = None,
              reset: ResetRequest | None = None, extra_faults: tuple[Fault, ...] = ()) -> StepResult:
@@ -376,7 +384,9 @@ class Pipeline:
                           alerts=(*cleared, *mute_alerts, *accept_alerts,
                                   *self._fault_alerts(inputs.faults, detector_error, now, None)),
                           mute_outcomes=outcomes, mutes=self.mute_desk.holding(now),
-                          accept_outcomes=accepts)
+                          accept_outcomes=accepts,
+                          areas=area_views(self.cameras, self.persons, self.cell),
+                          unseen=unseen_views(self.cameras))
 
     def _confirm_clear(self, reset: ResetRequest | None, now: float,
                        extra_faults: tuple[Fault, ...] = ()) -> tuple[tuple[Alert, ...], bool]:

@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 
 from monitor.cases.muting import Mute, MuteOutcome
 from monitor.health import CameraHealth, HealthReport
+from monitor.pipeline.area_views import AreaView, UnseenView
 from monitor.policy import Command
 from monitor.tracking.cell_persons import Who
 from monitor.tracking.tracks import PersonTracker
@@ -38,6 +39,10 @@ class StepResult:
     # operators' acceptances of objects since commissioning judged since the previous step
     # (the bus answers them; monitor.wire.object_accepts)
     accept_outcomes: tuple[AcceptOutcome, ...] = ()
+    # where the lost persons could be, and what each camera cannot see, after this step (the
+    # screen draws them: why the cell is held; monitor.pipeline.area_views)
+    areas: tuple[AreaView, ...] = ()
+    unseen: tuple[UnseenView, ...] = ()
 
 
 @dataclass

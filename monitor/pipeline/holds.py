@@ -12,6 +12,7 @@ import cv2
 import numpy as np
 
 from monitor.health.objects import OBJECT_IN_ZONE
+from monitor.pipeline.area_views import AreaView, UnseenView
 from monitor.pipeline.data import CameraState
 from monitor.policy import Command, Latch, ResetRequest, stale_latch
 from monitor.policy.causes import stops
@@ -53,6 +54,39 @@ def unseen_regions(cell: Cell | None, camera_id: str, where: Whereabouts,
                    for x, y in pts):
                 names.append(zone.id)
     return names or ["a spot behind a fixture"]
+
+
+def area_views(cameras: Mapping[str, CameraState], persons: CellPersons, cell: Cell | None
+               ) -> tuple[AreaView, ...]:
+    """Every lost person's area of every camera as the screen shows it (copies: the tracker
+    goes on changing its own), with the unseen regions its hidden cells lie in."""
+    out = []
+    for cid, cam in cameras.items():
+        where = cam.tracker.where if cam.tracker is not None else None
+        if where is None or where.grid is None or where.hidden is None:
+            continue
+        grid = where.grid
+        for tid, area in sorted(where.areas.items()):
+            if not area.cells.any():
+                continue
+            hidden = area.cells & where.hidden
+            regions = tuple(unseen_regions(cell, cid, where, hidden)) if hidden.any() else ()
+            out.append(AreaView(cid, persons.who(cid, tid), tid, area.lost_since,
+                                tuple(z.zone_id for z in area.zones), area.cells.copy(),
+                                hidden, grid.cell_px, (grid.width, grid.height), regions))
+    return tuple(out)
+
+
+def unseen_views(cameras: Mapping[str, CameraState]) -> tuple[UnseenView, ...]:
+    """Per camera with a tracker, the foot positions it cannot see a person at."""
+    out = []
+    for cid, cam in cameras.items():
+        where = cam.tracker.where if cam.tracker is not None else None
+        if where is None or where.grid is None or where.hidden is None:
+            continue
+        out.append(UnseenView(cid, where.hidden.copy(), where.grid.cell_px,
+                              (where.grid.width, where.grid.height)))
+    return tuple(out)
 
 
 def remedies(cameras: Mapping[str, CameraState], persons: CellPersons, cell: Cell | None,

@@ -7,7 +7,8 @@ never overlap (``monitor.zones.labels``) and a legend of the zone colours (the c
 tracker's id), and for a person in a zone the floor range the zone check tested (from
 ``monitor.geometry.occlusion``'s placement: the nearest to the farthest floor position, drawn back
 into the image), resets (accepted or refused, by whom) and alerts for ``HOLD_S`` seconds after they
-happen, and the command in the bottom bar.
+happen, the lost persons' areas and what the camera cannot see (``monitor.records.areas_draw``:
+why the cell is held), and the command in the bottom bar.
 
 ``Annotator.step`` returns the image and a ``Drawn`` record of every text it drew, so tests
 assert on the texts rather than read them back from pixels.
@@ -23,6 +24,7 @@ import numpy as np
 from monitor.health import draw_health
 from monitor.pipeline import StepResult
 from monitor.policy import RUN, SLOW, STOP
+from monitor.records.areas_draw import draw_areas, draw_unseen
 from monitor.records.events import describe
 from monitor.timetext import TimeText
 from monitor.zones import Cell
@@ -79,6 +81,7 @@ class Drawn:
     zone_labels: tuple[ZoneLabel, ...]
     floor_ranges: tuple[FloorRange, ...]
     faults: tuple[str, ...]
+    areas: tuple[str, ...] = ()  # the label of each lost person's area that holds a zone
 
 
 def person_ids(result: StepResult) -> tuple[int | str, ...]:
@@ -162,6 +165,9 @@ def annotate(image: np.ndarray, result: StepResult, cell: Cell | None, camera_id
                                           cache=zone_cache)
     else:
         out, labels = image.copy(), []
+    # why the cell is held: what this camera cannot see (hatched), where lost persons could be
+    draw_unseen(out, result.unseen, camera_id)
+    areas = draw_areas(out, result.areas, camera_id, top_px=top)
     faults: tuple[str, ...] = ()
     if result.health is not None:
         draw_health(out, result.health, watch, text_top=top + 22)
@@ -174,7 +180,7 @@ def annotate(image: np.ndarray, result: StepResult, cell: Cell | None, camera_id
     _draw_header(out, header, events)
     banner, reason = _draw_bar(out, result, when)
     return out, Drawn(header, labels_drawn, ids, events, banner, reason, legend, tuple(labels),
-                      ranges, faults)
+                      ranges, faults, areas)
 
 
 def _worst_kind(result: StepResult) -> dict[int, str]:

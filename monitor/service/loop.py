@@ -19,6 +19,7 @@ from monitor.driver import Step, StepInputs
 from monitor.health import LOST
 from monitor.health.acceptance import changed_cell, changed_signature
 from monitor.pipeline import StepResult
+from monitor.pipeline.area_views import areas_body
 from monitor.policy import Reason
 from monitor.service.log import command_fields, event
 from monitor.service.metrics import CameraFigures, Metrics
@@ -196,8 +197,10 @@ class ServiceSink:
         self.objects_status()
         if step.frame is not None:
             # the body's "frame" holds camera, seq, capture time and size (no override here)
-            self.bus.publish_detections(result.persons, result.zone_report)
             cam = step.frame.info.camera_id
+            # where lost persons could be (the console draws why the cell is held)
+            self.bus.publish_detections(result.persons, result.zone_report,
+                                        **areas_body(result.areas, result.unseen, cam))
             self.frame_times.setdefault(cam, deque(maxlen=30)).append(result.now)
             self.inference.setdefault(cam, deque(maxlen=30)).append(
                 result.stage_ms.get("inference", 0.0))

@@ -34,6 +34,19 @@ async function pollState() {
     (s.latched ? " (latched)" : "");
   $("reason").textContent = s.reason || (s.state === "RUN" ? "all clear" : "");
   $("cell").textContent = "cell " + (s.cell || "");
+  // why the cell is held: each lost person's area that holds a zone (drawn yellow in the view)
+  const held = [];
+  for (const [cam, areas] of Object.entries(s.areas || {})) {
+    for (const a of areas) {
+      if (!(a.zones || []).length) continue;
+      held.push(el("li", cam + ": person " + a.person + " may be in " + a.zones.join(", ") +
+        ((a.regions || []).length
+          ? " (behind " + a.regions.join(", ") + ", not seen by any camera: waiting does " +
+            "not end it; a camera that sees there, or a confirm-clear after looking, does)"
+          : " (in view: waiting ends it once the camera sees the spot free)")));
+    }
+  }
+  $("held").replaceChildren(...held);
   $("details").textContent = "seq " + s.seq + ", command age " +
     (s.age_ms == null ? "-" : Math.round(s.age_ms) + " ms") + ", monitor " + (s.instance || "-") +
     ", zone set in force " + (s.zone_hash || "-") + ", zone file " + (s.zone_file_hash || "-") +

@@ -1,0 +1,83 @@
+"""``POST /api/confirm-clear``: an operator's confirm-clear from the live page
+(``confirm_clear.py`` says who may and what the console checks first). Answers 200 with the
+monitor's verdict (``accepted`` true or false, its reason: a camera in fault, a person in a
+zone, ...), 401/403/429 for a login or level refused, 400 for a bad body, 409 when the console
+cannot show the cell, 504 when no monitor answered. Every attempt is one audit line."""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Awaitable, Callable
+from typing import Any
+
+from starlette.concurrency import run_in_threadpool
+from starlette.requests import Request
+from starlette.responses import JSONResponse, Response
+from starlette.routing import Route
+
+from monitor.console.audit import bounded
+from monitor.console.auth import basic_credentials
+from monitor.console.confirm_clear import (
+    ConfirmClearRefused,
+    missing_pictures,
+    parse_request,
+)
+from monitor.console.setup_routes import forbidden
+from monitor.console.sources import Source, request_source
+
+Login = Callable[[Source, tuple[str, str] | None], Awaitable[tuple[str | None, int, str]]]
+
+
+def confirm_routes(console: Any, login: Login,
+                   read_body: Callable[[Request], Awaitable[bytes]],
+                   headers: dict) -> list[Route]:
+    """The route; ``login`` and ``read_body``: the app's own (one rule for passwords,
+    lock-outs and body limits)."""
+
+    def audit(**fields) -> dict:
+        return console.audit.record(event="confirm_clear", **fields)
+
+    async def confirm_clear(request: Request) -> Response:
+        credentials = basic_credentials(request.headers.get("authorization"))
+        source = request_source(request, console.trusted_proxies)
+        operator, status, why = await login(source, credentials)
+        if operator is None:
+            await run_in_threadpool(functools.partial(
+                console.audit.refused, event="confirm_clear", operator=None,
+                tried=credentials[0] if credentials else None, **source.fields(),
+                result="refused", error=why))
+            extra = {"retry-after": "60"} if status in (429, 503) else {}
+            return JSONResponse({"error": why}, status_code=status,
+                                headers={**headers, **extra})
+        refused = await forbidden(console, operator, "confirm_clear", source, "cell", headers)
+        if refused is not None:
+            return refused
+        cameras = list(console.editor.cell().cameras)
+        try:
+            note, looked = parse_request(await read_body(request), cameras)
+            sender = console.confirm
+            if sender is None or sender.can(operator) is not None:
+                raise ConfirmClearRefused(
+                    sender.can(operator) if sender is not None else
+                    "the console cannot send a confirm-clear: it runs without a bus", 403)
+            missing = missing_pictures(console.live.preview, cameras)
+            if missing:  # the operator cannot have looked at what the console cannot show
+                raise ConfirmClearRefused(
+                    f"no live picture of {', '.join(missing)} now: the console cannot show "
+                    "the cell, so it cannot be confirmed clear here")
+            answer = await run_in_threadpool(sender.send, operator, note)
+        except ConfirmClearRefused as exc:
+            await run_in_threadpool(functools.partial(
+                audit, operator=operator, **source.fields(), result="refused",
+                error=bounded(str(exc), 400)))
+            return JSONResponse({"error": str(exc)}, status_code=exc.status, headers=headers)
+        accepted = bool(answer.get("accepted"))
+        reason = str(answer.get("reason", ""))
+        await run_in_threadpool(functools.partial(
+            audit, operator=operator, **source.fields(), note=bounded(note, 200),
+            looked_at=looked, result="accepted" if accepted else "refused_by_monitor",
+            reason=bounded(reason, 600), monitor_state=answer.get("state")))
+        return JSONResponse({"accepted": accepted, "reason": reason,
+                             "state": answer.get("state")}, headers=headers)
+
+    return [Route("/api/confirm-clear", confirm_clear, methods=["POST"])]

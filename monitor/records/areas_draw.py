@@ -1,0 +1,96 @@
+"""Drawing the lost persons' areas and the unseen foot positions onto a camera image: why the
+cell is held, as the annotated replay, the console's live view and ``monitor zones preview``
+show it (one look everywhere).
+
+* an **unseen** foot position (behind an occluder, in a mask: no camera sees a person there)
+  is hatched in ``UNSEEN_BGR``;
+* a lost person's **area** (where they could be: ``monitor.pipeline.area_views``) is filled
+  with ``AREA_BGR`` at ``AREA_ALPHA`` and outlined in it, and labelled with the person, the
+  zones it holds and the unseen regions it reaches (waiting cannot end those).
+
+The image may be any scale of the camera's frame (the console's live picture is smaller).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import cv2
+import numpy as np
+
+from monitor.pipeline.area_views import AreaView, UnseenView, cell_mask_px
+
+AREA_BGR = (0, 230, 255)  # yellow: none of the zone kinds' colours (monitor.zones.draw)
+UNSEEN_BGR = (180, 0, 180)  # purple hatching (as `monitor zones preview` always drew it)
+AREA_ALPHA = 0.45
+FONT = cv2.FONT_HERSHEY_SIMPLEX
+
+
+def hatch_cells(image: np.ndarray, cells: np.ndarray, cell_px: float,
+                frame_size: tuple[int, int], colour=UNSEEN_BGR) -> int:
+    """Cross-hatch each of ``cells`` (a grid over a ``frame_size`` frame) on ``image`` (any
+    scale of that frame) in place; returns how many cells."""
+    h, w = image.shape[:2]
+    sx, sy = w / max(frame_size[0], 1), h / max(frame_size[1], 1)
+    for j, i in zip(*np.nonzero(cells), strict=True):
+        x0, y0 = int(i * cell_px * sx), int(j * cell_px * sy)
+        x1 = min(int((i + 1) * cell_px * sx), w - 1)
+        y1 = min(int((j + 1) * cell_px * sy), h - 1)
+        cv2.line(image, (x0, y1), (x1, y0), colour, 1, cv2.LINE_AA)
+        cv2.line(image, (x0, y0), (x1, y1), colour, 1, cv2.LINE_AA)
+    return int(np.count_nonzero(cells))
+
+
+def draw_unseen(image: np.ndarray, views: Sequence[UnseenView], camera_id: str) -> int:
+    """Hatch the foot positions ``camera_id`` cannot see (in place); how many cells."""
+    return sum(hatch_cells(image, v.cells, v.cell_px, v.frame_size)
+               for v in views if v.camera_id == camera_id)
+
+
+def area_label(area: AreaView) -> str:
+    """``person 6 may be here: holds prot (behind cabinet-2: waiting does not end it)``."""
+    text = f"person {area.who} may be here"
+    if area.zones:
+        text += f": holds {', '.join(area.zones)}"
+    if area.regions:
+        text += f" (behind {', '.join(area.regions)}: waiting does not end it)"
+    return text
+
+
+def draw_areas(image: np.ndarray, areas: Sequence[AreaView], camera_id: str,
+               top_px: int = 0) -> tuple[str, ...]:
+    """Fill and outline each of ``camera_id``'s areas on ``image`` (in place), label those that
+    hold a zone (no higher than ``top_px``); the labels drawn."""
+    h, w = image.shape[:2]
+    mine = [a for a in areas if a.camera_id == camera_id]
+    if not mine:
+        return ()
+    union = np.zeros((h, w), bool)
+    masks = []
+    for area in mine:
+        mask = cell_mask_px(area.cells, area.cell_px, area.frame_size, (w, h))
+        masks.append(mask)
+        union |= mask
+    colour = np.array(AREA_BGR, np.float32)
+    image[union] = (image[union].astype(np.float32) * (1.0 - AREA_ALPHA)
+                    + colour * AREA_ALPHA).astype(np.uint8)
+    labels = []
+    for area, mask in zip(mine, masks, strict=True):
+        contours, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_EXTERNAL,
+                                       cv2.CHAIN_APPROX_SIMPLE)
+        cv2.drawContours(image, contours, -1, AREA_BGR, 2, cv2.LINE_AA)
+        if not area.zones:
+            continue  # an area that holds nothing is drawn, not explained
+        text = area_label(area)
+        ys, xs = np.nonzero(mask)
+        x, y = int(xs.min()), max(int(ys.min()) - 6, top_px + 16)
+        _text_on_black(image, text, (min(x, max(w - 10, 0)), min(y, h - 4)))
+        labels.append(text)
+    return tuple(labels)
+
+
+def _text_on_black(img: np.ndarray, text: str, org: tuple[int, int]) -> None:
+    (tw, th), base = cv2.getTextSize(text, FONT, 0.5, 1)
+    x, y = org
+    cv2.rectangle(img, (x - 2, y - th - 3), (x + tw + 2, y + base), (0, 0, 0), -1)
+    cv2.putText(img, text, (x, y), FONT, 0.5, AREA_BGR, 1, cv2.LINE_AA)

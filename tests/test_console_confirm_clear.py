@@ -1,0 +1,118 @@
+"""Confirm-clear from the console (issue 46): a real `monitor run` (its live pictures at 2 fps,
+its operators file), the real console app in a real uvicorn following it over Zenoh, and
+plain HTTP requests (urllib). An operator-level user holding a reset key confirms the cell
+clear in one step: the monitor's own verdict comes back (refused while its camera is in fault,
+accepted when nobody is in a zone) and every attempt is audited; a viewer is refused with
+the level needed, and nothing is sent."""
+
+from __future__ import annotations
+
+import json
+import urllib.error
+import urllib.request
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from monitor.console.auth import set_password
+from monitor.console.confirm_clear import ConfirmClear
+from monitor.console.live import LiveState, subscribe_live
+from tests.console_kit import audit_lines, basic, plain_console, serving, zone_file
+from tests.helpers import wait_for
+
+PASSWORD = "a long console password"
+PREVIEW = "[preview]\nfps = 2.0\n"
+
+
+def _post(base: str, who: str, body: dict) -> tuple[int, dict]:
+    req = urllib.request.Request(base + "/api/confirm-clear", json.dumps(body).encode(),
+                                 {"content-type": "application/json", **basic(who, PASSWORD)},
+                                 method="POST")
+    try:
+        with urllib.request.urlopen(req, timeout=60) as r:
+            return r.status, json.loads(r.read())
+    except urllib.error.HTTPError as exc:
+        return exc.code, json.loads(exc.read())
+
+
+def _console(tmp: Path, svc):
+    """The console over the demo cell, following ``svc``: tester (operator, holding the
+    tester key of the monitor's operators file) and vera (viewer)."""
+    d = tmp / "console"
+    d.mkdir()
+    zone_file(d)
+    set_password(d / "pw", "tester", PASSWORD, "operator")
+    set_password(d / "pw", "vera", PASSWORD, "viewer")
+    set_password(d / "pw", "otto", PASSWORD, "operator")  # no reset key held for otto
+    console = plain_console(d)
+    console.live = LiveState(require_signed=False)
+    console.renderer.live = console.live
+    subscribe_live(svc.session, svc.keys, console.live)
+    console.confirm = ConfirmClear(svc.session, svc.keys, {"tester": svc.operator},
+                                   cell="t5")
+    return d, console
+
+
+def _live_picture(console) -> None:
+    wait_for(lambda: console.live.preview("cam0")[0] is not None, 60, "a live picture")
+
+
+@pytest.mark.slow
+def test_confirm_clear_from_the_console_is_refused_while_the_camera_is_in_fault(
+        tmp_path, synthetic_model):
+    """A black picture (too dim for the detector, a STOP fault of the camera): the operator's
+    confirm-clear is sent, and the monitor refuses it, naming the fault; a viewer and an operator
+    without a reset key are refused by the console, each audited."""
+    from tests.processes import Service
+
+    black = tmp_path / "black.png"
+    cv2.imwrite(str(black), np.zeros((720, 1280, 3), np.uint8))
+    zones = f'[zones]\nfile = "{zone_file(tmp_path)}"\n'  # the demo cell, as the console's
+    with Service(tmp_path, synthetic_model, str(black), PREVIEW + zones) as svc:
+        d, console = _console(tmp_path, svc)
+        with serving(console) as base:
+            _live_picture(console)
+            status, body = _post(base, "vera", {"looked_at": ["cam0"]})
+            assert status == 403 and "operator" in body["error"], body
+            status, body = _post(base, "otto", {"looked_at": ["cam0"]})
+            assert status == 403 and "no reset key for 'otto'" in body["error"], body
+            status, body = _post(base, "tester", {"looked_at": []})
+            assert status == 400 and "cam0" in body["error"], body
+            status, body = _post(base, "tester", {"looked_at": ["cam0"], "note": "looked"})
+            assert status == 200 and body["accepted"] is False, body
+            # the monitor's own refusal, naming the camera's STOP faults (too dim, blind here)
+            assert body["reason"].startswith("refused") and "too dim" in body["reason"], body
+        lines = [x for x in audit_lines(d) if x.get("event") == "confirm_clear"
+                 or x.get("edit") == "confirm_clear"]
+        results = [(x["operator"], x["result"]) for x in lines]
+        assert results == [("vera", "forbidden"), ("otto", "refused"), ("tester", "refused"),
+                           ("tester", "refused_by_monitor")], results
+        assert "too dim" in lines[-1]["reason"]
+
+
+@pytest.mark.slow
+def test_confirm_clear_from_the_console_is_accepted_in_one_step(tmp_path, synthetic_model):
+    """The demo cell (persons walk through the zones; the monitor latches): the operator's
+    confirm-clear (one request, repeated until the monitor may accept it) is accepted by the
+    monitor in that request's own step once nobody is in a zone, and audited with the
+    monitor's answer."""
+    from tests.processes import Service
+
+    with Service(tmp_path, synthetic_model, "synthetic:demo", PREVIEW) as svc:
+        d, console = _console(tmp_path, svc)
+        with serving(console) as base:
+            _live_picture(console)
+            answers = []
+
+            def accepted() -> bool:
+                status, body = _post(base, "tester", {"looked_at": ["cam0"]})
+                answers.append((status, body))
+                return status == 200 and body["accepted"] is True
+
+            wait_for(accepted, 120, lambda: answers[-5:])
+            assert "accepted" in answers[-1][1]["reason"], answers[-1]
+        lines = [x for x in audit_lines(d) if x.get("event") == "confirm_clear"]
+        assert lines[-1]["result"] == "accepted" and lines[-1]["operator"] == "tester"
+        assert lines[-1]["looked_at"] == ["cam0"]
