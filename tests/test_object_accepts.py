@@ -11,6 +11,7 @@ import pytest
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
 
 from monitor.cli.status_text import status_text
+from monitor.config import CameraConfig
 from monitor.health.acceptance import (
     OBJECT_ACCEPT_REFUSED,
     OBJECT_ACCEPTED,
@@ -19,7 +20,10 @@ from monitor.health.acceptance import (
     judge_accept,
 )
 from monitor.health.objects import OBJECT_IN_ZONE, objects_of
+from monitor.pipeline import Pipeline
+from monitor.policy import PolicyConfig
 from monitor.replay import scenarios as sc
+from monitor.service.setup import no_reference_note
 from monitor.wire.object_accepts import (
     ACCEPT_SCHEMA,
     AcceptGate,
@@ -157,3 +161,19 @@ def test_the_status_says_nothing_changed_when_no_object_stands():
     text = status_text({"changed_since_commissioning": [{"floor_m": ["a", 1],
                                                          "protective": True}]})
     assert "NOT accepted" in text and "image box ?" in text
+
+
+def test_without_a_reference_start_and_status_say_objects_are_not_noticed(detector):
+    scenario = sc.select(["crate-after-reference"], 5.0)[0]
+    cell = parse_cell(scenario.zone_data())
+    cameras = [CameraConfig(id="cam0")]
+    blind = Pipeline(detector, "cam0", PolicyConfig(), cell)
+    note = no_reference_note(blind, cameras)
+    assert note is not None and note.startswith("camera cam0: no commissioning reference")
+    assert "objects put into the protective and warning zones since commissioning are not " \
+           "noticed" in note
+    # the status carries it (run.py: changes_unwatched) and `monitor status` shows it
+    assert f"WARNING: {note}" in status_text({"changes_unwatched": note})
+    watched = Pipeline(detector, "cam0", PolicyConfig(), cell,
+                       references={"cam0": scenario.scene.reference()})
+    assert no_reference_note(watched, cameras) is None
