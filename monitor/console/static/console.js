@@ -79,12 +79,13 @@ async function pollState() {
   }));
 }
 
-// confirm-clear (monitor/console/confirm_routes.py): offered while the monitor is latched,
-// sendable only while every camera has a live picture and the operator says they looked
+// confirm-clear (monitor/console/confirm_routes.py): offered while the cell is stopped (the
+// monitor itself says when there is no latch to release), sendable only while every camera
+// has a live picture and the operator says they looked
 function showConfirm(s, cams) {
   const box = $("confirm");
   if (!box) return;
-  box.hidden = !s.latched;
+  box.hidden = !(s.latched || s.state === "STOP");
   const live = s.live_picture || {};
   const allLive = cams.length > 0 && cams.every((c) => live[c] === true);
   $("cc-send").disabled = !(allLive && $("cc-looked").checked);
