@@ -146,3 +146,17 @@ def test_the_consoles_live_payload_carries_the_areas_and_its_view_draws_them(hid
     far = ~cv2.dilate(inside.astype(np.uint8), np.ones((25, 25), np.uint8)).astype(bool)
     far &= ~cell_mask_px(res.unseen[0].cells, area.cell_px, area.frame_size, (w, h))
     assert np.abs(views["areas"][far] - views["none"][far]).mean() < 1.0
+
+
+def test_the_docs_picture_of_a_held_cell(hidden_step, tmp_path):
+    """docs/tracking.md's picture: the hidden person's area and the unseen floor on the
+    annotated frame (written to docs/occlusion/ with UPDATE_DOC_SHOTS=1, else to tmp)."""
+    import os
+    from pathlib import Path
+
+    res, img, cell, camera, _ = hidden_step
+    drawn, said = annotate(img, res, cell, camera, [])
+    folder = Path(__file__).resolve().parents[1] / "docs" / "occlusion" \
+        if os.environ.get("UPDATE_DOC_SHOTS") == "1" else tmp_path
+    assert cv2.imwrite(str(folder / "lost-area.png"), drawn)
+    assert said.areas

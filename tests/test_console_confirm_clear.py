@@ -19,7 +19,16 @@ import pytest
 from monitor.console.auth import set_password
 from monitor.console.confirm_clear import ConfirmClear
 from monitor.console.live import LiveState, subscribe_live
-from tests.console_kit import audit_lines, basic, plain_console, serving, zone_file
+from tests.console_kit import (
+    CHROMIUM,
+    ROOT,
+    audit_lines,
+    basic,
+    chromium,
+    plain_console,
+    serving,
+    zone_file,
+)
 from tests.helpers import wait_for
 
 PASSWORD = "a long console password"
@@ -104,6 +113,8 @@ def test_confirm_clear_from_the_console_is_accepted_in_one_step(tmp_path, synthe
         d, console = _console(tmp_path, svc)
         with serving(console) as base:
             _live_picture(console)
+            if CHROMIUM.exists():
+                _viewer_in_the_browser(base, tmp_path)
             answers = []
 
             def accepted() -> bool:
@@ -116,3 +127,34 @@ def test_confirm_clear_from_the_console_is_accepted_in_one_step(tmp_path, synthe
         lines = [x for x in audit_lines(d) if x.get("event") == "confirm_clear"]
         assert lines[-1]["result"] == "accepted" and lines[-1]["operator"] == "tester"
         assert lines[-1]["looked_at"] == ["cam0"]
+
+
+def _viewer_in_the_browser(base: str, tmp: Path) -> None:
+    """The live page in a real headless chromium: while the monitor is latched it offers
+    Confirm clear over the live picture; the button waits for the operator's word that they
+    looked; a viewer's confirm-clear is refused naming the level needed (the docs' picture:
+    docs/console/confirm-clear.png with UPDATE_CONSOLE_SHOTS=1)."""
+    import os
+
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    with chromium(tmp / "profile") as browser:
+        browser.get(base + "/")
+        wait = WebDriverWait(browser, 60, poll_frequency=0.1)
+        wait.until(lambda b: b.find_element(By.ID, "confirm").is_displayed())
+        send = browser.find_element(By.ID, "cc-send")
+        assert not send.is_enabled()  # not before the operator says they looked
+        browser.find_element(By.ID, "cc-operator").send_keys("vera")
+        browser.find_element(By.ID, "cc-password").send_keys(PASSWORD)
+        browser.find_element(By.ID, "cc-looked").click()
+        wait.until(lambda b: b.find_element(By.ID, "cc-send").is_enabled())
+        browser.find_element(By.ID, "cc-send").click()
+        wait.until(lambda b: "REFUSED" in b.find_element(By.ID, "cc-message").text)
+        text = browser.find_element(By.ID, "cc-message").text
+        assert "viewer 'vera' may not confirm the cell clear" in text, text
+        wait.until(lambda b: b.execute_script(
+            "const i = document.querySelector('#cams img'); return i && i.naturalWidth > 0"))
+        shots = ROOT / "docs" / "console" if os.environ.get("UPDATE_CONSOLE_SHOTS") == "1" \
+            else tmp
+        browser.save_screenshot(str(shots / "confirm-clear.png"))

@@ -22,6 +22,7 @@ from monitor.commission import details
 from monitor.commission.floor import zone_floors
 from monitor.commission.open_warnings import Facts, open_warnings
 from monitor.commission.pictures import camera_picture, floor_picture
+from monitor.commission.unseen import unseen_regions
 from monitor.commission.verdict import DEFAULT_LIMITS, WalkLimits, camera_verdicts, zone_verdicts
 from monitor.commission.walk_video import read_walk
 from monitor.config import MonitorConfig, load_config
@@ -95,6 +96,8 @@ def gather(config_path: Path | None, model_path: Path,
                     "key": {"public_key": signer_key, "fingerprint": _key_id(signer_key)}
                     if signer_key else None},
         "pictures": _pictures(config, cell),
+        # floor of the protective/warning zones no camera sees: its cost, what would see it
+        "unseen": unseen_regions(cell) if cell is not None else [],
         "sources": {"status": _name(status_file, base) if status_file else None,
                     "walks": [_name(d, base) for d in walk_dirs]},
     }

@@ -24,8 +24,8 @@ from monitor.wire.evidence import Layout, Opened, open_signed, sign
 from monitor.wire.signing import Signer
 
 SECTIONS = ("summary", "warnings", "identity", "model", "zones", "zone-sets", "pictures",
-            "calibration", "settings", "keys", "separation", "capacity", "reaction", "walk",
-            "not-tested", "signoff")
+            "unseen", "calibration", "settings", "keys", "separation", "capacity", "reaction",
+            "walk", "not-tested", "signoff")
 REPORT_LAYOUT = Layout(
     "commissioning-report",
     b'<p class="signature">Ed25519 signature of every byte of this file but the 88 characters '
@@ -74,6 +74,7 @@ def render(content: dict) -> str:
         '<div class="details">', d.identity(content), "</div>",
         d.model(content["model"]), d.zones(content["zones"], content["zone_details"]),
         d.zone_sets(content["zone_sets"]), d.pictures(content["pictures"]),
+        d.unseen(content.get("unseen") or []),
         d.calibration(content["calibration"]), d.settings(content["settings"]),
         d.keys(content["keys"]),
         d.separation(content["person"], content["reaction"], content["zone_details"]),

@@ -108,6 +108,36 @@ def pictures(p: dict[str, str]) -> str:
                    *figures(p))
 
 
+def unseen(regions: list[dict]) -> str:
+    """The unseen regions of the protective and warning zones (``monitor.commission.unseen``):
+    what each costs in availability and the camera position that would see it."""
+    if not regions:
+        return section("unseen", "Unseen floor in the zones",
+                       "<p>Every cell of the protective and warning zones' floor is seen by a "
+                       "camera: a lost person's area there ends once it is seen free.</p>")
+    rows = []
+    for r in regions:
+        cam = r.get("camera")
+        where = (f"a camera at ({', '.join(f'{v:g}' for v in cam['position_m'])}) m looking "
+                 f"at ({', '.join(f'{v:g}' for v in cam['looking_at_m'])}) from the "
+                 f"{cam['from_side']} side would see {100 * cam['sees_share']:.0f} % of it"
+                 if cam else "no calibrated camera to place another by")
+        rows.append((r["zone"], r["kind"], r["hidden_by"], f"{r['area_m2']:g} m\u00b2",
+                     f"{100 * r['share']:.0f} %",
+                     f"({r['middle_m'][0]:g}, {r['middle_m'][1]:g})", where))
+    return section("unseen", "Unseen floor in the zones",
+                   "<p>Floor of a protective or warning zone no camera sees a person on. A "
+                   "person lost there (walking behind the fixture) is never seen leaving: the "
+                   "zone stays held, waiting does not end it, until a second camera sees the "
+                   "spot free or an operator confirms the cell clear after looking at the live "
+                   "picture. The larger its share of the zone, the more often the cell is "
+                   "held for it. A camera at the suggested position (the highest calibrated "
+                   "camera's lens and height, judged with the monitor's own visibility test) "
+                   "would see it.</p>",
+                   table(rows, ("zone", "kind", "unseen because", "floor", "share of the zone",
+                                "middle (m)", "would be seen by"), css="small"))
+
+
 def calibration(rows: list[dict]) -> str:
     if not rows:
         return section("calibration", "Calibration", "<p>No zone file.</p>")

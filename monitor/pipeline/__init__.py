@@ -14,7 +14,8 @@ tool pose and reset requests, and publishes what comes out.
 Modules: ``core`` (``Pipeline``: the step per frame and the decision handed on), ``data``
 (``StepResult``, per-camera state), ``masking`` (mask zones on raw boxes), ``locate`` (zones,
 tracks, cell persons of a frame), ``evidence`` (every camera's answer merged for the policy),
-``holds`` (lost persons, confirm-clear), ``fault_alerts``, ``mutes``, ``zone_sets``.
+``holds`` (lost persons, confirm-clear), ``area_views`` (the lost persons' areas and the unseen
+cells each step hands on for the screen), ``fault_alerts``, ``mutes``, ``zone_sets``.
 
 May import: the stages it runs (``detector``, ``frames``, ``tracking``, ``health``),
 ``monitor.zones``, ``monitor.cases``, the building blocks and the bottom layer; never the driver,

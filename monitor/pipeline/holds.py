@@ -113,7 +113,8 @@ def remedies(cameras: Mapping[str, CameraState], persons: CellPersons, cell: Cel
                            "there" + (", the person seen walking out in clear view now"
                                       if brief else "")
                            + ", or `monitor reset --confirm-clear` after looking at the live "
-                           "picture does")
+                           "picture (also the console's Confirm clear, with the spot drawn) "
+                           "does")
             else:
                 until = h.lost_since + where.life_s(area)
                 out.append(f"person {who} may be where {cid} sees: waiting ends it once {cid} "

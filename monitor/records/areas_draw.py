@@ -84,13 +84,19 @@ def draw_areas(image: np.ndarray, areas: Sequence[AreaView], camera_id: str,
         text = area_label(area)
         ys, xs = np.nonzero(mask)
         x, y = int(xs.min()), max(int(ys.min()) - 6, top_px + 16)
-        _text_on_black(image, text, (min(x, max(w - 10, 0)), min(y, h - 4)))
+        _text_on_black(image, text, (x, min(y, h - 4)))
         labels.append(text)
     return tuple(labels)
 
 
 def _text_on_black(img: np.ndarray, text: str, org: tuple[int, int]) -> None:
-    (tw, th), base = cv2.getTextSize(text, FONT, 0.5, 1)
-    x, y = org
+    """The label inside the image: moved left (and smaller) until it fits."""
+    w = img.shape[1]
+    scale = 0.5
+    (tw, th), base = cv2.getTextSize(text, FONT, scale, 1)
+    if tw > w - 8:
+        scale *= (w - 8) / tw
+        (tw, th), base = cv2.getTextSize(text, FONT, scale, 1)
+    x, y = max(2, min(org[0], w - tw - 4)), org[1]
     cv2.rectangle(img, (x - 2, y - th - 3), (x + tw + 2, y + base), (0, 0, 0), -1)
-    cv2.putText(img, text, (x, y), FONT, 0.5, AREA_BGR, 1, cv2.LINE_AA)
+    cv2.putText(img, text, (x, y), FONT, scale, AREA_BGR, 1, cv2.LINE_AA)

@@ -65,6 +65,7 @@ async function pollState() {
       "operator signs it (" + (draft.apply || "monitor zones apply") + "), not at a restart.";
   }
   const cams = s.camera_ids || [];
+  showConfirm(s, cams);
   if (cams.join() !== liveCameras.join()) {
     liveCameras = cams;
     const box = $("cams");
@@ -76,6 +77,42 @@ async function pollState() {
     for (const k of ["kind", "severity", "source", "message"]) tr.appendChild(el("td", a[k]));
     return tr;
   }));
+}
+
+// confirm-clear (monitor/console/confirm_routes.py): offered while the cell is stopped (the
+// monitor itself says when there is no latch to release), sendable only while every camera
+// has a live picture and the operator says they looked
+function showConfirm(s, cams) {
+  const box = $("confirm");
+  if (!box) return;
+  box.hidden = !(s.latched || s.state === "STOP");
+  const live = s.live_picture || {};
+  const allLive = cams.length > 0 && cams.every((c) => live[c] === true);
+  $("cc-send").disabled = !(allLive && $("cc-looked").checked);
+  $("cc-send").title = allLive ? "" : "no live picture of every camera: the cell cannot be seen";
+}
+
+async function confirmClear() {
+  const msg = $("cc-message");
+  const auth = "Basic " + btoa(unescape(encodeURIComponent(
+    $("cc-operator").value + ":" + $("cc-password").value)));
+  msg.className = ""; msg.textContent = "sending…";
+  let r, body;
+  try {
+    r = await fetch("/api/confirm-clear", {
+      method: "POST", headers: { "content-type": "application/json", authorization: auth },
+      body: JSON.stringify({ looked_at: liveCameras, note: "confirmed from the console" }) });
+    body = await r.json();
+  } catch (err) {
+    msg.className = "error"; msg.textContent = "console not reachable"; return;
+  }
+  $("cc-looked").checked = false;  // each confirm-clear is a look of its own
+  if (r.ok && body.accepted) {
+    msg.className = "ok"; msg.textContent = "accepted by the monitor: " + body.reason;
+  } else {
+    msg.className = "error";
+    msg.textContent = "REFUSED: " + (body.error || body.reason || r.status);
+  }
 }
 
 function refreshImages() {
@@ -251,6 +288,7 @@ const page = document.body.dataset.page;
 if (page === "live") {
   pollState(); setInterval(pollState, 300);
   setInterval(refreshImages, 700);
+  $("cc-send").addEventListener("click", confirmClear);
 } else if (page === "incidents") {  // the review page's own script: incidents.js
   getJSON("/api/state").then((s) => { $("cell").textContent = "cell " + (s.cell || ""); });
 } else if (page === "zones") {
