@@ -24,6 +24,7 @@ class Decoder:
     no frame can be decoded, the decoder is closed); ``read`` the next (None at the end or at
     a break) with its container time in milliseconds (NaN: the container has none)."""
 
+    name = ""
     fps: float | None = None
     frame_count: int = 0  # declared by the container; 0 if unknown
     codec: str = "unknown"
@@ -46,6 +47,8 @@ def _fourcc_text(value: float) -> str:
 
 class OpenCvDecoder(Decoder):
     """``cv2.VideoCapture`` with its FFmpeg backend."""
+
+    name = "opencv"
 
     def __init__(self) -> None:
         self._cap: cv2.VideoCapture | None = None
@@ -88,6 +91,8 @@ class OpenCvDecoder(Decoder):
 
 class PyAvDecoder(Decoder):
     """PyAV: the container's video stream decoded frame by frame, converted to BGR."""
+
+    name = "pyav"
 
     def __init__(self) -> None:
         self._container = None

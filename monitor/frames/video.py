@@ -103,6 +103,11 @@ class VideoFileReader:
     def is_open(self) -> bool:
         return self._decoder is not None
 
+    @property
+    def decoded_with(self) -> str:
+        """"pyav" or "opencv" (monitor/frames/decoding.py); "" while closed."""
+        return self._decoder.name if self._decoder is not None else ""
+
     def open(self) -> None:
         self.close()
         self._seq, self._time_offset = 0, 0.0
