@@ -12,12 +12,14 @@ side (monitor/detector/runners.py). "Bare inference" is then that backend's ``ru
 
 The video is the demo walk (the person enters the warning and the protective zone) rendered at
 1280x720 and scaled to 1920x1080, with the demo cell's zones and calibration scaled to match, so
-zones, health and policy do their real work. Three passes in one run:
+zones, health and policy do their real work. The passes, in one run:
 
 1. Throughput, decode inline (as replay): per frame, read + decode the next frame and
    ``Pipeline.process`` it (detector, zones, health, policy; no annotation, no bus), and a bare
    ``session.run`` on the same input tensor, interleaved so both see the same machine load.
-   Target: pipeline fps / bare inference fps >= 0.95.
+   Target: pipeline fps / bare inference fps >= 0.85 for the backend that runs, and the fixed
+   path (every stage but inference: read+decode, preprocess, decode, zones, health, policy)
+   under 2 ms a 1080p frame (the row "fixed path").
 2. Throughput, decode in a reader thread (as the live service's grabber): the same pipeline fed
    from a 2-frame queue.
 2b. Throughput through the driver (``monitor.driver.Driver`` with the replay feed, ticks between
@@ -34,6 +36,9 @@ zones, health and policy do their real work. Three passes in one run:
    host give before the monitor adds anything: onnxruntime's second intra-op thread sleeps
    between frames, and when the host does not run it at once the frame runs at one-thread
    speed. The monitor's own share of the tail is capture -> command p99 - this p99.
+5. The fixed path alone (``fixed_path_cpu``): the first 90 frames again with each frame's model
+   outputs replayed through the runner seam instead of running the model, timed in this
+   thread's CPU time, which a loaded host's waits do not inflate.
 """
 
 from __future__ import annotations
@@ -138,6 +143,50 @@ def throughput_inline(video: Path, detector: Detector, cell: Cell) -> dict:
                 stages.setdefault(s, []).append(v)
             persons += len(result.persons) if result.persons is not None else 0
     return {"whole": whole, "bare": bare, "stages": stages, "persons": persons}
+
+
+class _Replayed:
+    """A runner that hands back the outputs the real one gave for each frame, in order (the
+    runner seam, monitor/detector/runners.py): a pass through it times only the work around
+    inference."""
+
+    def __init__(self, real, outputs: list[list[np.ndarray]]) -> None:
+        self.candidate, self.inputs, self.outputs = real.candidate, real.inputs, real.outputs
+        self.metadata = real.metadata
+        self._queue = iter(outputs)
+
+    def run(self, feeds) -> list[np.ndarray]:
+        return next(self._queue)
+
+
+def fixed_path_cpu(video: Path, detector: Detector, cell: Cell, frames: int = 90) -> dict:
+    """The fixed path (read+decode, preprocess, decode, zones, health, policy) of the first
+    ``frames`` frames in this thread's CPU time (``time.thread_time``: the time a loaded host
+    keeps the thread waiting does not count, so the figure means the same on a shared host),
+    with the model's outputs of a first pass replayed instead of running the model."""
+    with VideoFileReader(video, "cam0", expected_size=SIZE) as reader:
+        images = [f.image for f in itertools.islice(reader, frames)]
+    recorded = []
+    real = detector.runner
+    for image in images:  # the model's outputs, each frame's own
+        tensor, _ = letterbox(image, detector.layout)
+        recorded.append([o.copy() for o in real.run({detector.layout.input_name: tensor})])
+    pipeline = new_pipeline(detector, cell)
+    cpu, read_cpu, wall = [], [], []
+    detector.runner = _Replayed(real, recorded)
+    try:
+        with VideoFileReader(video, "cam0", expected_size=SIZE) as reader:
+            for _ in range(len(images)):
+                c0, w0 = time.thread_time(), time.perf_counter()
+                frame = reader.read()
+                c1 = time.thread_time()
+                pipeline.process(frame.image, frame.info, frame.info.capture_time)
+                cpu.append((time.thread_time() - c0) * 1e3)
+                read_cpu.append((c1 - c0) * 1e3)
+                wall.append((time.perf_counter() - w0) * 1e3)
+    finally:
+        detector.runner = real
+    return {"cpu": cpu, "read_cpu": read_cpu, "wall": wall}
 
 
 def _bare(detector: Detector, image: np.ndarray) -> float:
@@ -392,7 +441,16 @@ def run_passes(video: Path, detector: Detector, cell: Cell, args, n: int) -> dic
     dr = throughput_driver(video, detector, cell)
     lat = latency(video, detector, cell, args.seconds, settle=not args.no_settle_heap)
     paced = paced_bare(video, detector, args.fps, n)
-    return {"t": t, "th": th, "dr": dr, "lat": lat, "paced": paced}
+    fixed = fixed_path_cpu(video, detector, cell)
+    return {"t": t, "th": th, "dr": dr, "lat": lat, "paced": paced, "fixed": fixed}
+
+
+FIXED = ("read+decode", "preprocess", "decode", "zones", "health", "policy")
+
+
+def fixed_ms(stages: dict[str, list[float]]) -> float:
+    """The work around inference per frame: the median of each stage but inference, summed."""
+    return sum(statistics.median(stages[s]) for s in FIXED if stages.get(s))
 
 
 def side_by_side(results: dict[str, dict], args, n: int, file=None) -> None:
@@ -415,21 +473,29 @@ def side_by_side(results: dict[str, dict], args, n: int, file=None) -> None:
         running = lat["latency"][start_frames:]
         row("bare inference ms (mean) / fps", f"{bare_ms:.1f} / {1e3 / bare_ms:.1f}")
         row("pipeline, decode inline: ms / fps", f"{whole_ms:.1f} / {1e3 / whole_ms:.1f}")
-        row("pipeline inline / bare", f"{bare_ms / whole_ms:.3f}")
+        ratio = bare_ms / whole_ms
+        row("pipeline inline / bare (target >= 0.85)",
+            f"{ratio:.3f} ({'met' if ratio >= 0.85 else 'missed'})")
         row("pipeline, decode in a thread / bare", f"{bare_ms / th['ms_per_frame']:.3f}")
         row("replay through the driver / bare", f"{bare_ms / dr['ms_per_frame']:.3f}")
         for stage in ("read+decode", "preprocess", "inference", "decode", "zones", "health",
                       "policy"):
             if stage in t["stages"]:
                 row(f"stage {stage} (median ms)", f"{med(t['stages'][stage]):.2f}")
+        row("fixed path: every stage but inference (sum of medians, target < 2 ms)",
+            f"{fixed_ms(t['stages']):.2f}")
+        fx = r["fixed"]
+        row("fixed path in thread CPU time, median ms (of it read+decode)",
+            f"{med(fx['cpu']):.2f} ({med(fx['read_cpu']):.2f})")
         row("person detections (inline pass)", f"{t['persons']}")
         lt = lat["latency"]
         row("capture -> command median / p99 ms", f"{med(lt):.1f} / {pct(lt, 0.99):.1f}")
         row(f"capture -> command p99 after the first {start_frames} frames",
             f"{pct(running, 0.99):.1f}")
         row("bare inference paced, median / p99 ms", f"{med(paced):.1f} / {pct(paced, 0.99):.1f}")
-        row("monitor's share of the p99 (after start-up - bare paced)",
-            f"{pct(running, 0.99) - pct(paced, 0.99):.1f}")
+        share = pct(running, 0.99) - pct(paced, 0.99)
+        row("monitor's share of the p99 (after start-up - bare paced; target <= 5 ms)",
+            f"{share:.1f} ({'met' if share <= 5 else 'missed'})")
     print(f"1080p video, {n} frames ({args.seconds:g} s, {args.fps:g} fps), model input "
           f"{'416x416' if args.square else '416x288 (rectangular)'}, {args.threads} threads\n")
     print("| | " + " | ".join(results) + " |")
@@ -469,6 +535,11 @@ def report_one(r: dict, args, n: int) -> None:
                   "policy"):
         if stage in t["stages"]:
             print(f"| {stage} | {med(t['stages'][stage]):.2f} |")
+    print(f"| fixed path (every stage but inference) | {fixed_ms(t['stages']):.2f} |")
+    fx = r["fixed"]
+    print(f"| fixed path in thread CPU time, outputs replayed ({len(fx['cpu'])} frames) "
+          f"| {med(fx['cpu']):.2f} |")
+    print(f"| ... of it read+decode (thread CPU) | {med(fx['read_cpu']):.2f} |")
     inf = med(lat["inference"])
     lt, wire = lat["latency"], lat["wire"]
     print(f"\n| latency, live (paced {args.fps:g} fps, real SafetyBus) | n | median ms | p99 ms "
@@ -506,14 +577,15 @@ def report_one(r: dict, args, n: int) -> None:
           f"{'met' if ratio_running <= 1.5 else 'missed'})")
     print(f"bare paced inference alone: p99 / median {pct(paced, 0.99) / med(paced):.2f}; "
           f"the monitor's own share of the p99: {pct(running, 0.99) - pct(paced, 0.99):.1f} ms "
-          "(capture -> command p99 after start-up - bare paced p99)")
+          "(capture -> command p99 after start-up - bare paced p99; target <= 5 ms: "
+          f"{'met' if pct(running, 0.99) - pct(paced, 0.99) <= 5 else 'missed'})")
     print(f"\nin-place checks in the live pass: {lat['inplace_runs']} (every "
           f"{MonitorConfig().health.inplace_period_s:g} s), self-test every "
           f"{MonitorConfig().detector.self_test_period_s:g} s: each one more inference, run in "
           "a timer tick while no frame waits")
     print(f"\ngrabber: {lat['grabbed']} frames grabbed, {lat['dropped']} dropped (newest wins); "
-          f"throughput target >= 0.95: {'met' if bare_ms / whole_ms >= 0.95 else 'missed'} "
-          f"inline, {'met' if bare_ms / th['ms_per_frame'] >= 0.95 else 'missed'} threaded")
+          f"throughput target >= 0.85: {'met' if bare_ms / whole_ms >= 0.85 else 'missed'} "
+          f"inline, {'met' if bare_ms / th['ms_per_frame'] >= 0.85 else 'missed'} threaded")
 
 
 if __name__ == "__main__":

@@ -73,7 +73,7 @@ def gather(config_path: Path | None, model_path: Path,
         "config": {"file": _name(config_path, base) if config_path else "embedded demo",
                    "sha256": file_sha256(config_path) if config_path else None},
         "fingerprint": print_,
-        "model": _model(model_path, base),
+        "model": _model(model_path, base, status),
         "zones": _zones(cell, zones_file, base),
         "settings": settings,
         "keys": _keys(config, base),
@@ -128,7 +128,7 @@ def _read_json(path: Path, what: str, hint: str = "") -> dict:
     return data
 
 
-def _model(model_path: Path, base: Path | None) -> dict:
+def _model(model_path: Path, base: Path | None, status: dict | None = None) -> dict:
     sidecar = sidecar_path(model_path)
     envelope = None
     if sidecar.is_file():
@@ -139,7 +139,16 @@ def _model(model_path: Path, base: Path | None) -> dict:
         if isinstance(envelope, dict):  # the measured recall table is long: the limits only
             envelope = {k: v for k, v in envelope.items() if k not in ("recall", "absolute")}
     return {"file": _name(model_path, base), "sha256": file_sha256(model_path),
-            "envelope": envelope, "envelope_file": sidecar.name if sidecar.is_file() else None}
+            "envelope": envelope, "envelope_file": sidecar.name if sidecar.is_file() else None,
+            "backend": _backend((status or {}).get("detector"))}
+
+
+def _backend(detector: object) -> dict | None:
+    """What runs the model in the service whose status was given (``Choice.to_dict``): the
+    backend, its precision and how its persons agree with onnxruntime's; None without one."""
+    if not isinstance(detector, dict):
+        return None
+    return {k: detector.get(k) for k in ("backend", "precision", "agreement", "reason")}
 
 
 def _zones(cell: Cell | None, zones_file: str | None, base: Path | None) -> dict | None:

@@ -28,10 +28,20 @@ def identity(c: dict) -> str:
 
 def model(m: dict) -> str:
     rows = [("file", m["file"]), ("SHA-256", m["sha256"]),
-            ("measured envelope", m["envelope_file"] or "none measured")]
+            ("measured envelope", m["envelope_file"] or "none measured"),
+            ("backend that runs it", _backend(m.get("backend")))]
     env = m.get("envelope") or {}
     rows += [(f"envelope: {k}", v) for k, v in sorted(env.items())]
     return section("model", "Detector model", table(rows))
+
+
+def _backend(b: dict | None) -> str:
+    if not b:
+        return "not given (pass the running service's status: --status status.json)"
+    agreement = b.get("agreement")
+    agrees = (f", agreement {agreement:.3f} with onnxruntime's persons"
+              if isinstance(agreement, int | float) else "")
+    return f"{b.get('backend')} {b.get('precision')}{agrees} ({b.get('reason') or '?'})"
 
 
 def _geometry(g: dict) -> str:
