@@ -31,6 +31,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from monitor.timetext import TimeText
+from monitor.tracking import pockets
+from monitor.tracking.pockets import PocketBook
 from monitor.tracking.whereabouts import (
     HOLD_KINDS,
     FootGrid,
@@ -237,6 +239,7 @@ class PersonTracker:
         self._guessed: set[int] = set()  # rows given a lost track's id by nearness, not ByteTrack
         self._byte_ids: dict[int, int] = {}  # row -> ByteTrack's id in the newest frame
         self.where = Whereabouts(self.config.areas())
+        self.pockets = PocketBook()  # enclosed hidden regions with a count (``pockets``)
 
     def _buffer_frames(self, fps: float) -> int:
         return max(1, math.ceil(self.config.lost_track_s * fps))
@@ -284,16 +287,25 @@ class PersonTracker:
 
     def drop_holds(self) -> tuple[Hold, ...]:
         """An operator confirmed the cell clear: every lost person's area ends (seen persons
-        are untouched). Returns the holds dropped."""
-        dropped = self.holds
+        are untouched) and every pocket is counted empty, but for persons lost within
+        ``lost_track_s`` whose areas reach a pocket: they may have stepped in while the
+        operator looked at a picture that showed them (their areas stay, counted in).
+        Returns the holds dropped."""
+        now = self.where.last_time if self.where.last_time is not None else 0.0
+        kept = pockets.stepping_in(self.pockets, self.where, now, self.config.lost_track_s)
+        dropped = tuple(h for h in self.holds if h.track_id not in kept)
         self.where.drop()
         self.where.take_ended()  # said by the confirm-clear alert
+        pockets.confirm(self.pockets, now, kept)
+        self.where.areas.update(kept)
         return dropped
 
     def blind(self) -> None:
         """A frame this camera could not judge (a detector error): nothing was seen free, so
-        every seen-free streak starts again."""
+        every seen-free streak starts again; nobody knows who went into a pocket or came out."""
         self.where.blind()
+        if self._last_time is not None:
+            pockets.unknown(self.pockets, "a frame the camera could not judge", self._last_time)
 
     # ---------------------------------------------------------------------------------------
     def update(self, persons: Persons, report: ZoneReport | None, now: float,
@@ -324,6 +336,14 @@ class PersonTracker:
         self.where.view(int(frame_size[0]), int(frame_size[1]), hidden, hidden_key)
         before = {h.track_id: h for h in self.holds}
         rows_to_id = self._associate(boxes, np.asarray(persons.scores, np.float64), now)
+        # pockets (monitor.tracking.pockets): a frame the camera cannot judge loses every
+        # count; persons appearing now, not seen in the previous frame, may come out of one
+        if not working:
+            pockets.unknown(self.pockets, "a frame the camera could not judge", now)
+        pockets.count_exits(self.pockets, self.where, boxes, [
+            row for row, tid in enumerate(rows_to_id)
+            if tid not in self._records or self._records[tid].lost], now)
+        pockets.seen(self.pockets, self.where, rows_to_id, boxes)
         row_zones = self._row_zones(report, n)
         floors: list[np.ndarray | None] = [None] * n
         if self.to_floor is not None and n:
@@ -370,16 +390,19 @@ class PersonTracker:
                 continue
             rec.lost = True
             rec.left_view = self._leaving_view(rec, frame_size)
+            pockets.lost(self.pockets, rec.track_id)
             into = self._merged_into(rec.box, boxes)
             # swallowed by a neighbour's box: hidden right behind (or in front of) them
             self.where.lose(rec.track_id, rec.box, rec.last_seen, behind=bool(into),
                             height_px=rec.tall_px(), feet_bottom_px=rec.feet_bottom)
             for row in into:  # whichever identity the merged box keeps: where it stood too
+                pockets.swallowed(self.pockets, rec.track_id, rows_to_id[row])
                 old_box, old_seen, left = moved.get(row, (None, 0.0, False))
                 if left and old_box is not None:
                     self.where.lose(rows_to_id[row], old_box, old_seen, behind=True)
         self.where.update(now, boxes, working, clear_time, zones_of, zones_key,
-                          free_elsewhere, self.to_floor, feet_bottom_px)
+                          free_elsewhere, self.to_floor, feet_bottom_px,
+                          settle=lambda w: pockets.settle(self.pockets, w, now))
 
         for tid in [t for t, r in self._records.items() if r.lost and t not in self.where.areas
                     and now - r.last_seen > self.config.forget_after_s]:

@@ -300,7 +300,8 @@ class Whereabouts:
     def update(self, now: float, boxes_px: np.ndarray, working: bool, clear_time: float,
                zones_of: ZonesOf | None, zones_key: object = None,
                free_elsewhere: FreeElsewhere | None = None, to_floor: ToFloor | None = None,
-               feet_bottom_px: np.ndarray | None = None) -> None:
+               feet_bottom_px: np.ndarray | None = None,
+               settle: Callable[[Whereabouts], None] | None = None) -> None:
         """One frame at ``now``: ``boxes_px`` are the persons seen in it; ``working`` is False
         when the camera's view cannot be trusted (a STOP fault of the camera or detector).
         Then every area grows, loses the cells seen free for ``clear_time``, and learns the
@@ -311,7 +312,9 @@ class Whereabouts:
         is free, whichever camera it is. ``feet_bottom_px`` (per box; NaN: feet in view): the
         lowest image row the feet of a box cut off at the bottom may be on (placed as a range
         towards the camera): the cells down to it are not seen free, and such a person never
-        explains a lost person's area (they may stand anywhere there)."""
+        explains a lost person's area (they may stand anywhere there). ``settle``: run once
+        the areas have grown and lost what was seen free, before empty areas end and the
+        zones are learnt (the pockets' counts, ``monitor.tracking.pockets``)."""
         if self.grid is None or self.free_since is None or self.hidden is None:
             raise RuntimeError("Whereabouts.update before view(): the image size is unknown")
         grid, cfg = self.grid, self.config
@@ -376,6 +379,8 @@ class Whereabouts:
         self._free, self.last_time = free, now
         if free_elsewhere is not None and floor is not None:
             self._clear_elsewhere(free_elsewhere, floor)
+        if settle is not None:
+            settle(self)
         for tid in [t for t, a in self.areas.items() if not a.cells.any()]:
             area = self.areas.pop(tid)
             self.ended.append((area, area.ended_by or "seen free"))
@@ -384,6 +389,13 @@ class Whereabouts:
             self._zone_cache.clear()
         self._zone_key = zones_key
         self._zones(zones_of)
+
+    def floor_cells(self) -> np.ndarray | None:
+        """(ny, nx) bool: the cells whose foot position lies on the floor (a calibrated
+        camera, as of its last frame; None: not known)."""
+        if self._floor is None or self.grid is None:
+            return None
+        return self._floor[1].reshape(self.grid.shape)
 
     def _floor_points(self, to_floor: ToFloor | None
                       ) -> tuple[np.ndarray, np.ndarray] | None:
