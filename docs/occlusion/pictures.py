@@ -19,10 +19,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
+from monitor.models import synthetic
 
 from monitor.detector import Detector, DetectorConfig
 from monitor.health.objects import objects_of
-from monitor.models import synthetic
 from monitor.pipeline import Pipeline
 from monitor.policy import PolicyConfig, ResetRequest
 from monitor.replay import scenarios as sc
