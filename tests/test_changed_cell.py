@@ -153,6 +153,9 @@ def test_the_refusal_names_the_command_that_accepts_the_object(detector):
     refusals = [m for m in reset_messages(detector, crate_scene()) if "object" in m]
     assert refusals
     assert "monitor objects accept --camera cam0 --zone robot-protective" in refusals[-1]
+    # the person lost behind it: a confirm-clear would keep that hold, and the refusal says
+    # what ends it (look, accept, then confirm clear)
+    assert "that nobody accepted: a confirm-clear keeps that hold" in refusals[-1]
 
 
 def _crate_then_person() -> sc.Scenario:

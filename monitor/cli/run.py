@@ -37,6 +37,15 @@ def reset_times(text: str) -> tuple[float, ...]:
     return tuple(out)
 
 
+def accept_time(text: str) -> tuple[float, str]:
+    """``--accept-at 9:robot-protective``: a video time and the zone of the object accepted."""
+    when, sep, zone = text.partition(":")
+    if not sep or not zone.strip():
+        raise argparse.ArgumentTypeError(f"{text!r}: give SECONDS:ZONE, e.g. 9:robot-protective")
+    (t,) = reset_times(when)
+    return t, zone.strip()
+
+
 def register(subparsers: argparse._SubParsersAction) -> None:
     rp = subparsers.add_parser(
         "replay", help="run the monitor over a recorded video",
@@ -65,6 +74,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     help="video time at which an operator reset is sent; repeat the option or "
                     "give a comma list (--reset-at 8 --reset-at 18, or --reset-at 8,18); "
                     "default: no reset")
+    rp.add_argument("--accept-at", type=accept_time, action="append", default=[],
+                    metavar="SECONDS:ZONE",
+                    help="video time at which an operator accepts the objects standing in ZONE "
+                    "since commissioning (as `monitor objects accept`; needs --reference); "
+                    "repeat for several; default: none")
     rp.add_argument("--reference", type=Path,
                     help="commissioning image of the camera (default: none, no moved/defocus "
                     "checks)")
@@ -119,7 +133,8 @@ def do_replay(video: Path, zones: Path | None, model: Path | None, config_path: 
               out: Path, camera: str | None = None, realtime: bool = False,
               publish: bool = False, reset_at: tuple[float, ...] = (),
               reference: Path | None = None, annotate: bool = True, stop=None,
-              allow_no_protective: bool = False, incidents: Path | None = None):
+              allow_no_protective: bool = False, incidents: Path | None = None,
+              accept_at: tuple[tuple[float, str], ...] = ()):
     from monitor.config import load_config
     from monitor.detector import Detector
     from monitor.driver import require_protective_zone
@@ -140,6 +155,7 @@ def do_replay(video: Path, zones: Path | None, model: Path | None, config_path: 
     detector = Detector(model if model else ensure_model(config.model.path),
                         config.detector)
     settings = ReplaySettings(out_dir=out, camera_id=camera, reset_at=tuple(reset_at),
+                              accept_at=tuple(accept_at),
                               realtime=realtime, annotate=annotate, policy=config.policy,
                               health=config.health, reference=_load_reference(reference),
                               tick_s=config.service.tick_s, allow_no_protective=allow,
@@ -185,7 +201,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
                             args.camera, args.realtime, args.publish, reset_at, args.reference,
                             not args.no_video, stop=signals.stop,
                             allow_no_protective=args.allow_no_protective,
-                            incidents=args.incidents)
+                            incidents=args.incidents, accept_at=tuple(args.accept_at))
         _report(summary, args.out, not args.no_video)
         if summary.interrupted:
             print(f"monitor: interrupted {summary.interrupted}: partial outputs finished in "

@@ -50,7 +50,7 @@ from monitor.tracking.cell_persons import CellPersons, CellPersonsConfig
 from monitor.tracking.handover import HandedHolds
 from monitor.tracking.tracks import Hold, PersonTracker, TrackerConfig
 from monitor.types import Alert, Fault, FrameInfo, Persons
-from monitor.wire.object_accepts import AcceptOutcome, ObjectAccept
+from monitor.wire.object_accepts import AcceptOutcome, ObjectAccept, accept_command
 from monitor.zones import Cell
 from monitor.zones.masks import MaskRule
 from monitor.zones.prepare import PreparedCell, with_references
@@ -436,6 +436,24 @@ class Pipeline:
                 out[cid] = kept
         return out
 
+    def _behind_objects_hint(self, command: Command) -> Command:
+        """A reset refused while a lost person's area reaches behind an object nobody accepted
+        says so: a confirm-clear keeps that hold (nobody looked behind it); accepted after
+        looking, the object is a declared occluder and a confirm-clear releases it."""
+        reset = command.reset
+        if reset is None or reset.accepted or "lost" not in reset.message:
+            return command
+        behind = [(cid, o) for cid in self._behind_objects()
+                  for o in self.objects[cid].objects.values() if o.accepted_by is None]
+        if not behind:
+            return command
+        cid, obj = behind[0]
+        hint = (f"; a lost person's area reaches behind the object in {obj.place()} on {cid} "
+                "that nobody accepted: a confirm-clear keeps that hold until it is seen free; "
+                f"look behind it, accept it ({accept_command(cid, obj.zone_ids[0])}), then "
+                "confirm the cell clear")
+        return replace(command, reset=replace(reset, message=reset.message + hint))
+
     def _fault_alerts(self, faults: tuple[Fault, ...], detector_error: str | None, now: float,
                       image: np.ndarray | None) -> tuple[Alert, ...]:
         return self.fault_alerts.alerts(faults, detector_error, now, image)
@@ -456,6 +474,7 @@ class Pipeline:
         # a refusal for a lost person says what ends that hold (docs/tracking.md)
         command = explain_refusal(command, self.cameras, self.persons, self.cell,
                                   self.policy.clear_time)
+        command = self._behind_objects_hint(command)
         if self.zone_sets.in_force is not None:
             command = replace(command, zone_sets=self.zone_sets.in_force.sets)
         return command

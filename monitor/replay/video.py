@@ -39,6 +39,7 @@ from monitor.progress import bar
 from monitor.records.annotate import Annotator
 from monitor.records.events import alert_event, command_event, describe
 from monitor.timetext import video_time
+from monitor.wire.object_accepts import ObjectAccept
 from monitor.zones import Cell, watch_regions
 from monitor.zones.cameras import choose_camera
 
@@ -48,6 +49,9 @@ class ReplaySettings:
     out_dir: Path
     camera_id: str | None = None  # default: the zone file's only camera (several: required)
     reset_at: tuple[float, ...] = ()  # video seconds at which an operator reset is sent
+    # (video seconds, zone): an operator accepts the objects standing in that zone since
+    # commissioning (as `monitor objects accept`; docs/occlusion.md)
+    accept_at: tuple[tuple[float, str], ...] = ()
     realtime: bool = False
     annotate: bool = True
     progress: bool = True
@@ -139,11 +143,16 @@ def _r(value: float) -> float:
 class VideoFeed:
     """Frames of a video on its own clock, with a timer tick every ``tick_s`` of video time
     between two frames (as the live loop ticks while it waits), and the operator resets of
-    ``reset_at`` at the first step at or after their time (a negative time: at frame 0)."""
+    ``reset_at`` (and acceptances of objects since commissioning, ``accept_at``) at the first
+    step at or after their time (a negative time: at frame 0)."""
 
     def __init__(self, reader: VideoFileReader, tick_s: float, reset_at: tuple[float, ...],
-                 realtime: bool = False, stop: threading.Event | None = None) -> None:
+                 realtime: bool = False, stop: threading.Event | None = None,
+                 accept_at: tuple[tuple[float, str], ...] = (), camera_id: str = "video"
+                 ) -> None:
         self.reader = iter(reader)
+        self.camera_id = camera_id  # the camera whose objects ``accept_at`` accepts
+        self.pending_accepts = sorted(accept_at)
         self.stop = stop or threading.Event()  # ends a --realtime wait at once
         self.tick_s = tick_s
         self.pending_resets = sorted(reset_at)
@@ -180,7 +189,13 @@ class VideoFeed:
         if self.pending_resets and now >= self.pending_resets[0]:
             self.pending_resets.pop(0)
             reset = ResetRequest("replay", now, request_id=f"reset-at-{now:.3f}")
-        return StepInputs(reset=reset)
+        accepts = []
+        while self.pending_accepts and now >= self.pending_accepts[0][0]:
+            _, zone = self.pending_accepts.pop(0)
+            # the wall time of a replayed acceptance is its video time (a replay is repeatable)
+            accepts.append(ObjectAccept("replay", self.camera_id, zone,
+                                        f"accept-at-{now:.3f}-{zone}", now, now))
+        return StepInputs(reset=reset, accepts=tuple(accepts))
 
     def _pace(self, t: float) -> None:
         if not self.realtime:
@@ -412,6 +427,8 @@ def replay(video: str | Path, detector: Detector, cell: Cell | None, settings: R
     reader = VideoFileReader(video, camera_id, expected_size=expected, strict=False)
     reader.open()  # raises a one-line InputError for missing / unreadable / wrong-size videos
     _check_reset_times(video, settings.reset_at, reader.frame_count, reader.fps)
+    _check_reset_times(video, tuple(t for t, _ in settings.accept_at), reader.frame_count,
+                       reader.fps, "--accept-at")
     out = settings.out_dir
     out.mkdir(parents=True, exist_ok=True)
     _clear_previous(out)
@@ -452,7 +469,8 @@ def replay(video: str | Path, detector: Detector, cell: Cell | None, settings: R
     driver = Driver(pipeline, sinks, self_test_period_s=settings.self_test_period_s,
                     inplace=inplace)
     stop = stop or threading.Event()
-    feed = VideoFeed(reader, settings.tick_s, settings.reset_at, settings.realtime, stop)
+    feed = VideoFeed(reader, settings.tick_s, settings.reset_at, settings.realtime, stop,
+                     settings.accept_at, camera_id)
     start = time.perf_counter()
     try:
         driver.run(feed, stop)
@@ -493,16 +511,16 @@ def _recorder(settings: ReplaySettings, camera_id: str, cell: Cell | None, on_al
 
 
 def _check_reset_times(video: Path, reset_at: tuple[float, ...], frames: int,
-                       fps: float | None) -> None:
+                       fps: float | None, option: str = "--reset-at") -> None:
     """A reset time must lie within the video: one that never comes is a typo, not a plan."""
     for t in reset_at:
         if not math.isfinite(t) or t < 0:
-            raise InputError(f"--reset-at {t:g}: not a video time (0 or more seconds)")
+            raise InputError(f"{option} {t:g}: not a video time (0 or more seconds)")
     if frames and fps:
         length = frames / fps
         late = [t for t in reset_at if t >= length]
         if late:
-            raise InputError(f"--reset-at {late[0]:g}: past the end of {video.name} "
+            raise InputError(f"{option} {late[0]:g}: past the end of {video.name} "
                              f"({length:.2f} s, {frames} frames)")
 
 
