@@ -29,15 +29,16 @@ FONT = cv2.FONT_HERSHEY_SIMPLEX
 def hatch_cells(image: np.ndarray, cells: np.ndarray, cell_px: float,
                 frame_size: tuple[int, int], colour=UNSEEN_BGR) -> int:
     """Cross-hatch each of ``cells`` (a grid over a ``frame_size`` frame) on ``image`` (any
-    scale of that frame) in place; returns how many cells."""
+    scale of that frame) in place, one cross a cell; returns how many cells. (One mask for
+    all cells: a cell-by-cell drawing took 5-13 ms a frame with a few hundred hidden cells.)"""
+    if not np.any(cells):
+        return 0
     h, w = image.shape[:2]
-    sx, sy = w / max(frame_size[0], 1), h / max(frame_size[1], 1)
-    for j, i in zip(*np.nonzero(cells), strict=True):
-        x0, y0 = int(i * cell_px * sx), int(j * cell_px * sy)
-        x1 = min(int((i + 1) * cell_px * sx), w - 1)
-        y1 = min(int((j + 1) * cell_px * sy), h - 1)
-        cv2.line(image, (x0, y1), (x1, y0), colour, 1, cv2.LINE_AA)
-        cv2.line(image, (x0, y0), (x1, y1), colour, 1, cv2.LINE_AA)
+    mask = cell_mask_px(cells, cell_px, frame_size, (w, h))
+    step = max(4, round(cell_px * w / max(frame_size[0], 1)))
+    yy, xx = np.ogrid[0:h, 0:w]
+    lines = ((xx + yy) % step == 0) | ((xx - yy) % step == 0)
+    image[mask & lines] = colour
     return int(np.count_nonzero(cells))
 
 
