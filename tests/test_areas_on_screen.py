@@ -160,3 +160,40 @@ def test_the_docs_picture_of_a_held_cell(hidden_step, tmp_path):
         if os.environ.get("UPDATE_DOC_SHOTS") == "1" else tmp_path
     assert cv2.imwrite(str(folder / "lost-area.png"), drawn)
     assert said.areas
+
+
+@pytest.mark.slow
+def test_monitor_replays_annotated_video_shows_the_hidden_persons_area(detector, tmp_path):
+    """The replay (as `monitor replay` and `monitor demo` run it) of the cabinet scene written
+    to a video: in annotated.mp4, at a frame whose step holds the zone for the person behind
+    the cabinet, the area's pixels are yellowed against the video's own frame."""
+    from monitor.replay.video import ReplaySettings, replay
+    from monitor.scene import write_video
+
+    scenario = EVIDENCE["stranger-2fps"]
+    video = tmp_path / "cabinet.mp4"
+    write_video(video, scenario.scene.frames(), scenario.scene.fps)
+    results = []
+    out = tmp_path / "out"
+    replay(video, detector, parse_cell(scenario.zone_data()),
+           ReplaySettings(out_dir=out, progress=False), publish=results.append)
+    steps = [r for r in results if r.frame is not None]
+    k, res = next((k, r) for k, r in enumerate(steps)
+                  if any(a.zones and a.hidden.any() for a in r.areas))
+    area = next(a for a in res.areas if a.zones and a.hidden.any())
+    cap = cv2.VideoCapture(str(out / "annotated.mp4"))
+    for _ in range(k + 1):
+        ok, shown = cap.read()
+        assert ok
+    cap.release()
+    raw = cv2.VideoCapture(str(video))
+    for _ in range(k + 1):
+        ok, plain = raw.read()
+        assert ok
+    raw.release()
+    h, w = shown.shape[:2]
+    inside = cell_mask_px(area.cells, area.cell_px, area.frame_size, (w, h))
+    core = cv2.erode(inside.astype(np.uint8), np.ones((9, 9), np.uint8)).astype(bool)
+    gain = (shown[core].astype(int) - plain[core].astype(int)).mean(axis=0)
+    # yellow (BGR 0, 230, 255) blended in: green and red up, blue down
+    assert gain[1] > 20 and gain[2] > 20 and gain[0] < 0, gain
