@@ -64,10 +64,12 @@ def test_a_step_hands_on_the_hidden_persons_area_and_what_the_camera_cannot_see(
 def test_the_annotated_frame_shows_the_area_in_its_colour_where_it_is_and_nowhere_else(
         hidden_step):
     res, img, cell, camera, area = hidden_step
-    bare = replace(res, areas=(), unseen=())
+    # the same step with the area emptied (the key of the colours stays, the labels in place)
+    nothing = np.zeros_like(area.cells)
+    bare = replace(res, areas=(replace(area, cells=nothing, hidden=nothing),), unseen=())
     grey = np.full_like(img, 100)  # a plain picture: every colour change is the drawing
     plain, _ = annotate(grey, bare, cell, camera, [])
-    drawn, said = annotate(grey, replace(res, unseen=()), cell, camera, [])
+    drawn, said = annotate(grey, replace(res, areas=(area,), unseen=()), cell, camera, [])
     h, w = grey.shape[:2]
     inside = cell_mask_px(area.cells, area.cell_px, area.frame_size, (w, h))
     # inside, away from the outline: the picture blended with the area's colour
@@ -90,10 +92,11 @@ def test_the_annotated_frame_shows_the_area_in_its_colour_where_it_is_and_nowher
 def test_the_annotated_frame_hatches_what_the_camera_cannot_see(hidden_step):
     res, img, cell, camera, _ = hidden_step
     grey = np.full_like(img, 100)
-    drawn, _ = annotate(grey, replace(res, areas=()), cell, camera, [])
-    plain, _ = annotate(grey, replace(res, areas=(), unseen=()), cell, camera, [])
-    purple = np.all(drawn == UNSEEN_BGR, axis=2) & ~np.all(plain == UNSEEN_BGR, axis=2)
     (unseen,) = res.unseen
+    drawn, _ = annotate(grey, replace(res, areas=()), cell, camera, [])
+    emptied = replace(unseen, cells=np.zeros_like(unseen.cells))  # the key stays in place
+    plain, _ = annotate(grey, replace(res, areas=(), unseen=(emptied,)), cell, camera, [])
+    purple = np.all(drawn == UNSEEN_BGR, axis=2) & ~np.all(plain == UNSEEN_BGR, axis=2)
     h, w = grey.shape[:2]
     where = cell_mask_px(unseen.cells, unseen.cell_px, unseen.frame_size, (w, h))
     assert purple.sum() > 50
