@@ -64,10 +64,12 @@ def test_a_step_hands_on_the_hidden_persons_area_and_what_the_camera_cannot_see(
 def test_the_annotated_frame_shows_the_area_in_its_colour_where_it_is_and_nowhere_else(
         hidden_step):
     res, img, cell, camera, area = hidden_step
-    bare = replace(res, areas=(), unseen=())
+    # the same step with the area emptied (the key of the colours stays, the labels in place)
+    nothing = np.zeros_like(area.cells)
+    bare = replace(res, areas=(replace(area, cells=nothing, hidden=nothing),), unseen=())
     grey = np.full_like(img, 100)  # a plain picture: every colour change is the drawing
     plain, _ = annotate(grey, bare, cell, camera, [])
-    drawn, said = annotate(grey, replace(res, unseen=()), cell, camera, [])
+    drawn, said = annotate(grey, replace(res, areas=(area,), unseen=()), cell, camera, [])
     h, w = grey.shape[:2]
     inside = cell_mask_px(area.cells, area.cell_px, area.frame_size, (w, h))
     # inside, away from the outline: the picture blended with the area's colour
@@ -90,10 +92,11 @@ def test_the_annotated_frame_shows_the_area_in_its_colour_where_it_is_and_nowher
 def test_the_annotated_frame_hatches_what_the_camera_cannot_see(hidden_step):
     res, img, cell, camera, _ = hidden_step
     grey = np.full_like(img, 100)
-    drawn, _ = annotate(grey, replace(res, areas=()), cell, camera, [])
-    plain, _ = annotate(grey, replace(res, areas=(), unseen=()), cell, camera, [])
-    purple = np.all(drawn == UNSEEN_BGR, axis=2) & ~np.all(plain == UNSEEN_BGR, axis=2)
     (unseen,) = res.unseen
+    drawn, _ = annotate(grey, replace(res, areas=()), cell, camera, [])
+    emptied = replace(unseen, cells=np.zeros_like(unseen.cells))  # the key stays in place
+    plain, _ = annotate(grey, replace(res, areas=(), unseen=(emptied,)), cell, camera, [])
+    purple = np.all(drawn == UNSEEN_BGR, axis=2) & ~np.all(plain == UNSEEN_BGR, axis=2)
     h, w = grey.shape[:2]
     where = cell_mask_px(unseen.cells, unseen.cell_px, unseen.frame_size, (w, h))
     assert purple.sum() > 50
@@ -160,3 +163,40 @@ def test_the_docs_picture_of_a_held_cell(hidden_step, tmp_path):
         if os.environ.get("UPDATE_DOC_SHOTS") == "1" else tmp_path
     assert cv2.imwrite(str(folder / "lost-area.png"), drawn)
     assert said.areas
+
+
+@pytest.mark.slow
+def test_monitor_replays_annotated_video_shows_the_hidden_persons_area(detector, tmp_path):
+    """The replay (as `monitor replay` and `monitor demo` run it) of the cabinet scene written
+    to a video: in annotated.mp4, at a frame whose step holds the zone for the person behind
+    the cabinet, the area's pixels are yellowed against the video's own frame."""
+    from monitor.replay.video import ReplaySettings, replay
+    from monitor.scene import write_video
+
+    scenario = EVIDENCE["stranger-2fps"]
+    video = tmp_path / "cabinet.mp4"
+    write_video(video, scenario.scene.frames(), scenario.scene.fps)
+    results = []
+    out = tmp_path / "out"
+    replay(video, detector, parse_cell(scenario.zone_data()),
+           ReplaySettings(out_dir=out, progress=False), publish=results.append)
+    steps = [r for r in results if r.frame is not None]
+    k, res = next((k, r) for k, r in enumerate(steps)
+                  if any(a.zones and a.hidden.any() for a in r.areas))
+    area = next(a for a in res.areas if a.zones and a.hidden.any())
+    cap = cv2.VideoCapture(str(out / "annotated.mp4"))
+    for _ in range(k + 1):
+        ok, shown = cap.read()
+        assert ok
+    cap.release()
+    raw = cv2.VideoCapture(str(video))
+    for _ in range(k + 1):
+        ok, plain = raw.read()
+        assert ok
+    raw.release()
+    h, w = shown.shape[:2]
+    inside = cell_mask_px(area.cells, area.cell_px, area.frame_size, (w, h))
+    core = cv2.erode(inside.astype(np.uint8), np.ones((9, 9), np.uint8)).astype(bool)
+    gain = (shown[core].astype(int) - plain[core].astype(int)).mean(axis=0)
+    # yellow (BGR 0, 230, 255) blended in: green and red up, blue down
+    assert gain[1] > 20 and gain[2] > 20 and gain[0] < 0, gain

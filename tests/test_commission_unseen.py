@@ -86,3 +86,22 @@ def test_the_demo_report_has_the_section_and_stays_signed(tmp_path):
     start = data.index(b'<section id="unseen">')
     tampered = data[:start + 30] + b"X" + data[start + 31:]
     assert not verify(tampered).valid
+
+
+def test_zones_preview_names_the_unseen_floor_its_cost_and_a_camera(tmp_path, capsys):
+    import cv2
+    import yaml
+
+    from tests.helpers import zones_cli
+
+    scenario = EVIDENCE["stranger-2fps"]
+    zones = tmp_path / "cell.yaml"
+    zones.write_text(yaml.safe_dump(scenario.zone_data()))
+    img, _ = next(iter(scenario.scene.frames()))
+    frame = tmp_path / "frame.png"
+    cv2.imwrite(str(frame), img)
+    assert zones_cli("preview", zones, "--frame", frame, "--out", tmp_path / "p.png") == 0
+    text = capsys.readouterr().out
+    line = next(x for x in text.splitlines() if "zone robot-protective" in x)
+    assert "behind cabinet" in line and "m^2" in line and "% of the zone" in line, line
+    assert "waiting never ends a hold there" in line and "from the +y side" in line, line

@@ -124,6 +124,11 @@ def test_confirm_clear_from_the_console_is_accepted_in_one_step(tmp_path, synthe
 
             wait_for(accepted, 120, lambda: answers[-5:])
             assert "accepted" in answers[-1][1]["reason"], answers[-1]
+            # the service's detections message carries the areas and the unseen floor (the
+            # demo's robot base hides some) for the console to draw
+            bodies = [x for x in svc.detections if "frame" in x]
+            assert bodies and all("areas" in x for x in bodies)
+            assert any(x.get("unseen_px") for x in bodies)
         lines = [x for x in audit_lines(d) if x.get("event") == "confirm_clear"]
         assert lines[-1]["result"] == "accepted" and lines[-1]["operator"] == "tester"
         assert lines[-1]["looked_at"] == ["cam0"]
@@ -158,3 +163,48 @@ def _viewer_in_the_browser(base: str, tmp: Path) -> None:
         shots = ROOT / "docs" / "console" if os.environ.get("UPDATE_CONSOLE_SHOTS") == "1" \
             else tmp
         browser.save_screenshot(str(shots / "confirm-clear.png"))
+
+
+def _quick_console(tmp: Path, confirm: ConfirmClear | None):
+    d = tmp / "quick"
+    d.mkdir()
+    zone_file(d)
+    set_password(d / "pw", "tester", PASSWORD, "operator")
+    set_password(d / "pw", "vera", PASSWORD, "viewer")
+    console = plain_console(d)
+    console.confirm = confirm
+    return d, console
+
+
+def test_without_a_reset_key_or_a_live_picture_the_console_sends_nothing(tmp_path):
+    """No monitor needed: the console refuses before anything is signed or sent, says why in
+    one line, and audits each refusal."""
+    from starlette.testclient import TestClient
+
+    from monitor.bus.session import BusKeys
+    from monitor.console.app import build_app
+    from monitor.console.confirm_clear import NO_RESET_KEY
+    from monitor.wire.signing import load_private_key, new_key_pair
+
+    d, console = _quick_console(tmp_path, None)
+    client = TestClient(build_app(console))
+    body = {"looked_at": ["cam0"]}
+    r = client.post("/api/confirm-clear", json=body, headers=basic("tester", PASSWORD))
+    assert r.status_code == 403 and r.json()["error"] == NO_RESET_KEY
+    r = client.post("/api/confirm-clear", json=body, headers=basic("vera", PASSWORD))
+    assert r.status_code == 403 and "needs the operator or admin level" in r.json()["error"]
+    r = client.post("/api/confirm-clear", json=body, headers=basic("tester", "wrong"))
+    assert r.status_code == 401
+    private, _, _ = new_key_pair(tmp_path / "tester.key")
+    # a key held, but no live picture: the cell cannot be shown, nothing is sent (no session)
+    (tmp_path / "b").mkdir()
+    _, console = _quick_console(tmp_path / "b", ConfirmClear(
+        None, BusKeys.of("workcell/c/"), {"tester": load_private_key(private)}))
+    client = TestClient(build_app(console))
+    r = client.post("/api/confirm-clear", json=body, headers=basic("tester", PASSWORD))
+    assert r.status_code == 409 and "no live picture of cam0" in r.json()["error"]
+    r = client.post("/api/confirm-clear", content=b"not json",
+                    headers={"content-type": "application/json", **basic("tester", PASSWORD)})
+    assert r.status_code == 400
+    results = [(x.get("operator"), x["result"]) for x in audit_lines(d)]
+    assert results == [("tester", "refused"), ("vera", "forbidden"), (None, "refused")]

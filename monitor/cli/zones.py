@@ -501,7 +501,27 @@ def cmd_preview(args: argparse.Namespace) -> int:
         print(f"{hidden} foot positions (hatched) are hidden from {camera}: a person lost there "
               "stays held until another camera sees the spot free or an operator confirms "
               "the cell clear (docs/tracking.md)")
+        for line in _unseen_lines(cell):
+            print(line)
     return 0
+
+
+def _unseen_lines(cell: zn.Cell) -> list[str]:
+    """The protective and warning zones' floor no camera sees, with its cost and a camera
+    that would see it (the commissioning report's section, docs/commissioning.md)."""
+    # the report's geometry only for a preview that hatched something
+    from monitor.commission.unseen import unseen_regions
+
+    out = []
+    for r in unseen_regions(cell):
+        cam = r["camera"]
+        where = (f"; a camera at ({', '.join(f'{v:g}' for v in cam['position_m'])}) m looking "
+                 f"from the {cam['from_side']} side would see {100 * cam['sees_share']:.0f} % "
+                 "of it") if cam else ""
+        out.append(f"unseen floor in {r['kind']} zone {r['zone']}: {r['area_m2']:g} m^2 "
+                   f"({100 * r['share']:.0f} % of the zone), {r['hidden_by']}: waiting never "
+                   f"ends a hold there{where}")
+    return out
 
 
 def _draw_hidden(image: np.ndarray, cell: zn.Cell, camera: str) -> int:

@@ -32,6 +32,8 @@ from monitor.wire.resets import latch_of_status, request_reset, reset_payload
 from monitor.wire.signing import Signer, load_private_key
 
 MAX_NOTE = 200  # characters of the operator's note
+NO_RESET_KEY = ("the console holds no reset key: start it with --reset-key NAME=FILE (an operator "
+                "of the monitor's operators file), or use monitor reset --confirm-clear")
 
 
 class ConfirmClearRefused(Exception):
@@ -105,9 +107,7 @@ class ConfirmClear:
         if operator in self.signers:
             return None
         if not self.signers:
-            return ("the console holds no reset key: start it with --reset-key NAME=FILE "
-                    "(an operator of the monitor's operators file), or use monitor reset "
-                    "--confirm-clear")
+            return NO_RESET_KEY
         return (f"the console holds no reset key for {operator!r} (--reset-key "
                 f"{operator}=FILE): use monitor reset --confirm-clear")
 

@@ -18,6 +18,7 @@ from starlette.routing import Route
 from monitor.console.audit import bounded
 from monitor.console.auth import basic_credentials
 from monitor.console.confirm_clear import (
+    NO_RESET_KEY,
     ConfirmClearRefused,
     missing_pictures,
     parse_request,
@@ -56,10 +57,9 @@ def confirm_routes(console: Any, login: Login,
         try:
             note, looked = parse_request(await read_body(request), cameras)
             sender = console.confirm
-            if sender is None or sender.can(operator) is not None:
-                raise ConfirmClearRefused(
-                    sender.can(operator) if sender is not None else
-                    "the console cannot send a confirm-clear: it runs without a bus", 403)
+            why = NO_RESET_KEY if sender is None else sender.can(operator)
+            if why is not None:
+                raise ConfirmClearRefused(why, 403)
             missing = missing_pictures(console.live.preview, cameras)
             if missing:  # the operator cannot have looked at what the console cannot show
                 raise ConfirmClearRefused(

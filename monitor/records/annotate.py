@@ -24,7 +24,7 @@ import numpy as np
 from monitor.health import draw_health
 from monitor.pipeline import StepResult
 from monitor.policy import RUN, SLOW, STOP
-from monitor.records.areas_draw import draw_areas, draw_unseen
+from monitor.records.areas_draw import draw_areas, draw_key, draw_unseen, key_rect
 from monitor.records.events import describe
 from monitor.timetext import TimeText
 from monitor.zones import Cell
@@ -159,6 +159,11 @@ def annotate(image: np.ndarray, result: StepResult, cell: Cell | None, camera_id
     h, w = image.shape[:2]
     top = HEADER_PX + EVENT_ROW_PX * len(events)  # the legend sits below header and events
     reserved: list[Rect] = [(0, 0, w, top), (0, h - BAR_PX, w, h), legend_rect(w, top + 4)]
+    # the key of the areas' colours below the legend, when this camera has any to show
+    keyed = any(v.camera_id == camera_id for v in (*result.areas, *result.unseen))
+    key_top = legend_rect(w, top + 4)[3] + 4
+    if keyed:
+        reserved.append(key_rect(w, key_top))
     hits = {x.zone_id for x in result.zone_report.hits} if result.zone_report else set()
     if cell is not None:
         out, labels = draw_zones_labelled(image, cell, camera_id, hits, reserved,
@@ -167,7 +172,9 @@ def annotate(image: np.ndarray, result: StepResult, cell: Cell | None, camera_id
         out, labels = image.copy(), []
     # why the cell is held: what this camera cannot see (hatched), where lost persons could be
     draw_unseen(out, result.unseen, camera_id)
-    areas = draw_areas(out, result.areas, camera_id, top_px=top)
+    areas = draw_areas(out, result.areas, camera_id, top_px=top,
+                       avoid=[legend_rect(w, top + 4), *([key_rect(w, key_top)] if keyed
+                                                         else [])])
     faults: tuple[str, ...] = ()
     if result.health is not None:
         draw_health(out, result.health, watch, text_top=top + 22)
@@ -176,6 +183,8 @@ def annotate(image: np.ndarray, result: StepResult, cell: Cell | None, camera_id
     labels_drawn, ranges = _draw_persons(out, result, cell, camera_id, ids, foot_band_px,
                                          prepared)
     legend = tuple(kind for kind, _ in draw_legend(out, top + 4, LEGEND_KINDS))
+    if keyed:
+        draw_key(out, key_top)
     header = header_text(result, camera_id, when)
     _draw_header(out, header, events)
     banner, reason = _draw_bar(out, result, when)
