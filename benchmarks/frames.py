@@ -1,5 +1,5 @@
-"""Cost of the frame layer: VideoFileReader (PyAV, monitor/frames/decoding.py) against bare
-cv2 decoding, wall and CPU time per frame, and the grabber hand-off.
+"""Cost of the frame layer: VideoFileReader against bare cv2 decoding, wall and CPU time per
+frame, and the grabber hand-off.
 
 Run: /work/venv/bin/python benchmarks/frames.py
 Prints a markdown table of medians (and p99 where it matters).
@@ -110,7 +110,7 @@ def main() -> None:
     print(f"| measure (1920x1080, {N_FRAMES} frames mp4v) | median | p99 |")
     print("|---|---|---|")
     print(f"| bare cv2 decode, ms/frame (wall / CPU) | {bare[0]:.2f} / {bare[1]:.2f} | |")
-    print(f"| VideoFileReader (PyAV), ms/frame (wall / CPU) | {ours[0]:.2f} / {ours[1]:.2f} | |")
+    print(f"| VideoFileReader, ms/frame (wall / CPU) | {ours[0]:.2f} / {ours[1]:.2f} | |")
     print(f"| reader against bare cv2 (wall / CPU) | {ours[0] / bare[0]:.3f}x / "
           f"{ours[1] / bare[1]:.3f}x | |")
     print(f"| grab -> get latency, 30 fps, consumer keeps up, ms | "

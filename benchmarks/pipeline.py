@@ -37,8 +37,8 @@ zones, health and policy do their real work. The passes, in one run:
    between frames, and when the host does not run it at once the frame runs at one-thread
    speed. The monitor's own share of the tail is capture -> command p99 - this p99.
 5. The fixed path alone (``fixed_path_cpu``): the first 90 frames again with each frame's model
-   outputs replayed through the runner seam instead of running the model, timed in this
-   thread's CPU time, which a loaded host's waits do not inflate.
+   outputs replayed through the runner seam instead of running the model, timed in the
+   process's CPU time (the decoder's threads too), which a loaded host's waits do not inflate.
 """
 
 from __future__ import annotations
@@ -161,9 +161,10 @@ class _Replayed:
 
 def fixed_path_cpu(video: Path, detector: Detector, cell: Cell, frames: int = 90) -> dict:
     """The fixed path (read+decode, preprocess, decode, zones, health, policy) of the first
-    ``frames`` frames in this thread's CPU time (``time.thread_time``: the time a loaded host
-    keeps the thread waiting does not count, so the figure means the same on a shared host),
-    with the model's outputs of a first pass replayed instead of running the model."""
+    ``frames`` frames in CPU time of the process (``time.process_time``: OpenCV's decoder
+    threads count, the time a loaded host keeps them waiting does not), with the model's
+    outputs of a first pass replayed instead of running the model, so no inference thread
+    runs."""
     with VideoFileReader(video, "cam0", expected_size=SIZE) as reader:
         images = [f.image for f in itertools.islice(reader, frames)]
     recorded = []
@@ -177,11 +178,11 @@ def fixed_path_cpu(video: Path, detector: Detector, cell: Cell, frames: int = 90
     try:
         with VideoFileReader(video, "cam0", expected_size=SIZE) as reader:
             for _ in range(len(images)):
-                c0, w0 = time.thread_time(), time.perf_counter()
+                c0, w0 = time.process_time(), time.perf_counter()
                 frame = reader.read()
-                c1 = time.thread_time()
+                c1 = time.process_time()
                 pipeline.process(frame.image, frame.info, frame.info.capture_time)
-                cpu.append((time.thread_time() - c0) * 1e3)
+                cpu.append((time.process_time() - c0) * 1e3)
                 read_cpu.append((c1 - c0) * 1e3)
                 wall.append((time.perf_counter() - w0) * 1e3)
     finally:
@@ -485,7 +486,7 @@ def side_by_side(results: dict[str, dict], args, n: int, file=None) -> None:
         row("fixed path: every stage but inference (sum of medians, target < 2 ms)",
             f"{fixed_ms(t['stages']):.2f}")
         fx = r["fixed"]
-        row("fixed path in thread CPU time, median ms (of it read+decode)",
+        row("fixed path in CPU time, median ms (of it read+decode)",
             f"{med(fx['cpu']):.2f} ({med(fx['read_cpu']):.2f})")
         row("person detections (inline pass)", f"{t['persons']}")
         lt = lat["latency"]
@@ -537,9 +538,9 @@ def report_one(r: dict, args, n: int) -> None:
             print(f"| {stage} | {med(t['stages'][stage]):.2f} |")
     print(f"| fixed path (every stage but inference) | {fixed_ms(t['stages']):.2f} |")
     fx = r["fixed"]
-    print(f"| fixed path in thread CPU time, outputs replayed ({len(fx['cpu'])} frames) "
+    print(f"| fixed path in CPU time, outputs replayed ({len(fx['cpu'])} frames) "
           f"| {med(fx['cpu']):.2f} |")
-    print(f"| ... of it read+decode (thread CPU) | {med(fx['read_cpu']):.2f} |")
+    print(f"| ... of it read+decode (CPU) | {med(fx['read_cpu']):.2f} |")
     inf = med(lat["inference"])
     lt, wire = lat["latency"], lat["wire"]
     print(f"\n| latency, live (paced {args.fps:g} fps, real SafetyBus) | n | median ms | p99 ms "

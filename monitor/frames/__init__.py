@@ -18,8 +18,7 @@ pixels. Every error a user can fix is an :class:`~monitor.errors.InputError` wit
 message naming the source and the fault.
 
 Modules: ``base`` (the frame, the source protocol, source kinds, frame times, the backoff),
-``video`` (files), ``decoding`` (a file's frames decoded: PyAV, OpenCV when PyAV cannot),
-``sources`` (images, cameras, streams, the synthetic scene, pacing,
+``video`` (files), ``sources`` (images, cameras, streams, the synthetic scene, pacing,
 ``open_source``), ``grabber`` (the live newest-frame grabber).
 
 May import: ``monitor.scene`` (the synthetic demo source) and the bottom layer.

@@ -3,6 +3,7 @@ that cannot be opened (truncated, still being written, not a video)."""
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -17,8 +18,13 @@ from monitor.frames.base import (
     check_frame_size,
     frame_time_s,
 )
-from monitor.frames.decoding import Decoder, OpenCvDecoder, PyAvDecoder
 from monitor.types import FrameInfo
+
+
+def _fourcc_text(value: float) -> str:
+    code = int(value) if math.isfinite(value) else 0
+    text = "".join(chr((code >> 8 * k) & 0xFF) for k in range(4))
+    return text if code and text.isprintable() else "unknown"
 
 
 def _iso_boxes(path: Path) -> list[tuple[str, int]] | None:
@@ -92,8 +98,8 @@ class VideoFileReader:
         self.height = 0
         self.codec = "unknown"
         self.truncation: TruncatedVideoError | None = None
-        self._decoder: Decoder | None = None
-        self._pending: tuple[np.ndarray, float] | None = None  # first frame, read by open()
+        self._cap: cv2.VideoCapture | None = None
+        self._pending: np.ndarray | None = None  # first frame, read by open() to validate
         self._index = 0  # frames read in this pass
         self._seq = 0  # frames handed out over all loops
         self._time_offset = 0.0  # video time added per loop
@@ -101,12 +107,7 @@ class VideoFileReader:
 
     @property
     def is_open(self) -> bool:
-        return self._decoder is not None
-
-    @property
-    def decoded_with(self) -> str:
-        """"pyav" or "opencv" (monitor/frames/decoding.py); "" while closed."""
-        return self._decoder.name if self._decoder is not None else ""
+        return self._cap is not None
 
     def open(self) -> None:
         self.close()
@@ -121,50 +122,51 @@ class VideoFileReader:
             raise InputError(f"{desc}: is a directory, not a video file")
         if self.path.stat().st_size == 0:
             raise InputError(f"{desc}: empty file (0 bytes)")
-        decoder: Decoder = PyAvDecoder()
-        first = decoder.open(self.path)
-        if first is None:  # PyAV cannot: OpenCV's FFmpeg, and its diagnosis
-            decoder = OpenCvDecoder()
-            if not decoder.open_capture(self.path):
-                raise InputError(_diagnose_unopenable(self.path, desc))
-            first = decoder.read()
-            if first is None:
-                decoder.close()
-                if decoder.frame_count > 0:
-                    raise InputError(f"{desc}: cannot decode the first frame (codec "
-                                     f"{decoder.codec!r}): unknown codec or corrupt data")
-                raise InputError(f"{desc}: the video contains no frames")
-        self.fps, self.frame_count, self.codec = decoder.fps, decoder.frame_count, decoder.codec
-        self.height, self.width = first[0].shape[:2]
+        cap = cv2.VideoCapture(str(self.path), cv2.CAP_FFMPEG)
+        if not cap.isOpened():
+            cap.release()
+            raise InputError(_diagnose_unopenable(self.path, desc))
+        fps = cap.get(cv2.CAP_PROP_FPS)
+        self.fps = fps if math.isfinite(fps) and fps > 0 else None
+        count = cap.get(cv2.CAP_PROP_FRAME_COUNT)
+        self.frame_count = int(count) if math.isfinite(count) and count > 0 else 0
+        self.codec = _fourcc_text(cap.get(cv2.CAP_PROP_FOURCC))
+        ok, image = cap.read()
+        if not ok or image is None:
+            cap.release()
+            if self.frame_count > 0:
+                raise InputError(f"{desc}: cannot decode the first frame (codec {self.codec!r}): "
+                                 f"unknown codec or corrupt data")
+            raise InputError(f"{desc}: the video contains no frames")
+        self.height, self.width = image.shape[:2]
         try:
             check_frame_size(self.width, self.height, self.expected_size, desc)
         except InputError:
-            decoder.close()
+            cap.release()
             raise
-        self._decoder, self._pending = decoder, first
+        self._cap, self._pending = cap, image
         self._index, self._last_time = 0, None
         self.truncation = None
 
     def close(self) -> None:
-        if self._decoder is not None:
-            self._decoder.close()
-        self._decoder, self._pending = None, None
+        if self._cap is not None:
+            self._cap.release()
+        self._cap, self._pending = None, None
 
     def read(self) -> Frame | None:
         """Next frame, ``None`` at the end; raises TruncatedVideoError at a break (strict)."""
-        decoder = self._decoder
-        if decoder is None:
+        cap = self._cap
+        if cap is None:
             return None
         if self._pending is not None:
-            (image, pos_msec), self._pending = self._pending, None
+            image, self._pending = self._pending, None
         else:
-            got = decoder.read()
-            if got is None:
+            ok, image = cap.read()
+            if not ok or image is None:
                 return self._at_end()
-            image, pos_msec = got
         if image.ndim == 2:
             image = cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
-        t = frame_time_s(pos_msec, self._index, self.fps, self._last_time)
+        t = frame_time_s(cap.get(cv2.CAP_PROP_POS_MSEC), self._index, self.fps, self._last_time)
         height, width = image.shape[:2]
         check_frame_size(width, height, self.expected_size,
                          f"{self.description} frame {self._index}")
