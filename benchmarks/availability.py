@@ -6,6 +6,7 @@ every 0.5 s.
 
 Run: .venv/bin/python benchmarks/availability.py [NAME ...]
      .venv/bin/python benchmarks/availability.py --visibility [NAME ...]  (issue 44's cost)
+     .venv/bin/python benchmarks/availability.py --pockets  (hidden pockets, a confirm-clear)
 Per scene: missed-STOP frames (must be 0), resets accepted with a person inside (must be 0),
 resets refused (while latched) although nobody has been inside the protective zone for
 clear_time plus a reset period ("refused free": availability lost), frames with a hold and
@@ -24,6 +25,7 @@ from monitor.models import synthetic
 
 from monitor.detector import Detector
 from monitor.replay import scenarios as sc
+from monitor.replay.pocket_scenes import pocket_scenes, run_pocket_scene
 
 
 def main(names: list[str]) -> int:
@@ -86,6 +88,31 @@ def visibility(names: list[str]) -> int:
     return 1 if bad else 0
 
 
+def pockets() -> int:
+    """The hidden-pocket scenes (docs/tracking.md, "Hidden pockets") at 2 and 5 fps: one
+    confirm-clear at 0.5 s, then plain resets every 0.5 s. Missed STOP and resets accepted
+    inside (must be 0), the first accepted reset after the last person left the protective
+    zone, the command and the pocket's count at the end."""
+    detector = Detector(synthetic.ensure_model())
+    rows = [("scene", "fps", "missed STOP", "accepted inside", "released at s", "end",
+             "count at end")]
+    bad = 0
+    for fps in (2.0, 5.0):
+        for name, scenario in pocket_scenes(fps).items():
+            frames = run_pocket_scene(scenario, detector)
+            missed = sum(f.inside and f.state != "STOP" for f in frames)
+            inside = sum(f.inside and f.accepted is True for f in frames)
+            bad += missed + inside
+            last = max((f.time_s for f in frames if f.inside), default=0.0)
+            released = next((f.time_s for f in frames if f.time_s > last and f.accepted), None)
+            counts = frames[-1].counts
+            rows.append((name, f"{fps:g}", str(missed), str(inside),
+                         "-" if released is None else f"{released:.1f}", frames[-1].state,
+                         ",".join("unknown" if c is None else str(c) for c in counts) or "-"))
+    _print(rows)
+    return 1 if bad else 0
+
+
 def _print(rows) -> None:
     widths = [max(len(row[i]) for row in rows) for i in range(len(rows[0]))]
     for k, row in enumerate(rows):
@@ -98,4 +125,6 @@ if __name__ == "__main__":
     args = sys.argv[1:]
     if args[:1] == ["--visibility"]:  # 5 fps, the whole suite: a few minutes
         sys.exit(visibility(args[1:]))
+    if args[:1] == ["--pockets"]:
+        sys.exit(pockets())
     sys.exit(main(args))

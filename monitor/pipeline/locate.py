@@ -5,8 +5,10 @@ it; its answer is then unknown, never "no persons"."""
 
 from __future__ import annotations
 
+import functools
 import logging
 from collections.abc import Callable, Mapping
+from dataclasses import replace
 
 import numpy as np
 
@@ -16,7 +18,7 @@ from monitor.pipeline.data import CameraState
 from monitor.pipeline.fault_alerts import one_line
 from monitor.policy import PolicyConfig
 from monitor.tracking.cell_persons import CellPersons, Who
-from monitor.tracking.whereabouts import FootGrid, FreeElsewhere
+from monitor.tracking.whereabouts import CellZones, FootGrid, FreeElsewhere
 from monitor.types import Fault, FrameInfo, Persons, ZoneReport
 from monitor.zones import Cell, check_persons
 from monitor.zones.check import placement
@@ -37,17 +39,20 @@ def tool_for(now: float, tool_pose, tool_speed_mps: float | None, pose_time: flo
 
 
 def zones_of(prepared, detector: Detector, frame: FrameInfo, tool_pose, tool_speed_mps,
-             tool_state: ToolState | None = None
-             ) -> Callable[[np.ndarray], ZoneReport] | None:
-    """The zone check for other boxes of this frame's camera (a lost person's path)."""
+             tool_state: ToolState | None = None) -> CellZones | None:
+    """The zone checks for other boxes of this frame's camera: the hypothetical persons on
+    the cells of a lost person's area (``CellZones``: on a hidden cell the full check, on a
+    cell the camera sees with the feet on the cell, never taken as cut off by a fixture's
+    outline or a line of the commissioning reference)."""
     if prepared is None:
         return None
     foot = detector.foot_uncertainty_px(frame.width, frame.height)
+    in_view = replace(prepared, occluder_columns={}, reference_edges={})
 
-    def check(boxes_px: np.ndarray) -> ZoneReport:
-        return check_persons(prepared, frame.camera_id, boxes_px, tool_pose,
+    def check(boxes_px: np.ndarray, prep=prepared) -> ZoneReport:
+        return check_persons(prep, frame.camera_id, boxes_px, tool_pose,
                              tool_speed_mps, foot, tool_state=tool_state)
-    return check
+    return CellZones(check, functools.partial(check, prep=in_view))
 
 
 def hidden_of(cell: Cell | None, camera_id: str, rule: MaskRule | None,

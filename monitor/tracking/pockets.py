@@ -132,30 +132,13 @@ def unknown(book: PocketBook, why: str, now: float) -> None:
             _set(book, p, None, why, now)
 
 
-def confirm(book: PocketBook, now: float, kept: dict[int, LostArea] | None = None) -> None:
-    """An operator confirmed the cell clear (every camera working): every pocket is empty,
-    but for the ``kept`` areas (``stepping_in``), counted in."""
+def confirm(book: PocketBook, now: float) -> None:
+    """An operator confirmed the cell clear (every camera working): every pocket is empty.
+    A person seen now and stepping in later is counted in once lost."""
     book.carrying.clear()
     for p in book.pockets:
         p.entered.clear()
         _set(book, p, 0, "confirm-clear", now)
-        for area in (kept or {}).values():
-            if (area.cells & p.cells).any() and not _enter(book, p, area, now):
-                break
-
-
-def stepping_in(book: PocketBook, where: Whereabouts, now: float, recent_s: float
-                ) -> dict[int, LostArea]:
-    """The areas of persons lost within ``recent_s`` of ``now`` that reach a pocket: at a
-    confirm-clear they may be stepping in while the operator looks at a picture that still
-    showed them (kept, and counted in)."""
-    out = {}
-    for tid, area in where.areas.items():
-        lost = area.latest_loss if area.latest_loss is not None else area.lost_since
-        if now - lost <= recent_s + 1e-9 and any((area.cells & p.cells).any()
-                                                 for p in book.pockets):
-            out[tid] = area
-    return out
 
 
 def settle(book: PocketBook, where: Whereabouts, now: float) -> None:

@@ -287,17 +287,13 @@ class PersonTracker:
 
     def drop_holds(self) -> tuple[Hold, ...]:
         """An operator confirmed the cell clear: every lost person's area ends (seen persons
-        are untouched) and every pocket is counted empty, but for persons lost within
-        ``lost_track_s`` whose areas reach a pocket: they may have stepped in while the
-        operator looked at a picture that showed them (their areas stay, counted in).
-        Returns the holds dropped."""
-        now = self.where.last_time if self.where.last_time is not None else 0.0
-        kept = pockets.stepping_in(self.pockets, self.where, now, self.config.lost_track_s)
-        dropped = tuple(h for h in self.holds if h.track_id not in kept)
+        are untouched: one walking into a pocket is counted in once lost) and every pocket is
+        counted empty. Returns the holds dropped."""
+        dropped = self.holds
         self.where.drop()
         self.where.take_ended()  # said by the confirm-clear alert
-        pockets.confirm(self.pockets, now, kept)
-        self.where.areas.update(kept)
+        if self.where.last_time is not None:
+            pockets.confirm(self.pockets, self.where.last_time)
         return dropped
 
     def blind(self) -> None:
