@@ -13,6 +13,7 @@ The image may be any scale of the camera's frame (the console's live picture is 
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 
 import cv2
@@ -36,10 +37,18 @@ def hatch_cells(image: np.ndarray, cells: np.ndarray, cell_px: float,
     h, w = image.shape[:2]
     mask = cell_mask_px(cells, cell_px, frame_size, (w, h))
     step = max(4, round(cell_px * w / max(frame_size[0], 1)))
-    yy, xx = np.ogrid[0:h, 0:w]
-    lines = ((xx + yy) % step == 0) | ((xx - yy) % step == 0)
-    image[mask & lines] = colour
+    image[mask & _hatch(h, w, step)] = colour
     return int(np.count_nonzero(cells))
+
+
+@functools.lru_cache(maxsize=8)
+def _hatch(h: int, w: int, step: int) -> np.ndarray:
+    """(h, w) bool: diagonal lines both ways every ``step`` pixels (made once per image
+    size: 30 ms at 1280x720 each frame otherwise)."""
+    yy, xx = np.ogrid[0:h, 0:w]
+    out = ((xx + yy) % step == 0) | ((xx - yy) % step == 0)
+    out.setflags(write=False)
+    return out
 
 
 def draw_unseen(image: np.ndarray, views: Sequence[UnseenView], camera_id: str) -> int:
@@ -68,25 +77,29 @@ def draw_areas(image: np.ndarray, areas: Sequence[AreaView], camera_id: str,
     mine = [a for a in areas if a.camera_id == camera_id]
     if not mine:
         return ()
-    union = np.zeros((h, w), bool)
+    union = np.zeros((h, w), np.uint8)
     masks = []
     for area in mine:
-        mask = cell_mask_px(area.cells, area.cell_px, area.frame_size, (w, h))
+        mask = cell_mask_px(area.cells, area.cell_px, area.frame_size, (w, h)).view(np.uint8)
         masks.append(mask)
         union |= mask
-    colour = np.array(AREA_BGR, np.float32)
-    image[union] = (image[union].astype(np.float32) * (1.0 - AREA_ALPHA)
-                    + colour * AREA_ALPHA).astype(np.uint8)
+    box = cv2.boundingRect(union)  # blend only where an area is (x, y, w, h)
+    if box[2] and box[3]:
+        x0, y0, bw, bh = box
+        region = image[y0:y0 + bh, x0:x0 + bw]
+        tinted = cv2.addWeighted(region, 1.0 - AREA_ALPHA,
+                                 np.full_like(region, AREA_BGR), AREA_ALPHA, 0.0)
+        inside = union[y0:y0 + bh, x0:x0 + bw].astype(bool)
+        region[inside] = tinted[inside]
     labels = []
     for area, mask in zip(mine, masks, strict=True):
-        contours, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_EXTERNAL,
-                                       cv2.CHAIN_APPROX_SIMPLE)
+        contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
         cv2.drawContours(image, contours, -1, AREA_BGR, 2, cv2.LINE_AA)
-        if not area.zones or not mask.any():
+        if not area.zones or not contours:
             continue  # an area that holds nothing is drawn, not explained
         text = area_label(area)
-        ys, xs = np.nonzero(mask)
-        x, y = int(xs.min()), max(int(ys.min()) - 6, top_px + 16)
+        x, y0, _, _ = cv2.boundingRect(np.concatenate(contours))
+        y = max(y0 - 6, top_px + 16)
         _text_on_black(image, text, (x, min(y, h - 4)), avoid)
         labels.append(text)
     return tuple(labels)
