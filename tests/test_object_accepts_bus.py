@@ -82,6 +82,11 @@ def test_an_object_since_commissioning_is_accepted_by_its_own_signed_request(
                               capture_output=True, text=True, timeout=60).stdout
         assert "cell changed since commissioning: object at x 0." in text
         assert f"NOT accepted: STOP, resets refused until `{ACCEPT}`" in text
+        listed = subprocess.run([sys.executable, "-m", "monitor", "objects", "list", "--cell",
+                                 "t5", "--connect", f"tcp/127.0.0.1:{svc.bus_port}"],
+                                capture_output=True, text=True, timeout=60)
+        assert listed.returncode == 0 and listed.stdout.startswith(
+            "cell changed since commissioning: object at x 0."), listed.stdout + listed.stderr
 
         def accept(*args: str, operator: str = "tester", key=None
                    ) -> subprocess.CompletedProcess:

@@ -1,8 +1,9 @@
 """``monitor objects accept --camera C --zone Z``: an operator who has looked at an object put
-into a zone since commissioning accepts it, signed with their key (docs/occlusion.md,
-"Objects since commissioning"). Until then the object holds the cell in STOP and every reset
-is refused; accepted, it is an occluder declared at run time (the floor behind it stays
-unseen) and the commissioned status says the cell has changed.
+into a zone since commissioning accepts it, signed with their key (docs/occlusion.md, "What
+changed since commissioning"); ``monitor objects list`` shows the objects standing. Until
+then the object holds the cell in STOP and every reset is refused; accepted, it is an
+occluder declared at run time (the floor behind it stays unseen) and the commissioned status
+says the cell has changed.
 
 Exit 0 accepted, 1 refused (the reason printed), 2 no answer (or bad input)."""
 
@@ -18,6 +19,7 @@ from monitor.cli.keys import KEY_DIR
 from monitor.cli.operator import first_status, operator_key_path
 from monitor.cli.role_arg import add_role_arg
 from monitor.cli.roles import no_answer, role_keys
+from monitor.cli.status_text import changed_lines
 from monitor.cli.zenoh_args import add_zenoh_args, bounded, bus_config, nothing_found_hint
 from monitor.errors import ConfigError
 from monitor.signals import Interrupted, StopSignals, call_interruptible
@@ -81,6 +83,32 @@ def cmd_accept(args: argparse.Namespace) -> int:
     return 0 if answer["accepted"] else 1
 
 
+def cmd_list(args: argparse.Namespace) -> int:
+    """The objects standing since commissioning, as the monitor's status says (exit 0; 2 when
+    nothing answered)."""
+    with StopSignals(name="monitor objects list") as stop:
+        bus = bus_config(args, instance=args.instance or default_instance("objects"))
+        keys = role_keys(bus, args.role)
+        try:
+            session = call_interruptible(lambda: open_session(bus), stop)
+        except Interrupted:
+            return 130
+        with bounded(session, "monitor objects list") as session:
+            status = first_status(session, keys, args.timeout, stop)
+            if status is None:
+                if stop.is_set():
+                    return 130
+                raise no_answer("monitor objects list", keys.status, args.timeout, bus,
+                                session, stop, args.role)
+    lines = changed_lines(status.get("changed_since_commissioning"))
+    if status.get("changes_unwatched"):
+        lines.append(str(status["changes_unwatched"]))
+    print("\n".join(lines) if lines else "no object put into the zones since commissioning "
+          "stands (cameras watched: " + (", ".join(map(str, status.get("changes_watched")
+                                                        or [])) or "none") + ")")
+    return 0
+
+
 def register(subparsers) -> None:
     p = subparsers.add_parser(
         "objects", help="objects put into the zones since commissioning: accept one (signed)",
@@ -115,3 +143,14 @@ def register(subparsers) -> None:
                    help="the monitor's public key (repeat for several): only an answer it "
                    "signed is believed (default none: the answer is NOT authenticated)")
     a.set_defaults(func=cmd_accept)
+
+    li = sub.add_parser(
+        "list", help="the objects standing since commissioning, accepted or not",
+        description="Prints each object the monitor sees standing in its zones since "
+        "commissioning (camera, place, zones, accepted by whom and when, or the command that "
+        "accepts it), from the monitor's status. Exit 0; 2 when nothing answered.")
+    add_zenoh_args(li, default_connect=True)
+    add_role_arg(li, many=False, what="that monitor's objects")
+    li.add_argument("--timeout", type=float, default=3.0,
+                    help="s to wait for the monitor's status (default 3)")
+    li.set_defaults(func=cmd_list)
