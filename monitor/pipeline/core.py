@@ -407,14 +407,12 @@ class Pipeline:
                     continue
                 cam.tracker.where.areas.update(areas)
                 if cam.report is not None:
-                    cam.report = replace(cam.report, hits=(
-                        *(h for h in cam.report.hits if not h.lost),
-                        *cam.tracker.held_hits()))
-        # holds kept behind an object or stepping into a pocket (monitor.tracking.pockets):
-        # the policy must judge this step with the carried causes, not as if every lost
-        # person had been dropped (a reset between frames would otherwise pass them by)
-        kept = any(cam.tracker.holds for cam in self.cameras.values() if cam.tracker)
-        return alerts, dropped and not any(behind.values()) and not kept
+                    cam.report = replace(cam.report, hits=(*cam.report.hits,
+                                                           *cam.tracker.held_hits()))
+        # holds kept behind an object: the policy must judge this step with the carried
+        # causes, not as if every lost person had been dropped (a reset between frames would
+        # otherwise pass them by)
+        return alerts, dropped and not any(behind.values())
 
     def _behind_objects(self) -> dict[str, dict]:
         """Per camera, the lost persons' areas that reach into the shadow of an object no

@@ -198,10 +198,9 @@ def confirm_clear(reset: ResetRequest | None, latched_by: Latch | None,
         if cam.tracker is None:
             continue
         dropped.extend((cid, persons.hold(cid, h)) for h in cam.tracker.drop_holds())
-        if cam.report is not None:  # (holds kept: persons stepping into a pocket just now)
-            cam.report = replace(cam.report, hits=(*(h for h in cam.report.hits
-                                                     if not h.lost),
-                                                   *cam.tracker.held_hits()))
+        if cam.report is not None:
+            cam.report = replace(cam.report, hits=tuple(h for h in cam.report.hits
+                                                        if not h.lost))
     handed = handover.drop() if handover is not None else ()
     what = "; ".join([*(f"{cid}: {h.describe()}" for cid, h in dropped),
                       *(h.describe() for h in handed)]) or "no lost persons held"

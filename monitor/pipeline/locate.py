@@ -190,6 +190,8 @@ def locate(frame: FrameInfo, persons: Persons, cam: CameraState, prepared, detec
             report, track_ids, person_ids = named.report, update.track_ids, named.person_ids
             for line in named.lines:  # holds begun, guesses (said once, holds stay)
                 log.info("%s: %s", frame.camera_id, line)
+            for line in cam.tracker.pockets.take_changes():  # pocket counts (in, out, unknown)
+                log.info("%s: %s", frame.camera_id, line)
         except Exception as exc:  # tracks unknown: a lost person may be missing, STOP
             faults.append(Fault("tracking_error", one_line(exc), True, frame.camera_id))
     return report, track_ids, person_ids

@@ -2,8 +2,9 @@
 
 Owns: persistent person ids and the holds of persons lost near zones (``tracks``, ByteTrack from
 supervision), where a lost person could be until a working camera has seen it free
-(``whereabouts``), one person id across the cameras of a cell (``cell_persons``) and the hand-over
-of holds between the monitors of one cell (``handover``).
+(``whereabouts``), the person counts of hidden pockets enclosed by seen floor (``pockets``), one
+person id across the cameras of a cell (``cell_persons``) and the hand-over of holds between the
+monitors of one cell (``handover``).
 
 May import: ``monitor.zones`` (the hand-over's zones), ``monitor.wire`` (roles), the building
 blocks and the bottom layer. Never the pipeline that runs it.
