@@ -45,13 +45,18 @@ class PocketView:
 def pocket_label(view: PocketView) -> str:
     """``pocket 1: unknown (held until confirm-clear)``, ``pocket 1: 1 may be inside``,
     ``pocket 1: empty (counted)``."""
-    if view.count is None:
+    return pocket_text(view.pocket_id, view.count)
+
+
+def pocket_text(pocket_id: int | str, count: int | None) -> str:
+    """A pocket's label from its id and count (None: unknown), as every screen says it."""
+    if count is None:
         what = "unknown (held until confirm-clear)"
-    elif view.count == 0:
+    elif count == 0:
         what = "empty (counted)"
     else:
-        what = f"{view.count} may be inside"
-    return f"pocket {view.pocket_id}: {what}"
+        what = f"{count} may be inside"
+    return f"pocket {pocket_id}: {what}"
 
 
 def views_of(camera_id: str, book: PocketBook, cell_px: float, frame_size: tuple[int, int],

@@ -64,14 +64,15 @@ def draw_unseen(image: np.ndarray, views: Sequence[UnseenView], camera_id: str) 
 
 
 def area_label(area: AreaView) -> str:
-    """``person 6 may be here: holds prot (behind cabinet-2: waiting does not end it)``."""
+    """``person 6 may be here: holds prot (behind cabinet-2: waiting does not end it)``, or
+    in a counted pocket ``... (behind cabinet-2, counted in pocket 1)``."""
     text = f"person {area.who} may be here"
     if area.zones:
         text += f": holds {', '.join(area.zones)}"
     if area.regions and area.leaving_ends:
+        # the pocket's own label says its count (and so what a walk-out does)
         ids = ", ".join(str(p) for p in area.pockets)
-        text += (f" (behind {', '.join(area.regions)}: waiting does not end it, seen leaving "
-                 f"pocket {ids} does)")
+        text += f" (behind {', '.join(area.regions)}, counted in pocket {ids})"
     elif area.regions:
         text += f" (behind {', '.join(area.regions)}: waiting does not end it)"
     return text
@@ -169,7 +170,7 @@ def _text_on_black(img: np.ndarray, text: str, org: tuple[int, int],
 
 
 KEY_ROWS = (("area", "lost person may be"), ("unseen", "unseen by camera"),
-            ("pocket", "pocket, counted"))
+            ("pocket", "hidden pocket"))
 _KEY_ROW_PX = 18
 _KEY_WIDTH_PX = 150
 
