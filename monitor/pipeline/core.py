@@ -116,6 +116,8 @@ class Pipeline:
         self.mute_desk = MuteDesk(cell)
         self.zone_sets = ZoneSets(cell)
         self.handover: HandedHolds | None = None  # holds taken from the cell's other monitors
+        # per camera, what hides its pockets (``holds.pocket_views``: named once per pocket set)
+        self._pocket_names: dict[str, tuple[object, list[tuple[str, ...]]]] = {}
 
         # after a zone swap: STOP until every camera has a frame on the new zones
         # (``swap_cell``)
@@ -209,6 +211,7 @@ class Pipeline:
         clear_time runs on the new zones before RUN; no decision mixes the two zone sets with
         RUN. Holds of lost persons are kept (their zones may be gone: still a STOP)."""
         self.cell = cell
+        self._pocket_names.clear()  # the occluders that hide the pockets may be others now
         self.prepared = prepared if prepared is not None else cell.prepared
         self.masks = MaskRules(cell, self.detector)
         for cid, cam in self.cameras.items():
@@ -391,7 +394,7 @@ class Pipeline:
     def _screen(self) -> tuple[tuple, tuple, tuple]:
         """Why the cell is held, for the screen: the lost persons' areas, the unseen floor and
         the hidden pockets (copies, ``StepResult.areas``, ``.unseen``, ``.pockets``)."""
-        pockets = pocket_views(self.cameras, self.cell)
+        pockets = pocket_views(self.cameras, self.cell, self._pocket_names)
         return (area_views(self.cameras, self.persons, self.cell, pockets),
                 unseen_views(self.cameras), pockets)
 
