@@ -64,8 +64,10 @@ def test_a_step_hands_on_the_hidden_persons_area_and_what_the_camera_cannot_see(
 def test_the_annotated_frame_shows_the_area_in_its_colour_where_it_is_and_nowhere_else(
         hidden_step):
     res, img, cell, camera, area = hidden_step
-    # the same step with the area emptied (the key of the colours stays, the labels in place)
+    # the same step with the area emptied (the key of the colours stays, the labels in place;
+    # the cabinet's pocket is drawn over the area: tests/test_pockets_on_screen.py)
     nothing = np.zeros_like(area.cells)
+    res = replace(res, pockets=())
     bare = replace(res, areas=(replace(area, cells=nothing, hidden=nothing),), unseen=())
     grey = np.full_like(img, 100)  # a plain picture: every colour change is the drawing
     plain, _ = annotate(grey, bare, cell, camera, [])
@@ -91,6 +93,7 @@ def test_the_annotated_frame_shows_the_area_in_its_colour_where_it_is_and_nowher
 
 def test_the_annotated_frame_hatches_what_the_camera_cannot_see(hidden_step):
     res, img, cell, camera, _ = hidden_step
+    res = replace(res, pockets=())  # (the pocket's outline: tests/test_pockets_on_screen.py)
     grey = np.full_like(img, 100)
     (unseen,) = res.unseen
     drawn, _ = annotate(grey, replace(res, areas=()), cell, camera, [])

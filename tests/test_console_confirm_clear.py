@@ -124,10 +124,10 @@ def test_confirm_clear_from_the_console_is_accepted_in_one_step(tmp_path, synthe
 
             wait_for(accepted, 120, lambda: answers[-5:])
             assert "accepted" in answers[-1][1]["reason"], answers[-1]
-            # the service's detections message carries the areas and the unseen floor (the
-            # demo's robot base hides some) for the console to draw
+            # the service's detections message carries the areas, the unseen floor (the
+            # demo's robot base hides some) and the hidden pockets for the console to draw
             bodies = [x for x in svc.detections if "frame" in x]
-            assert bodies and all("areas" in x for x in bodies)
+            assert bodies and all("areas" in x and "pockets" in x for x in bodies)
             assert any(x.get("unseen_px") for x in bodies)
         lines = [x for x in audit_lines(d) if x.get("event") == "confirm_clear"]
         assert lines[-1]["result"] == "accepted" and lines[-1]["operator"] == "tester"

@@ -166,7 +166,7 @@ def do_replay(video: Path, zones: Path | None, model: Path | None, config_path: 
     if not publish:
         return replay(video, detector, cell, settings, stop=stop)
     from monitor.bus.session import SafetyBus
-    from monitor.pipeline.area_views import areas_body
+    from monitor.pipeline.pocket_views import screen_body
     from monitor.service.setup import bus_config_for
 
     with SafetyBus(bus_config_for(config, cell)) as bus:
@@ -176,8 +176,9 @@ def do_replay(video: Path, zones: Path | None, model: Path | None, config_path: 
                 bus.publish_alert(alert)
             if result.frame is not None:
                 bus.publish_detections(result.persons, result.zone_report,
-                                       **areas_body(result.areas, result.unseen,
-                                                    result.frame.camera_id))
+                                       **screen_body(result.areas, result.unseen,
+                                                     result.pockets,
+                                                     result.frame.camera_id))
         return replay(video, detector, cell, settings, publish=send, stop=stop)
 
 

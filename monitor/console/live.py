@@ -38,7 +38,7 @@ import numpy as np
 
 from monitor.adapters.snapshot import SafetySnapshot
 from monitor.bus.preview import MAX_PREVIEW_BYTES, Preview, read_preview
-from monitor.console.live_areas import area_list, draw_live_areas
+from monitor.console.live_areas import area_list, draw_live_areas, draw_live_pockets, pocket_list
 from monitor.types import Alert
 from monitor.wire.alerts import read_signed_alert
 from monitor.zones.draw import draw_zones
@@ -163,7 +163,9 @@ class LiveState:
                               if p.capture_wall is not None},
             "live_picture": {c: _live(p, now) for c, p in pictures.items()},
             # where lost persons could be, per camera of fresh detections: why it is held
-            "areas": {c: area_list(_json(b)) for c, b in fresh.items()}, **counts}
+            "areas": {c: area_list(_json(b)) for c, b in fresh.items()},
+            # the hidden pockets with their counts: what ends a hold behind a cabinet
+            "pockets": {c: pocket_list(_json(b)) for c, b in fresh.items()}, **counts}
         if snap is not None:
             body.update(asdict(snap))
         return body
@@ -255,6 +257,7 @@ class LiveRenderer:
             if fresh:
                 sx, sy = img.shape[1] / cam.width, img.shape[0] / cam.height
                 draw_live_areas(img, det or {}, sx, sy)
+                draw_live_pockets(img, det or {}, sx, sy)
                 _draw_boxes(img, det or {}, img.shape[1] / cam.width, img.shape[0] / cam.height)
             note = f"{camera}: {label}; " + (
                 "detections now" if fresh else

@@ -15,7 +15,8 @@ Modules: ``core`` (``Pipeline``: the step per frame and the decision handed on),
 (``StepResult``, per-camera state), ``masking`` (mask zones on raw boxes), ``locate`` (zones,
 tracks, cell persons of a frame), ``evidence`` (every camera's answer merged for the policy),
 ``holds`` (lost persons, confirm-clear), ``area_views`` (the lost persons' areas and the unseen
-cells each step hands on for the screen), ``fault_alerts``, ``mutes``, ``zone_sets``.
+cells each step hands on for the screen), ``pocket_views`` (the hidden pockets with their counts,
+likewise), ``fault_alerts``, ``mutes``, ``zone_sets``.
 
 May import: the stages it runs (``detector``, ``frames``, ``tracking``, ``health``),
 ``monitor.zones``, ``monitor.cases``, the building blocks and the bottom layer; never the driver,

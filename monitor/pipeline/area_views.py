@@ -30,12 +30,22 @@ class AreaView:
     cell_px: float  # a cell's side in the camera frame's pixels
     frame_size: tuple[int, int]  # (w, h) of the camera frame the grid covers
     regions: tuple[str, ...] = ()  # the unseen regions its hidden cells lie in (occluder ids)
+    # the counted pockets (monitor.pipeline.pocket_views) that hold every hidden cell of it,
+    # by id; empty when a hidden cell lies elsewhere or in a pocket of unknown count
+    pockets: tuple[int, ...] = ()
 
     @property
     def waiting_ends(self) -> bool:
         """Whether waiting can end it: an area with no hidden cell ends once its cells are
         seen free (or at its bounded life); a hidden cell is never seen free."""
         return not bool(self.hidden.any())
+
+    @property
+    def leaving_ends(self) -> bool:
+        """Whether a person seen walking out can end it: its hidden cells all lie in counted
+        pockets, whose cells it loses once their count is down to 0 (each person seen
+        leaving takes one off); waiting still does not."""
+        return bool(self.pockets) and not self.waiting_ends
 
 
 @dataclass(frozen=True)
@@ -95,12 +105,14 @@ def areas_body(areas: tuple[AreaView, ...], unseen: tuple[UnseenView, ...], came
                ) -> dict:
     """The detections message's share of one camera's areas (the console draws them): each
     area's outline in the camera frame's pixels, the person, the zones it holds, the unseen
-    regions it reaches and whether waiting can end it; and the outline of what the camera
-    cannot see."""
+    regions it reaches, whether waiting can end it, and whether a person seen leaving can (the
+    counted pockets holding its hidden cells); and the outline of what the camera cannot see
+    (the pockets are ``monitor.pipeline.pocket_views.pockets_body``'s)."""
     return {
         "areas": [{"person": a.who, "track_id": a.track_id, "lost_since": a.lost_since,
                    "zones": list(a.zones), "regions": list(a.regions),
-                   "waiting_ends": a.waiting_ends,
+                   "waiting_ends": a.waiting_ends, "leaving_ends": a.leaving_ends,
+                   "pockets": list(a.pockets),
                    "outlines_px": outlines_px(a.cells, a.cell_px),
                    "hidden_px": outlines_px(a.hidden, a.cell_px)}
                   for a in areas if a.camera_id == camera_id],

@@ -29,6 +29,7 @@ from monitor.pipeline.holds import (
     confirm_clear,
     explain_refusal,
     holds_of,
+    pocket_views,
     unseen_views,
 )
 from monitor.pipeline.locate import camera_working, free_elsewhere, hidden_of, locate
@@ -115,6 +116,8 @@ class Pipeline:
         self.mute_desk = MuteDesk(cell)
         self.zone_sets = ZoneSets(cell)
         self.handover: HandedHolds | None = None  # holds taken from the cell's other monitors
+        # per camera, what hides its pockets (``holds.pocket_views``: named once per pocket set)
+        self._pocket_names: dict[str, tuple[object, list[tuple[str, ...]]]] = {}
 
         # after a zone swap: STOP until every camera has a frame on the new zones
         # (``swap_cell``)
@@ -208,6 +211,7 @@ class Pipeline:
         clear_time runs on the new zones before RUN; no decision mixes the two zone sets with
         RUN. Holds of lost persons are kept (their zones may be gone: still a STOP)."""
         self.cell = cell
+        self._pocket_names.clear()  # the occluders that hide the pockets may be others now
         self.prepared = prepared if prepared is not None else cell.prepared
         self.masks = MaskRules(cell, self.detector)
         for cid, cam in self.cameras.items():
@@ -366,8 +370,7 @@ class Pipeline:
         return StepResult(now, command, self._changed(command), frame, persons, cam.report,
                           health, inputs.faults, alerts, stage, track_ids, tally.masked,
                           outcomes, self.mute_desk.holding(now), person_ids, accepts,
-                          area_views(self.cameras, self.persons, self.cell),
-                          unseen_views(self.cameras))
+                          *self._screen())
 
     def tick(self, now: float, pose_time: float | None = None,
              reset: ResetRequest | None = None, extra_faults: tuple[Fault, ...] = ()) -> StepResult:
@@ -380,13 +383,20 @@ class Pipeline:
                                if c.detector_error), None)
         outcomes, mute_alerts = self.mute_desk.take_events()
         accepts, accept_alerts = self._take_accepts()
+        areas, unseen, pockets = self._screen()
         return StepResult(now, command, self._changed(command), faults=inputs.faults,
                           alerts=(*cleared, *mute_alerts, *accept_alerts,
                                   *self._fault_alerts(inputs.faults, detector_error, now, None)),
                           mute_outcomes=outcomes, mutes=self.mute_desk.holding(now),
                           accept_outcomes=accepts,
-                          areas=area_views(self.cameras, self.persons, self.cell),
-                          unseen=unseen_views(self.cameras))
+                          areas=areas, unseen=unseen, pockets=pockets)
+
+    def _screen(self) -> tuple[tuple, tuple, tuple]:
+        """Why the cell is held, for the screen: the lost persons' areas, the unseen floor and
+        the hidden pockets (copies, ``StepResult.areas``, ``.unseen``, ``.pockets``)."""
+        pockets = pocket_views(self.cameras, self.cell, self._pocket_names)
+        return (area_views(self.cameras, self.persons, self.cell, pockets),
+                unseen_views(self.cameras), pockets)
 
     def _confirm_clear(self, reset: ResetRequest | None, now: float,
                        extra_faults: tuple[Fault, ...] = ()) -> tuple[tuple[Alert, ...], bool]:

@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 from monitor.cases.muting import Mute, MuteOutcome
 from monitor.health import CameraHealth, HealthReport
 from monitor.pipeline.area_views import AreaView, UnseenView
+from monitor.pipeline.pocket_views import PocketView
 from monitor.policy import Command
 from monitor.tracking.cell_persons import Who
 from monitor.tracking.tracks import PersonTracker
@@ -43,6 +44,9 @@ class StepResult:
     # screen draws them: why the cell is held; monitor.pipeline.area_views)
     areas: tuple[AreaView, ...] = ()
     unseen: tuple[UnseenView, ...] = ()
+    # the hidden pockets with their counts (monitor.pipeline.pocket_views): what ends a hold
+    # behind a cabinet
+    pockets: tuple[PocketView, ...] = ()
 
 
 @dataclass

@@ -7,8 +7,8 @@ never overlap (``monitor.zones.labels``) and a legend of the zone colours (the c
 tracker's id), and for a person in a zone the floor range the zone check tested (from
 ``monitor.geometry.occlusion``'s placement: the nearest to the farthest floor position, drawn back
 into the image), resets (accepted or refused, by whom) and alerts for ``HOLD_S`` seconds after they
-happen, the lost persons' areas and what the camera cannot see (``monitor.records.areas_draw``:
-why the cell is held), and the command in the bottom bar.
+happen, the lost persons' areas, what the camera cannot see and the hidden pockets with their
+counts (``monitor.records.areas_draw``: why the cell is held), and the command in the bottom bar.
 
 ``Annotator.step`` returns the image and a ``Drawn`` record of every text it drew, so tests
 assert on the texts rather than read them back from pixels.
@@ -24,7 +24,13 @@ import numpy as np
 from monitor.health import draw_health
 from monitor.pipeline import StepResult
 from monitor.policy import RUN, SLOW, STOP
-from monitor.records.areas_draw import draw_areas, draw_key, draw_unseen, key_rect
+from monitor.records.areas_draw import (
+    draw_areas,
+    draw_key,
+    draw_pockets,
+    draw_unseen,
+    key_rect,
+)
 from monitor.records.events import describe
 from monitor.timetext import TimeText
 from monitor.zones import Cell
@@ -82,6 +88,7 @@ class Drawn:
     floor_ranges: tuple[FloorRange, ...]
     faults: tuple[str, ...]
     areas: tuple[str, ...] = ()  # the label of each lost person's area that holds a zone
+    pockets: tuple[str, ...] = ()  # the label of each hidden pocket (its count)
 
 
 def person_ids(result: StepResult) -> tuple[int | str, ...]:
@@ -160,7 +167,8 @@ def annotate(image: np.ndarray, result: StepResult, cell: Cell | None, camera_id
     top = HEADER_PX + EVENT_ROW_PX * len(events)  # the legend sits below header and events
     reserved: list[Rect] = [(0, 0, w, top), (0, h - BAR_PX, w, h), legend_rect(w, top + 4)]
     # the key of the areas' colours below the legend, when this camera has any to show
-    keyed = any(v.camera_id == camera_id for v in (*result.areas, *result.unseen))
+    keyed = any(v.camera_id == camera_id
+                for v in (*result.areas, *result.unseen, *result.pockets))
     key_top = legend_rect(w, top + 4)[3] + 4
     if keyed:
         reserved.append(key_rect(w, key_top))
@@ -172,9 +180,10 @@ def annotate(image: np.ndarray, result: StepResult, cell: Cell | None, camera_id
         out, labels = image.copy(), []
     # why the cell is held: what this camera cannot see (hatched), where lost persons could be
     draw_unseen(out, result.unseen, camera_id)
-    areas = draw_areas(out, result.areas, camera_id, top_px=top,
-                       avoid=[legend_rect(w, top + 4), *([key_rect(w, key_top)] if keyed
-                                                         else [])])
+    avoid = [legend_rect(w, top + 4), *([key_rect(w, key_top)] if keyed else [])]
+    areas = draw_areas(out, result.areas, camera_id, top_px=top, avoid=avoid)
+    # the hidden pockets over the areas: their count says what ends a hold behind a cabinet
+    pockets = draw_pockets(out, result.pockets, camera_id, avoid=avoid)
     faults: tuple[str, ...] = ()
     if result.health is not None:
         draw_health(out, result.health, watch, text_top=top + 22)
@@ -189,7 +198,7 @@ def annotate(image: np.ndarray, result: StepResult, cell: Cell | None, camera_id
     _draw_header(out, header, events)
     banner, reason = _draw_bar(out, result, when)
     return out, Drawn(header, labels_drawn, ids, events, banner, reason, legend, tuple(labels),
-                      ranges, faults, areas)
+                      ranges, faults, areas, pockets)
 
 
 def _worst_kind(result: StepResult) -> dict[int, str]:

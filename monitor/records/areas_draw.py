@@ -6,7 +6,10 @@ show it (one look everywhere).
   is hatched in ``UNSEEN_BGR``;
 * a lost person's **area** (where they could be: ``monitor.pipeline.area_views``) is filled
   with ``AREA_BGR`` at ``AREA_ALPHA`` and outlined in it, and labelled with the person, the
-  zones it holds and the unseen regions it reaches (waiting cannot end those).
+  zones it holds and the unseen regions it reaches (waiting cannot end those);
+* a hidden **pocket** (``monitor.pipeline.pocket_views``) is outlined in ``POCKET_BGR`` (its
+  count unknown or above 0: held) or ``POCKET_FREE_BGR`` (counted empty) and labelled with its
+  count below it (``pocket 1: 1 may be inside``).
 
 The image may be any scale of the camera's frame (the console's live picture is smaller).
 """
@@ -20,9 +23,12 @@ import cv2
 import numpy as np
 
 from monitor.pipeline.area_views import AreaView, UnseenView, cell_mask_px
+from monitor.pipeline.pocket_views import PocketView, pocket_label
 
 AREA_BGR = (0, 230, 255)  # yellow: none of the zone kinds' colours (monitor.zones.draw)
 UNSEEN_BGR = (180, 0, 180)  # purple hatching (as `monitor zones preview` always drew it)
+POCKET_BGR = (255, 255, 0)  # cyan: a pocket that may hold someone (none of the zones' colours)
+POCKET_FREE_BGR = (80, 220, 80)  # green: a pocket counted empty
 AREA_ALPHA = 0.45
 FONT = cv2.FONT_HERSHEY_SIMPLEX
 
@@ -58,13 +64,46 @@ def draw_unseen(image: np.ndarray, views: Sequence[UnseenView], camera_id: str) 
 
 
 def area_label(area: AreaView) -> str:
-    """``person 6 may be here: holds prot (behind cabinet-2: waiting does not end it)``."""
+    """``person 6 may be here: holds prot (behind cabinet-2: waiting does not end it)``, or
+    in a counted pocket ``... (behind cabinet-2, counted in pocket 1)``."""
     text = f"person {area.who} may be here"
     if area.zones:
         text += f": holds {', '.join(area.zones)}"
-    if area.regions:
+    if area.regions and area.leaving_ends:
+        # the pocket's own label says its count (and so what a walk-out does)
+        ids = ", ".join(str(p) for p in area.pockets)
+        text += f" (behind {', '.join(area.regions)}, counted in pocket {ids})"
+    elif area.regions:
         text += f" (behind {', '.join(area.regions)}: waiting does not end it)"
     return text
+
+
+def pocket_colour(count: int | None) -> tuple[int, int, int]:
+    """Green for a pocket counted empty, cyan for one that may hold someone (or unknown)."""
+    return POCKET_FREE_BGR if count == 0 else POCKET_BGR
+
+
+def draw_pockets(image: np.ndarray, pockets: Sequence[PocketView], camera_id: str,
+                 avoid: Sequence[tuple[int, int, int, int]] = ()) -> tuple[str, ...]:
+    """Outline each of ``camera_id``'s pockets on ``image`` (in place) in its colour and label
+    it with its count just below it (clear of the ``avoid`` rectangles where it can be); the
+    labels drawn."""
+    h, w = image.shape[:2]
+    labels = []
+    for p in pockets:
+        if p.camera_id != camera_id or not p.cells.any():
+            continue
+        mask = cell_mask_px(p.cells, p.cell_px, p.frame_size, (w, h)).view(np.uint8)
+        contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+        if not contours:
+            continue
+        colour = pocket_colour(p.count)
+        cv2.drawContours(image, contours, -1, colour, 2, cv2.LINE_AA)
+        text = pocket_label(p)
+        x, y0, _, bh = cv2.boundingRect(np.concatenate(contours))
+        _text_on_black(image, text, (x, min(y0 + bh + 18, h - 4)), avoid, colour)
+        labels.append(text)
+    return tuple(labels)
 
 
 def draw_areas(image: np.ndarray, areas: Sequence[AreaView], camera_id: str,
@@ -106,7 +145,7 @@ def draw_areas(image: np.ndarray, areas: Sequence[AreaView], camera_id: str,
 
 
 def _text_on_black(img: np.ndarray, text: str, org: tuple[int, int],
-                   avoid: Sequence[tuple[int, int, int, int]] = ()) -> None:
+                   avoid: Sequence[tuple[int, int, int, int]] = (), colour=AREA_BGR) -> None:
     """The label inside the image: moved left (and smaller) until it fits, and left of an
     ``avoid`` rectangle it would cover where there is room (else it stays: the label is
     worth more than what it covers)."""
@@ -127,10 +166,11 @@ def _text_on_black(img: np.ndarray, text: str, org: tuple[int, int],
                 (tw, th), base = cv2.getTextSize(text, FONT, scale, 1)
                 x = max(2, x1 - tw - 6)
     cv2.rectangle(img, (x - 2, y - th - 3), (x + tw + 2, y + base), (0, 0, 0), -1)
-    cv2.putText(img, text, (x, y), FONT, scale, AREA_BGR, 1, cv2.LINE_AA)
+    cv2.putText(img, text, (x, y), FONT, scale, colour, 1, cv2.LINE_AA)
 
 
-KEY_ROWS = (("area", "lost person may be"), ("unseen", "unseen by camera"))
+KEY_ROWS = (("area", "lost person may be"), ("unseen", "unseen by camera"),
+            ("pocket", "hidden pocket"))
 _KEY_ROW_PX = 18
 _KEY_WIDTH_PX = 150
 
@@ -153,10 +193,12 @@ def draw_key(img: np.ndarray, top: int) -> tuple[str, ...]:
         a, b = (x1 + 6, y + 3), (x1 + 26, y + _KEY_ROW_PX - 3)
         if kind == "area":
             cv2.rectangle(img, a, b, AREA_BGR, -1)
+        elif kind == "pocket":
+            cv2.rectangle(img, a, b, POCKET_BGR, 2)
         else:
             cv2.line(img, a, b, UNSEEN_BGR, 1, cv2.LINE_AA)
             cv2.line(img, (a[0], b[1]), (b[0], a[1]), UNSEEN_BGR, 1, cv2.LINE_AA)
-        colour = AREA_BGR if kind == "area" else (230, 130, 230)
+        colour = {"area": AREA_BGR, "pocket": POCKET_BGR}.get(kind, (230, 130, 230))
         cv2.putText(img, text, (x1 + 32, y + _KEY_ROW_PX - 5), FONT, 0.45, colour, 1,
                     cv2.LINE_AA)
         texts.append(text)

@@ -19,7 +19,7 @@ from monitor.driver import Step, StepInputs
 from monitor.health import LOST
 from monitor.health.acceptance import changed_cell, changed_signature
 from monitor.pipeline import StepResult
-from monitor.pipeline.area_views import areas_body
+from monitor.pipeline.pocket_views import screen_body
 from monitor.policy import Reason
 from monitor.service.log import command_fields, event
 from monitor.service.metrics import CameraFigures, Metrics
@@ -200,7 +200,8 @@ class ServiceSink:
             cam = step.frame.info.camera_id
             # where lost persons could be (the console draws why the cell is held)
             self.bus.publish_detections(result.persons, result.zone_report,
-                                        **areas_body(result.areas, result.unseen, cam))
+                                        **screen_body(result.areas, result.unseen,
+                                                    result.pockets, cam))
             self.frame_times.setdefault(cam, deque(maxlen=30)).append(result.now)
             self.inference.setdefault(cam, deque(maxlen=30)).append(
                 result.stage_ms.get("inference", 0.0))

@@ -40,10 +40,23 @@ async function pollState() {
     for (const a of areas) {
       if (!(a.zones || []).length) continue;
       held.push(el("li", cam + ": person " + a.person + " may be in " + a.zones.join(", ") +
-        ((a.regions || []).length
+        ((a.regions || []).length && a.leaving_ends
+          ? " (behind " + a.regions.join(", ") + ", in counted pocket " +
+            (a.pockets || []).join(", ") + ": waiting does not end it; each person seen " +
+            "walking out of it takes one off its count, at 0 it ends; or a confirm-clear " +
+            "after looking)"
+          : (a.regions || []).length
           ? " (behind " + a.regions.join(", ") + ", not seen by any camera: waiting does " +
             "not end it; a camera that sees there, or a confirm-clear after looking, does)"
           : " (in view: waiting ends it once the camera sees the spot free)")));
+    }
+  }
+  // the hidden pockets with their counts (outlined in the view): what ends a hold behind one
+  for (const [cam, pockets] of Object.entries(s.pockets || {})) {
+    for (const p of pockets) {
+      held.push(el("li", cam + ": " + p.label +
+        ((p.regions || []).length ? ", behind " + p.regions.join(", ") : "") +
+        (p.why ? " (" + p.why + ")" : "")));
     }
   }
   $("held").replaceChildren(...held);
