@@ -48,6 +48,7 @@ ANALYSIS_WIDTH = 320
 OBJECT_PLACED = "object_placed"
 OBJECT_GONE = "object_gone"
 OBJECT_IN_ZONE = "object_in_zone"
+VIEW_CHANGED = "view_changed"
 
 
 @dataclass(frozen=True)
@@ -60,6 +61,10 @@ class ObjectConfig:
     clear_s: float = 2.0  # an object unchanged against the reference this long is gone
     min_area_px: float = 120.0  # analysis pixels of one lasting region
     person_margin: float = 0.2  # person boxes grown by this share of their size
+    # this share of the zones' image region changed for good: no object can be told from the
+    # rest (it would merge into one region that stands on no zone's floor and be missed), so
+    # the view itself is no longer the commissioned one: a STOP fault (``view_changed``)
+    view_share: float = 0.5
 
 
 @dataclass(frozen=True)
@@ -111,6 +116,7 @@ class ZoneObjects:
     exclude_px: Sequence[np.ndarray] = field(default=(), repr=False)
     objects: dict[int, SceneObject] = field(default_factory=dict)
     version: int = 0  # changes whenever the set of objects (their boxes) changes
+    view_changed_since: float | None = None  # when most of the watched view changed for good
 
     def __post_init__(self) -> None:
         h, w = self.reference_bgr.shape[:2]
@@ -126,6 +132,12 @@ class ZoneObjects:
         for poly in self.exclude_px:
             cv2.fillPoly(mask, [np.round(np.asarray(poly) / self._scale).astype(np.int32)], 0)
         self._watch = mask.astype(bool)
+        # each zone's floor as the analysis image shows it (what an object may stand on or hide)
+        self._floors = {}
+        for r in self.regions:
+            floor = np.zeros_like(mask)
+            cv2.fillPoly(floor, [np.round(r.floor_px / self._scale).astype(np.int32)], 1)
+            self._floors[r.zone_id] = floor.astype(bool) | self._floors.get(r.zone_id, False)
         self._since = np.full(mask.shape, np.nan)  # when each pixel started to differ
         self._next_id = 1
 
@@ -155,7 +167,32 @@ class ZoneObjects:
         self._since[start] = now
         with np.errstate(invalid="ignore"):
             lasting = (now - self._since >= self.config.persist_s - 1e-9) & self._watch
-        return self._objects(lasting, changed | ~free, now, image_bgr)
+        return self._view(lasting, free, now) + \
+            self._objects(lasting, changed | ~free, now, image_bgr)
+
+    def _view(self, lasting: np.ndarray, free: np.ndarray, now: float) -> list[Alert]:
+        """Whether most of the watched view has changed for good (``view_share`` of the
+        pixels a person does not cover): a lighting the fit cannot match, a repainted floor,
+        a tarpaulin over the cell. The objects in it cannot be told apart, so the view is not
+        the commissioned one: until it matches again, a STOP fault (``faults``)."""
+        looked = int((free & self._watch).sum())
+        share = float((lasting & free).sum()) / looked if looked else 0.0
+        was = self.view_changed_since is not None
+        if share >= self.config.view_share:
+            if not was:
+                self.view_changed_since = now
+                return [Alert(VIEW_CHANGED, "warning", f"{self.camera_id}: {share:.0%} of the "
+                              "zones' image differs from the commissioning reference for good "
+                              "(light, floor or cover changed): objects cannot be told apart, "
+                              "the cell is held until the view matches the reference again or "
+                              "a new reference is taken", self.camera_id, now, None,
+                              {"share": round(share, 3)})]
+        elif was and share < self.config.view_share / 2:
+            self.view_changed_since = None
+            return [Alert(VIEW_CHANGED, "info", f"{self.camera_id}: the zones' image matches "
+                          "the commissioning reference again", self.camera_id, now, None,
+                          {"share": round(share, 3)})]
+        return []
 
     def _changed(self, frame: np.ndarray, free: np.ndarray) -> np.ndarray:
         ref = self._ref
@@ -181,23 +218,26 @@ class ZoneObjects:
                  image_bgr: np.ndarray) -> list[Alert]:
         cfg = self.config
         alerts: list[Alert] = []
-        n, _, stats, _ = cv2.connectedComponentsWithStats(lasting.astype(np.uint8), 8)
-        found: list[tuple[int, int, int, int]] = []
+        n, labels, stats, _ = cv2.connectedComponentsWithStats(lasting.astype(np.uint8), 8)
+        found: list[tuple[tuple[int, int, int, int], tuple[str, ...]]] = []
         for k in range(1, n):
             x, y, w, h, area = (int(v) for v in stats[k])
             if area >= cfg.min_area_px:
                 s = self._scale
-                found.append((math.floor(x * s), math.floor(y * s), math.ceil((x + w) * s),
-                              math.ceil((y + h) * s)))
-        for box in found:
+                box = (math.floor(x * s), math.floor(y * s), math.ceil((x + w) * s),
+                       math.ceil((y + h) * s))
+                found.append((box, self._zones_of(box, labels[y:y + h, x:x + w] == k, (x, y))))
+        for box, zones in found:
             old = next((o for o in self.objects.values() if _overlap(o.box_px, box)), None)
             if old is not None:
                 old.last_changed = now
                 if old.box_px != box:
                     old.box_px = box
                     self.version += 1
+                if self._grown(old, zones):
+                    alerts.append(self._placed_alert(old, image_bgr, now))
                 continue
-            obj = self._new(box, now)
+            obj = self._new(box, zones, now)
             if obj is None:
                 continue
             self.objects[obj.object_id] = obj
@@ -218,22 +258,55 @@ class ZoneObjects:
                 obj.last_changed = now
         return alerts
 
-    def _new(self, box: tuple[int, int, int, int], now: float) -> SceneObject | None:
-        """An object at ``box`` if its bottom centre stands on a zone's floor (else None: a
-        change up in the air, on the wall or the robot, is not an object on the floor)."""
-        foot = np.array([[(box[0] + box[2]) / 2, box[3]]], float)
-        zones = tuple(r.zone_id for r in self.regions
-                      if cv2.pointPolygonTest(r.floor_px.astype(np.float32).reshape(-1, 1, 2),
-                                              (float(foot[0, 0]), float(foot[0, 1])), True)
-                      >= -2.0)
+    def _zones_of(self, box: tuple[int, int, int, int], part: np.ndarray,
+                  at: tuple[int, int]) -> tuple[str, ...]:
+        """The zones a changed region stands in or hides: those whose floor its bottom centre
+        is on, and those whose floor's image it covers (``part``: its analysis pixels in its
+        own box, whose corner is ``at``). A crate in front of the protective zone, or one that
+        merged with a larger change whose foot is elsewhere, still hides that floor."""
+        foot = ((box[0] + box[2]) / 2, box[3])
+        x, y = at
+        h, w = part.shape
+        out = []
+        for r in self.regions:
+            on = cv2.pointPolygonTest(r.floor_px.astype(np.float32).reshape(-1, 1, 2),
+                                      (float(foot[0]), float(foot[1])), True) >= -2.0
+            if on or (self._floors[r.zone_id][y:y + h, x:x + w] & part).any():
+                out.append(r.zone_id)
+        return tuple(dict.fromkeys(out))
+
+    def _is_protective(self, zones: Sequence[str]) -> bool:
+        return any(r.kind == "protective" for r in self.regions if r.zone_id in zones)
+
+    def _grown(self, obj: SceneObject, zones: tuple[str, ...]) -> bool:
+        """An object's region reaches more zones than before: they are added; one that now
+        reaches a protective zone it was not accepted in holds the cell again (an operator
+        accepted what stood there then, not what stands there now). True: it reaches a
+        protective zone now (said again, as a new object)."""
+        more = tuple(z for z in zones if z not in obj.zone_ids)
+        if not more:
+            return False
+        obj.zone_ids = obj.zone_ids + more
+        self.version += 1
+        if not self._is_protective(more):
+            return False
+        obj.protective = True
+        obj.accepted_by = obj.accepted_at = obj.accepted_wall = None
+        return True
+
+    def _new(self, box: tuple[int, int, int, int], zones: tuple[str, ...], now: float
+             ) -> SceneObject | None:
+        """An object at ``box`` if it stands on or hides a zone's floor (``_zones_of``; else
+        None: a change up in the air, on the wall or the robot, is not an object)."""
         if not zones:
             return None
+        foot = np.array([[(box[0] + box[2]) / 2, box[3]]], float)
         floor = None
         if self.to_floor is not None:
             xy, ok = self.to_floor(foot)
             floor = (float(xy[0][0]), float(xy[0][1])) if ok[0] else None
-        protective = any(r.kind == "protective" for r in self.regions if r.zone_id in zones)
-        obj = SceneObject(self._next_id, box, floor, zones, protective, now, None, now)
+        obj = SceneObject(self._next_id, box, floor, zones, self._is_protective(zones), now,
+                          None, now)
         self._next_id += 1
         return obj
 
@@ -256,8 +329,14 @@ class ZoneObjects:
 
     # ---------------------------------------------------------------------------------------
     def faults(self) -> list[Fault]:
-        """STOP faults of the unaccepted objects in protective zones."""
-        return [Fault(OBJECT_IN_ZONE, f"{self.camera_id}: object in {o.place()} since "
+        """STOP faults of the unaccepted objects in protective zones, and of a view that
+        changed for good (``_view``)."""
+        view = [] if self.view_changed_since is None else [Fault(
+            VIEW_CHANGED, f"{self.camera_id}: most of the zones' image differs from the "
+            f"commissioning reference since {self.view_changed_since:.1f} s (objects cannot be "
+            "told apart: restore the view, or take a new reference after looking)", True,
+            self.camera_id)]
+        return view + [Fault(OBJECT_IN_ZONE, f"{self.camera_id}: object in {o.place()} since "
                       f"{o.since:.1f} s, not in the commissioning reference (look at it, then "
                       f"accept it: {accept_command(self.camera_id, self._protective_zone(o))})",
                       True, self.camera_id)
