@@ -95,3 +95,32 @@ def test_two_persons_boxed_as_one_the_nearer_to_the_zone_is_in_it(detector):
     assert [f.inside for f in frames if f.time_s == 2.0] == [True], \
         "the first person is not in the zone at 2 s: the scene no longer shows what it guards"
     assert not _violations(frames), _violations(frames)
+
+
+def _held_to_the_end(frames, since_s: float) -> None:
+    assert not _violations(frames), _violations(frames)
+    later = [f for f in frames if f.time_s >= since_s - 1e-9]
+    assert all(f.state == STOP and f.accepted is not True for f in later), \
+        [(f.time_s, f.state, f.accepted, f.counts) for f in later]
+    assert all(f.counts != (0,) for f in later), [(f.time_s, f.counts) for f in later]
+
+
+def test_a_person_the_detector_misses_for_a_second_before_the_cabinet_is_counted_in(detector):
+    """The detector misses the person in the two frames before they step behind the cabinet
+    (1 s, within clear_time): their area, started where they were last seen, reaches the
+    cabinet's hidden floor within a walk and counts them in; the cell stays held to the end
+    (safe before and after this round: kept so that it stays so)."""
+    scenario = _scenario("missed-before-the-pocket",
+                         (Walker(INTO_POCKET, unseen_frames=frozenset({4, 5})),), 8.0)
+    _held_to_the_end(run_pocket_scene(scenario, detector), 3.0)
+
+
+def test_one_out_on_the_left_while_another_goes_in_on_the_right(detector):
+    """A person steps out of the pocket on the cabinet's left (6 to 6.5 s) while another
+    walks in behind its right side at the same time: the exit and the entry both count and
+    the second person keeps the cell held to the end (safe before and after this round)."""
+    out = ((0.0, -2.4, 0.3), (1.0, -2.4, 0.3), (2.5, -0.3, 0.2), (3.0, 0.45, 0.05),
+           (6.0, 0.45, 0.05), (6.5, -0.3, 0.2), (8.0, -3.2, 0.3))
+    into = ((0.0, 3.0, -1.5), (5.0, 1.3, -0.2), (6.5, 0.7, 0.15), (30.0, 0.7, 0.15))
+    scenario = _scenario("out-left-in-right", (Walker(out), Walker(into)), 12.0)
+    _held_to_the_end(run_pocket_scene(scenario, detector), 5.0)
