@@ -18,15 +18,20 @@ from monitor.pipeline.data import CameraState
 from monitor.pipeline.fault_alerts import one_line
 from monitor.policy import PolicyConfig
 from monitor.tracking.cell_persons import CellPersons, Who
+from monitor.tracking.pockets import SINGLE_WIDTH
 from monitor.tracking.whereabouts import CellZones, FootGrid, FreeElsewhere
 from monitor.types import Fault, FrameInfo, Persons, ZoneReport
-from monitor.zones import Cell, check_persons
+from monitor.zones import Cell, check_persons, merge_towards_danger
 from monitor.zones.check import placement
 from monitor.zones.masks import MaskRule
 from monitor.zones.moving import ToolState
 from monitor.zones.visibility import hidden_feet
 
 log = logging.getLogger("monitor.pipeline")  # the pipeline's log, as before the split
+# a box wider than one person (``SINGLE_WIDTH`` of its height) may be two side by side: each
+# end is also checked as one person this wide (of the box height; the synthetic model boxes
+# a walker 0.61 wide: narrower puts the end person's feet nearer the box's edge)
+END_PERSON_WIDTH = 0.5
 
 
 def tool_for(now: float, tool_pose, tool_speed_mps: float | None, pose_time: float | None,
@@ -53,6 +58,33 @@ def zones_of(prepared, detector: Detector, frame: FrameInfo, tool_pose, tool_spe
         return check_persons(prep, frame.camera_id, boxes_px, tool_pose,
                              tool_speed_mps, foot, tool_state=tool_state)
     return CellZones(check, functools.partial(check, prep=in_view))
+
+
+def check_seen(prepared, camera_id: str, boxes_px: np.ndarray, tool_pose,
+               tool_speed_mps: float | None, foot_uncertainty_px: float,
+               tool_state: ToolState | None) -> ZoneReport:
+    """The zone answer of the persons seen in a frame: every box placed as one person
+    (``check_persons``), and a box too wide for one person also as one person at each of its
+    ends, merged towards danger (the hits of an end are its box's row). Two persons boxed as
+    one stand apart: the box's bottom centre lies between them, and the one over a zone's
+    edge would be placed outside it."""
+    report = check_persons(prepared, camera_id, boxes_px, tool_pose, tool_speed_mps,
+                           foot_uncertainty_px, tool_state=tool_state)
+    boxes = np.asarray(boxes_px, np.float64).reshape(-1, 4)
+    height = np.maximum(boxes[:, 3] - boxes[:, 1], 1.0)
+    wide = np.flatnonzero(boxes[:, 2] - boxes[:, 0] > SINGLE_WIDTH * height)
+    if not len(wide):
+        return report
+    one = END_PERSON_WIDTH * height[wide]
+    left, right = boxes[wide].copy(), boxes[wide].copy()
+    left[:, 2] = left[:, 0] + one
+    right[:, 0] = right[:, 2] - one
+    rows = np.concatenate([wide, wide])
+    ends = check_persons(prepared, camera_id, np.concatenate([left, right]), tool_pose,
+                         tool_speed_mps, foot_uncertainty_px, tool_state=tool_state)
+    hits = tuple(replace(h, person=int(rows[h.person])) for h in ends.hits
+                 if 0 <= h.person < len(rows))
+    return merge_towards_danger(report, replace(ends, hits=hits, masked=report.masked))
 
 
 def hidden_of(cell: Cell | None, camera_id: str, rule: MaskRule | None,
@@ -160,10 +192,9 @@ def locate(frame: FrameInfo, persons: Persons, cam: CameraState, prepared, detec
     tool_pose, tool_state = tool_for(now, tool_pose, tool_speed_mps, pose_time, policy)
     if prepared is not None and detector_error is None:
         try:
-            report = check_persons(
+            report = check_seen(
                 prepared, frame.camera_id, persons.boxes_px, tool_pose, tool_speed_mps,
-                detector.foot_uncertainty_px(frame.width, frame.height),
-                tool_state=tool_state)
+                detector.foot_uncertainty_px(frame.width, frame.height), tool_state)
         except Exception as exc:  # the zone answer is unknown: fail towards STOP
             faults.append(Fault("zone_check_error", one_line(exc), True, "zones"))
     elif detector_error is None:

@@ -81,6 +81,9 @@ class PocketBook:
     # too wide for one person): a box that may hold two persons
     carrying: dict[int, set[int]] = field(default_factory=dict)
     changes: list[str] = field(default_factory=list)  # said since the last ``take_changes``
+    # the cells under the persons seen in the newest frame (feet band and below): someone
+    # may stand hidden right behind them, so nobody stepping out of there is an exit
+    occupied: np.ndarray | None = None
 
     def take_changes(self) -> list[str]:
         out, self.changes = self.changes, []
@@ -160,6 +163,7 @@ def seen(book: PocketBook, where: Whereabouts, track_ids: Iterable[int],
         if not book.carrying[into]:
             del book.carrying[into]
     grid, hidden = where.grid, where.hidden
+    book.occupied = None if grid is None else grid.cells_under(boxes, where.config.below)
     for tid, (x1, y1, x2, y2) in zip(ids, boxes, strict=True):
         if x2 - x1 > SINGLE_WIDTH * max(y2 - y1, 1.0):
             book.carrying.setdefault(tid, set()).add(WIDE)
@@ -213,6 +217,10 @@ def count_exits(book: PocketBook, where: Whereabouts, boxes_px: np.ndarray,
             for area in where.areas.values():
                 if area.track_id in p.entered:
                     allowed = allowed | area.cells
+            if book.occupied is not None and book.occupied.shape == allowed.shape:
+                # under a person seen in the previous frame: a counted-in person's area may
+                # have grown there, but so may anyone hidden behind that person
+                allowed = allowed & ~book.occupied
             if (came & ~allowed).any():
                 continue  # someone else may have been there: no exit
             done.add(p.pocket_id)

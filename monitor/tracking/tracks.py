@@ -240,6 +240,9 @@ class PersonTracker:
         self._byte_ids: dict[int, int] = {}  # row -> ByteTrack's id in the newest frame
         self.where = Whereabouts(self.config.areas())
         self.pockets = PocketBook()  # enclosed hidden regions with a count (``pockets``)
+        # lost track -> the seen track whose box swallowed it: the person hidden right behind
+        # that box walks with it (``_follow_carriers``)
+        self._carriers: dict[int, int] = {}
 
     def _buffer_frames(self, fps: float) -> int:
         return max(1, math.ceil(self.config.lost_track_s * fps))
@@ -393,9 +396,11 @@ class PersonTracker:
                             height_px=rec.tall_px(), feet_bottom_px=rec.feet_bottom)
             for row in into:  # whichever identity the merged box keeps: where it stood too
                 pockets.swallowed(self.pockets, rec.track_id, rows_to_id[row])
+                self._carriers.setdefault(rec.track_id, rows_to_id[row])
                 old_box, old_seen, left = moved.get(row, (None, 0.0, False))
                 if left and old_box is not None:
                     self.where.lose(rows_to_id[row], old_box, old_seen, behind=True)
+        self._follow_carriers(rows_to_id, boxes, now)
         self.where.update(now, boxes, working, clear_time, zones_of, zones_key,
                           free_elsewhere, self.to_floor, feet_bottom_px,
                           settle=lambda w: pockets.settle(self.pockets, w, now))
@@ -510,6 +515,22 @@ class PersonTracker:
         rec.last_seen = now
         rec.heights = [(t, h) for t, h in rec.heights if now - t <= TALL_WINDOW_S]
         rec.heights.append((now, float(box[3] - box[1])))
+
+    def _follow_carriers(self, rows_to_id: list[int], boxes: np.ndarray, now: float) -> None:
+        """A track lost into a neighbour's box may be hidden right behind them and walk with
+        them: while that box is seen, the lost track's area takes the cells under it too (the
+        place it was swallowed is kept as well). Else a person boxed with a colleague who
+        steps behind a fixture while still boxed as one leaves no area at the fixture, and
+        the cell runs with them there once the colleague has left. Only within the area's
+        bounded life (nobody walks hidden behind others for ever, docs/tracking.md); ends
+        when the track is seen again, its area ends, or the carrier is not seen."""
+        for tid, carrier in list(self._carriers.items()):
+            rec, area = self._records.get(tid), self.where.areas.get(tid)
+            if rec is None or not rec.lost or area is None or carrier not in rows_to_id \
+                    or now - rec.last_seen >= self.where.life_s(area) - 1e-9:
+                del self._carriers[tid]
+                continue
+            self.where.lose(tid, boxes[rows_to_id.index(carrier)], rec.last_seen, behind=True)
 
     def _merged_into(self, box: np.ndarray, boxes: np.ndarray) -> list[int]:
         """Rows of this frame's boxes that cover ``merge_ios`` or more of a lost box."""
