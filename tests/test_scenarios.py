@@ -77,8 +77,12 @@ def test_an_undeclared_bench_is_found_by_the_references_edges_only(detector):
     # suite can fail
     s = dataclasses.replace(_by_name("bench-1.15"), declare_occluders=False)
     _assert_safe(sc.run_scenario(s, detector))
-    r = sc.run_scenario(dataclasses.replace(s, reference=False), detector)
-    assert r.missed_stop_frames > 0, sc.format_table([r])
+    # without the reference too, since a box wider than one person is also placed as one
+    # person at each end (monitor.pipeline.locate.check_seen): the box cut off at the bench
+    # top as the person walks in is that wide, and its end nearest the zone is in it (before:
+    # missed STOP frames at the zone's edge; the reference's own part: the bench-inside test
+    # below)
+    _assert_safe(sc.run_scenario(dataclasses.replace(s, reference=False), detector))
 
 
 @pytest.mark.parametrize("name", ["bench-inside-undeclared", "bench-inside-declared",
