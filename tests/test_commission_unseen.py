@@ -105,3 +105,30 @@ def test_zones_preview_names_the_unseen_floor_its_cost_and_a_camera(tmp_path, ca
     line = next(x for x in text.splitlines() if "zone robot-protective" in x)
     assert "behind cabinet" in line and "m^2" in line and "% of the zone" in line, line
     assert "waiting never ends a hold there" in line and "from the +y side" in line, line
+
+
+@pytest.mark.parametrize("name, pockets", [("pocket-out", 1), ("open-out", 0)])
+def test_zones_preview_outlines_the_hidden_pockets(tmp_path, capsys, name, pockets):
+    # the cabinet's hidden floor is enclosed by seen floor (a pocket: outlined in the pocket
+    # colour, as the replay draws it); the wall's runs to the image edge (none)
+    import cv2
+    import numpy as np
+    import yaml
+
+    from monitor.records.areas_draw import POCKET_BGR
+    from monitor.replay.pocket_scenes import pocket_scenes
+    from tests.helpers import zones_cli
+
+    scenario = pocket_scenes()[name]
+    zones = tmp_path / "cell.yaml"
+    zones.write_text(yaml.safe_dump(scenario.zone_data()))
+    img, _ = next(iter(scenario.scene.frames()))
+    frame = tmp_path / "frame.png"
+    cv2.imwrite(str(frame), img)
+    out = tmp_path / "p.png"
+    assert zones_cli("preview", zones, "--frame", frame, "--out", out) == 0
+    lines = [x for x in capsys.readouterr().out.splitlines() if x.startswith("pocket ")]
+    assert len(lines) == pockets, lines
+    drawn = cv2.imread(str(out))
+    cyan = np.all(np.abs(drawn.astype(int) - np.array(POCKET_BGR)) <= 8, axis=2)
+    assert (cyan.sum() > 50) == bool(pockets), cyan.sum()

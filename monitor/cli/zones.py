@@ -492,7 +492,7 @@ def cmd_preview(args: argparse.Namespace) -> int:
         raise ConfigError(f"{args.file}: no zone '{unknown[0]}'")
     out = zn.draw_zones(frame, cell, camera, hit_zone_ids=args.hit, legend=True,
                         tool_pose=args.tool_pose)
-    hidden = _draw_hidden(out, cell, camera)
+    hidden, pockets = _draw_hidden(out, cell, camera)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     if not cv2.imwrite(str(args.out), out):
         raise InputError(f"{args.out}: cannot write image")
@@ -503,6 +503,10 @@ def cmd_preview(args: argparse.Namespace) -> int:
               "the cell clear (docs/tracking.md)")
         for line in _unseen_lines(cell):
             print(line)
+    for k in range(1, pockets + 1):
+        print(f"pocket {k} (outlined): hidden floor enclosed by floor {camera} sees; after a "
+              "confirm-clear the persons going in and out are counted, and at 0 it is free "
+              "without another confirm-clear (docs/tracking.md, \"Hidden pockets\")")
     return 0
 
 
@@ -524,11 +528,15 @@ def _unseen_lines(cell: zn.Cell) -> list[str]:
     return out
 
 
-def _draw_hidden(image: np.ndarray, cell: zn.Cell, camera: str) -> int:
+def _draw_hidden(image: np.ndarray, cell: zn.Cell, camera: str) -> tuple[int, int]:
     """Hatch the foot positions where this camera cannot see a person (behind an occluder,
-    in a mask): the cells a lost person's area never loses by this camera's view."""
+    in a mask): the cells a lost person's area never loses by this camera's view; outline the
+    enclosed ones (hidden pockets, counted after a confirm-clear, as the replay draws them).
+    (hatched cells, pockets)."""
     # the tracker's grid only for a preview: `monitor zones list` starts without it
-    from monitor.records.areas_draw import hatch_cells
+    from monitor.pipeline.pocket_views import PocketView
+    from monitor.records.areas_draw import draw_pockets, hatch_cells
+    from monitor.tracking.pockets import find_pockets
     from monitor.tracking.tracks import TrackerConfig
     from monitor.tracking.whereabouts import FootGrid
     from monitor.zones.masks import zone_regions_px
@@ -537,10 +545,22 @@ def _draw_hidden(image: np.ndarray, cell: zn.Cell, camera: str) -> int:
     h, w = image.shape[:2]
     grid = FootGrid.of(w, h, TrackerConfig().cells_across)
     masks = [p for _, p in zone_regions_px(cell, camera, ("mask",))]
-    hidden = hidden_feet(grid.centres(), (w, h), cell.camera_models.get(camera), cell.spec,
+    model = cell.camera_models.get(camera)
+    hidden = hidden_feet(grid.centres(), (w, h), model, cell.spec,
                          cell.meshes, masks).reshape(grid.shape)
     # the look of the replay's and the console's unseen hatching (monitor.records.areas_draw)
-    return hatch_cells(image, hidden, grid.cell_px, (w, h))
+    hatched = hatch_cells(image, hidden, grid.cell_px, (w, h))
+    # the pockets as the tracker finds them: enclosed by cells whose foot lies on the floor
+    floor = None
+    if model is not None:
+        xy, located = model.pixel_to_floor(grid.centres())
+        floor = (np.asarray(located, bool)
+                 & np.all(np.isfinite(np.asarray(xy, float)), axis=1)).reshape(grid.shape)
+    views = [PocketView(camera, k + 1, cells, None, "not counted before a confirm-clear",
+                        grid.cell_px, (w, h))
+             for k, cells in enumerate(find_pockets(hidden, floor))]
+    draw_pockets(image, views, camera)
+    return hatched, len(views)
 
 
 def cmd_hash(args: argparse.Namespace) -> int:
