@@ -4,6 +4,7 @@ behind it; lighting changes and persons are no objects."""
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 
 import numpy as np
@@ -342,3 +343,32 @@ def test_the_demo_walk_with_its_first_frame_as_reference_raises_no_object_alert(
     assert not alerts, [a.message for a in alerts]
     for state in ("RUN", "SLOW"):
         assert abs(states.count(state) - plain.count(state)) <= 0.05 * len(states)
+
+
+def test_a_zone_apply_judges_a_standing_crate_against_the_new_zones(detector):
+    # the crate stands beside a protective zone drawn to its left; a zone apply brings the
+    # zone over it: the object watch follows the new zones at the next frame (before: it kept
+    # the old zones' regions, the crate stayed a warning-zone object and never held the cell)
+    scenario = crate_scene()
+    data = scenario.zone_data()
+    back = copy.deepcopy(data)
+    (prot,) = [z for z in back["zones"] if z["id"] == "robot-protective"]
+    prot["max_m"] = [-0.2, 1.0, 2.2]
+    cam = scenario.scene.camera
+    refs = {cam.camera_id: scenario.scene.reference()}
+    pipe = Pipeline(detector, cam.camera_id, PolicyConfig(), parse_cell(back), references=refs)
+    swap_at, found = 5.0, []
+    swapped = None
+    for k, (img, truth) in enumerate(scenario.scene.frames()):
+        t = truth.time_s
+        if t >= 7.0:
+            break
+        if swapped is None and t + 1e-9 >= swap_at:
+            assert not any(o.protective for o in pipe.objects["cam0"].objects.values())
+            pipe.swap_cell(parse_cell(data))
+            swapped = k
+        res = pipe.process(img, FrameInfo(cam.camera_id, k, t, cam.width, cam.height), t)
+        if swapped is not None:
+            found.append(OBJECT_IN_ZONE in {f.name for f in res.faults})
+    assert found and found[0], found  # at the first frame on the new zones
+    assert all(found)

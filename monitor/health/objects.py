@@ -373,6 +373,20 @@ class ZoneObjects:
         return out
 
 
+def carry_over(old: ZoneObjects, new: ZoneObjects) -> None:
+    """A zone apply: ``new`` (the new zones' watch of the same camera and reference) takes
+    over how long each pixel has differed where both watch it, so an object standing there is
+    found again at its next frame, in the zones it stands in now, not after another
+    ``persist_s``; pixels newly watched start afresh. Acceptances are not carried: an operator
+    accepted an object in the zones as they were (the refusal names the command again)."""
+    if old._since.shape != new._since.shape:
+        return
+    both = old._watch & new._watch
+    new._since[both] = old._since[both]
+    new._next_id = old._next_id
+    new.version = old.version + 1
+
+
 def _overlap(a: tuple[int, int, int, int], b: tuple[int, int, int, int]) -> bool:
     return a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]
 

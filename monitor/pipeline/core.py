@@ -20,7 +20,7 @@ from monitor.cases.muting import MuteOutcome, MuteRequest, Mutes
 from monitor.detector import Detector
 from monitor.health import CameraHealth
 from monitor.health.acceptance import judge_accept
-from monitor.health.objects import objects_of
+from monitor.health.objects import carry_over, objects_of
 from monitor.pipeline.data import CameraState, StepResult
 from monitor.pipeline.evidence import ZonesApplying, policy_inputs
 from monitor.pipeline.fault_alerts import FaultAlerts, one_line
@@ -206,7 +206,8 @@ class Pipeline:
         Everything derived from the zone set is replaced here: the prepared zones (with the
         reaction time of separation monitoring when given), the mask rules, each tracker's
         floor mapping, and the health checkers of cameras whose watch zones changed
-        (``health``). The cell is then in STOP (``zones_applying``) until every camera has a
+        (``health``), the objects-since-commissioning watches (``carry_over``). The cell is
+        then in STOP (``zones_applying``) until every camera has a
         frame checked against the new zones, and at least for one decision, so the policy's
         clear_time runs on the new zones before RUN; no decision mixes the two zone sets with
         RUN. Holds of lost persons are kept (their zones may be gone: still a STOP)."""
@@ -225,6 +226,13 @@ class Pipeline:
         # the new default
         self.mute_desk.end_all(cell, "zones applied")
         self.zone_sets.restart(cell)
+        # the objects since commissioning are judged against the new zones (a zone that is
+        # protective now must hold for a crate already standing in it)
+        objects = objects_of(cell, self.references)
+        for cid, watch in objects.items():
+            if cid in self.objects:
+                carry_over(self.objects[cid], watch)
+        self.objects = objects
 
     def _to_floor(self, camera_id: str):
         model = self.cell.camera_models.get(camera_id) if self.cell is not None else None
