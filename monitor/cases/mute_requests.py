@@ -20,18 +20,16 @@ Payload::
 
 from __future__ import annotations
 
-import collections
 import contextlib
 import json
 import math
 import os
-import threading
 import time
 
 from monitor.cases.muting import MuteOutcome, MuteRequest
-from monitor.types import Alert
 from monitor.wire import payload as payload_json
 from monitor.wire.answers import request_answer
+from monitor.wire.request_desk import DeskRules, SignedRequestDesk
 from monitor.wire.signed_requests import (
     RequestIds,
     RequestKind,
@@ -137,122 +135,27 @@ def _operator_of(payload: bytes) -> str | None:
     return None
 
 
-class MuteDesk:
-    """The bus's side of muting: verified requests wait here for the pipeline
-    (``poll``), their queries until it has judged them (``answer``) or ``answer_s`` passed;
-    requests refused here are answered at once and alerted (``drain_alerts``). Thread-safe.
+MUTE_DESK = DeskRules(MuteRefused, "malformed mute request", "mute_refused", "mute",
+                      MUTE_ANSWER_SCHEMA, _operator_of)
 
-    A request the pipeline has not taken within ``answer_s`` is answered "not judged" and
-    dropped: it is never applied later (an operator told REFUSED must not find the zone muted).
-    One it has taken is answered with its judgement, however late."""
+
+class MuteDesk(SignedRequestDesk):
+    """The bus's side of muting (``monitor.wire.request_desk``): verified requests wait here
+    for the pipeline (``poll``), their queries until it has judged them (``answer``) or
+    ``answer_s`` passed; requests refused here are answered at once and alerted
+    (``drain_alerts``). Thread-safe. Its answers are the plain ones (``DeskRules``)."""
 
     def __init__(self, gate: MuteGate, answer_s: float = 2.0) -> None:
-        self.gate = gate
-        self.answer_s = answer_s
-        self._lock = threading.Lock()
-        self._queue: collections.deque[MuteRequest] = collections.deque(maxlen=16)
-        self._pending: dict[str, tuple[object, float]] = {}
-        self._taken: set[str] = set()  # handed to the pipeline, its answer to come
-        self._alerts: collections.deque[Alert] = collections.deque(maxlen=16)
-        self.refused = 0
-        self.accepted = 0
+        super().__init__(gate, MUTE_DESK, answer_s)
 
-    def take(self, payload: bytes, signature: bytes | None, query, now: float,
-             boot: str | None) -> None:
-        """One request from the bus (``query``: the Zenoh query to answer, or None)."""
-        try:
-            with self._lock:
-                req = self.gate.check(payload, signature, now, boot=boot)
-        except Exception as exc:  # nothing a sender does may kill the callback
-            reason = str(exc) if isinstance(exc, MuteRefused) else "malformed mute request"
-            operator = _operator_of(payload)
-            with self._lock:
-                self.refused += 1
-                self._alerts.append(Alert(
-                    "mute_refused", "warning", f"mute in the name of {operator or '?'} "
-                    f"refused by the bus: {reason}", "bus", now,
-                    details={"operator": operator, "stage": "bus"}))
-            reply(query, self.gate.key_expr, {"accepted": False, "stage": "bus",
-                                               "reason": reason, "operator": operator})
-            return
-        with self._lock:
-            self._queue.append(req)
-            if query is not None:
-                self._pending[req.request_id] = (query, now + self.answer_s)
-
-    @property
-    def waiting(self) -> int:
-        """Queries waiting for the pipeline's judgement now."""
-        with self._lock:
-            return len(self._pending)
-
-    def poll(self) -> tuple[MuteRequest, ...]:
-        """Verified requests since the last call (oldest first), for the pipeline."""
-        with self._lock:
-            out = tuple(self._queue)
-            self._queue.clear()
-            self._taken.update(r.request_id for r in out if r.request_id in self._pending)
-        return out
-
-    def answer(self, outcome: MuteOutcome) -> None:
-        """The pipeline's outcome is the answer to that request's query."""
+    def judged(self, outcome: MuteOutcome) -> dict:
+        """The zone, and for a mute in force its length and what is left of it."""
+        body: dict = {"zone": outcome.request.zone}
         mute = outcome.mute
-        with self._lock:
-            if outcome.accepted:
-                self.accepted += 1
-            else:
-                self.refused += 1
-            query, _ = self._pending.pop(outcome.request.request_id, (None, 0.0))
-            self._taken.discard(outcome.request.request_id)
-        body = {"accepted": outcome.accepted, "stage": "pipeline", "reason": outcome.reason,
-                "request_id": outcome.request.request_id, "zone": outcome.request.zone}
         if mute is not None:
             body["duration_s"] = mute.end - mute.start
             body["ends_in_s"] = max(mute.end - outcome.request.time, 0.0)
-        reply(query, self.gate.key_expr, body)
-
-    def expire(self, now: float) -> None:
-        """Answer queries the pipeline has not taken within ``answer_s``, and drop their
-        requests: what was answered "not judged" is never judged later."""
-        with self._lock:
-            late = [rid for rid, (_, deadline) in self._pending.items()
-                    if now > deadline and rid not in self._taken]
-            queries = [self._pending.pop(rid)[0] for rid in late]
-            if late:  # every heartbeat calls this: rebuild the queue only when it changes
-                gone = set(late)
-                kept = [r for r in self._queue if r.request_id not in gone]
-                self._queue.clear()
-                self._queue.extend(kept)
-        for rid, query in zip(late, queries, strict=True):
-            reply(query, self.gate.key_expr, {
-                "accepted": False, "stage": "bus", "request_id": rid,
-                "reason": "the monitor did not judge this request in time (pipeline stalled?)"})
-
-    def answer_all(self, why: str) -> None:
-        with self._lock:
-            pending = list(self._pending.items())
-            self._pending.clear()
-            self._taken.clear()
-        for rid, (query, _) in pending:
-            reply(query, self.gate.key_expr, {"accepted": False, "stage": "bus",
-                                               "request_id": rid, "reason": why})
-
-    def drain_alerts(self) -> list[Alert]:
-        with self._lock:
-            out = list(self._alerts)
-            self._alerts.clear()
-        return out
-
-
-def reply(query, key: str, body: dict) -> None:
-    """Answer a mute query and finalise it (the querier's get then returns at once)."""
-    if query is None:
-        return
-    with contextlib.suppress(Exception):
-        query.reply(key, json.dumps({"schema": MUTE_ANSWER_SCHEMA, **body}).encode(),
-                    encoding="application/json")
-    with contextlib.suppress(Exception):
-        query.drop()
+        return body
 
 
 # the answer to a signed request: one mechanism for every kind (monitor/wire/answers.py)
