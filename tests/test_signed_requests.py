@@ -1,6 +1,7 @@
 """The checks every signed request shares (monitor.wire.signed_requests): signer, cell, clock
-window, request ids. Each gate's own tests (resets, mutes, zone applies, selections) check the
-wording their users see; these check the rules themselves, once."""
+window, request ids, and the one order a SignedGate runs them in. Each gate's own tests (resets,
+mutes, zone applies, selections) check the wording their users see; these check the rules
+themselves, once."""
 
 from __future__ import annotations
 
@@ -9,6 +10,9 @@ import math
 import pytest
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
 
+from monitor.cases.mute_requests import MuteGate, MuteRefused, mute_payload
+from monitor.cases.zone_apply import ApplyGate, ApplyRefused, apply_payload
+from monitor.wire.object_accepts import AcceptGate, AcceptRefused, accept_payload
 from monitor.wire.signed_requests import (
     MAX_REMEMBERED,
     RequestIds,
@@ -87,3 +91,44 @@ def test_the_verify_budget_allows_a_burst_then_its_rate() -> None:
     assert not budget.take(100.125)  # half a token
     assert budget.take(100.25) and not budget.take(100.25)  # one token a 0.25 s
     assert sum(budget.take(200.0) for _ in range(50)) == 4  # refilled to the burst, no more
+
+
+GATES = {  # each SignedGate, its refusal, a payload builder and its own words for another boot
+    "mute": (MuteGate, MuteRefused, lambda **kw: mute_payload("anna", "z1", 10, **kw),
+             "request names monitor boot 'b0', this monitor runs boot 'b1' (a request from "
+             "before a restart?)"),
+    "accept": (AcceptGate, AcceptRefused, lambda **kw: accept_payload("anna", "cam0", "z1", **kw),
+               "request names monitor boot 'b0', this monitor runs boot 'b1' (a request from "
+               "before a restart?)"),
+    "apply": (ApplyGate, ApplyRefused, lambda **kw: apply_payload("anna", "ab" * 16, **kw),
+              "zone apply made for boot 'b0', this monitor runs boot 'b1' (a request from "
+              "before a restart)"),
+}
+
+
+@pytest.mark.parametrize("name", sorted(GATES))
+def test_each_signed_gate_checks_in_one_order_with_its_own_words(name) -> None:
+    gate_class, refused, payload_of, other_boot = GATES[name]
+    signer, signers = _signer()
+    gate = gate_class(signers, "cell1", KEY, window_s=30.0)
+
+    def check(payload: bytes, signature: bytes | None = None, wall_now: float = 1000.0):
+        sig = signer.sign(KEY, payload) if signature is None else signature
+        return gate.check(payload, sig, 5.0, wall_now, boot="b1")
+
+    # signature before cell, cell before boot, boot before the clock, the clock before replay
+    bad = payload_of(cell="cell2", boot="b0", wall=900.0, request_id="r1")
+    with pytest.raises(refused, match="signature does not match"):
+        check(bad, _signer()[0].sign(KEY, bad))
+    with pytest.raises(refused, match="is for cell 'cell2', this is 'cell1'"):
+        check(bad)
+    with pytest.raises(refused) as boot:
+        check(payload_of(cell="cell1", boot="b0", wall=900.0, request_id="r1"))
+    assert str(boot.value) == other_boot
+    with pytest.raises(refused, match="off the monitor's clock"):
+        check(payload_of(cell="cell1", boot="b1", wall=900.0, request_id="r1"))
+    ok = payload_of(cell="cell1", boot="b1", wall=1000.0, request_id="r1")
+    request = check(ok)
+    assert (request.operator, request.request_id) == ("anna", "r1")
+    with pytest.raises(refused, match="'r1' was already used"):
+        check(ok)

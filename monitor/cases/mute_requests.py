@@ -30,13 +30,7 @@ from monitor.cases.muting import MuteOutcome, MuteRequest
 from monitor.wire import payload as payload_json
 from monitor.wire.answers import request_answer
 from monitor.wire.request_desk import DeskRules, SignedRequestDesk
-from monitor.wire.signed_requests import (
-    RequestIds,
-    RequestKind,
-    check_cell,
-    check_signer,
-    check_window,
-)
+from monitor.wire.signed_requests import RequestKind, SignedGate
 
 MUTE_SCHEMA = "workcell.safety.mute/1"
 MUTE_ANSWER_SCHEMA = "workcell.safety.mute-answer/1"
@@ -62,35 +56,19 @@ def mute_payload(operator: str, zone: str, duration_s: float, *, cell: str, boot
                        "request_id": rid, "wall": wall, "boot": boot}).encode()
 
 
-class MuteGate:
+class MuteGate(SignedGate):
     """Checks the signature, cell, boot, clock window and request id of mute requests;
     remembers request ids (not thread-safe: ``MuteDesk`` holds the lock)."""
 
-    def __init__(self, operators: dict | None, cell: str, key_expr: str,
-                 window_s: float = 30.0) -> None:
-        self.operators = operators
-        self.cell = cell
-        self.key_expr = key_expr
-        self.window_s = window_s
-        self._ids = RequestIds(window_s)
+    kind = MUTE
 
-    def check(self, payload: bytes, signature: bytes | None, received: float,
-              wall_now: float | None = None, *, boot: str | None = None) -> MuteRequest:
-        """A MuteRequest (``time`` = ``received``) or MuteRefused with the reason."""
-        wall_now = time.time() if wall_now is None else wall_now
-        body = _parse(payload)
-        operator = body["operator"]
-        check_signer(MUTE, self.operators, operator, self.key_expr, payload, signature)
-        check_cell(MUTE, body["cell"], self.cell)
-        if boot is not None and body["boot"] != boot:
-            raise MuteRefused(f"request names monitor boot {body['boot']!r}, this monitor runs "
-                              f"boot {boot!r} (a request from before a restart?)")
-        wall = body["wall"]
-        check_window(MUTE, wall, wall_now, self.window_s)
-        rid = body["request_id"]
-        self._ids.use(MUTE, rid, wall_now, body["wall"])
-        return MuteRequest(body["zone"], operator, body["duration_s"], rid, received,
-                           end=body["end"], wall=wall)
+    def parse(self, payload: bytes) -> dict:
+        return _parse(payload)
+
+    def request(self, body: dict, received: float) -> MuteRequest:
+        """A MuteRequest (``time`` = ``received``)."""
+        return MuteRequest(body["zone"], body["operator"], body["duration_s"],
+                           body["request_id"], received, end=body["end"], wall=body["wall"])
 
 
 def _parse(payload: bytes) -> dict:

@@ -31,13 +31,7 @@ from dataclasses import dataclass
 from monitor.wire import payload as payload_json
 from monitor.wire.answers import request_answer
 from monitor.wire.resets import MAX_FIELD, MAX_RESET_PAYLOAD, finite_number
-from monitor.wire.signed_requests import (
-    RequestIds,
-    RequestKind,
-    check_cell,
-    check_signer,
-    check_window,
-)
+from monitor.wire.signed_requests import RequestKind, SignedGate
 
 APPLY_SCHEMA = "workcell.safety.zones-apply/1"
 APPLY_ANSWER_SCHEMA = "workcell.safety.zones-apply-answer/1"
@@ -74,34 +68,26 @@ def apply_payload(operator: str, zones_hash: str, *, cell: str = "", boot: str =
     return json.dumps(body).encode()
 
 
-class ApplyGate:
+class ApplyGate(SignedGate):
     """Checks zone-apply requests; remembers request ids (not thread-safe)."""
 
-    def __init__(self, operators: dict | None, cell: str, key_expr: str,
-                 window_s: float = 30.0) -> None:
-        self.operators = operators
-        self.cell = cell
-        self.key_expr = key_expr
-        self.window_s = window_s
-        self._ids = RequestIds(window_s)
+    kind = APPLY
 
-    def check(self, payload: bytes, signature: bytes | None, received: float,
-              wall_now: float | None = None, *, boot: str | None = None) -> ApplyRequest:
-        wall_now = time.time() if wall_now is None else wall_now
-        body = _parse(payload)
-        operator = body["operator"]
-        check_signer(APPLY, self.operators, operator, self.key_expr, payload, signature)
-        check_cell(APPLY, body.get("cell", self.cell), self.cell)
-        if not body["boot"]:
+    def parse(self, payload: bytes) -> dict:
+        return _parse(payload)
+
+    def check_boot(self, named: str, boot: str | None) -> None:
+        """A zone apply must name a boot (its own words for another boot)."""
+        if not named:
             raise ApplyRefused("zone apply names no monitor boot (read it from the monitor's "
                                "status; `monitor zones apply` does)")
-        if boot is not None and body["boot"] != boot:
-            raise ApplyRefused(f"zone apply made for boot {body['boot']!r}, this monitor runs "
+        if boot is not None and named != boot:
+            raise ApplyRefused(f"zone apply made for boot {named!r}, this monitor runs "
                                f"boot {boot!r} (a request from before a restart)")
-        check_window(APPLY, body["wall"], wall_now, self.window_s)
-        rid = body["request_id"]
-        self._ids.use(APPLY, rid, wall_now, body["wall"])
-        return ApplyRequest(operator, rid, body["zones_hash"], body["note"], received)
+
+    def request(self, body: dict, received: float) -> ApplyRequest:
+        return ApplyRequest(body["operator"], body["request_id"], body["zones_hash"],
+                            body["note"], received)
 
 
 def _parse(payload: bytes) -> dict:

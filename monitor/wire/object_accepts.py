@@ -36,13 +36,7 @@ import time
 from dataclasses import dataclass
 
 from monitor.wire import payload as payload_json
-from monitor.wire.signed_requests import (
-    RequestIds,
-    RequestKind,
-    check_cell,
-    check_signer,
-    check_window,
-)
+from monitor.wire.signed_requests import RequestKind, SignedGate
 
 ACCEPT_SCHEMA = "workcell.safety.object-accept/1"
 ACCEPT_ANSWER_SCHEMA = "workcell.safety.object-accept-answer/1"
@@ -97,32 +91,18 @@ def accept_payload(operator: str, camera: str, zone: str, *, cell: str, boot: st
                        "boot": boot}).encode()
 
 
-class AcceptGate:
+class AcceptGate(SignedGate):
     """Checks signature, cell, boot, clock window and request id of acceptances; remembers
     request ids (not thread-safe: the bus's desk holds a lock)."""
 
-    def __init__(self, operators: dict | None, cell: str, key_expr: str,
-                 window_s: float = 30.0) -> None:
-        self.operators = operators
-        self.cell = cell
-        self.key_expr = key_expr
-        self.window_s = window_s
-        self._ids = RequestIds(window_s)
+    kind = ACCEPT
 
-    def check(self, payload: bytes, signature: bytes | None, received: float,
-              wall_now: float | None = None, *, boot: str | None = None) -> ObjectAccept:
-        """An ObjectAccept (``time`` = ``received``) or AcceptRefused with the reason."""
-        wall_now = time.time() if wall_now is None else wall_now
-        body = _parse(payload)
-        operator = body["operator"]
-        check_signer(ACCEPT, self.operators, operator, self.key_expr, payload, signature)
-        check_cell(ACCEPT, body["cell"], self.cell)
-        if boot is not None and body["boot"] != boot:
-            raise AcceptRefused(f"request names monitor boot {body['boot']!r}, this monitor "
-                                f"runs boot {boot!r} (a request from before a restart?)")
-        check_window(ACCEPT, body["wall"], wall_now, self.window_s)
-        self._ids.use(ACCEPT, body["request_id"], wall_now, body["wall"])
-        return ObjectAccept(operator, body["camera"], body["zone"], body["request_id"],
+    def parse(self, payload: bytes) -> dict:
+        return _parse(payload)
+
+    def request(self, body: dict, received: float) -> ObjectAccept:
+        """An ObjectAccept (``time`` = ``received``)."""
+        return ObjectAccept(body["operator"], body["camera"], body["zone"], body["request_id"],
                             received, body["wall"], body["note"])
 
 

@@ -10,12 +10,17 @@ the monitor's clock; its request id was not used before (replay).
 
 Each check raises the caller's own refusal class (a ``ValueError`` whose message is the reason
 told to the sender), so callers keep their exception types and the wording their users see.
+
+``SignedGate`` runs them in one order for the requests that name an operator, a monitor boot
+and a request id (mutes, acceptances of objects, zone applies): each gate says only how its
+payload is read (``parse``) and what a verified one becomes (``request``).
 """
 
 from __future__ import annotations
 
 import collections
 import math
+import time
 from dataclasses import dataclass
 
 from monitor.wire.signing import verify
@@ -100,3 +105,50 @@ class RequestIds:
                                "this monitor no longer remembers (its clock stepped back?): "
                                "refused as a possible replay")
         self._seen[request_id] = wall
+
+
+class SignedGate:
+    """Checks an operator's signed request: the payload (``parse``, the gate's own), the
+    signer, the cell, this boot of the monitor, the clock window and the request id, in that
+    order (the first refusal is the one told); remembers request ids (not thread-safe: the
+    bus's desk holds a lock). ``kind``: the gate's ``RequestKind``; a request with no ``cell``
+    is for this one (zone applies may leave it out)."""
+
+    kind: RequestKind
+
+    def __init__(self, operators: dict | None, cell: str, key_expr: str,
+                 window_s: float = 30.0) -> None:
+        self.operators = operators
+        self.cell = cell
+        self.key_expr = key_expr
+        self.window_s = window_s
+        self._ids = RequestIds(window_s)
+
+    def parse(self, payload: bytes) -> dict:
+        """The checked fields: at least ``operator``, ``boot``, ``wall`` and ``request_id``;
+        ``kind.refused`` with the reason otherwise."""
+        raise NotImplementedError
+
+    def request(self, body: dict, received: float):
+        """What a verified request becomes (``received``: the monitor's monotonic clock)."""
+        raise NotImplementedError
+
+    def check_boot(self, named: str, boot: str | None) -> None:
+        """Refuse a request made for another boot of the monitor (``boot`` None: not
+        checked)."""
+        if boot is not None and named != boot:
+            raise self.kind.refused(f"request names monitor boot {named!r}, this monitor runs "
+                                    f"boot {boot!r} (a request from before a restart?)")
+
+    def check(self, payload: bytes, signature: bytes | None, received: float,
+              wall_now: float | None = None, *, boot: str | None = None):
+        """The verified request (``request``) or ``kind.refused`` with the reason."""
+        kind = self.kind
+        wall_now = time.time() if wall_now is None else wall_now
+        body = self.parse(payload)
+        check_signer(kind, self.operators, body["operator"], self.key_expr, payload, signature)
+        check_cell(kind, body.get("cell", self.cell), self.cell)
+        self.check_boot(body["boot"], boot)
+        check_window(kind, body["wall"], wall_now, self.window_s)
+        self._ids.use(kind, body["request_id"], wall_now, body["wall"])
+        return self.request(body, received)
