@@ -10,77 +10,33 @@ Exit 0 accepted, 1 refused (the reason printed), 2 no answer (or bad input)."""
 from __future__ import annotations
 
 import argparse
-import contextlib
 import sys
-import time
 
 from monitor.bus.session import default_instance, open_session
-from monitor.cli.keys import KEY_DIR
-from monitor.cli.operator import first_status, operator_key_path
+from monitor.cli.operator import first_status
 from monitor.cli.role_arg import add_role_arg
 from monitor.cli.roles import no_answer, role_keys
+from monitor.cli.signed_ask import SignedAsk, add_signed_args, ask_signed, operator_signer
 from monitor.cli.status_text import changed_lines
-from monitor.cli.zenoh_args import add_zenoh_args, bounded, bus_config, nothing_found_hint
-from monitor.errors import ConfigError
+from monitor.cli.zenoh_args import add_zenoh_args, bounded, bus_config
 from monitor.signals import Interrupted, StopSignals, call_interruptible
-from monitor.wire.answers import request_answer
 from monitor.wire.object_accepts import accept_payload
-from monitor.wire.signing import load_private_key, load_public_key
+from monitor.wire.signing import load_public_key
 
 
 def cmd_accept(args: argparse.Namespace) -> int:
-    key_path = operator_key_path(args)
-    if key_path is None:  # acceptances are never unsigned
-        raise ConfigError(f"monitor objects accept: no key for {args.operator} (--key, or "
-                          f"{KEY_DIR}/{args.operator}.key); an acceptance must be signed")
-    signer = load_private_key(key_path)
+    signer = operator_signer(args, "monitor objects accept", "an acceptance must be signed")
     monitor_keys = (tuple(load_public_key(k) for k in args.monitor_key)
                     if args.monitor_key else None)
     if monitor_keys is None:
         print("monitor objects accept: no --monitor-key: the answer is NOT authenticated",
               file=sys.stderr, flush=True)
-    with StopSignals(name="monitor objects accept") as stop:
-        bus = bus_config(args, instance=args.instance or default_instance("accept"))
-        keys = role_keys(bus, args.role)
-        try:
-            session = call_interruptible(lambda: open_session(bus), stop)
-        except Interrupted:
-            return 130
-        answer = None
-        with bounded(session, "monitor objects accept") as session:
-            started = time.monotonic()
-            status = first_status(session, keys, args.timeout, stop)  # the monitor's boot
-            if status is None:
-                if stop.is_set():
-                    return 130
-                raise no_answer("monitor objects accept", keys.status, args.timeout, bus,
-                                session, stop, args.role)
-            boot = status.get("boot") if isinstance(status.get("boot"), str) else ""
-            payload = accept_payload(args.operator, args.camera, args.zone,
-                                     cell=status.get("cell") or bus.cell, boot=boot,
-                                     note=args.note, request_id=args.request_id)
-            signature = signer.sign(keys.objects_accept, payload)
-            left = args.timeout - (time.monotonic() - started)
-            if left > 0:
-                with contextlib.suppress(Interrupted):
-                    answer = call_interruptible(lambda: request_answer(
-                        session, keys.objects_accept, payload, signature, left,
-                        monitor_keys), stop)
-        if stop.is_set():
-            return 130
-    if answer is None:
-        raise ConfigError(f"monitor objects accept: no monitor answered on "
-                          f"{keys.objects_accept} within {args.timeout:g} s"
-                          + (" (with an answer signed by --monitor-key)" if monitor_keys
-                             else "") + f"; {nothing_found_hint(bus)}")
-    verdict = "accepted" if answer["accepted"] else "REFUSED"
-    by = f"{args.role}: " if args.role else ""
-    print(f"{by}object in zone {args.zone} on {args.camera} by {args.operator} {verdict}: "
-          f"{answer.get('reason', '')}")
-    if not answer["accepted"]:
-        print(f"monitor objects accept: refused by the {answer.get('stage', 'monitor')}",
-              file=sys.stderr)
-    return 0 if answer["accepted"] else 1
+    return ask_signed(args, SignedAsk(
+        "monitor objects accept", "accept", lambda keys: keys.objects_accept,
+        lambda cell, boot: accept_payload(args.operator, args.camera, args.zone, cell=cell,
+                                          boot=boot, note=args.note,
+                                          request_id=args.request_id),
+        f"object in zone {args.zone} on {args.camera}"), signer, monitor_keys)
 
 
 def cmd_list(args: argparse.Namespace) -> int:
@@ -127,18 +83,8 @@ def register(subparsers) -> None:
                    "the alert names it (required)")
     a.add_argument("--zone", required=True, help="the zone it stands in, as the alert names "
                    "it (required)")
-    a.add_argument("--operator", required=True,
-                   help="operator id, as in the monitor's operators file (required)")
-    a.add_argument("--key", metavar="FILE", help="the operator's private key (default "
-                   f"{KEY_DIR}/<operator>.key when it exists)")
-    a.add_argument("--note", default="", help="what it is, for the audit (default empty)")
-    add_zenoh_args(a, default_connect=True)
-    add_role_arg(a, many=False, what="the object is accepted by that monitor (each monitor of "
-                 "a cell has its own cameras)")
-    a.add_argument("--request-id", default="",
-                   help="unique id of this request (default <operator>-<time>-<random>)")
-    a.add_argument("--timeout", type=float, default=3.0,
-                   help="s to wait for the monitor's answer (default 3)")
+    add_signed_args(a, "the object is accepted by that monitor (each monitor of a cell has "
+                    "its own cameras)", note_help="what it is, for the audit (default empty)")
     a.add_argument("--monitor-key", action="append", default=[], metavar="FILE",
                    help="the monitor's public key (repeat for several): only an answer it "
                    "signed is believed (default none: the answer is NOT authenticated)")
