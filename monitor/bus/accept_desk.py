@@ -14,16 +14,16 @@ from __future__ import annotations
 
 from monitor.wire.object_accepts import (
     ACCEPT_ANSWER_SCHEMA,
+    MAX_PAYLOAD,
     AcceptGate,
     AcceptOutcome,
     AcceptRefused,
-    operator_of,
 )
 from monitor.wire.request_desk import DeskRules, SignedRequestDesk
 from monitor.wire.signing import Signer
 
 ACCEPT_DESK = DeskRules(AcceptRefused, "malformed object acceptance", "object_accept_refused",
-                        "object acceptance", ACCEPT_ANSWER_SCHEMA, operator_of,
+                        "object acceptance", ACCEPT_ANSWER_SCHEMA, MAX_PAYLOAD,
                         authenticated=True)
 
 

@@ -26,9 +26,9 @@ import zenoh
 
 from monitor.policy import ResetRequest
 from monitor.types import Alert
-from monitor.wire import payload as payload_json
 from monitor.wire.answers import answer_attachment, request_digest
 from monitor.wire.resets import MAX_RESET_PAYLOAD, ResetGate, ResetRefused
+from monitor.wire.signed_requests import operator_of
 from monitor.wire.signing import Signer
 
 SCHEMA_VERSION = 1
@@ -94,7 +94,7 @@ class ResetDesk:
             with self._lock:  # bound to this boot and the latch published now
                 req = self.gate.check(payload, signature, now, boot=boot, latch=latch())
         except ResetRefused as exc:
-            operator = _operator_of(payload)
+            operator = operator_of(payload, MAX_RESET_PAYLOAD)
             with self._lock:
                 self.refused += 1
                 if operator is None:
@@ -181,11 +181,3 @@ class ResetDesk:
             out = list(self._alerts)
             self._alerts.clear()
         return out
-
-
-def _operator_of(payload: bytes) -> str | None:
-    with contextlib.suppress(Exception):
-        op = payload_json.load_object(payload, MAX_RESET_PAYLOAD).get("operator")
-        if isinstance(op, str) and op.strip():
-            return op.strip()[:64]
-    return None

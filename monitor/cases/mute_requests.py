@@ -20,17 +20,20 @@ Payload::
 
 from __future__ import annotations
 
-import contextlib
 import json
-import math
-import os
 import time
 
 from monitor.cases.muting import MuteOutcome, MuteRequest
-from monitor.wire import payload as payload_json
 from monitor.wire.answers import request_answer
 from monitor.wire.request_desk import DeskRules, SignedRequestDesk
-from monitor.wire.signed_requests import RequestKind, SignedGate
+from monitor.wire.signed_requests import (
+    RequestKind,
+    SignedGate,
+    load_request,
+    new_request_id,
+    number_fields,
+    text_fields,
+)
 
 MUTE_SCHEMA = "workcell.safety.mute/1"
 MUTE_ANSWER_SCHEMA = "workcell.safety.mute-answer/1"
@@ -50,7 +53,7 @@ def mute_payload(operator: str, zone: str, duration_s: float, *, cell: str, boot
     """A mute request body (``end``: end the zone's mute now); ``request_id`` defaults to a
     fresh unique id, ``boot`` is the monitor's boot from its status."""
     wall = time.time() if wall is None else wall
-    rid = request_id or f"{operator}-{wall:.3f}-{os.urandom(3).hex()}"
+    rid = request_id or new_request_id(operator, wall)
     return json.dumps({"schema": MUTE_SCHEMA, "cell": cell, "zone": zone,
                        "duration_s": duration_s, "end": end, "operator": operator,
                        "request_id": rid, "wall": wall, "boot": boot}).encode()
@@ -72,25 +75,11 @@ class MuteGate(SignedGate):
 
 
 def _parse(payload: bytes) -> dict:
-    if len(payload) > MAX_PAYLOAD:
-        raise MuteRefused("mute request too large")
-    try:
-        body = payload_json.load(payload, MAX_PAYLOAD)
-    except payload_json.PayloadError as exc:
-        raise MuteRefused(f"mute request refused: {exc}") from None
-    if not isinstance(body, dict) or body.get("schema") != MUTE_SCHEMA:
-        raise MuteRefused(f"mute request is not a {MUTE_SCHEMA} object")
-    out = {}
-    for key in ("operator", "request_id", "zone", "cell", "boot"):
-        value = body.get(key)
-        if not isinstance(value, str) or not value.strip() or len(value) > MAX_FIELD:
-            raise MuteRefused(f"mute request without a valid {key}")
-        out[key] = value.strip() if key == "operator" else value
-    for key in ("duration_s", "wall"):
-        value = body.get(key)
-        if isinstance(value, bool) or not isinstance(value, int | float) or not _finite(value):
-            raise MuteRefused(f"mute request without a valid {key}")
-        out[key] = float(value)
+    noun = "mute request"
+    body = load_request(payload, MAX_PAYLOAD, MUTE_SCHEMA, noun, MuteRefused)
+    out = text_fields(body, ("operator", "request_id", "zone", "cell", "boot"), MAX_FIELD, noun,
+                      MuteRefused)
+    out.update(number_fields(body, ("duration_s", "wall"), noun, MuteRefused))
     end = body.get("end", False)
     if not isinstance(end, bool):
         raise MuteRefused("mute request with a malformed end")
@@ -98,23 +87,8 @@ def _parse(payload: bytes) -> dict:
     return out
 
 
-def _finite(value: int | float) -> bool:
-    try:
-        return math.isfinite(value)
-    except OverflowError:
-        return False
-
-
-def _operator_of(payload: bytes) -> str | None:
-    with contextlib.suppress(Exception):
-        op = payload_json.load_object(payload, MAX_PAYLOAD).get("operator")
-        if isinstance(op, str) and op.strip():
-            return op.strip()[:64]
-    return None
-
-
 MUTE_DESK = DeskRules(MuteRefused, "malformed mute request", "mute_refused", "mute",
-                      MUTE_ANSWER_SCHEMA, _operator_of)
+                      MUTE_ANSWER_SCHEMA, MAX_PAYLOAD)
 
 
 class MuteDesk(SignedRequestDesk):

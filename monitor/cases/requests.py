@@ -23,13 +23,19 @@ same set with a larger seq.
 from __future__ import annotations
 
 import json
-import math
 import time
 from dataclasses import dataclass
 
 from monitor.cases.sets import Refusal, Selection
 from monitor.wire import payload as payload_json
-from monitor.wire.signed_requests import RequestKind, check_cell, check_signer, check_window
+from monitor.wire.signed_requests import (
+    RequestKind,
+    check_cell,
+    check_signer,
+    check_window,
+    finite_number,
+    load_request,
+)
 
 CASE_SCHEMA = "workcell.safety.case/1"
 MAX_CASE_PAYLOAD = 4 * 1024
@@ -107,14 +113,8 @@ def _selector_of(payload: bytes) -> str | None:
 
 
 def _parse(payload: bytes) -> dict:
-    if len(payload) > MAX_CASE_PAYLOAD:
-        raise CaseRefused("selection request too large")
-    try:
-        body = payload_json.load(payload, MAX_CASE_PAYLOAD)
-    except payload_json.PayloadError as exc:
-        raise CaseRefused(f"selection request refused: {exc}") from None
-    if not isinstance(body, dict) or body.get("schema") != CASE_SCHEMA:
-        raise CaseRefused(f"selection request is not a {CASE_SCHEMA} object")
+    body = load_request(payload, MAX_CASE_PAYLOAD, CASE_SCHEMA, "selection request",
+                        CaseRefused)
     who, set_id = body.get("selector"), body.get("set")
     if not isinstance(who, str) or not who.strip() or len(who) > MAX_FIELD:
         raise CaseRefused("selection request without a selector")
@@ -124,17 +124,10 @@ def _parse(payload: bytes) -> dict:
     if isinstance(seq, bool) or not isinstance(seq, int) or not 0 <= seq < 2**53:
         raise CaseRefused("selection request without an integer seq within 0..2**53")
     wall = body.get("wall")
-    if isinstance(wall, bool) or not isinstance(wall, int | float) or not _finite(wall):
+    if isinstance(wall, bool) or not isinstance(wall, int | float) or not finite_number(wall):
         raise CaseRefused("selection request without a valid wall time")
     cell = body.get("cell")
     if cell is not None and not isinstance(cell, str):
         raise CaseRefused("selection request with a malformed cell")
     return {"selector": who.strip(), "set": set_id, "seq": seq, "wall": float(wall),
             **({"cell": cell} if cell else {})}
-
-
-def _finite(value: int | float) -> bool:
-    try:
-        return math.isfinite(value)
-    except OverflowError:
-        return False

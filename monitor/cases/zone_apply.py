@@ -23,15 +23,19 @@ payload)`` is the attachment)::
 from __future__ import annotations
 
 import json
-import os
 import re
 import time
 from dataclasses import dataclass
 
-from monitor.wire import payload as payload_json
 from monitor.wire.answers import request_answer
-from monitor.wire.resets import MAX_FIELD, MAX_RESET_PAYLOAD, finite_number
-from monitor.wire.signed_requests import RequestKind, SignedGate
+from monitor.wire.resets import MAX_FIELD, MAX_RESET_PAYLOAD
+from monitor.wire.signed_requests import (
+    RequestKind,
+    SignedGate,
+    finite_number,
+    load_request,
+    new_request_id,
+)
 
 APPLY_SCHEMA = "workcell.safety.zones-apply/1"
 APPLY_ANSWER_SCHEMA = "workcell.safety.zones-apply-answer/1"
@@ -60,7 +64,7 @@ def apply_payload(operator: str, zones_hash: str, *, cell: str = "", boot: str =
                   note: str = "", request_id: str = "", wall: float | None = None) -> bytes:
     """A zone-apply request body; ``boot``: the monitor's boot from its status."""
     wall = time.time() if wall is None else wall
-    rid = request_id or f"{operator}-{wall:.3f}-{os.urandom(3).hex()}"
+    rid = request_id or new_request_id(operator, wall)
     body = {"schema": APPLY_SCHEMA, "operator": operator, "request_id": rid,
             "zones_hash": zones_hash, "note": note, "wall": wall, "boot": boot}
     if cell:
@@ -91,14 +95,8 @@ class ApplyGate(SignedGate):
 
 
 def _parse(payload: bytes) -> dict:
-    if len(payload) > MAX_RESET_PAYLOAD:
-        raise ApplyRefused("zone apply request too large")
-    try:
-        body = payload_json.load(payload, MAX_RESET_PAYLOAD)
-    except payload_json.PayloadError as exc:
-        raise ApplyRefused(f"zone apply request refused: {exc}") from None
-    if not isinstance(body, dict) or body.get("schema") != APPLY_SCHEMA:
-        raise ApplyRefused(f"zone apply request is not a {APPLY_SCHEMA} object")
+    body = load_request(payload, MAX_RESET_PAYLOAD, APPLY_SCHEMA, "zone apply request",
+                        ApplyRefused)
     operator = body.get("operator")
     if not isinstance(operator, str) or not operator.strip() or len(operator) > MAX_FIELD:
         raise ApplyRefused("zone apply request without an operator id")

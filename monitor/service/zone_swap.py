@@ -39,8 +39,8 @@ import numpy as np
 from monitor.cases.zone_apply import APPLY_ANSWER_SCHEMA, ApplyGate, ApplyRefused, ApplyRequest
 from monitor.errors import ConfigError, InputError
 from monitor.types import Alert
-from monitor.wire import payload as payload_json
 from monitor.wire.resets import MAX_RESET_PAYLOAD
+from monitor.wire.signed_requests import operator_of
 from monitor.wire.signing import load_operators
 from monitor.zones.files import draft_path, promote_draft
 
@@ -79,7 +79,7 @@ class ZoneApplies:
                     raise ApplyRefused("too many zone applies waiting; ask again")
                 self._queue.append((req, query))
         except ApplyRefused as exc:
-            operator = _operator_of(query)
+            operator = operator_of(payload, MAX_RESET_PAYLOAD)
             with self._lock:
                 self.refused += 1
                 self._refused.append(Alert(
@@ -97,15 +97,6 @@ class ZoneApplies:
             self._queue.clear()
             self._refused.clear()
         return queued, refused
-
-
-def _operator_of(query) -> str | None:
-    with contextlib.suppress(Exception):
-        op = payload_json.load_object(query.payload.to_bytes(), MAX_RESET_PAYLOAD).get(
-            "operator")
-        if isinstance(op, str) and op.strip():
-            return op.strip()[:64]
-    return None
 
 
 def answer(query, key: str, body: dict) -> None:

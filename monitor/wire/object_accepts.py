@@ -28,15 +28,18 @@ Payload::
 
 from __future__ import annotations
 
-import contextlib
 import json
-import math
-import os
 import time
 from dataclasses import dataclass
 
-from monitor.wire import payload as payload_json
-from monitor.wire.signed_requests import RequestKind, SignedGate
+from monitor.wire.signed_requests import (
+    RequestKind,
+    SignedGate,
+    load_request,
+    new_request_id,
+    number_fields,
+    text_fields,
+)
 
 ACCEPT_SCHEMA = "workcell.safety.object-accept/1"
 ACCEPT_ANSWER_SCHEMA = "workcell.safety.object-accept-answer/1"
@@ -85,7 +88,7 @@ def accept_payload(operator: str, camera: str, zone: str, *, cell: str, boot: st
     """An acceptance request body; ``request_id`` defaults to a fresh unique id, ``boot`` is
     the monitor's boot from its status."""
     wall = time.time() if wall is None else wall
-    rid = request_id or f"{operator}-{wall:.3f}-{os.urandom(3).hex()}"
+    rid = request_id or new_request_id(operator, wall)
     return json.dumps({"schema": ACCEPT_SCHEMA, "cell": cell, "camera": camera, "zone": zone,
                        "operator": operator, "note": note, "request_id": rid, "wall": wall,
                        "boot": boot}).encode()
@@ -107,42 +110,13 @@ class AcceptGate(SignedGate):
 
 
 def _parse(payload: bytes) -> dict:
-    if len(payload) > MAX_PAYLOAD:
-        raise AcceptRefused("object acceptance too large")
-    try:
-        body = payload_json.load(payload, MAX_PAYLOAD)
-    except payload_json.PayloadError as exc:
-        raise AcceptRefused(f"object acceptance refused: {exc}") from None
-    if not isinstance(body, dict) or body.get("schema") != ACCEPT_SCHEMA:
-        raise AcceptRefused(f"object acceptance is not a {ACCEPT_SCHEMA} object")
-    out: dict = {}
-    for key in ("operator", "request_id", "camera", "zone", "cell", "boot"):
-        value = body.get(key)
-        if not isinstance(value, str) or not value.strip() or len(value) > MAX_FIELD:
-            raise AcceptRefused(f"object acceptance without a valid {key}")
-        out[key] = value.strip() if key == "operator" else value
-    wall = body.get("wall")
-    if isinstance(wall, bool) or not isinstance(wall, int | float) or not _finite(wall):
-        raise AcceptRefused("object acceptance without a valid wall")
-    out["wall"] = float(wall)
+    noun = "object acceptance"
+    body = load_request(payload, MAX_PAYLOAD, ACCEPT_SCHEMA, noun, AcceptRefused)
+    out = text_fields(body, ("operator", "request_id", "camera", "zone", "cell", "boot"),
+                      MAX_FIELD, noun, AcceptRefused)
+    out.update(number_fields(body, ("wall",), noun, AcceptRefused))
     note = body.get("note", "")
     if not isinstance(note, str) or len(note) > 4 * MAX_FIELD:
         raise AcceptRefused("object acceptance with a malformed note")
     out["note"] = note
     return out
-
-
-def _finite(value: int | float) -> bool:
-    try:
-        return math.isfinite(value)
-    except OverflowError:
-        return False
-
-
-def operator_of(payload: bytes) -> str | None:
-    """The operator a (possibly refused) payload names, for the refusal's alert."""
-    with contextlib.suppress(Exception):
-        op = payload_json.load_object(payload, MAX_PAYLOAD).get("operator")
-        if isinstance(op, str) and op.strip():
-            return op.strip()[:64]
-    return None

@@ -21,11 +21,11 @@ import collections
 import contextlib
 import json
 import threading
-from collections.abc import Callable
 from dataclasses import dataclass
 
 from monitor.types import Alert
 from monitor.wire.answers import answer_attachment, request_digest
+from monitor.wire.signed_requests import operator_of
 from monitor.wire.signing import Signer
 
 NOT_JUDGED = "the monitor did not judge this request in time (pipeline stalled?)"
@@ -40,7 +40,7 @@ class DeskRules:
     alert: str  # the alert kind of a refusal at the bus ("mute_refused", ...)
     noun: str  # "mute", "object acceptance": "<noun> in the name of <operator> refused ..."
     schema: str  # the answers' schema
-    operator_of: Callable[[bytes], str | None]  # who a (refused) payload names
+    max_payload: int  # the bound a refused payload is read with for the operator it names
     # answers name the request they answer (its SHA-256) and the monitor (``who``) and carry
     # the monitor's signature (``monitor.wire.answers``); False: the plain answer of mutes
     # (``monitor mute`` reads no monitor key)
@@ -81,7 +81,7 @@ class SignedRequestDesk:
                 req = self.gate.check(payload, signature, now, boot=boot)
         except Exception as exc:  # nothing a sender does may kill the callback
             reason = str(exc) if isinstance(exc, rules.refused) else rules.malformed
-            operator = rules.operator_of(payload)
+            operator = operator_of(payload, rules.max_payload)
             with self._lock:
                 self.refused += 1
                 self._alerts.append(Alert(

@@ -29,13 +29,11 @@ from __future__ import annotations
 import hashlib
 import hmac
 import json
-import math
 import os
 import time
 from dataclasses import dataclass, field
 
 from monitor.policy import ResetRequest
-from monitor.wire import payload as payload_json
 from monitor.wire.answers import request_answer
 from monitor.wire.signed_requests import (
     RequestIds,
@@ -43,6 +41,9 @@ from monitor.wire.signed_requests import (
     check_cell,
     check_signer,
     check_window,
+    finite_number,
+    load_request,
+    new_request_id,
 )
 from monitor.wire.signing import Signer
 
@@ -65,7 +66,7 @@ def reset_payload(operator: str, request_id: str = "", note: str = "", *, cell: 
     ``latch``: the monitor's boot and latch nonce from its status (``latch_of_status``); a
     request without them is refused."""
     wall = time.time() if wall is None else wall
-    rid = request_id or f"{operator}-{wall:.3f}-{os.urandom(3).hex()}"
+    rid = request_id or new_request_id(operator, wall)
     body = {"schema": RESET_SCHEMA, "operator": operator, "request_id": rid, "note": note,
             "confirm_clear": confirm_clear, "wall": wall}
     if cell:
@@ -162,22 +163,8 @@ class ResetGate:
                             latch=nonce)
 
 
-def finite_number(value: int | float) -> bool:
-    try:
-        return math.isfinite(value)  # a JSON integer may be too large for a float
-    except OverflowError:
-        return False
-
-
 def _parse(payload: bytes) -> dict:
-    if len(payload) > MAX_RESET_PAYLOAD:
-        raise ResetRefused("reset request too large")
-    try:
-        body = payload_json.load(payload, MAX_RESET_PAYLOAD)
-    except payload_json.PayloadError as exc:
-        raise ResetRefused(f"reset request refused: {exc}") from None
-    if not isinstance(body, dict):
-        raise ResetRefused("reset request is not a JSON object")
+    body = load_request(payload, MAX_RESET_PAYLOAD, None, "reset request", ResetRefused)
     operator = body.get("operator")
     if not isinstance(operator, str) or not operator.strip() or len(operator) > MAX_FIELD:
         raise ResetRefused("reset request without an operator id")

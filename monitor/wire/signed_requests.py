@@ -11,6 +11,11 @@ the monitor's clock; its request id was not used before (replay).
 Each check raises the caller's own refusal class (a ``ValueError`` whose message is the reason
 told to the sender), so callers keep their exception types and the wording their users see.
 
+What their parsers share is here too: the bounded, schema-checked JSON object
+(``load_request``), the string and number fields every gate checks alike (``text_fields``,
+``number_fields``), the operator a refused payload names for its alert (``operator_of``) and a
+fresh request id (``new_request_id``).
+
 ``SignedGate`` runs them in one order for the requests that name an operator, a monitor boot
 and a request id (mutes, acceptances of objects, zone applies): each gate says only how its
 payload is read (``parse``) and what a verified one becomes (``request``).
@@ -19,10 +24,13 @@ payload is read (``parse``) and what a verified one becomes (``request``).
 from __future__ import annotations
 
 import collections
+import contextlib
 import math
+import os
 import time
 from dataclasses import dataclass
 
+from monitor.wire import payload as payload_json
 from monitor.wire.signing import verify
 
 # request ids remembered at most (a flood of valid requests must not grow memory without bound)
@@ -39,6 +47,72 @@ class RequestKind:
     signer: str = "operator"  # "operator" or "selector"
     signers_option: str = "bus.operators_file"
     sep: str = ";"  # how the "no signers" refusal joins its two halves (kept as users know it)
+
+
+def new_request_id(operator: str, wall: float) -> str:
+    """A request id nobody used: ``<operator>-<wall>-<random>``."""
+    return f"{operator}-{wall:.3f}-{os.urandom(3).hex()}"
+
+
+def load_request(payload: bytes, max_payload: int, schema: str | None, noun: str,
+                 refused: type[ValueError]) -> dict:
+    """The request's JSON object, at most ``max_payload`` bytes, with that ``schema`` (None:
+    any JSON object); ``refused`` ("<noun> too large", ...) otherwise."""
+    if len(payload) > max_payload:
+        raise refused(f"{noun} too large")
+    try:
+        body = payload_json.load(payload, max_payload)
+    except payload_json.PayloadError as exc:
+        raise refused(f"{noun} refused: {exc}") from None
+    if schema is None:
+        if not isinstance(body, dict):
+            raise refused(f"{noun} is not a JSON object")
+    elif not isinstance(body, dict) or body.get("schema") != schema:
+        raise refused(f"{noun} is not a {schema} object")
+    return body
+
+
+def text_fields(body: dict, keys: tuple[str, ...], max_field: int, noun: str,
+                refused: type[ValueError]) -> dict:
+    """Each of ``keys``: a non-blank string of at most ``max_field`` characters (the operator
+    stripped); "<noun> without a valid <key>" otherwise."""
+    out: dict = {}
+    for key in keys:
+        value = body.get(key)
+        if not isinstance(value, str) or not value.strip() or len(value) > max_field:
+            raise refused(f"{noun} without a valid {key}")
+        out[key] = value.strip() if key == "operator" else value
+    return out
+
+
+def number_fields(body: dict, keys: tuple[str, ...], noun: str,
+                  refused: type[ValueError]) -> dict:
+    """Each of ``keys``: a finite JSON number (never a bool), as a float; "<noun> without a
+    valid <key>" otherwise."""
+    out: dict = {}
+    for key in keys:
+        value = body.get(key)
+        if isinstance(value, bool) or not isinstance(value, int | float) \
+                or not finite_number(value):
+            raise refused(f"{noun} without a valid {key}")
+        out[key] = float(value)
+    return out
+
+
+def finite_number(value: int | float) -> bool:
+    try:
+        return math.isfinite(value)  # a JSON integer may be too large for a float
+    except OverflowError:
+        return False
+
+
+def operator_of(payload: bytes, max_payload: int) -> str | None:
+    """The operator a (possibly refused) payload names, for the refusal's alert and answer."""
+    with contextlib.suppress(Exception):
+        op = payload_json.load_object(payload, max_payload).get("operator")
+        if isinstance(op, str) and op.strip():
+            return op.strip()[:64]
+    return None
 
 
 def check_signer(kind: RequestKind, signers: dict | None, who: str, key_expr: str,
