@@ -27,6 +27,7 @@ import zenoh
 from monitor.policy import ResetRequest
 from monitor.types import Alert
 from monitor.wire.answers import answer_attachment, request_digest
+from monitor.wire.request_desk import query_request
 from monitor.wire.resets import MAX_RESET_PAYLOAD, ResetGate, ResetRefused
 from monitor.wire.signed_requests import operator_of
 from monitor.wire.signing import Signer
@@ -77,8 +78,7 @@ class ResetDesk:
         return out[-1:]
 
     def on_query(self, query: zenoh.Query, boot: str, latch: Callable[[], str | None]) -> None:
-        payload = query.payload.to_bytes() if query.payload is not None else b""
-        signature = query.attachment.to_bytes() if query.attachment is not None else None
+        payload, signature = query_request(query)
         self.take(payload, signature, query, boot, latch)
 
     def on_sample(self, sample: zenoh.Sample, boot: str,

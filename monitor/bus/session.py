@@ -482,9 +482,7 @@ class SafetyBus:
         self._mutes.answer(outcome)
 
     def _on_mute_query(self, query: zenoh.Query) -> None:
-        payload = query.payload.to_bytes() if query.payload is not None else b""
-        signature = query.attachment.to_bytes() if query.attachment is not None else None
-        self._mutes.take(payload, signature, query, self._clock(), self._boot)
+        self._mutes.on_query(query, self._clock(), self._boot)
 
     # --- acceptances of objects since commissioning (monitor.bus.accept_desk) --------------
 
@@ -497,9 +495,7 @@ class SafetyBus:
         self._accepts.answer(outcome)
 
     def _on_accept_query(self, query: zenoh.Query) -> None:
-        payload = query.payload.to_bytes() if query.payload is not None else b""
-        signature = query.attachment.to_bytes() if query.attachment is not None else None
-        self._accepts.take(payload, signature, query, self._clock(), self._boot)
+        self._accepts.on_query(query, self._clock(), self._boot)
 
     # --- status ------------------------------------------------------------------------------
 

@@ -19,6 +19,7 @@ from monitor.cases.requests import CaseGate, CasePolicy
 from monitor.cases.sets import CasePlan, Refusal, Selection
 from monitor.wire.answers import request_answer
 from monitor.wire.busconfig import BusKeys
+from monitor.wire.request_desk import query_request
 from monitor.wire.signing import load_operators
 
 CASE_ANSWER_SCHEMA = "workcell.safety.case-answer/1"
@@ -92,9 +93,7 @@ class CaseReceiver:
         return {"accepted": known, "reason": reason, "set": event.set_id, "seq": event.seq}
 
     def _on_query(self, query: zenoh.Query) -> None:
-        payload = query.payload.to_bytes() if query.payload is not None else b""
-        signature = query.attachment.to_bytes() if query.attachment is not None else None
-        answer = self._take(payload, signature)
+        answer = self._take(*query_request(query))
         try:
             query.reply(self.key_expr, json.dumps({"schema": CASE_ANSWER_SCHEMA, **answer}))
         except Exception:  # the querier may be gone: the event is queued all the same

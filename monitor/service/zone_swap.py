@@ -39,6 +39,7 @@ import numpy as np
 from monitor.cases.zone_apply import APPLY_ANSWER_SCHEMA, ApplyGate, ApplyRefused, ApplyRequest
 from monitor.errors import ConfigError, InputError
 from monitor.types import Alert
+from monitor.wire.request_desk import query_request
 from monitor.wire.resets import MAX_RESET_PAYLOAD
 from monitor.wire.signed_requests import operator_of
 from monitor.wire.signing import load_operators
@@ -70,8 +71,7 @@ class ZoneApplies:
 
     def _on_query(self, query) -> None:
         try:
-            payload = query.payload.to_bytes() if query.payload is not None else b""
-            signature = query.attachment.to_bytes() if query.attachment is not None else None
+            payload, signature = query_request(query)
             with self._lock:
                 req = self._gate.check(payload, signature, time.monotonic(),
                                        boot=self.bus.boot)

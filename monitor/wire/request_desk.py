@@ -31,6 +31,14 @@ from monitor.wire.signing import Signer
 NOT_JUDGED = "the monitor did not judge this request in time (pipeline stalled?)"
 
 
+def query_request(query) -> tuple[bytes, bytes | None]:
+    """The request a Zenoh query carries: its payload (empty when it has none) and its
+    attachment, the signature (None when unsigned)."""
+    payload = query.payload.to_bytes() if query.payload is not None else b""
+    signature = query.attachment.to_bytes() if query.attachment is not None else None
+    return payload, signature
+
+
 @dataclass(frozen=True)
 class DeskRules:
     """What one kind of request is called at the desk: its alerts and its answers."""
@@ -71,6 +79,11 @@ class SignedRequestDesk:
     def judged(self, outcome) -> dict:
         """What the answer to a judged request says beyond accepted, reason and request id."""
         return {}
+
+    def on_query(self, query, now: float, boot: str | None) -> None:
+        """The bus's queryable callback: the request ``query`` carries."""
+        payload, signature = query_request(query)
+        self.take(payload, signature, query, now, boot)
 
     def take(self, payload: bytes, signature: bytes | None, query, now: float,
              boot: str | None) -> None:
