@@ -1,5 +1,6 @@
 """`monitor run` as a real subprocess for the tests: a service with a Zenoh peer in the test
-process (``Service``), a bare monitor with its log (``Monitor``), and their configs."""
+process (``Service``), a bare monitor with its log (``Monitor``), and their configs; and the bus
+alone in the test process with an operator's session to it (``bus_with_operator``)."""
 
 from __future__ import annotations
 
@@ -16,13 +17,14 @@ import cv2
 import zenoh
 
 from monitor.adapters.follower import Follower
-from monitor.bus.session import BusConfig, BusKeys, open_session
+from monitor.bus.session import BusConfig, BusKeys, SafetyBus, open_session
 from monitor.config import demo_cell_path
 from monitor.scene import DemoScene
 from monitor.wire.cell_consumer import CellWatchdog, subscribe_cell
 from monitor.wire.consumer import Verdict
 from monitor.wire.inbox import Inbox
 from monitor.wire.resets import latch_of_status, reset_payload, signed_reset
+from monitor.wire.signing import Signer, load_private_key, new_key_pair
 from tests.helpers import free_port, note_wait
 
 # The tests run beside other tests and load (benchmarks/suite_under_load.py), and a slow CI
@@ -363,3 +365,22 @@ class CellConsumer:
 
     def close(self) -> None:
         self.session.close()
+
+
+@contextlib.contextmanager
+def bus_with_operator(folder: Path, cell: str, instance: str, answer_s: float):
+    """A real SafetyBus on 127.0.0.1 that signs with ``folder/monitor.key`` (its public key:
+    ``folder/monitor.key.pub``) and lists anna in its operators file, and anna's own Zenoh
+    session to it: (bus, session, anna's Signer). ``answer_s``: the bus's deadline for the
+    pipeline's answer (``reset_answer_s``)."""
+    private, _, public = new_key_pair(folder / "anna.key")
+    (folder / "operators").write_text(f"anna {public}\n")
+    monitor_key, _, _ = new_key_pair(folder / "monitor.key")
+    port = free_port()
+    cfg = BusConfig(cell=cell, instance=instance, listen=(f"tcp/127.0.0.1:{port}",),
+                    signing_key=str(monitor_key), operators_file=str(folder / "operators"),
+                    reset_answer_s=answer_s)
+    with SafetyBus(cfg) as bus, open_session(BusConfig(
+            cell=cell, instance="anna", connect=(f"tcp/127.0.0.1:{port}",))) as session:
+        anna: Signer = load_private_key(private)
+        yield bus, session, anna

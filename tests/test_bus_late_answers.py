@@ -15,13 +15,13 @@ import time
 
 import pytest
 
-from monitor.bus.session import BusConfig, BusKeys, SafetyBus, open_session
+from monitor.bus.session import BusKeys
 from monitor.cases.mute_requests import mute_payload, request_mute
 from monitor.cases.muting import MuteOutcome
 from monitor.policy import Command, Latch, ResetOutcome
 from monitor.wire.resets import request_reset, reset_payload
-from monitor.wire.signing import load_private_key, new_key_pair
-from tests.helpers import free_port, wait_for
+from tests.helpers import wait_for
+from tests.processes import bus_with_operator
 
 CELL = "late"
 ANSWER_S = 0.5  # the bus's deadline for the pipeline's answer (reset_answer_s)
@@ -29,16 +29,8 @@ ANSWER_S = 0.5  # the bus's deadline for the pipeline's answer (reset_answer_s)
 
 @pytest.fixture()
 def bus_and_operator(tmp_path):
-    private, _, public = new_key_pair(tmp_path / "anna.key")
-    (tmp_path / "operators").write_text(f"anna {public}\n")
-    monitor_key, _, _ = new_key_pair(tmp_path / "monitor.key")
-    port = free_port()
-    cfg = BusConfig(cell=CELL, instance="mon-late", listen=(f"tcp/127.0.0.1:{port}",),
-                    signing_key=str(monitor_key), operators_file=str(tmp_path / "operators"),
-                    reset_answer_s=ANSWER_S)
-    with SafetyBus(cfg) as bus, open_session(BusConfig(
-            cell=CELL, instance="anna", connect=(f"tcp/127.0.0.1:{port}",))) as session:
-        yield bus, session, load_private_key(private), BusKeys.of(f"workcell/{CELL}/")
+    with bus_with_operator(tmp_path, CELL, "mon-late", ANSWER_S) as (bus, session, anna):
+        yield bus, session, anna, BusKeys.of(f"workcell/{CELL}/")
 
 
 def _ask(ask, *args) -> tuple[threading.Thread, list]:

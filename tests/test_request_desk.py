@@ -17,13 +17,14 @@ import time
 
 import pytest
 
-from monitor.bus.session import BusConfig, BusKeys, SafetyBus, open_session
+from monitor.bus.session import BusKeys
 from monitor.cases.mute_requests import MUTE_ANSWER_SCHEMA, mute_payload, request_mute
 from monitor.cases.muting import Mute, MuteOutcome
 from monitor.wire.answers import request_answer, request_digest
 from monitor.wire.object_accepts import ACCEPT_ANSWER_SCHEMA, AcceptOutcome, accept_payload
 from monitor.wire.signing import load_private_key, load_public_key, new_key_pair
-from tests.helpers import free_port, wait_for
+from tests.helpers import wait_for
+from tests.processes import bus_with_operator
 
 CELL = "desk"
 ANSWER_S = 0.5
@@ -31,22 +32,14 @@ ANSWER_S = 0.5
 
 @pytest.fixture()
 def desk_bus(tmp_path):
-    anna, _, public = new_key_pair(tmp_path / "anna.key")
     carl, _, _ = new_key_pair(tmp_path / "carl.key")  # not listed: signs nothing valid
-    (tmp_path / "operators").write_text(f"anna {public}\n")
-    monitor_key, monitor_public, _ = new_key_pair(tmp_path / "monitor.key")
-    port = free_port()
-    cfg = BusConfig(cell=CELL, instance="mon-desk", listen=(f"tcp/127.0.0.1:{port}",),
-                    signing_key=str(monitor_key), operators_file=str(tmp_path / "operators"),
-                    reset_answer_s=ANSWER_S)
-    with SafetyBus(cfg) as bus, open_session(BusConfig(
-            cell=CELL, instance="anna", connect=(f"tcp/127.0.0.1:{port}",))) as session:
+    with bus_with_operator(tmp_path, CELL, "mon-desk", ANSWER_S) as (bus, session, anna):
         alerts: list[dict] = []
         keys = BusKeys.of(f"workcell/{CELL}/")
         session.declare_subscriber(keys.alert, lambda s: alerts.append(
             json.loads(s.payload.to_bytes())))
-        yield (bus, session, keys, load_private_key(anna), load_private_key(carl),
-               (load_public_key(monitor_public),), alerts)
+        yield (bus, session, keys, anna, load_private_key(carl),
+               (load_public_key(tmp_path / "monitor.key.pub"),), alerts)
 
 
 def _ask(ask, *args, **kwargs) -> tuple[threading.Thread, list]:
