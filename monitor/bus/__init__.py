@@ -2,6 +2,7 @@
 
 Owns: the session that publishes signed commands and answers resets and mutes
 (``session.SafetyBus``), one monitor per cell (``peers``), the reset desk (``reset_desk``),
+the desk of acceptances of objects (``accept_desk``, on ``monitor.wire.request_desk``),
 hand-over holds between the monitors of a cell (``holds``), commands on the cell's key that this
 monitor did not send (``foreign``) and the console's bounded live picture (``preview``).
 
