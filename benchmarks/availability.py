@@ -7,12 +7,15 @@ every 0.5 s.
 Run: .venv/bin/python benchmarks/availability.py [NAME ...]
      .venv/bin/python benchmarks/availability.py --visibility [NAME ...]  (issue 44's cost)
      .venv/bin/python benchmarks/availability.py --pockets  (hidden pockets, a confirm-clear)
+     .venv/bin/python benchmarks/availability.py --holds [NAME ...]  (each hold at the end)
 Per scene: missed-STOP frames (must be 0), resets accepted with a person inside (must be 0),
 resets refused (while latched) although nobody has been inside the protective zone for
 clear_time plus a reset period ("refused free": availability lost), frames with a hold and
-nobody in the scene, holds alive after the last frame, the longest any hold lived after its
-person was lost, STOP frames with every person in clear view more than 1 m outside, and the
-wall time; a last row sums the columns.
+nobody in the scene, holds alive after the last frame (split into correct: a person really
+hidden where the hold covers, and ghost: nobody hidden there; monitor.replay.end_holds), the
+longest any hold lived after its person was lost, STOP frames with every person in clear
+view more than 1 m outside, and the wall time; a last row sums the columns. ``--holds``
+also says each hold alive at the end and what it covers.
 """
 
 from __future__ import annotations
@@ -28,12 +31,14 @@ from monitor.replay import scenarios as sc
 from monitor.replay.pocket_scenes import pocket_scenes, run_pocket_scene
 
 
-def main(names: list[str]) -> int:
+def main(names: list[str], verbose: bool = False) -> int:
     detector = Detector(synthetic.ensure_model())
+    ghosts: list[str] = []
     rows = [("scene", "frames", "missed STOP", "accepted inside", "refused free",
-             "holds when empty", "holds at end", "oldest hold s", "false STOP", "s")]
+             "holds when empty", "holds at end", "correct/ghost", "oldest hold s",
+             "false STOP", "s")]
     bad = 0
-    total = [0] * 6
+    total = [0] * 8
     for scenario in [*sc.evidence_scenarios(), *sc.busy_scenarios()]:
         if names and scenario.name not in names:
             continue
@@ -43,15 +48,22 @@ def main(names: list[str]) -> int:
         bad += r.missed_stop_frames + r.resets_accepted_inside
         counts = (r.frames, r.missed_stop_frames, r.resets_accepted_inside,
                   r.resets_refused_free, r.holds_when_empty, r.holds_at_end)
-        total = [a + b for a, b in zip(total, counts, strict=True)]
-        rows.append((r.name, *map(str, counts), f"{r.oldest_hold_s:.1f}", str(false_stops),
+        total = [a + b for a, b in zip(total, (*counts, r.holds_at_end_correct,
+                                               r.holds_at_end_ghost), strict=True)]
+        rows.append((r.name, *map(str, counts),
+                     f"{r.holds_at_end_correct}/{r.holds_at_end_ghost}",
+                     f"{r.oldest_hold_s:.1f}", str(false_stops),
                      f"{time.perf_counter() - t0:.1f}"))
-    rows.append(("total", *map(str, total), "", "", ""))
+        if verbose:
+            ghosts.extend(f"  {r.name}: {h.describe()}" for h in r.end_holds)
+    rows.append(("total", *map(str, total[:6]), f"{total[6]}/{total[7]}", "", "", ""))
     widths = [max(len(row[i]) for row in rows) for i in range(len(rows[0]))]
     for k, row in enumerate(rows):
         print("  ".join(c.ljust(w) for c, w in zip(row, widths, strict=True)).rstrip())
         if k == 0:
             print("  ".join("-" * w for w in widths))
+    for line in ghosts:
+        print(line)
     return 1 if bad else 0
 
 
@@ -127,4 +139,6 @@ if __name__ == "__main__":
         sys.exit(visibility(args[1:]))
     if args[:1] == ["--pockets"]:
         sys.exit(pockets())
+    if args[:1] == ["--holds"]:
+        sys.exit(main(args[1:], verbose=True))
     sys.exit(main(args))

@@ -11,11 +11,13 @@ import pytest
 
 from monitor.pipeline.locate import cut_feet_rows, zones_of
 from monitor.policy import STOP
-from monitor.replay.pocket_scenes import pocket_scenes, run_pocket_scene
-from monitor.replay.scenarios import busy_scenarios
-from monitor.tracking.pockets import find_pockets
+from monitor.replay.pocket_scenes import CABINET, INTO_AND_OUT, pocket_scenes, run_pocket_scene
+from monitor.replay.scenarios import Scenario, busy_scenarios
+from monitor.scene.cell import CellScene, Walker
+from monitor.tracking import pockets
+from monitor.tracking.pockets import PocketBook, find_pockets
 from monitor.tracking.tracks import PersonTracker
-from monitor.tracking.whereabouts import CellZones
+from monitor.tracking.whereabouts import CellZones, Whereabouts
 from monitor.types import FrameInfo, Persons
 from monitor.zones import parse_cell
 from monitor.zones.prepare import with_references
@@ -159,3 +161,89 @@ def test_a_person_lost_far_behind_the_zone_holds_no_protective_zone(detector, fe
         held |= {z.zone_id for h in tracker.holds for z in h.zones}
     assert tracker.where.areas, "the walker's loss left no area: the test shows nothing"
     assert ("robot-protective" in held) != feet_on_cells, held
+
+
+# --- one person's entry at 5 fps (issue 46) --------------------------------------------------
+
+SCENES_5FPS = pocket_scenes(5.0)
+HIDDEN_FROM_S = 3.2  # the walker (and whoever walks with them) is behind the cabinet by then
+NARROW = np.array([[200.0, 100.0, 260.0, 250.0]])  # 0.4 of its height: one person
+WIDE_BOX = np.array([[190.0, 100.0, 310.0, 250.0]])  # 0.8: a stride, or two side by side
+
+
+def _book() -> tuple[PocketBook, Whereabouts]:
+    where = Whereabouts()
+    where.view(640, 360)
+    return PocketBook(), where
+
+
+def test_a_walker_seen_as_one_person_stays_one_when_the_stride_widens_the_box():
+    """Seen narrow with the feet in view, nobody lost into the box: one person; the box
+    widening with the stride later (0.81 of its height at 5 fps) is no second person."""
+    book, where = _book()
+    pockets.seen(book, where, [1], NARROW)
+    pockets.seen(book, where, [1], WIDE_BOX)
+    assert 1 in book.single and not book.carrying
+
+
+def test_a_walker_another_track_was_lost_into_may_carry_two_again():
+    """A second person's track lost into the walker's box (they merged): no longer one
+    person, a wide box is of unknown size again."""
+    book, where = _book()
+    pockets.seen(book, where, [1], NARROW)
+    pockets.swallowed(book, 2, 1)
+    pockets.seen(book, where, [1], WIDE_BOX)
+    assert 1 not in book.single and book.carrying[1] == {2, pockets.WIDE}
+
+
+def test_a_walker_at_the_image_border_may_carry_two_again():
+    """At the image border a person may step in beside the walker from off the picture,
+    never seen alone: a wide box after that is of unknown size."""
+    book, where = _book()
+    pockets.seen(book, where, [1], NARROW)
+    pockets.seen(book, where, [1], np.array([[2.0, 100.0, 62.0, 250.0]]))
+    pockets.seen(book, where, [1], WIDE_BOX)
+    assert 1 not in book.single and book.carrying[1] == {pockets.WIDE}
+
+
+def test_a_person_seen_leaving_a_pocket_at_5fps_releases_the_cell(detector):
+    """At 5 fps the synthetic model boxes the walker 0.81 as wide as tall in some strides
+    (also in the frames before they step behind the cabinet): seen narrow before, nobody
+    joining, the entry counts one, the exit zero, the cell runs again (before: the entry was
+    of unknown size, held to the end)."""
+    frames = run_pocket_scene(SCENES_5FPS["pocket-out"], detector)
+    _assert_safe(frames)
+    assert 1 in [f.counts[0] for f in frames]
+    last_inside = max(_hidden_inside(frames))
+    assert [f.time_s for f in _after(frames, last_inside) if f.accepted]
+    assert frames[-1].state != STOP and frames[-1].counts == (0,)
+
+
+@pytest.mark.parametrize("name", ["pocket-side-by-side", "pocket-two-one-out"])
+def test_two_persons_in_a_pocket_at_5fps_never_count_as_one(detector, name):
+    """The attacks at 5 fps: two persons shoulder to shoulder (one box, never seen narrow
+    with the feet in view) or one after the other, one comes out: held to the end, the
+    count never 0 (nor 1 for the pair seen as one box)."""
+    frames = run_pocket_scene(SCENES_5FPS[name], detector)
+    _assert_safe(frames)
+    later = _after(frames, HIDDEN_FROM_S)
+    assert all(f.state == STOP and f.accepted is not True for f in later)
+    assert all(f.counts != (0,) for f in later), [(f.time_s, f.counts) for f in frames]
+    if name == "pocket-side-by-side":
+        assert all(f.counts[0] is None or f.counts[0] >= 2 for f in later)
+
+
+def test_a_colleague_joining_a_walker_seen_alone_makes_the_entry_unknown(detector):
+    """A walker seen alone and narrow (one person) is joined shoulder to shoulder by a
+    colleague coming from the back of the cell; the two go behind the cabinet as one box,
+    the walker comes out: the colleague's track was lost into the walker's box, so the pair
+    is no longer one person; held to the end, never counted 0."""
+    colleague = Walker(((0.0, -1.35, 2.6), (1.5, -1.35, 0.27), (2.5, 0.05, 0.2),
+                        (3.0, 0.8, 0.05), (14.0, 0.8, 0.05)))
+    scene = CellScene((Walker(INTO_AND_OUT), colleague), (CABINET,), fps=5.0, duration_s=12.0)
+    frames = run_pocket_scene(Scenario("joined", "joined", scene, needs=("tracker",),
+                                       unobserved_ok=True), detector)
+    _assert_safe(frames)
+    later = _after(frames, HIDDEN_FROM_S)
+    assert all(f.state == STOP and f.accepted is not True for f in later)
+    assert all(f.counts != (0,) for f in later), [(f.time_s, f.counts) for f in frames]

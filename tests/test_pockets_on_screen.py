@@ -4,7 +4,7 @@ other after a confirm-clear, with a plain reset every 0.5 s (``monitor.replay.po
 Each step hands on the pockets with their counts (``StepResult.pockets``); the annotated frame
 outlines and labels them, the console's detections message and /api/state carry them, and a
 refusal for a person in a counted pocket says that a person seen walking out ends it (and
-never says so once the count is unknown)."""
+never says so once the count is unknown: one frame of the camera in fault at 8 s)."""
 
 from __future__ import annotations
 
@@ -23,11 +23,12 @@ from monitor.records.annotate import annotate
 from monitor.records.areas_draw import POCKET_BGR
 from monitor.replay.pocket_scenes import CONFIRM_AT_S, pocket_scenes
 from monitor.replay.scenarios import RESET_PERIOD_S
-from monitor.types import FrameInfo
+from monitor.types import Fault, FrameInfo
 from monitor.zones import parse_cell
 
 SCENE = pocket_scenes(2.0)["pocket-two-one-out"]
 WALK_OUT = "each person seen walking out of it takes one off its count"
+UNKNOWN_FROM_S = 8.0  # a frame the camera cannot judge (a STOP fault): the count is unknown
 
 
 @pytest.fixture(scope="module")
@@ -48,8 +49,12 @@ def steps(synthetic_model):
             confirmed |= confirm
             reset = ResetRequest("anna", t, request_id=f"screen-{k}", confirm_clear=confirm)
             next_reset += RESET_PERIOD_S
+        # one frame the camera cannot judge: nobody knows who went in or out, the count is
+        # unknown from then on (the refusals after it must not say a walk out ends it)
+        fault = (Fault("camera_blinded", f"{cam.camera_id}: contrast too low", True,
+                       cam.camera_id),) if abs(t - UNKNOWN_FROM_S) < 1e-6 else ()
         out.append((pipe.process(img, FrameInfo(cam.camera_id, k, t, cam.width, cam.height),
-                                 t, reset=reset), img))
+                                 t, reset=reset, extra_faults=fault), img))
     return cell, cam.camera_id, out
 
 
@@ -145,7 +150,9 @@ def test_the_consoles_payload_and_state_carry_the_pocket_and_its_view_outlines_i
 def test_a_refusal_for_a_person_in_a_counted_pocket_says_a_walk_out_ends_it(steps):
     """Counted: the refusal names the pocket's count and says that each person seen walking
     out takes one off (at 0 no confirm-clear is needed), not that waiting ends it. Once the
-    count is unknown (a second person went in beside someone) it says no such thing."""
+    count is unknown (a frame the camera could not judge, ``UNKNOWN_FROM_S``; before issue
+    46's "one person stays one" the synthetic model's wide stride box of the second person
+    made it so) it says no such thing."""
     _cell, _camera, res, _ = _counted_hold(steps)
     (pocket,) = res.pockets
     message = res.command.reset.message

@@ -32,10 +32,12 @@ import numpy as np
 from monitor.errors import ConfigError
 from monitor.pipeline import Pipeline
 from monitor.policy import STOP, PolicyConfig, ResetRequest
+from monitor.replay.end_holds import EndHold, hidden_persons, judge_end_holds
 from monitor.scene import Camera, Figure, box_of, draw_figure
 from monitor.scene.cell import (
     SCENE_ROBOT_BASE,
     Block,
+    CellFrameTruth,
     CellScene,
     CutOut,
     Platform,
@@ -121,6 +123,11 @@ class ScenarioResult:
     resets_refused_free: int = 0
     holds_when_empty: int = 0
     holds_at_end: int = 0  # lost persons' holds alive after the last frame
+    # of those: a person really hidden where the hold covers / nobody hidden there
+    # (``monitor.replay.end_holds``)
+    holds_at_end_correct: int = 0
+    holds_at_end_ghost: int = 0
+    end_holds: tuple[EndHold, ...] = field(default=(), repr=False)
     oldest_hold_s: float = 0.0  # the longest any hold was alive after its person was lost
     scores: tuple[FrameScore, ...] = field(default=(), repr=False)
 
@@ -566,6 +573,7 @@ def run_scenario(scenario: Scenario, detector, policy=None,
     refused_free = holds_empty = 0
     oldest = 0.0
     empty = scenario.scene.background() if scenario.missed else None
+    last: CellFrameTruth | None = None
     for k, (img, truth) in enumerate(scenario.scene.frames()):
         t = truth.time_s
         if k in scenario.missed:
@@ -606,6 +614,9 @@ def run_scenario(scenario: Scenario, detector, policy=None,
                                  None if outcome is None else outcome.accepted))
         if on_frame is not None:
             on_frame(k)
+        last = truth
+    end = () if last is None else judge_end_holds(
+        pipe.cameras, hidden_persons(last, scenario.scene, scenario.missed))
     return ScenarioResult(
         scenario.name, len(scores), entry, first_stop,
         missed_stop_frames=sum(s.inside and s.state != STOP for s in scores),
@@ -616,7 +627,8 @@ def run_scenario(scenario: Scenario, detector, policy=None,
         resets_accepted_outside=sum(not s.inside and s.reset_accepted is True for s in scores),
         needs=scenario.needs, scores=tuple(scores), resets_refused_free=refused_free,
         holds_when_empty=holds_empty, holds_at_end=sum(map(len, pipe.holds.values())),
-        oldest_hold_s=oldest)
+        oldest_hold_s=oldest, holds_at_end_correct=sum(h.correct for h in end),
+        holds_at_end_ghost=sum(not h.correct for h in end), end_holds=end)
 
 
 def _in_image(box: tuple[int, int, int, int], width: int, height: int) -> bool:

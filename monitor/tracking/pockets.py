@@ -48,6 +48,8 @@ from monitor.tracking.whereabouts import FootGrid, LostArea, Whereabouts, grow
 # 0.81): a wider box may hold two persons side by side, its entry is of unknown size
 SINGLE_WIDTH = 0.7
 WIDE = -1  # in ``PocketBook.carrying``: the track's box was seen too wide for one person
+# a box this close to the image border: a person may have joined it from off the picture
+EDGE_PX = 8.0
 
 
 @dataclass
@@ -84,6 +86,10 @@ class PocketBook:
     # the cells under the persons seen in the newest frame (feet band and below): someone
     # may stand hidden right behind them, so nobody stepping out of there is an exit
     occupied: np.ndarray | None = None
+    # tracks seen as one person: narrow, feet in view, off the image border, carrying nobody;
+    # nobody has joined their box since (no track lost into it, not at the image border), so
+    # a wider box later is the person's stride, not a second person (``seen``)
+    single: set[int] = field(default_factory=set)
 
     def take_changes(self) -> list[str]:
         out, self.changes = self.changes, []
@@ -154,8 +160,11 @@ def settle(book: PocketBook, where: Whereabouts, now: float) -> None:
 def seen(book: PocketBook, where: Whereabouts, track_ids: Iterable[int],
          boxes_px: np.ndarray) -> None:
     """Tracks seen in this frame: a box too wide for one person may carry two (until the
-    track is seen narrow with its feet in view); one that swallowed another track is no
-    longer thought to carry it once that one is seen on its own."""
+    track is seen narrow with its feet in view), unless the track is known as one person
+    (``PocketBook.single``: a walker's box widens with the stride, 0.81 of its height at
+    5 fps with the synthetic model, as wide as two persons shoulder to shoulder); one that
+    swallowed another track is no longer thought to carry it once that one is seen on its
+    own."""
     ids = list(track_ids)
     boxes = np.asarray(boxes_px, np.float64).reshape(-1, 4)
     for into in list(book.carrying):
@@ -165,13 +174,32 @@ def seen(book: PocketBook, where: Whereabouts, track_ids: Iterable[int],
     grid, hidden = where.grid, where.hidden
     book.occupied = None if grid is None else grid.cells_under(boxes, where.config.below)
     for tid, (x1, y1, x2, y2) in zip(ids, boxes, strict=True):
-        if x2 - x1 > SINGLE_WIDTH * max(y2 - y1, 1.0):
-            book.carrying.setdefault(tid, set()).add(WIDE)
-        elif tid in book.carrying and grid is not None and hidden is not None \
-                and not (grid.cells_under(np.array([x1, y1, x2, y2]), 0.0) & hidden).any():
+        narrow = x2 - x1 <= SINGLE_WIDTH * max(y2 - y1, 1.0)
+        feet_seen = grid is not None and hidden is not None \
+            and not (grid.cells_under(np.array([x1, y1, x2, y2]), 0.0) & hidden).any()
+        _single(book, tid, (x1, y1, x2, y2), narrow and feet_seen, grid)
+        if not narrow:
+            if tid not in book.single:
+                book.carrying.setdefault(tid, set()).add(WIDE)
+        elif tid in book.carrying and feet_seen:
             book.carrying[tid].discard(WIDE)
             if not book.carrying[tid]:
                 del book.carrying[tid]
+
+
+def _single(book: PocketBook, track_id: int, box: tuple[float, float, float, float],
+            one: bool, grid: FootGrid | None) -> None:
+    """Whether the track is known as one person after this sighting: it is once seen narrow
+    with its feet in view (``one``), off the image border and carrying no other track; it is
+    no longer once its box touches the image border (a person may have stepped in beside it
+    from off the picture). A track lost into its box ends it too (``swallowed``). A person
+    joining from hidden floor has an area of their own, counted in on its own."""
+    x1, y1, x2, y2 = box
+    if grid is None or x1 <= EDGE_PX or y1 <= EDGE_PX or x2 >= grid.width - EDGE_PX \
+            or y2 >= grid.height - EDGE_PX:
+        book.single.discard(track_id)
+    elif one and not (book.carrying.get(track_id, set()) - {WIDE}):
+        book.single.add(track_id)
 
 
 def lost(book: PocketBook, track_id: int) -> None:
@@ -184,6 +212,7 @@ def lost(book: PocketBook, track_id: int) -> None:
 def swallowed(book: PocketBook, track_id: int, into: int) -> None:
     """``track_id`` was lost inside the box of ``into``: that box may hold both."""
     book.carrying.setdefault(into, set()).update({track_id, *book.carrying.pop(track_id, ())})
+    book.single.discard(into)
 
 
 def count_exits(book: PocketBook, where: Whereabouts, boxes_px: np.ndarray,
@@ -257,7 +286,8 @@ def _enter(book: PocketBook, p: Pocket, area: LostArea, now: float) -> bool:
         return p.count is not None
     p.entered |= ids
     x1, _, x2, _ = area.box_px
-    wide = (x2 - x1) > SINGLE_WIDTH * max(area.box_height_px, 1.0)
+    wide = (x2 - x1) > SINGLE_WIDTH * max(area.box_height_px, 1.0) \
+        and not ids <= book.single
     carried = set().union(*(book.carrying.get(t, set()) for t in ids)) - p.entered
     if wide or carried:
         _set(book, p, None, f"person {area.track_id} went in, perhaps with someone beside "

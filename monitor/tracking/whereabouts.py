@@ -377,11 +377,12 @@ class Whereabouts:
                                           cfg.walk_speed_mps * cfg.reach_margin * dt)
             area.cells = (area.cells | (grown & unseen)) & ~free
             area.updated = now
-            # a ghost: all of it in view, under seen persons' feet for clear_time (a person
-            # who flickered out and came back under a new id); not the place a merged track
-            # stood, and never one that reaches where the camera cannot see
-            if working and not area.behind and area.cells.any() \
-                    and not (area.cells & (self.hidden | ~explains)).any():
+            # a ghost: all of it in view, under seen persons' feet or seen empty, for
+            # clear_time (a person who flickered out and came back under a new id); not the
+            # place a merged track stood, and never one that reaches where the camera cannot
+            # see (``shows_only_seen_persons``)
+            if working and not area.behind and shows_only_seen_persons(
+                    area.cells, self.hidden, explains, seen_free):
                 area.explained = now if area.explained is None else area.explained
                 if now - area.explained >= clear_time - 1e-9:
                     area.cells[:] = False
@@ -515,6 +516,23 @@ class Whereabouts:
                 self._zone_cache[key] = union_zones(found.get(row, ()))
         for area in self.areas.values():
             area.zones = union_zones(*(self._zone_cache[k] for k in per_area[area.track_id]))
+
+
+def shows_only_seen_persons(cells: np.ndarray, hidden: np.ndarray, explains: np.ndarray,
+                            seen_free: np.ndarray) -> bool:
+    """In this frame the camera shows nothing at the area's ``cells`` but seen persons: all
+    of them under seen persons' feet (``explains``: feet in view), or all of them seen with
+    nobody there (``seen_free``: the detector missed the person it showed there a frame
+    ago), none hidden. A lost person standing in such an area is hidden right behind a seen
+    person or missed in open view, the cases the rules "under seen persons" and "seen free"
+    end after clear_time each: a frame with the whole area empty (a detector's flicker) does
+    not restart that time. An area partly seen empty, partly under a person (trailing a
+    person walking on) does: someone may walk hidden behind them (the bounded life ends
+    that). Under a box cut off at its feet (they may stand anywhere down its range) the
+    camera does not show."""
+    if not cells.any() or (cells & hidden).any():
+        return False
+    return not (cells & ~explains).any() or not (cells & ~seen_free).any()
 
 
 def _nested(a: np.ndarray, b: np.ndarray) -> bool:
