@@ -44,3 +44,41 @@ def test_letterbox_tensor_is_the_plain_resize_reorder_and_scale(layout):
         expected = _plain_letterbox(image, layout)
         assert tensor.shape == expected.shape
         np.testing.assert_allclose(tensor, expected, rtol=0, atol=1e-6)
+
+
+def test_one_placement_a_frame_gives_the_zone_answer_and_cut_rows_of_two():
+    """The pipeline places a frame's boxes once (``seen_placement``) for the zone check and
+    the tracks' cut-off feet: the same answers as each placing them itself, for persons on
+    the floor, one cut off by the image bottom, one too wide for one person (its ends are
+    checked apart) and none; non-finite boxes keep the zone check's own error."""
+    from monitor.config import demo_cell_path
+    from monitor.errors import InputError
+    from monitor.pipeline.locate import check_seen, cut_feet_rows, seen_placement
+    from monitor.zones import parse_cell, read_cell_data
+
+    cell = parse_cell(read_cell_data(demo_cell_path()), demo_cell_path())
+    prepared = cell.prepared
+    cam = next(iter(cell.cameras))
+    foot = 12.0
+    sets = [np.array([[600.0, 200.0, 660.0, 380.0], [300.0, 150.0, 340.0, 260.0]]),
+            np.array([[500.0, 500.0, 580.0, 720.0]]),  # feet below the image
+            np.array([[400.0, 250.0, 700.0, 450.0]]),  # two persons side by side?
+            np.zeros((0, 4))]
+    hits = 0
+    for boxes in sets:
+        placed = seen_placement(prepared, cam, boxes, foot)
+        assert (placed is None) == (not len(boxes))
+        shared = check_seen(prepared, cam, boxes, None, None, foot, None, placed)
+        own = check_seen(prepared, cam, boxes, None, None, foot, None)
+        assert shared == own
+        hits += len(own.hits)
+        a = cut_feet_rows(prepared, cam, boxes, foot, placed)
+        b = cut_feet_rows(prepared, cam, boxes, foot)
+        assert (a is None) == (b is None)
+        if a is not None:
+            np.testing.assert_array_equal(a, b)
+    assert hits, "no box hit a zone: the comparison shows nothing"
+    bad = np.array([[np.nan, 1.0, 2.0, 3.0]])
+    assert seen_placement(prepared, cam, bad, foot) is None
+    with pytest.raises(InputError, match="non-finite"):
+        check_seen(prepared, cam, bad, None, None, foot, None, None)
