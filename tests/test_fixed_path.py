@@ -124,3 +124,67 @@ def test_the_watch_zones_background_range_kept_between_frames_is_never_stale():
                         np.testing.assert_array_equal(x, y)
         assert [a.message for a in alerts[0]] == [a.message for a in alerts[1]]
         assert any(a.kind == "scene_change" for a in alerts[0]), "no change seen: shows nothing"
+
+
+def test_the_objects_watch_finds_what_the_plain_comparison_finds():
+    """The objects-since-commissioning watch compares each frame with the reference: its
+    pixels taken by ``np.compress`` and its excess maximised channel by channel give the same
+    changed pixels as boolean indexing and ``max(axis=2)``, and a frame without a lasting
+    change skips the labelling: with a crate put into the protective zone, persons walking by,
+    an unsound frame and the light switched down, every frame's streaks, objects and alerts
+    are those of the plain comparison."""
+    from monitor.config import demo_cell_path
+    from monitor.health.objects import ZoneObjects, objects_of
+    from monitor.scene import DemoScene
+    from monitor.zones import parse_cell, read_cell_data
+
+    class Plain(ZoneObjects):
+        def _changed(self, frame, free):  # as written before (issue 49): the reference
+            ref = self._ref
+            if free.sum() < 50:
+                return np.zeros(free.shape, bool)
+            cur, bg = frame[free].ravel(), ref[free].ravel()
+            offset = float(np.median(cur - bg))
+            use = np.abs(cur - bg - offset) < 2 * self.config.diff
+            gain = 1.0
+            if use.sum() >= 30:
+                x, y = bg[use].astype(np.float64), cur[use].astype(np.float64)
+                var = float(x.var())
+                if var >= 25.0:
+                    gain = min(max(float(np.cov(x, y, bias=True)[0, 1]) / var, 0.5), 2.0)
+                offset = float(y.mean() - gain * x.mean())
+            excess = np.abs(frame - (gain * ref + offset)).max(axis=2)
+            return (excess > self.config.diff) & self._watch
+
+        def _objects(self, lasting, not_back, now, image_bgr):
+            # the labelling always runs: an all-empty image has no region either
+            cv2.connectedComponentsWithStats(lasting.astype(np.uint8), 8)
+            return super()._objects(lasting, not_back, now, image_bgr)
+
+    cell = parse_cell(read_cell_data(demo_cell_path()), demo_cell_path())
+    scene = DemoScene(fps=10.0)
+    reference = scene.background()
+    fast = objects_of(cell, {"cam0": reference})["cam0"]
+    plain = objects_of(cell, {"cam0": reference})["cam0"]
+    plain.__class__ = Plain
+    alerts: tuple[list, list] = ([], [])
+    for k, (image, _) in enumerate(scene.frames()):
+        t = k / scene.fps
+        if k >= 100:
+            break
+        image = image.copy()
+        if k >= 10:
+            cv2.rectangle(image, (470, 400), (600, 520), (40, 90, 200), -1)  # a crate
+        if k >= 70:
+            image = (image * 0.7).astype(np.uint8)  # the light switched down
+        persons = np.array([[300.0 + 4 * k, 200, 370 + 4 * k, 470]]) if k % 3 else \
+            np.zeros((0, 4))
+        sound = k % 31 != 7
+        alerts[0].extend(a.message for a in fast.check(image, persons, t, sound))
+        alerts[1].extend(a.message for a in plain.check(image, persons, t, sound))
+        np.testing.assert_array_equal(fast._since, plain._since)
+        assert repr(fast.objects) == repr(plain.objects), k
+        assert (fast.version, fast.view_changed_since) == (plain.version,
+                                                           plain.view_changed_since)
+    assert alerts[0] == alerts[1]
+    assert fast.objects and any("object" in a for a in alerts[0]), "no object: shows nothing"
