@@ -76,19 +76,19 @@ from monitor.models import synthetic
 from monitor.bus.session import BusConfig, SafetyBus, open_session
 from monitor.config import MonitorConfig, demo_cell_path
 from monitor.detector import Detector, DetectorConfig, Letterboxer, letterbox
+from monitor.detector.envelope import for_detector
 from monitor.driver import Driver, settle_heap
 from monitor.frames import LatestFrameGrabber, PacedSource, VideoFileReader
 from monitor.health import CameraHealth, HealthConfig
-from monitor.health.build import inplace_check
+from monitor.health.build import camera_health, inplace_check
 from monitor.health.objects import ZoneObjects
 from monitor.pipeline import Pipeline
 from monitor.pipeline import core as pipeline_core
-from monitor.policy import PolicyConfig
 from monitor.replay.video import ReplaySummary, SummarySink, VideoFeed
 from monitor.scene import DemoScene, write_video
 from monitor.service.loop import LiveFeed, ServiceSink
 from monitor.service.metrics import Metrics
-from monitor.zones import Cell, parse_cell, read_cell_data, watch_regions
+from monitor.zones import Cell, parse_cell, read_cell_data
 
 SIZE = (1920, 1080)
 SCALE = 1.5  # 1280x720 -> 1920x1080
@@ -116,9 +116,26 @@ def cell_1080p(tmp: Path) -> Cell:
     return parse_cell(data, tmp / "demo-cell-1080p.yaml")
 
 
-def new_pipeline(detector: Detector, cell: Cell) -> Pipeline:
-    health = CameraHealth(HealthConfig(), "cam0", None, watch_regions(cell, "cam0"))
-    return Pipeline(detector, "cam0", PolicyConfig(), cell, health)
+# ``--commissioned``: the camera's commissioning reference (the demo cell empty, at 1080p) and
+# the model's envelope, as `monitor run` has them after commissioning: the health stage then
+# also checks the image conditions and the objects put into the zones since commissioning
+COMMISSIONED: dict = {"reference": None, "envelope": None}
+
+
+def commissioned(detector: Detector) -> None:
+    COMMISSIONED["reference"] = cv2.resize(DemoScene().background(), SIZE,
+                                           interpolation=cv2.INTER_LINEAR)
+    COMMISSIONED["envelope"] = for_detector(detector, HealthConfig().envelope_min_recall,
+                                            store=False)
+
+
+def new_pipeline(detector: Detector, cell: Cell, pipeline_type: type = Pipeline,
+                 config: MonitorConfig | None = None) -> Pipeline:
+    config = config or MonitorConfig()
+    reference = COMMISSIONED["reference"]
+    health = camera_health(config.health, "cam0", reference, cell, COMMISSIONED["envelope"])
+    return pipeline_type(detector, "cam0", config.policy, cell, health,
+                         references={"cam0": reference})
 
 
 def pct(values: list[float], q: float) -> float:
@@ -400,8 +417,7 @@ def paced_bare(video: Path, detector: Detector, fps: float, frames: int) -> list
 def latency(video: Path, detector: Detector, cell: Cell, seconds: float,
             settle: bool = True) -> dict:
     config = MonitorConfig()
-    health = CameraHealth(config.health, "cam0", None, watch_regions(cell, "cam0"))
-    pipeline = _TimedPipeline(detector, "cam0", config.policy, cell, health)
+    pipeline = new_pipeline(detector, cell, _TimedPipeline, config)
     pipeline.inference, pipeline.stages = [], {}
     pauses: list[float] = []
     gc_start: list[float] = []
@@ -473,6 +489,11 @@ def main() -> int:
                              "int8 model, and what 'auto' chooses), 'auto', or labels such as "
                              "'onnxruntime fp32,openvino bf16,openvino int8': each backend's "
                              "rows side by side")
+    parser.add_argument("--commissioned", action="store_true",
+                        help="a commissioned camera: its reference (the empty demo cell) and "
+                             "the model's envelope, so health also checks the image "
+                             "conditions and the objects put into the zones since "
+                             "commissioning (without: neither runs)")
     parser.add_argument("--fixed-only", action="store_true",
                         help="only the fixed path in CPU time (outputs replayed, no "
                              "inference): a quick before/after of the work around inference")
@@ -499,6 +520,8 @@ def main() -> int:
         for label, detector in detectors(args.backends, model, int8 if args.int8 else None,
                                          int8, config):
             print(f"measuring {label} ...", file=sys.stderr, flush=True)
+            if args.commissioned:
+                commissioned(detector)
             if args.fixed_only:
                 report_fixed(fixed_path_cpu(video, detector, cell), label)
                 continue
