@@ -37,28 +37,6 @@ class _Zone:
     state: str = "learning"
     since: float = 0.0  # when the current pending/clearing state began
     changed: np.ndarray | None = None  # bool mask of the last decision's changed pixels
-    mask_count: int = 0  # pixels inside the polygon
-    # the background's 3x3 darkest and brightest (erode, dilate), kept while it is unchanged
-    # (learning is paused while a person is in the zone); None: to be made again
-    background_range: tuple[np.ndarray, np.ndarray] | None = None
-
-    def set_background(self, background: np.ndarray) -> None:
-        self.background = background
-        self.background_range = None
-
-    def learn(self, crop: np.ndarray, rate: float, keep: np.ndarray) -> None:
-        """Blend ``crop`` into the background where ``keep`` (lighting drift)."""
-        cv2.accumulateWeighted(crop, self.background, rate, keep)
-        self.background_range = None
-
-    def range_of_background(self) -> tuple[np.ndarray, np.ndarray]:
-        if self.background_range is None:
-            self.background_range = (cv2.erode(self.background, _KERNEL),
-                                     cv2.dilate(self.background, _KERNEL))
-        return self.background_range
-
-
-_KERNEL = np.ones((3, 3), np.uint8)  # a pixel's 3x3 neighbourhood
 
 
 class WatchZones:
@@ -102,10 +80,9 @@ class WatchZones:
             mask = np.zeros((y1 - y0, x1 - x0), np.uint8)
             pts = np.round((small_poly - (x0, y0)) * 8).astype(np.int32)  # 3 bits sub-pixel
             cv2.fillPoly(mask, [pts], 1, cv2.LINE_8, shift=3)
-            zone = _Zone(zid, poly, int(x0), int(y0), int(x1), int(y1), mask.astype(bool),
-                         mask_count=int(np.count_nonzero(mask)))
+            zone = _Zone(zid, poly, int(x0), int(y0), int(x1), int(y1), mask.astype(bool))
             if ref_small_bgr is not None:
-                zone.set_background(ref_small_bgr[y0:y1, x0:x1].copy())
+                zone.background = ref_small_bgr[y0:y1, x0:x1].copy()
                 zone.state = "normal"
             self.zones.append(zone)
 
@@ -128,31 +105,30 @@ class WatchZones:
                 continue
             # colour, not grey: a magenta jacket and a grey shelf can have the same grey level
             crop = small_bgr[zone.y0:zone.y1, zone.x0:zone.x1].astype(np.float32)
-            free = zone.mask  # read only; copied before a person's pixels are taken out
+            free = zone.mask.copy()
             occupied = False
             for x1, y1, x2, y2 in person_boxes:
                 cx1, cy1 = max(x1 - zone.x0, 0), max(y1 - zone.y0, 0)
                 cx2, cy2 = min(x2 - zone.x0, free.shape[1]), min(y2 - zone.y0, free.shape[0])
                 if cx2 > cx1 and cy2 > cy1 and zone.mask[cy1:cy2, cx1:cx2].any():
-                    if not occupied:
-                        free = zone.mask.copy()
                     free[cy1:cy2, cx1:cx2] = False
                     occupied = True
             if zone.background is None:
                 if not occupied:  # no reference: learn from the first frame without persons
-                    zone.set_background(crop.copy())
+                    zone.background = crop.copy()
                     zone.state = "normal"
                 out.append(ZoneStatus(zone.zone_id, zone.state))
                 continue
-            n_free = int(np.count_nonzero(free)) if occupied else zone.mask_count
-            if n_free < cfg.min_visible_fraction * zone.mask_count:
+            n_free = int(np.count_nonzero(free))
+            if n_free < cfg.min_visible_fraction * np.count_nonzero(zone.mask):
                 out.append(self._zone_status(zone, 0.0))  # hidden by persons: no decision
                 continue
             changed = self._changed_pixels(zone, crop, free)
             area = float(np.count_nonzero(changed)) * self._scale ** 2
             if not occupied:  # learn (lighting drift) only where nothing changed
                 keep = (~changed).view(np.uint8)
-                zone.learn(crop, min(1.0, dt / cfg.learn_time_s), keep)
+                cv2.accumulateWeighted(crop, zone.background,
+                                       min(1.0, dt / cfg.learn_time_s), keep)
             alert = self._zone_step(zone, area >= cfg.scene_min_area_px, changed, area,
                                     frame_bgr, now)
             if alert is not None:
@@ -171,12 +147,9 @@ class WatchZones:
         gain, offset = _lighting(np.compress(visible, crop.reshape(-1, 3), axis=0).ravel(),
                                  np.compress(visible, bg.reshape(-1, 3), axis=0).ravel(), thr)
         level = cv2.addWeighted(crop, 1.0 / gain, crop, 0.0, -offset / gain)
-        darkest, brightest = zone.range_of_background()
-        # float32 subtraction and maximum, exact in OpenCV as in numpy (finite values only:
-        # the crop is uint8, the background a blend of crops), one call less each
-        excess = cv2.max(cv2.subtract(darkest, level), cv2.subtract(level, brightest))
-        low, high, _, _ = cv2.minMaxLoc(crop.reshape(crop.shape[0], -1))  # one pass, not two
-        if high >= 250 or low <= 5:  # rare: only then look for clipped pixels
+        kernel = np.ones((3, 3), np.uint8)
+        excess = np.maximum(cv2.erode(bg, kernel) - level, level - cv2.dilate(bg, kernel))
+        if crop.max() >= 250 or crop.min() <= 5:  # rare: only then look for clipped pixels
             predicted = gain * bg + offset
             excess[(crop >= 250) & (predicted >= 250 - thr)
                    | (crop <= 5) & (predicted <= 5 + thr)] = 0.0
