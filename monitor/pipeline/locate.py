@@ -205,11 +205,11 @@ def locate(frame: FrameInfo, persons: Persons, cam: CameraState, prepared, detec
     empty answer. ``working``: the camera's view can be trusted in this frame (its lost
     persons' areas shrink where it sees no person); ``hidden``: ``hidden_of``'s answer;
     ``elsewhere``: ``free_elsewhere``'s answer."""
-    report, placed = None, None
+    report, placed, foot = None, None, None
     tool_pose, tool_state = tool_for(now, tool_pose, tool_speed_mps, pose_time, policy)
-    foot = detector.foot_uncertainty_px(frame.width, frame.height)
     if prepared is not None and detector_error is None:
         try:
+            foot = detector.foot_uncertainty_px(frame.width, frame.height)
             placed = seen_placement(prepared, frame.camera_id, persons.boxes_px, foot)
             report = check_seen(prepared, frame.camera_id, persons.boxes_px, tool_pose,
                                 tool_speed_mps, foot, tool_state, placed)
@@ -226,6 +226,8 @@ def locate(frame: FrameInfo, persons: Persons, cam: CameraState, prepared, detec
         # unless zones follow the tool or the separation uses its pose (then: this frame)
         static = prepared is not None and not prepared.moving and tool_pose is None
         try:
+            if foot is None:  # inside the try: a failure here is a tracking fault, as before
+                foot = detector.foot_uncertainty_px(frame.width, frame.height)
             cut = cut_feet_rows(prepared, frame.camera_id, persons.boxes_px, foot, placed)
             update = cam.tracker.update(
                 persons, report, frame.capture_time, (frame.width, frame.height),
