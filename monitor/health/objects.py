@@ -198,7 +198,10 @@ class ZoneObjects:
         ref = self._ref
         if free.sum() < 50:
             return np.zeros(free.shape, bool)
-        cur, bg = frame[free].ravel(), ref[free].ravel()
+        # np.compress: the same pixels in the same order as boolean indexing, ~3x cheaper
+        visible = free.ravel()
+        cur = np.compress(visible, frame.reshape(-1, 3), axis=0).ravel()
+        bg = np.compress(visible, ref.reshape(-1, 3), axis=0).ravel()
         # lighting: the gain and offset that map the reference onto this frame, fitted on the
         # pixels a median offset already explains (a changed region does not bend the fit)
         offset = float(np.median(cur - bg))
@@ -211,15 +214,20 @@ class ZoneObjects:
                 gain = min(max(float(np.cov(x, y, bias=True)[0, 1]) / var, 0.5), 2.0)
             offset = float(y.mean() - gain * x.mean())
         predicted = gain * ref + offset
-        excess = np.abs(frame - predicted).max(axis=2)
+        excess = np.abs(frame - predicted)
+        # channel by channel: numpy's reductions over a last axis of 3 are slow (2 ms against
+        # 0.15 ms at 320x180 here), the maxima the same
+        excess = np.maximum(np.maximum(excess[..., 0], excess[..., 1]), excess[..., 2])
         return (excess > self.config.diff) & self._watch
 
     def _objects(self, lasting: np.ndarray, not_back: np.ndarray, now: float,
                  image_bgr: np.ndarray) -> list[Alert]:
         cfg = self.config
         alerts: list[Alert] = []
-        n, labels, stats, _ = cv2.connectedComponentsWithStats(lasting.astype(np.uint8), 8)
         found: list[tuple[tuple[int, int, int, int], tuple[str, ...]]] = []
+        # no lasting change (the usual frame): no region, and no labelling to pay for
+        n, labels, stats, _ = cv2.connectedComponentsWithStats(lasting.astype(np.uint8), 8) \
+            if lasting.any() else (1, None, None, None)
         for k in range(1, n):
             x, y, w, h, area = (int(v) for v in stats[k])
             if area >= cfg.min_area_px:

@@ -13,6 +13,7 @@ from dataclasses import replace
 import numpy as np
 
 from monitor.detector import Detector
+from monitor.geometry.occlusion import Placement
 from monitor.health.objects import ZoneObjects
 from monitor.pipeline.data import CameraState
 from monitor.pipeline.fault_alerts import one_line
@@ -60,16 +61,30 @@ def zones_of(prepared, detector: Detector, frame: FrameInfo, tool_pose, tool_spe
     return CellZones(check, functools.partial(check, prep=in_view))
 
 
+def seen_placement(prepared, camera_id: str, boxes_px: np.ndarray,
+                   foot_uncertainty_px: float) -> Placement | None:
+    """The floor placement of a frame's boxes as the zone check makes it (``placement``
+    with the band (0, foot uncertainty)), made once for the zone check and the tracks'
+    cut-off feet (``check_seen``, ``cut_feet_rows``); None where the zone check makes and
+    judges its own: no boxes, no calibration, an unknown camera or non-finite boxes (the
+    zone check's errors stay its own)."""
+    boxes = np.asarray(boxes_px, np.float64).reshape(-1, 4)
+    if prepared is None or not len(boxes) or camera_id not in prepared.cell.cameras \
+            or not np.all(np.isfinite(boxes)):
+        return None
+    return placement(prepared, camera_id, boxes, (0.0, max(foot_uncertainty_px, 0.0)))
+
+
 def check_seen(prepared, camera_id: str, boxes_px: np.ndarray, tool_pose,
                tool_speed_mps: float | None, foot_uncertainty_px: float,
-               tool_state: ToolState | None) -> ZoneReport:
+               tool_state: ToolState | None, placed: Placement | None = None) -> ZoneReport:
     """The zone answer of the persons seen in a frame: every box placed as one person
     (``check_persons``), and a box too wide for one person also as one person at each of its
     ends, merged towards danger (the hits of an end are its box's row). Two persons boxed as
     one stand apart: the box's bottom centre lies between them, and the one over a zone's
-    edge would be placed outside it."""
+    edge would be placed outside it. ``placed``: ``seen_placement`` of these boxes."""
     report = check_persons(prepared, camera_id, boxes_px, tool_pose, tool_speed_mps,
-                           foot_uncertainty_px, tool_state=tool_state)
+                           foot_uncertainty_px, tool_state=tool_state, placed=placed)
     boxes = np.asarray(boxes_px, np.float64).reshape(-1, 4)
     height = np.maximum(boxes[:, 3] - boxes[:, 1], 1.0)
     wide = np.flatnonzero(boxes[:, 2] - boxes[:, 0] > SINGLE_WIDTH * height)
@@ -155,15 +170,17 @@ def free_elsewhere(cameras: Mapping[str, CameraState], cell: Cell | None, camera
 
 
 def cut_feet_rows(prepared, camera_id: str, boxes_px: np.ndarray,
-                  foot_px: float) -> np.ndarray | None:
+                  foot_px: float, placed: Placement | None = None) -> np.ndarray | None:
     """(N,) per box: the lowest image row its feet may be on when the box may be cut off at
     the bottom (a fixture, declared or seen in the reference, the image edge, a box too
     short: placed from the head as a range towards the camera); NaN where the feet are in
-    view. None without a calibration of the camera."""
+    view. None without a calibration of the camera. ``placed``: ``seen_placement`` of these
+    boxes with ``foot_px`` (the zone check's, made once a frame)."""
     boxes = np.asarray(boxes_px, np.float64).reshape(-1, 4)
     if prepared is None or not len(boxes):
         return None
-    place = placement(prepared, camera_id, boxes, (0.0, foot_px))
+    place = placed if placed is not None else placement(prepared, camera_id, boxes,
+                                                        (0.0, foot_px))
     if place is None:
         return None
     return np.where(place.hidden, place.feet_bottom_px, np.nan)
@@ -188,13 +205,14 @@ def locate(frame: FrameInfo, persons: Persons, cam: CameraState, prepared, detec
     empty answer. ``working``: the camera's view can be trusted in this frame (its lost
     persons' areas shrink where it sees no person); ``hidden``: ``hidden_of``'s answer;
     ``elsewhere``: ``free_elsewhere``'s answer."""
-    report = None
+    report, placed, foot = None, None, None
     tool_pose, tool_state = tool_for(now, tool_pose, tool_speed_mps, pose_time, policy)
     if prepared is not None and detector_error is None:
         try:
-            report = check_seen(
-                prepared, frame.camera_id, persons.boxes_px, tool_pose, tool_speed_mps,
-                detector.foot_uncertainty_px(frame.width, frame.height), tool_state)
+            foot = detector.foot_uncertainty_px(frame.width, frame.height)
+            placed = seen_placement(prepared, frame.camera_id, persons.boxes_px, foot)
+            report = check_seen(prepared, frame.camera_id, persons.boxes_px, tool_pose,
+                                tool_speed_mps, foot, tool_state, placed)
         except Exception as exc:  # the zone answer is unknown: fail towards STOP
             faults.append(Fault("zone_check_error", one_line(exc), True, "zones"))
     elif detector_error is None:
@@ -208,8 +226,9 @@ def locate(frame: FrameInfo, persons: Persons, cam: CameraState, prepared, detec
         # unless zones follow the tool or the separation uses its pose (then: this frame)
         static = prepared is not None and not prepared.moving and tool_pose is None
         try:
-            cut = cut_feet_rows(prepared, frame.camera_id, persons.boxes_px,
-                                detector.foot_uncertainty_px(frame.width, frame.height))
+            if foot is None:  # inside the try: a failure here is a tracking fault, as before
+                foot = detector.foot_uncertainty_px(frame.width, frame.height)
+            cut = cut_feet_rows(prepared, frame.camera_id, persons.boxes_px, foot, placed)
             update = cam.tracker.update(
                 persons, report, frame.capture_time, (frame.width, frame.height),
                 zones_of(prepared, detector, frame, tool_pose, tool_speed_mps, tool_state),

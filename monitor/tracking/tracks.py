@@ -24,6 +24,7 @@ Everything here is deterministic: no wall clock, the frame's capture time is pas
 from __future__ import annotations
 
 import math
+import statistics
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
@@ -252,7 +253,8 @@ class PersonTracker:
         measured frame rate (median of the last intervals)."""
         if self._last_time is not None and now > self._last_time:
             self._intervals = [*self._intervals[-9:], now - self._last_time]
-            fps = 1.0 / float(np.median(self._intervals))
+            # statistics.median: the same value as np.median, 10x cheaper on ten floats
+            fps = 1.0 / statistics.median(self._intervals)
             self._byte.max_time_lost = self._buffer_frames(fps)
         self._last_time = now
 

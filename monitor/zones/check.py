@@ -29,7 +29,8 @@ def check_persons(cell: Cell | PreparedCell, camera_id: str, boxes_px: np.ndarra
                   tool_speed_mps: float | None = None,
                   foot_uncertainty_px: float = 0.0,
                   foot_band_px: tuple[float, float] | None = None,
-                  tool_state: ToolState | None = None) -> ZoneReport:
+                  tool_state: ToolState | None = None,
+                  placed: occ.Placement | None = None) -> ZoneReport:
     """Which persons of one frame are in which zones, and how far the nearest is from the tool.
 
     ``boxes_px`` is (N, 4) x1, y1, x2, y2 in pixels of ``camera_id`` at full resolution.
@@ -62,10 +63,15 @@ def check_persons(cell: Cell | PreparedCell, camera_id: str, boxes_px: np.ndarra
     None without a tool pose. ``separation_speed_scale`` is min(1, v_max(separation) /
     programmed speed), 0 when the tool is already faster than v_max
     (``monitor.zones.separation``, docs/separation.md). Answers only: no timers, no state.
+
+    ``placed``: ``placement(cell, camera_id, boxes_px, band)`` of exactly these boxes and this
+    band when the caller has made it already (the pipeline uses it for the tracks too: one
+    placement a frame, not two).
     """
     prep = cell if isinstance(cell, PreparedCell) else cell.prepared
     band = foot_band_px if foot_band_px is not None else (0.0, max(foot_uncertainty_px, 0.0))
-    return _check(prep, camera_id, boxes_px, tool_pose, tool_speed_mps, band, tool_state)
+    return _check(prep, camera_id, boxes_px, tool_pose, tool_speed_mps, band, tool_state,
+                  placed)
 
 
 def merge_towards_danger(a: ZoneReport, b: ZoneReport) -> ZoneReport:
@@ -130,7 +136,8 @@ _DREQ = fcl.DistanceRequest()
 def _check(prep: PreparedCell, camera_id: str, boxes_px: np.ndarray,
            tool_pose: geo.ToolPose | None, tool_speed_mps: float | None,
            band_px: tuple[float, float] = (0.0, 0.0),
-           tool_state: ToolState | None = None) -> ZoneReport:
+           tool_state: ToolState | None = None,
+           placed: occ.Placement | None = None) -> ZoneReport:
     cell = prep.cell
     tool_pose = pose_in_cell(prep, tool_pose)  # tracker frame -> cell (zone file tracker_frame)
     if camera_id not in cell.cameras:
@@ -142,7 +149,8 @@ def _check(prep: PreparedCell, camera_id: str, boxes_px: np.ndarray,
     n = len(boxes)
     hits: list[ZoneHit] = []
     lo, hi = float(band_px[0]), float(max(band_px))
-    place = placement(prep, camera_id, boxes, (lo, hi)) if n else None
+    place = (placed if placed is not None else placement(prep, camera_id, boxes, (lo, hi))) \
+        if n else None
     img = prep.image_zones.get(camera_id)
     if img is not None and n:
         if place is not None:
