@@ -152,8 +152,6 @@ class SafetyBus:
         self._signer: Signer | None = (load_private_key(config.signing_key)
                                        if config.signing_key else None)
         operators = load_operators(config.operators_file) if config.operators_file else None
-        self._mutes = MuteDesk(MuteGate(operators, config.cell, self.keys.mute,
-                                        config.reset_window_s), config.reset_answer_s)
         self._limiter = AlertLimiter(alert_limits or AlertLimits())
         self._lock = threading.Lock()  # seq counters, latest command, counters
         self._cmd_lock = threading.Lock()  # serialises command puts: seq order == wire order
@@ -170,6 +168,11 @@ class SafetyBus:
                                   config.allow_unsigned_resets, config.reset_window_s)),
             self.keys.reset, config.reset_answer_s, clock, self._lock, self._signer,
             {"instance": config.instance})
+        # mutes and acceptances answer signed, naming the monitor as resets do (the same
+        # ``who``: its boot is set once the session is open)
+        self._mutes = MuteDesk(MuteGate(operators, config.cell, self.keys.mute,
+                                        config.reset_window_s), config.reset_answer_s,
+                               self._signer, self._resets.who)
         self._accepts = AcceptDesk(AcceptGate(operators, config.cell, self.keys.objects_accept,
                                               config.reset_window_s), config.reset_answer_s,
                                    self._signer, self._resets.who)
