@@ -78,6 +78,7 @@ from monitor.policy import STOP, Command, Reason, ResetRequest
 from monitor.signals import close_bounded
 from monitor.types import Alert, Fault, Persons, ZoneReport
 from monitor.wire.alerts import AlertLimiter, AlertLimits, alert_to_dict, signed_attachment
+from monitor.wire.answers import answer_attachment
 from monitor.wire.busconfig import (
     MODES,
     BusConfig,
@@ -270,6 +271,15 @@ class SafetyBus:
     @property
     def boot(self) -> str:
         return self._boot
+
+    def signed_answer(self, key_expr: str, body: dict, digest: str
+                      ) -> tuple[bytes, bytes | None]:
+        """An answer to the request whose SHA-256 is ``digest`` on ``key_expr``, as the desks
+        write theirs (``monitor.wire.answers``): ``body``, this monitor's instance and boot and
+        the request it answers, and its signature (None: the monitor has no key). For the
+        queryables the bus does not own (zone applies)."""
+        answer = json.dumps({**body, **self._resets.who, "request": digest}).encode()
+        return answer, answer_attachment(self._signer, key_expr, answer)
 
     @property
     def public_key(self) -> str | None:
