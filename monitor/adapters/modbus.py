@@ -403,7 +403,7 @@ def make_outputs(args: argparse.Namespace, session, keys) -> list:
 
     selection = CaseSelection(session, case_key(keys.pose[:-len("tracker/pose")]),
                               case_signer, args.case_selector or "", cell, case_sets,
-                              args.case_timeout, alerts) if case_signer else None
+                              args.case_timeout, alerts, monitor_keys) if case_signer else None
     out = ModbusOutput(host, port, device_id=args.device_id, state=state,
                        watchdog_s=args.watchdog_ms / 1000.0,
                        allow=frozenset(args.allow_client) or None,
@@ -446,9 +446,11 @@ class CaseSelection:
     A refused or unanswered selection is an alert; every outcome is logged."""
 
     def __init__(self, session, key: str, signer, selector: str, cell: str,
-                 sets: tuple[str, ...], timeout: float, alerts: Callable[[Alert], None]) -> None:
+                 sets: tuple[str, ...], timeout: float, alerts: Callable[[Alert], None],
+                 monitor_keys: tuple | None = None) -> None:
         self.session, self.key, self.signer, self.selector = session, key, signer, selector
         self.cell, self.sets, self.timeout, self.alerts = cell, sets, timeout, alerts
+        self.monitor_keys = monitor_keys  # only the monitor's signed answer is believed
         self.seq = int(time.time() * 1000) - 1
 
     def __call__(self, peer: str, index: int) -> str:
@@ -460,7 +462,8 @@ class CaseSelection:
         payload = case_payload(self.selector, set_id, self.seq, cell=self.cell)
         try:
             answer = request_case(self.session, self.key, payload,
-                                  self.signer.sign(self.key, payload), self.timeout)
+                                  self.signer.sign(self.key, payload), self.timeout,
+                                  self.monitor_keys)
         except Exception as exc:  # a closed session: no answer
             answer, why = None, f"{type(exc).__name__}: {exc}"
         else:
