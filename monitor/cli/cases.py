@@ -19,7 +19,7 @@ from monitor.zones.settings import parse_moves, set_rules
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     from monitor.cli.keys import KEY_DIR
-    from monitor.cli.signed_ask import add_monitor_key_arg
+    from monitor.cli.monitor_key_arg import add_monitor_key_arg
     from monitor.cli.zenoh_args import add_zenoh_args as _add_zenoh_args
 
     parser = subparsers.add_parser("case", help="select the zone set the robot works in "
@@ -153,7 +153,7 @@ def cmd_select(args: argparse.Namespace) -> int:
     from monitor.bus.session import default_instance, open_session
     from monitor.cases.receiver import case_key, request_case
     from monitor.cli.keys import KEY_DIR
-    from monitor.cli.signed_ask import monitor_keys_of
+    from monitor.cli.monitor_key_arg import monitor_keys_of
     from monitor.cli.zenoh_args import bounded as _bounded
     from monitor.cli.zenoh_args import bus_config as _bus_config
     from monitor.cli.zenoh_args import nothing_found_hint as _nothing_found_hint

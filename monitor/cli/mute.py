@@ -12,14 +12,8 @@ import argparse
 import re
 
 from monitor.cases.mute_requests import mute_payload
-from monitor.cli.signed_ask import (
-    SignedAsk,
-    add_monitor_key_arg,
-    add_signed_args,
-    ask_signed,
-    monitor_keys_of,
-    operator_signer,
-)
+from monitor.cli.monitor_key_arg import add_monitor_key_arg, monitor_keys_of
+from monitor.cli.signed_ask import SignedAsk, add_signed_args, ask_signed, operator_signer
 from monitor.errors import ConfigError
 
 _UNITS = {"": 1.0, "s": 1.0, "m": 60.0, "min": 60.0, "h": 3600.0}

@@ -12,17 +12,11 @@ from __future__ import annotations
 import argparse
 
 from monitor.bus.session import default_instance, open_session
+from monitor.cli.monitor_key_arg import add_monitor_key_arg, monitor_keys_of
 from monitor.cli.operator import first_status
 from monitor.cli.role_arg import add_role_arg
 from monitor.cli.roles import no_answer, role_keys
-from monitor.cli.signed_ask import (
-    SignedAsk,
-    add_monitor_key_arg,
-    add_signed_args,
-    ask_signed,
-    monitor_keys_of,
-    operator_signer,
-)
+from monitor.cli.signed_ask import SignedAsk, add_signed_args, ask_signed, operator_signer
 from monitor.cli.status_text import changed_lines
 from monitor.cli.zenoh_args import add_zenoh_args, bounded, bus_config
 from monitor.signals import Interrupted, StopSignals, call_interruptible

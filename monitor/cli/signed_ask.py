@@ -30,7 +30,7 @@ from monitor.cli.zenoh_args import add_zenoh_args, bounded, bus_config, nothing_
 from monitor.errors import ConfigError
 from monitor.signals import Interrupted, StopSignals, call_interruptible
 from monitor.wire.answers import ignored_text, request_answer
-from monitor.wire.signing import Signer, load_private_key, load_public_key
+from monitor.wire.signing import Signer, load_private_key
 
 
 @dataclass(frozen=True)
@@ -62,23 +62,6 @@ def add_signed_args(p: argparse.ArgumentParser, role_what: str,
                    help="unique id of this request (default <operator>-<time>-<random>)")
     p.add_argument("--timeout", type=float, default=3.0,
                    help="s to wait for the monitor's answer (default 3)")
-
-
-def add_monitor_key_arg(p: argparse.ArgumentParser) -> None:
-    """``--monitor-key FILE``: the monitor's public key its answers are believed by."""
-    p.add_argument("--monitor-key", action="append", default=[], metavar="FILE",
-                   help="the monitor's public key (repeat for several): only an answer it "
-                   "signed is believed (default none: the answer is NOT authenticated)")
-
-
-def monitor_keys_of(args: argparse.Namespace, command: str) -> tuple | None:
-    """The ``--monitor-key`` keys (None, said on stderr, when none is given: then any answer
-    is taken for the monitor's)."""
-    if not args.monitor_key:
-        print(f"{command}: no --monitor-key: the answer is NOT authenticated",
-              file=sys.stderr, flush=True)
-        return None
-    return tuple(load_public_key(k) for k in args.monitor_key)
 
 
 def operator_signer(args: argparse.Namespace, command: str, why: str) -> Signer:

@@ -21,8 +21,8 @@ from monitor.errors import ConfigError
 
 def register(sub: argparse._SubParsersAction) -> None:
     from monitor.cli.keys import KEY_DIR
+    from monitor.cli.monitor_key_arg import add_monitor_key_arg
     from monitor.cli.role_arg import add_role_arg
-    from monitor.cli.signed_ask import add_monitor_key_arg
     from monitor.cli.zenoh_args import add_zenoh_args as _add_zenoh_args
 
     p = sub.add_parser(
@@ -55,9 +55,9 @@ def cmd_apply(args: argparse.Namespace) -> int:
     from monitor import zones as zn
     from monitor.bus.session import default_instance, open_session
     from monitor.cases.zone_apply import apply_payload, request_apply
+    from monitor.cli.monitor_key_arg import monitor_keys_of
     from monitor.cli.operator import first_status, operator_key_path
     from monitor.cli.roles import no_answer, role_keys
-    from monitor.cli.signed_ask import monitor_keys_of
     from monitor.cli.zenoh_args import bounded as _bounded
     from monitor.cli.zenoh_args import bus_config as _bus_config
     from monitor.cli.zenoh_args import nothing_found_hint as _nothing_found_hint
