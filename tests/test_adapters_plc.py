@@ -376,6 +376,46 @@ def test_a_plc_reset_reaches_the_monitor_as_the_operators_signed_reset(keys, tmp
     assert "reset request from client 127.0.0.1" in err
 
 
+def test_a_rogue_responders_accepted_never_reads_reset_accepted_on_the_plc(keys, tmp_path):
+    """A rogue queryable on the reset key answers the PLC's reset "accepted" at once; the
+    monitor refuses it. The adapter believes only the answer its --monitor-key signed for that
+    request: reset_result reads 3 (refused), never 2 (before: 2, the rogue's)."""
+    private, public = keys
+    op_key, _, op_text = new_key_pair(tmp_path / "anna.key")
+    operators = tmp_path / "operators"
+    operators.write_text(f"anna {op_text}\n")
+    os.chmod(operators, 0o644)
+    zport, mport = free_port(), free_port()
+    cfg = BusConfig(cell=CELL, instance="mon-plc", listen=(f"tcp/127.0.0.1:{zport}",),
+                    heartbeat_hz=20.0, ttl_ms=TTL_MS, signing_key=str(private),
+                    operators_file=str(operators), stall_timeout=60.0)
+    keys_of = BusKeys.of(f"workcell/{CELL}/")
+    with SafetyBus(cfg) as bus, open_session(BusConfig(
+            cell=CELL, instance="rogue", connect=(f"tcp/127.0.0.1:{zport}",))) as rogue:
+        rogue.declare_queryable(keys_of.reset, lambda q: q.reply(keys_of.reset, json.dumps(
+            {"schema": "workcell.safety.reset-answer/1", "accepted": True, "stage": "policy",
+             "reason": "reset accepted", "state": "RUN", "instance": "mon-plc"})))
+        latch = Latch("protective_zone", "person 1 in P", 0.0, "P", 1, nonce="1-abcdef")
+        bus.publish_command(Command("STOP", 0.0, (Reason("latched", "waiting for a reset"),),
+                                    latched=True, latched_by=latch, reset_possible=True))
+        proc = start_adapter(zport, mport, public, "--inputs", "--allow-client", "127.0.0.1",
+                             "--reset-operator", "anna", "--reset-key", str(op_key))
+        plc = Plc(mport)
+        try:
+            assert plc.wait(lambda r: r[mm.ADDRESS["latched"]] == 1), plc.read()
+            assert not plc.write(mm.ADDRESS["reset_request"], 1).isError()
+            got = wait_for(bus.poll_resets)
+            assert got and got[0].operator == "anna"
+            bus.publish_command(Command(
+                "STOP", 0.0, latched=True, latched_by=latch,
+                reset=ResetOutcome("anna", False, "refused: person 1 in P", got[0].request_id)))
+            r = plc.wait(lambda r: r[mm.ADDRESS["reset_result"]] in (2, 3))
+            assert r and r[mm.ADDRESS["reset_result"]] == 3, r
+        finally:
+            plc.close()
+            stop_process(proc)
+
+
 @pytest.mark.parametrize("extra,needle", [
     (["--modbus-listen", "0.0.0.0:5020"], "--allow-network"),
     (["--inputs"], "--allow-client"),

@@ -108,7 +108,8 @@ def test_the_plc_writing_2_selects_set_b_signed_and_reads_the_switch_over(side):
     cfg, public, sel_key, zport = side
     mport = free_port()
     alerts: list[dict] = []
-    with SafetyBus(cfg) as bus, CaseReceiver.for_bus(bus.session, bus.config, PLAN) as rx, \
+    with SafetyBus(cfg) as bus, CaseReceiver.for_bus(bus.session, bus.config, PLAN,
+                                                      bus.signed_answer) as rx, \
             MonitorSide(bus, rx) as mon, _alerts(zport, alerts):
         started_ms = int(time.time() * 1000)
         proc = start_adapter(zport, mport, public, *_case_args(sel_key))
@@ -191,7 +192,8 @@ def test_without_a_case_key_register_34_is_stored_only(side, tmp_path):
     cfg, public, _sel_key, zport = side
     op_key, _, _ = new_key_pair(tmp_path / "anna.key")
     mport = free_port()
-    with SafetyBus(cfg) as bus, CaseReceiver.for_bus(bus.session, bus.config, PLAN) as rx:
+    with SafetyBus(cfg) as bus, CaseReceiver.for_bus(bus.session, bus.config, PLAN,
+                                                      bus.signed_answer) as rx:
         bus.publish_command(Command("RUN", 1.0))
         proc = start_adapter(zport, mport, public, "--inputs", "--allow-client", "127.0.0.1",
                              "--reset-operator", "anna", "--reset-key", str(op_key))

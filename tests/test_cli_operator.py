@@ -165,3 +165,6 @@ def test_a_rogue_responders_accepted_is_not_believed_with_the_monitor_key(tmp_pa
         tmp_path / "b", "--monitor-key", str(tmp_path / "b" / "monitor.key.pub"))
     assert code == 1 and "REFUSED" in stdout and "person 0" in stdout, (stdout, stderr)
     assert "answered by monitor mon-rg" in stdout and "signed by ed25519:" in stdout
+    # and the rogue's answer is said, not silently dropped: someone else answers there
+    assert "monitor reset: 1 answer ignored (1 unsigned): someone else answers on " \
+        "workcell/rg/safety/reset" in stderr, stderr

@@ -3,10 +3,10 @@ and acceptances of objects share it, each kind with its own words.
 
 Pins what the operators and consumers see of each kind: a refusal at the bus is answered at
 once with the gate's reason, counted in the status and alerted under the kind's own alert name
-and wording; a judged one is answered with what that kind's judgement adds; mute answers are
-the plain ones (no request digest, unsigned: ``monitor mute`` reads no monitor key) while
-acceptances are signed by the monitor and name the request (``monitor objects accept
---monitor-key`` believes nothing else). Real SafetyBus, real Zenoh sessions on 127.0.0.1.
+and wording; a judged one is answered with what that kind's judgement adds; the answers of both
+kinds are signed by the monitor and name the request and the monitor (``monitor mute`` or
+``monitor objects accept --monitor-key`` believe nothing else; tests/test_mute_answers.py).
+Real SafetyBus, real Zenoh sessions on 127.0.0.1.
 """
 
 from __future__ import annotations
@@ -52,9 +52,12 @@ def _ask(ask, *args, **kwargs) -> tuple[threading.Thread, list]:
 def test_a_refusal_at_the_bus_has_each_kinds_answer_alert_and_count(desk_bus):
     bus, session, keys, _, carl, monitor_keys, alerts = desk_bus
     mute = mute_payload("anna", "z1", 10, cell=CELL, boot=bus.boot)
-    answer = request_mute(session, keys.mute, mute, carl.sign(keys.mute, mute), 10)
+    answer = request_mute(session, keys.mute, mute, carl.sign(keys.mute, mute), 10,
+                          monitor_keys)
+    assert answer is not None and answer.pop("signed_by").startswith("ed25519:")
     assert answer == {"schema": MUTE_ANSWER_SCHEMA, "accepted": False, "stage": "bus",
-                      "reason": "signature does not match operator 'anna'", "operator": "anna"}
+                      "reason": "signature does not match operator 'anna'", "operator": "anna",
+                      "instance": "mon-desk", "boot": bus.boot, "request": request_digest(mute)}
 
     accept = accept_payload("anna", "cam0", "z1", cell=CELL, boot=bus.boot)
     answer = request_answer(session, keys.objects_accept, accept,
@@ -81,16 +84,18 @@ def test_a_refusal_at_the_bus_has_each_kinds_answer_alert_and_count(desk_bus):
 def test_a_judged_request_is_answered_with_what_its_kind_adds(desk_bus):
     bus, session, keys, anna, _, monitor_keys, _ = desk_bus
     mute = mute_payload("anna", "z1", 10, cell=CELL, boot=bus.boot)
-    asker, answers = _ask(request_mute, session, keys.mute, mute, anna.sign(keys.mute, mute))
+    asker, answers = _ask(request_mute, session, keys.mute, mute, anna.sign(keys.mute, mute),
+                          monitor_keys=monitor_keys)
     (req,) = wait_for(lambda: bus.poll_mutes(), what="the mute at the bus")
     bus.answer_mute(MuteOutcome(req, True, "muted", Mute(
         "z1", "anna", req.time, req.time + 10.0, 60.0, "warning", 0.5, req.request_id)))
     asker.join(15)
     (answer,) = answers
-    assert answer is not None
+    assert answer is not None and answer.pop("signed_by").startswith("ed25519:")
     assert (answer.pop("duration_s"), answer.pop("ends_in_s")) == pytest.approx((10.0, 10.0))
     assert answer == {"schema": MUTE_ANSWER_SCHEMA, "accepted": True, "stage": "pipeline",
-                      "reason": "muted", "request_id": req.request_id, "zone": "z1"}
+                      "reason": "muted", "request_id": req.request_id, "zone": "z1",
+                      "instance": "mon-desk", "boot": bus.boot, "request": request_digest(mute)}
 
     accept = accept_payload("anna", "cam0", "z1", cell=CELL, boot=bus.boot, note="crate")
     asker, answers = _ask(request_answer, session, keys.objects_accept, accept,

@@ -369,8 +369,13 @@ def make_outputs(args: argparse.Namespace, session, keys) -> list:
             raise ConfigError(f"--allow-client {ip!r}: not an IP address") from None
     case_sets = parse_case_sets(args)
     signer = case_signer = None
+    # the monitor's answers to the PLC's resets are believed only when it signed them for that
+    # request (a rogue's "accepted" would read 2 in reset_result while the cell stays latched)
+    monitor_keys = None
     if args.inputs:
-        from monitor.wire.signing import load_private_key
+        from monitor.wire.signing import load_private_key, load_public_key
+
+        monitor_keys = tuple(load_public_key(k) for k in args.monitor_key) or None
 
         if (args.reset_operator or args.reset_key or not case_sets) \
                 and (not args.reset_operator or not args.reset_key):
@@ -389,7 +394,7 @@ def make_outputs(args: argparse.Namespace, session, keys) -> list:
 
     def reset(peer: str) -> str:
         outcome, reason = send_reset(session, keys, signer, args.reset_operator, cell, peer,
-                                     args.reset_timeout)
+                                     args.reset_timeout, monitor_keys)
         alerts(Alert("plc_reset", "warning", f"PLC reset request from {peer} as operator "
                      f"{args.reset_operator}: {outcome}: {reason}", "plc", time.monotonic(),
                      details={"peer": peer, "operator": args.reset_operator,
@@ -398,7 +403,7 @@ def make_outputs(args: argparse.Namespace, session, keys) -> list:
 
     selection = CaseSelection(session, case_key(keys.pose[:-len("tracker/pose")]),
                               case_signer, args.case_selector or "", cell, case_sets,
-                              args.case_timeout, alerts) if case_signer else None
+                              args.case_timeout, alerts, monitor_keys) if case_signer else None
     out = ModbusOutput(host, port, device_id=args.device_id, state=state,
                        watchdog_s=args.watchdog_ms / 1000.0,
                        allow=frozenset(args.allow_client) or None,
@@ -441,9 +446,11 @@ class CaseSelection:
     A refused or unanswered selection is an alert; every outcome is logged."""
 
     def __init__(self, session, key: str, signer, selector: str, cell: str,
-                 sets: tuple[str, ...], timeout: float, alerts: Callable[[Alert], None]) -> None:
+                 sets: tuple[str, ...], timeout: float, alerts: Callable[[Alert], None],
+                 monitor_keys: tuple | None = None) -> None:
         self.session, self.key, self.signer, self.selector = session, key, signer, selector
         self.cell, self.sets, self.timeout, self.alerts = cell, sets, timeout, alerts
+        self.monitor_keys = monitor_keys  # only the monitor's signed answer is believed
         self.seq = int(time.time() * 1000) - 1
 
     def __call__(self, peer: str, index: int) -> str:
@@ -455,7 +462,8 @@ class CaseSelection:
         payload = case_payload(self.selector, set_id, self.seq, cell=self.cell)
         try:
             answer = request_case(self.session, self.key, payload,
-                                  self.signer.sign(self.key, payload), self.timeout)
+                                  self.signer.sign(self.key, payload), self.timeout,
+                                  self.monitor_keys)
         except Exception as exc:  # a closed session: no answer
             answer, why = None, f"{type(exc).__name__}: {exc}"
         else:
@@ -501,9 +509,12 @@ class AlertSender:
 
 
 def send_reset(session, keys, signer, operator: str, cell: str, peer: str,
-               timeout: float) -> tuple[str, str]:
+               timeout: float, monitor_keys: tuple | None = None) -> tuple[str, str]:
     """An operator reset for the latch the monitor publishes now, signed with ``signer``:
-    ("accepted" | "refused" | "no_answer", reason). The monitor checks it like any reset."""
+    ("accepted" | "refused" | "no_answer", reason). The monitor checks it like any reset.
+    ``monitor_keys`` (``--monitor-key``): only the monitor's signed answer to this request is
+    believed (others are ignored, and said in the no-answer reason)."""
+    from monitor.wire.answers import ignored_text
     from monitor.wire.resets import latch_of_status, request_reset, reset_payload
 
     status = None
@@ -522,8 +533,11 @@ def send_reset(session, keys, signer, operator: str, cell: str, peer: str,
         return "refused", f"nothing to reset: the monitor is not latched ({status.get('state')})"
     payload = reset_payload(operator, note=f"PLC reset request from {peer} (monitor bridge plc)",
                             cell=cell, boot=boot, latch=latch)
+    ignored: list[str] = []
     answer = request_reset(session, keys.reset, payload, signer.sign(keys.reset, payload),
-                           timeout)
+                           timeout, monitor_keys, ignored)
     if answer is None:
-        return "no_answer", f"no monitor answered on {keys.reset}"
+        return "no_answer", f"no monitor answered on {keys.reset}" + (
+            f" with an answer signed by --monitor-key; {ignored_text(ignored)}" if ignored
+            else "")
     return ("accepted" if answer["accepted"] else "refused"), str(answer.get("reason", ""))

@@ -23,8 +23,7 @@ from monitor.wire.request_desk import DeskRules, SignedRequestDesk
 from monitor.wire.signing import Signer
 
 ACCEPT_DESK = DeskRules(AcceptRefused, "malformed object acceptance", "object_accept_refused",
-                        "object acceptance", ACCEPT_ANSWER_SCHEMA, MAX_PAYLOAD,
-                        authenticated=True)
+                        "object acceptance", ACCEPT_ANSWER_SCHEMA, MAX_PAYLOAD)
 
 
 class AcceptDesk(SignedRequestDesk):

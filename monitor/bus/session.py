@@ -78,6 +78,7 @@ from monitor.policy import STOP, Command, Reason, ResetRequest
 from monitor.signals import close_bounded
 from monitor.types import Alert, Fault, Persons, ZoneReport
 from monitor.wire.alerts import AlertLimiter, AlertLimits, alert_to_dict, signed_attachment
+from monitor.wire.answers import answer_attachment
 from monitor.wire.busconfig import (
     MODES,
     BusConfig,
@@ -152,8 +153,6 @@ class SafetyBus:
         self._signer: Signer | None = (load_private_key(config.signing_key)
                                        if config.signing_key else None)
         operators = load_operators(config.operators_file) if config.operators_file else None
-        self._mutes = MuteDesk(MuteGate(operators, config.cell, self.keys.mute,
-                                        config.reset_window_s), config.reset_answer_s)
         self._limiter = AlertLimiter(alert_limits or AlertLimits())
         self._lock = threading.Lock()  # seq counters, latest command, counters
         self._cmd_lock = threading.Lock()  # serialises command puts: seq order == wire order
@@ -170,6 +169,11 @@ class SafetyBus:
                                   config.allow_unsigned_resets, config.reset_window_s)),
             self.keys.reset, config.reset_answer_s, clock, self._lock, self._signer,
             {"instance": config.instance})
+        # mutes and acceptances answer signed, naming the monitor as resets do (the same
+        # ``who``: its boot is set once the session is open)
+        self._mutes = MuteDesk(MuteGate(operators, config.cell, self.keys.mute,
+                                        config.reset_window_s), config.reset_answer_s,
+                               self._signer, self._resets.who)
         self._accepts = AcceptDesk(AcceptGate(operators, config.cell, self.keys.objects_accept,
                                               config.reset_window_s), config.reset_answer_s,
                                    self._signer, self._resets.who)
@@ -267,6 +271,15 @@ class SafetyBus:
     @property
     def boot(self) -> str:
         return self._boot
+
+    def signed_answer(self, key_expr: str, body: dict, digest: str
+                      ) -> tuple[bytes, bytes | None]:
+        """An answer to the request whose SHA-256 is ``digest`` on ``key_expr``, as the desks
+        write theirs (``monitor.wire.answers``): ``body``, this monitor's instance and boot and
+        the request it answers, and its signature (None: the monitor has no key). For the
+        queryables the bus does not own (zone applies)."""
+        answer = json.dumps({**body, **self._resets.who, "request": digest}).encode()
+        return answer, answer_attachment(self._signer, key_expr, answer)
 
     @property
     def public_key(self) -> str | None:

@@ -11,6 +11,11 @@ never unsigned: a monitor without an operators file refuses every mute. The pipe
 judges the zone's own rules (``monitor.cases.muting``: listed operators, maximum, unmutable) and its
 outcome is the answer.
 
+Every answer (accepted, refused, not judged; to a mute or to its ``end``) is signed with the
+monitor's key and names the SHA-256 of the request it answers (``monitor.wire.answers``):
+``monitor mute --monitor-key`` believes no rogue responder on the mute key (an "accepted" to
+``--end`` the monitor never said would leave the operator believing the zone watched again).
+
 Payload::
 
     {"schema": "workcell.safety.mute/1", "cell": "cell1", "zone": "robot-protective",
@@ -34,6 +39,7 @@ from monitor.wire.signed_requests import (
     number_fields,
     text_fields,
 )
+from monitor.wire.signing import Signer
 
 MUTE_SCHEMA = "workcell.safety.mute/1"
 MUTE_ANSWER_SCHEMA = "workcell.safety.mute-answer/1"
@@ -95,10 +101,12 @@ class MuteDesk(SignedRequestDesk):
     """The bus's side of muting (``monitor.wire.request_desk``): verified requests wait here
     for the pipeline (``poll``), their queries until it has judged them (``answer``) or
     ``answer_s`` passed; requests refused here are answered at once and alerted
-    (``drain_alerts``). Thread-safe. Its answers are the plain ones (``DeskRules``)."""
+    (``drain_alerts``). Thread-safe. Its answers are signed by ``signer`` (the monitor's key)
+    and name the request and the monitor (``who``: instance, boot)."""
 
-    def __init__(self, gate: MuteGate, answer_s: float = 2.0) -> None:
-        super().__init__(gate, MUTE_DESK, answer_s)
+    def __init__(self, gate: MuteGate, answer_s: float = 2.0, signer: Signer | None = None,
+                 who: dict | None = None) -> None:
+        super().__init__(gate, MUTE_DESK, answer_s, signer, who)
 
     def judged(self, outcome: MuteOutcome) -> dict:
         """The zone, and for a mute in force its length and what is left of it."""

@@ -3,7 +3,11 @@ whether the request was verified) and as a subscriber (a PLC adapter or robot pr
 only puts). A verified request becomes a ``Selection`` for the pipeline's switch (``Pipeline.
 take_case_events``); a refused one is answered with the reason and counted, and changes
 nothing: one forged packet must not stop (let alone latch) the cell, and a flood of them must
-not push a verified selection out of the queue."""
+not push a verified selection out of the queue.
+
+With ``signed_answer`` (the service passes ``SafetyBus.signed_answer``) every answer is signed
+by the monitor and names the request it answers, as resets' are: ``monitor case select
+--monitor-key`` and the PLC adapter believe no rogue's "verified"."""
 
 from __future__ import annotations
 
@@ -12,12 +16,13 @@ import contextlib
 import json
 import threading
 import time
+from collections.abc import Callable
 
 import zenoh
 
 from monitor.cases.requests import CaseGate, CasePolicy
 from monitor.cases.sets import CasePlan, Refusal, Selection
-from monitor.wire.answers import request_answer
+from monitor.wire.answers import request_answer, request_digest
 from monitor.wire.busconfig import BusKeys
 from monitor.wire.request_desk import query_request
 from monitor.wire.signing import load_operators
@@ -35,8 +40,11 @@ class CaseReceiver:
     newest 64); refused ones are answered and counted only. Thread-safe ``poll``."""
 
     def __init__(self, session: zenoh.Session, key_expr: str, gate: CaseGate,
-                 plan: CasePlan | None = None) -> None:
+                 plan: CasePlan | None = None,
+                 signed_answer: Callable[[str, dict, str], tuple[bytes, bytes | None]]
+                 | None = None) -> None:
         self.session = session
+        self.signed_answer = signed_answer  # (key, body, request digest) -> answer, signature
         self.key_expr = key_expr
         self.gate = gate
         self.plan = plan
@@ -47,13 +55,14 @@ class CaseReceiver:
         self.refused = 0
 
     @classmethod
-    def for_bus(cls, session: zenoh.Session, bus_config, plan: CasePlan | None
-                ) -> CaseReceiver:
+    def for_bus(cls, session: zenoh.Session, bus_config, plan: CasePlan | None,
+                signed_answer=None) -> CaseReceiver:
         key = case_key(bus_config.key_prefix)
         selectors = (load_operators(bus_config.selectors_file, "selectors file", "selector")
                      if bus_config.selectors_file else None)
         return cls(session, key, CaseGate(CasePolicy(selectors, bus_config.cell, key,
-                                                     bus_config.case_window_s)), plan)
+                                                     bus_config.case_window_s)), plan,
+                   signed_answer)
 
     def __enter__(self) -> CaseReceiver:
         self._entities = [self.session.declare_queryable(self.key_expr, self._on_query),
@@ -93,9 +102,17 @@ class CaseReceiver:
         return {"accepted": known, "reason": reason, "set": event.set_id, "seq": event.seq}
 
     def _on_query(self, query: zenoh.Query) -> None:
-        answer = self._take(*query_request(query))
+        payload, signature = query_request(query)
+        answer = self._take(payload, signature)
+        body = {"schema": CASE_ANSWER_SCHEMA, **answer}
         try:
-            query.reply(self.key_expr, json.dumps({"schema": CASE_ANSWER_SCHEMA, **answer}))
+            if self.signed_answer is None:
+                query.reply(self.key_expr, json.dumps(body))
+            else:
+                raw, attachment = self.signed_answer(self.key_expr, body,
+                                                     request_digest(payload))
+                query.reply(self.key_expr, raw, encoding="application/json",
+                            attachment=attachment)
         except Exception:  # the querier may be gone: the event is queued all the same
             pass
         finally:

@@ -19,6 +19,7 @@ from monitor.zones.settings import parse_moves, set_rules
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     from monitor.cli.keys import KEY_DIR
+    from monitor.cli.monitor_key_arg import add_monitor_key_arg
     from monitor.cli.zenoh_args import add_zenoh_args as _add_zenoh_args
 
     parser = subparsers.add_parser("case", help="select the zone set the robot works in "
@@ -38,6 +39,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--timeout", type=float, default=3.0,
                    help="s to wait for the monitor's answer (default 3)")
     _add_zenoh_args(p, default_connect=True)
+    add_monitor_key_arg(p)
     p.set_defaults(func=cmd_select)
 
 
@@ -151,9 +153,11 @@ def cmd_select(args: argparse.Namespace) -> int:
     from monitor.bus.session import default_instance, open_session
     from monitor.cases.receiver import case_key, request_case
     from monitor.cli.keys import KEY_DIR
+    from monitor.cli.monitor_key_arg import monitor_keys_of
     from monitor.cli.zenoh_args import bounded as _bounded
     from monitor.cli.zenoh_args import bus_config as _bus_config
     from monitor.cli.zenoh_args import nothing_found_hint as _nothing_found_hint
+    from monitor.wire.answers import ignored_text
     from monitor.wire.signing import load_private_key
 
     bus = _bus_config(args, instance=args.instance or default_instance("case"))
@@ -163,15 +167,23 @@ def cmd_select(args: argparse.Namespace) -> int:
         raise ConfigError(f"monitor case select: no key for {args.selector} ({key_path}; "
                           "--key FILE): the monitor refuses unsigned selections")
     signer = load_private_key(key_path)
+    monitor_keys = monitor_keys_of(args, "monitor case select")
+    ignored: list[str] = []  # answers not believed (--monitor-key): someone else's
     seq = args.seq if args.seq is not None else int(time.time() * 1000)
     payload = case_payload(args.selector, args.set, seq,
                            cell=bus.cell if bus.prefix is None else "")
     with _bounded(open_session(bus), "monitor case select") as session:
-        answer = request_case(session, key, payload, signer.sign(key, payload), args.timeout)
+        answer = request_case(session, key, payload, signer.sign(key, payload), args.timeout,
+                              monitor_keys, ignored)
     if answer is None:
-        print(f"monitor case select: no monitor answered on {key} within {args.timeout:g} s; "
-              f"{_nothing_found_hint(bus)}", file=sys.stderr)
+        print(f"monitor case select: no monitor answered on {key} within {args.timeout:g} s"
+              + (" (with an answer signed by --monitor-key)" if monitor_keys else "")
+              + (f"; {ignored_text(ignored)}: someone else answers there" if ignored else "")
+              + f"; {_nothing_found_hint(bus)}", file=sys.stderr)
         return 2
+    if ignored:
+        print(f"monitor case select: {ignored_text(ignored)}: someone else answers on {key}",
+              file=sys.stderr, flush=True)
     verdict = "verified" if answer["accepted"] else "REFUSED"
     print(f"zone set {args.set!r} by {args.selector} (seq {seq}) {verdict}: "
           f"{answer.get('reason', '')}")

@@ -11,10 +11,12 @@ latched), 2 when any did not answer.
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 
 from monitor.cli.roles import role_keys
 from monitor.signals import Interrupted, call_interruptible
+from monitor.wire.answers import ignored_text
 from monitor.wire.busconfig import BusConfig
 from monitor.wire.resets import latch_of_status, request_reset, reset_payload
 
@@ -42,8 +44,12 @@ def reset_roles(args: argparse.Namespace, bus: BusConfig, session, signer, stop,
                                 cell=bus.cell if bus.prefix is None else "",
                                 confirm_clear=args.confirm_clear, boot=boot, latch=latch)
         signature = signer.sign(keys.reset, payload) if signer else None
+        ignored: list[str] = []  # answers not believed (--monitor-key): someone else's
         answer = _ask(session, keys.reset, payload, signature, args.timeout, stop,
-                      monitor_keys)
+                      monitor_keys, ignored)
+        if ignored:
+            print(f"monitor reset: {role}: {ignored_text(ignored)}: someone else answers on "
+                  f"{keys.reset}", file=sys.stderr, flush=True)
         if answer is None:
             silent += 1
             print(f"{role}: NO ANSWER on {keys.reset} within {args.timeout:g} s")
@@ -63,7 +69,7 @@ def reset_roles(args: argparse.Namespace, bus: BusConfig, session, signer, stop,
 
 
 def _ask(session, key: str, payload: bytes, signature: bytes | None, timeout: float,
-         stop, monitor_keys=None) -> dict | None:
+         stop, monitor_keys=None, ignored: list[str] | None = None) -> dict | None:
     started = time.monotonic()
     while not stop.is_set():
         left = timeout - (time.monotonic() - started)
@@ -72,7 +78,7 @@ def _ask(session, key: str, payload: bytes, signature: bytes | None, timeout: fl
         asked = time.monotonic()
         try:
             answer = call_interruptible(lambda left=left: request_reset(
-                session, key, payload, signature, left, monitor_keys), stop)
+                session, key, payload, signature, left, monitor_keys, ignored), stop)
         except Interrupted:
             return None
         if answer is not None or time.monotonic() - asked > 0.2:

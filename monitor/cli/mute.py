@@ -1,6 +1,9 @@
 """``monitor mute ZONE --for 60s``: ask the monitor to mute a zone for a bounded time, signed
 with the operator's key; ``--end`` ends the zone's mute early (docs/muting.md).
 
+The monitor signs its answers and names the request they answer: with ``--monitor-key`` no
+other responder on the mute key is believed (``monitor.cli.signed_ask``).
+
 Exit 0 accepted, 1 refused (the reason printed), 2 no answer (or bad input)."""
 
 from __future__ import annotations
@@ -9,6 +12,7 @@ import argparse
 import re
 
 from monitor.cases.mute_requests import mute_payload
+from monitor.cli.monitor_key_arg import add_monitor_key_arg, monitor_keys_of
 from monitor.cli.signed_ask import SignedAsk, add_signed_args, ask_signed, operator_signer
 from monitor.errors import ConfigError
 
@@ -30,12 +34,13 @@ def cmd_mute(args: argparse.Namespace) -> int:
                           "(end the zone's mute now)")
     duration = 0.0 if args.end else parse_duration(args.duration)
     signer = operator_signer(args, "monitor mute", "mutes must be signed")
+    monitor_keys = monitor_keys_of(args, "monitor mute")
     what = "end of the mute of" if args.end else "mute of"
     return ask_signed(args, SignedAsk(
         "monitor mute", "mute", lambda keys: keys.mute,
         lambda cell, boot: mute_payload(args.operator, args.zone, duration, end=args.end,
                                         cell=cell, boot=boot, request_id=args.request_id),
-        f"{what} zone {args.zone}"), signer)
+        f"{what} zone {args.zone}"), signer, monitor_keys)
 
 
 def register(subparsers) -> None:
@@ -52,4 +57,5 @@ def register(subparsers) -> None:
                    help="end the zone's mute now instead (default off)")
     add_signed_args(p, "the zone is muted in that monitor's zones only (each monitor of a "
                     "cell has its own zone file and mutes)")
+    add_monitor_key_arg(p)
     p.set_defaults(func=cmd_mute)

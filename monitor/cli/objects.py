@@ -10,9 +10,9 @@ Exit 0 accepted, 1 refused (the reason printed), 2 no answer (or bad input)."""
 from __future__ import annotations
 
 import argparse
-import sys
 
 from monitor.bus.session import default_instance, open_session
+from monitor.cli.monitor_key_arg import add_monitor_key_arg, monitor_keys_of
 from monitor.cli.operator import first_status
 from monitor.cli.role_arg import add_role_arg
 from monitor.cli.roles import no_answer, role_keys
@@ -21,16 +21,11 @@ from monitor.cli.status_text import changed_lines
 from monitor.cli.zenoh_args import add_zenoh_args, bounded, bus_config
 from monitor.signals import Interrupted, StopSignals, call_interruptible
 from monitor.wire.object_accepts import accept_payload
-from monitor.wire.signing import load_public_key
 
 
 def cmd_accept(args: argparse.Namespace) -> int:
     signer = operator_signer(args, "monitor objects accept", "an acceptance must be signed")
-    monitor_keys = (tuple(load_public_key(k) for k in args.monitor_key)
-                    if args.monitor_key else None)
-    if monitor_keys is None:
-        print("monitor objects accept: no --monitor-key: the answer is NOT authenticated",
-              file=sys.stderr, flush=True)
+    monitor_keys = monitor_keys_of(args, "monitor objects accept")
     return ask_signed(args, SignedAsk(
         "monitor objects accept", "accept", lambda keys: keys.objects_accept,
         lambda cell, boot: accept_payload(args.operator, args.camera, args.zone, cell=cell,
@@ -85,9 +80,7 @@ def register(subparsers) -> None:
                    "it (required)")
     add_signed_args(a, "the object is accepted by that monitor (each monitor of a cell has "
                     "its own cameras)", note_help="what it is, for the audit (default empty)")
-    a.add_argument("--monitor-key", action="append", default=[], metavar="FILE",
-                   help="the monitor's public key (repeat for several): only an answer it "
-                   "signed is believed (default none: the answer is NOT authenticated)")
+    add_monitor_key_arg(a)
     a.set_defaults(func=cmd_accept)
 
     li = sub.add_parser(

@@ -26,6 +26,7 @@ from monitor.cli.zenoh_args import (
 )
 from monitor.errors import ConfigError
 from monitor.signals import Interrupted, StopSignals, call_interruptible
+from monitor.wire.answers import ignored_text
 from monitor.wire.resets import latch_of_status, request_reset, reset_payload
 from monitor.wire.signing import load_private_key, load_public_key
 
@@ -88,6 +89,7 @@ def cmd_reset(args: argparse.Namespace) -> int:
             if args.confirm_clear:
                 print(f"monitor reset: {args.operator} confirms having looked: the cell is "
                       "clear (logged and alerted by the monitor)", file=sys.stderr, flush=True)
+            ignored: list[str] = []  # answers not believed (--monitor-key): someone else's
             while answer is None and not stop.is_set():
                 left = args.timeout - (time.monotonic() - started)
                 if left <= 0:
@@ -95,7 +97,8 @@ def cmd_reset(args: argparse.Namespace) -> int:
                 asked = time.monotonic()
                 try:
                     answer = call_interruptible(lambda left=left: request_reset(
-                        session, keys.reset, payload, signature, left, monitor_keys), stop)
+                        session, keys.reset, payload, signature, left, monitor_keys, ignored),
+                        stop)
                 except Interrupted:
                     break
                 if answer is not None or time.monotonic() - asked > 0.2:
@@ -106,7 +109,12 @@ def cmd_reset(args: argparse.Namespace) -> int:
     if answer is None:
         signed = " with an answer signed by --monitor-key" if monitor_keys else ""
         raise ConfigError(f"monitor reset: no monitor answered{signed} on {keys.reset} within "
-                          f"{args.timeout:g} s; {nothing_found_hint(bus)}")
+                          f"{args.timeout:g} s"
+                          + (f"; {ignored_text(ignored)}: someone else answers there"
+                             if ignored else "") + f"; {nothing_found_hint(bus)}")
+    if ignored:
+        print(f"monitor reset: {ignored_text(ignored)}: someone else answers on {keys.reset}",
+              file=sys.stderr, flush=True)
     verdict = "accepted" if answer["accepted"] else "REFUSED"
     print(f"reset by {args.operator} {verdict}: {answer.get('reason', '')}"
           + (f" (monitor now {answer['state']})" if answer.get("state") else ""))

@@ -1,7 +1,11 @@
 """One operator's signed request to the running monitor and its answer, as ``monitor mute``
 and ``monitor objects accept`` send it: read the monitor's status (its cell and boot, which
 the request names), sign the request with the operator's key, wait for the answer
-(``monitor.wire.answers.request_answer``) and print one line.
+(``monitor.wire.answers.request_answer``) and print one line. With ``--monitor-key`` only the
+monitor's signed answer to this very request is believed: any other (unsigned, signed by
+another key, a replayed answer to another request) is ignored, the wait goes on, and what was
+ignored is said on stderr (with the no-answer error when nothing else came); without it the
+answer is NOT authenticated (said on stderr).
 
 Exit 0 accepted, 1 refused (the reason printed; the stage that refused it on stderr), 2 no
 answer or bad input (a ``ConfigError``, one line), 130 interrupted. Never unsigned: without
@@ -25,7 +29,7 @@ from monitor.cli.roles import no_answer, role_keys
 from monitor.cli.zenoh_args import add_zenoh_args, bounded, bus_config, nothing_found_hint
 from monitor.errors import ConfigError
 from monitor.signals import Interrupted, StopSignals, call_interruptible
-from monitor.wire.answers import request_answer
+from monitor.wire.answers import ignored_text, request_answer
 from monitor.wire.signing import Signer, load_private_key
 
 
@@ -83,6 +87,7 @@ def ask_signed(args: argparse.Namespace, ask: SignedAsk, signer: Signer,
         except Interrupted:
             return 130
         answer = None
+        ignored: list[str] = []  # answers not believed (``monitor_keys``): someone else's
         with bounded(session, ask.command) as session:
             started = time.monotonic()
             status = first_status(session, keys, args.timeout, stop)  # the monitor's boot
@@ -98,14 +103,20 @@ def ask_signed(args: argparse.Namespace, ask: SignedAsk, signer: Signer,
             if left > 0:
                 with contextlib.suppress(Interrupted):
                     answer = call_interruptible(lambda: request_answer(
-                        session, key, payload, signature, left, monitor_keys), stop)
+                        session, key, payload, signature, left, monitor_keys, ignored),
+                        stop)
         if stop.is_set():
             return 130
     if answer is None:
         raise ConfigError(f"{ask.command}: no monitor answered on {key} within "
                           f"{args.timeout:g} s"
                           + (" (with an answer signed by --monitor-key)" if monitor_keys
-                             else "") + f"; {nothing_found_hint(bus)}")
+                             else "")
+                          + (f"; {ignored_text(ignored)}: someone else answers there"
+                             if ignored else "") + f"; {nothing_found_hint(bus)}")
+    if ignored:
+        print(f"{ask.command}: {ignored_text(ignored)}: someone else answers on {key}",
+              file=sys.stderr, flush=True)
     verdict = "accepted" if answer["accepted"] else "REFUSED"
     by = f"{args.role}: " if args.role else ""
     print(f"{by}{ask.subject} by {args.operator} {verdict}: {answer.get('reason', '')}")

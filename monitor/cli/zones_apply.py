@@ -3,7 +3,9 @@
 Reads the zone file, validates it (the one-line error of ``monitor zones validate``), computes
 its hash (``monitor zones hash``), signs a request naming that hash with the operator's key
 (``monitor.cases.zone_apply``) and prints the monitor's answer. The monitor re-reads the file from
-its own configured path and applies it only when that file has the signed hash.
+its own configured path and applies it only when that file has the signed hash. The monitor
+signs its answer and names the request it answers: with ``--monitor-key`` no other responder
+on the key is believed (``monitor.cli.signed_ask``).
 Exit 0 applied, 1 refused (reason printed), 2 bad input or no monitor answered.
 """
 
@@ -19,6 +21,7 @@ from monitor.errors import ConfigError
 
 def register(sub: argparse._SubParsersAction) -> None:
     from monitor.cli.keys import KEY_DIR
+    from monitor.cli.monitor_key_arg import add_monitor_key_arg
     from monitor.cli.role_arg import add_role_arg
     from monitor.cli.zenoh_args import add_zenoh_args as _add_zenoh_args
 
@@ -44,6 +47,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--note", default="", help="free text for the log (default empty)")
     p.add_argument("--timeout", type=float, default=5.0,
                    help="s to wait for the monitor's answer (default 5)")
+    add_monitor_key_arg(p)
     p.set_defaults(func=cmd_apply)
 
 
@@ -51,12 +55,14 @@ def cmd_apply(args: argparse.Namespace) -> int:
     from monitor import zones as zn
     from monitor.bus.session import default_instance, open_session
     from monitor.cases.zone_apply import apply_payload, request_apply
+    from monitor.cli.monitor_key_arg import monitor_keys_of
     from monitor.cli.operator import first_status, operator_key_path
     from monitor.cli.roles import no_answer, role_keys
     from monitor.cli.zenoh_args import bounded as _bounded
     from monitor.cli.zenoh_args import bus_config as _bus_config
     from monitor.cli.zenoh_args import nothing_found_hint as _nothing_found_hint
     from monitor.signals import Interrupted, StopSignals, call_interruptible
+    from monitor.wire.answers import ignored_text
     from monitor.wire.signing import load_private_key
 
     with StopSignals(name="monitor zones apply") as stop:
@@ -69,6 +75,8 @@ def cmd_apply(args: argparse.Namespace) -> int:
                   "the monitor refuses it", file=sys.stderr, flush=True)
         if args.zones is not None:  # a broken file: its one line, nothing sent
             cell = zn.load_cell(args.zones)
+        monitor_keys = monitor_keys_of(args, "monitor zones apply")
+        ignored: list[str] = []  # answers not believed (--monitor-key): someone else's
         try:
             session = call_interruptible(lambda: open_session(bus), stop)
         except Interrupted:
@@ -97,12 +105,20 @@ def cmd_apply(args: argparse.Namespace) -> int:
             left = max(0.1, args.timeout - (time.monotonic() - started))
             try:
                 answer = call_interruptible(lambda: request_apply(
-                    session, keys.zones_apply, payload, signature, left), stop)
+                    session, keys.zones_apply, payload, signature, left, monitor_keys,
+                    ignored), stop)
             except Interrupted:
                 return 130
     if answer is None:
         raise ConfigError(f"monitor zones apply: no monitor answered on {keys.zones_apply} "
-                          f"within {args.timeout:g} s; {_nothing_found_hint(bus)}")
+                          f"within {args.timeout:g} s"
+                          + (" (with an answer signed by --monitor-key)" if monitor_keys
+                             else "")
+                          + (f"; {ignored_text(ignored)}: someone else answers there"
+                             if ignored else "") + f"; {_nothing_found_hint(bus)}")
+    if ignored:
+        print(f"monitor zones apply: {ignored_text(ignored)}: someone else answers on "
+              f"{keys.zones_apply}", file=sys.stderr, flush=True)
     by = f"{args.role}: " if args.role else ""
     if answer["accepted"]:
         print(f"{by}zones applied by {args.operator}: {answer.get('reason', '')}")

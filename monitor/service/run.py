@@ -147,7 +147,8 @@ def _run(config_path, log_json: bool, duration: float | None, signals: StopSigna
             watch.start()
             closers.append(watch.close)
             # zone set selections (monitor/cases/): only with sets in the zone file
-            cases = (CaseReceiver.for_bus(bus.session, bus.config, pipeline.case_plan)
+            cases = (CaseReceiver.for_bus(bus.session, bus.config, pipeline.case_plan,
+                                          bus.signed_answer)
                      if pipeline.case_plan is not None else None)
             if cases is not None:
                 cases.__enter__()

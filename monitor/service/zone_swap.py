@@ -2,7 +2,10 @@
 
 ``ZoneApplies`` is the bus side: a queryable on ``<prefix>safety/zones/apply`` that checks each
 request (``monitor.cases.zone_apply.ApplyGate``: listed operator, signature, cell, this boot, time,
-request id), answers a refused one at once and queues the others for the safety loop.
+request id), answers a refused one at once and queues the others for the safety loop. Every
+answer (refused at the bus, refused or applied by the loop) is signed with the monitor's key and
+names the request it answers and the monitor (``SafetyBus.signed_answer``), so ``monitor zones
+apply --monitor-key`` believes no rogue responder's "zones applied".
 
 ``LiveZones`` is the loop side (called from ``LiveFeed.inputs``, between two steps, in the loop's
 own thread: the pipeline is never touched from another thread). For each request it re-reads
@@ -29,7 +32,6 @@ from __future__ import annotations
 
 import collections
 import contextlib
-import json
 import threading
 import time
 from collections.abc import Callable
@@ -39,6 +41,7 @@ import numpy as np
 from monitor.cases.zone_apply import APPLY_ANSWER_SCHEMA, ApplyGate, ApplyRefused, ApplyRequest
 from monitor.errors import ConfigError, InputError
 from monitor.types import Alert
+from monitor.wire.answers import request_digest
 from monitor.wire.request_desk import query_request
 from monitor.wire.resets import MAX_RESET_PAYLOAD
 from monitor.wire.signed_requests import operator_of
@@ -60,7 +63,8 @@ class ZoneApplies:
         operators = load_operators(cfg.operators_file) if cfg.operators_file else None
         self._gate = ApplyGate(operators, cfg.cell, self.key, cfg.reset_window_s)
         self._lock = threading.Lock()
-        self._queue: collections.deque[tuple[ApplyRequest, object]] = collections.deque()
+        # (the request, its query, the request's SHA-256 its answers name)
+        self._queue: collections.deque[tuple[ApplyRequest, object, str]] = collections.deque()
         self._refused: collections.deque[Alert] = collections.deque(maxlen=16)
         self.refused = 0
         self._entity = bus.session.declare_queryable(self.key, self._on_query)
@@ -70,14 +74,15 @@ class ZoneApplies:
             self._entity.undeclare()
 
     def _on_query(self, query) -> None:
+        payload, signature = query_request(query)
+        digest = request_digest(payload)
         try:
-            payload, signature = query_request(query)
             with self._lock:
                 req = self._gate.check(payload, signature, time.monotonic(),
                                        boot=self.bus.boot)
                 if len(self._queue) >= MAX_PENDING:
                     raise ApplyRefused("too many zone applies waiting; ask again")
-                self._queue.append((req, query))
+                self._queue.append((req, query, digest))
         except ApplyRefused as exc:
             operator = operator_of(payload, MAX_RESET_PAYLOAD)
             with self._lock:
@@ -86,12 +91,13 @@ class ZoneApplies:
                     REFUSED, "warning", f"zone apply in the name of {operator or '?'} refused: "
                     f"{exc}; the zones in force stay", "bus", time.monotonic(),
                     details={"operator": operator, "reason": str(exc)}))
-            answer(query, self.key, {"accepted": False, "reason": str(exc),
-                                     "operator": operator})
+            answer(self.bus, query, digest, {"accepted": False, "reason": str(exc),
+                                             "operator": operator})
         except Exception:  # nothing a sender does may kill this callback
-            answer(query, self.key, {"accepted": False, "reason": "malformed zone apply"})
+            answer(self.bus, query, digest, {"accepted": False,
+                                             "reason": "malformed zone apply"})
 
-    def take(self) -> tuple[list[tuple[ApplyRequest, object]], list[Alert]]:
+    def take(self) -> tuple[list[tuple[ApplyRequest, object, str]], list[Alert]]:
         with self._lock:
             queued, refused = list(self._queue), list(self._refused)
             self._queue.clear()
@@ -99,11 +105,14 @@ class ZoneApplies:
         return queued, refused
 
 
-def answer(query, key: str, body: dict) -> None:
-    """Answer a zone-apply query and finalise it."""
+def answer(bus, query, digest: str, body: dict) -> None:
+    """Answer a zone-apply query (the request's SHA-256: ``digest``), signed by the monitor, and
+    finalise it."""
+    key = bus.keys.zones_apply
     with contextlib.suppress(Exception):
-        query.reply(key, json.dumps({"schema": APPLY_ANSWER_SCHEMA, **body}).encode(),
-                    encoding="application/json")
+        payload, attachment = bus.signed_answer(key, {"schema": APPLY_ANSWER_SCHEMA, **body},
+                                                digest)
+        query.reply(key, payload, encoding="application/json", attachment=attachment)
     with contextlib.suppress(Exception):
         query.drop()
 
@@ -138,7 +147,7 @@ class LiveZones:
         queued, refused = self.applies.take()
         for alert in refused:
             self.alert(alert)
-        for req, query in queued:
+        for req, query, digest in queued:
             old = self.in_force
             try:
                 new = self.apply(req)
@@ -147,7 +156,7 @@ class LiveZones:
                                  f"{exc}; the zones in force stay ({old[:12]})", "zones", now,
                                  details={"operator": req.operator, "reason": str(exc),
                                           "signed_hash": req.zones_hash, "in_force": old}))
-                answer(query, self.applies.key, {
+                answer(self.bus, query, digest, {
                     "accepted": False, "reason": str(exc), "operator": req.operator,
                     "request_id": req.request_id, "config_hash": old})
                 continue
@@ -158,7 +167,7 @@ class LiveZones:
                              f"{req.operator} (was {old[:12]}): STOP until every camera is "
                              "checked on it, then clear_time", "zones", now,
                              details=dict(self.last)))
-            answer(query, self.applies.key, {
+            answer(self.bus, query, digest, {
                 "accepted": True, "operator": req.operator, "request_id": req.request_id,
                 "old_hash": old, "config_hash": new,
                 "reason": f"zone set {new} in force; STOP until every camera has a frame on it, "

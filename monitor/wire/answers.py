@@ -6,7 +6,11 @@ Anyone who may declare a queryable on the key can answer (issue 31: a rogue resp
 answers with its command key (``answer_attachment``): the signature covers the answer, which
 names the SHA-256 of the request it answers (``request``), over ``answer_key(key)``. With
 ``monitor_keys`` given, ``request_answer`` believes only answers signed by one of them that name
-this request, and says which key it was (``signed_by``)."""
+this request, and says which key it was (``signed_by``); the others are skipped (the wait goes
+on) and each is told (``ignored``, ``ignored_text``): someone else answers on the key.
+
+Signed so: resets (``monitor.bus.reset_desk``), mutes and acceptances of objects
+(``monitor.wire.request_desk``)."""
 
 from __future__ import annotations
 
@@ -37,25 +41,50 @@ def signed_by(monitor_keys, key_expr: str, request: bytes, answer: bytes,
               signature: bytes | None) -> str | None:
     """The ``ed25519:...`` text of the key in ``monitor_keys`` that signed this answer to
     ``request``; None when none did or the answer names another request."""
+    return _judge(monitor_keys, key_expr, request, answer, signature)[0]
+
+
+# why an answer was not believed (``request_answer``'s ``ignored``), in the user's words
+UNSIGNED = "unsigned"
+OTHER_REQUEST = "not naming this request"
+OTHER_KEY = "not signed by --monitor-key"
+
+
+def _judge(monitor_keys, key_expr: str, request: bytes, answer: bytes,
+           signature: bytes | None) -> tuple[str | None, str]:
+    """(the key text that signed it, "") or (None, why it is not the monitor's answer)."""
+    if signature is None:
+        return None, UNSIGNED
     try:
         body = json.loads(answer)
     except (ValueError, UnicodeDecodeError, RecursionError):
-        return None
+        return None, OTHER_REQUEST
     if not isinstance(body, dict) or body.get("request") != request_digest(request):
-        return None
+        return None, OTHER_REQUEST  # a replayed answer of the monitor to another request
     for key in monitor_keys:
         if verify(key, answer_key(key_expr), answer, signature):
-            return public_key_text(key)
-    return None
+            return public_key_text(key), ""
+    return None, OTHER_KEY
+
+
+def ignored_text(ignored: list[str]) -> str:
+    """``3 answers ignored (2 unsigned, 1 not naming this request)``: what ``request_answer``
+    skipped, for the operator (someone else answers on the key)."""
+    counts = {why: ignored.count(why) for why in dict.fromkeys(ignored)}
+    return (f"{len(ignored)} answer{'s' if len(ignored) != 1 else ''} ignored ("
+            + ", ".join(f"{n} {why}" for why, n in counts.items()) + ")")
 
 
 def request_answer(session, key_expr: str, payload: bytes, signature: bytes | None,
                    timeout: float,
-                   monitor_keys: tuple[Ed25519PublicKey, ...] | None = None) -> dict | None:
+                   monitor_keys: tuple[Ed25519PublicKey, ...] | None = None,
+                   ignored: list[str] | None = None) -> dict | None:
     """Send ``payload`` (signed by ``signature``) as a query on ``key_expr``; the monitor's
     answer ``{"accepted": bool, "reason": str, ...}`` (the first reply), None on timeout.
     ``monitor_keys``: only an answer signed by one of them for this request counts (others
-    are skipped); it comes back with ``signed_by`` set to that key's text."""
+    are skipped, and why each was is appended to ``ignored``; the wait goes on until the
+    monitor's answer or ``timeout``); it comes back with ``signed_by`` set to that key's
+    text."""
     # no consolidation: Zenoh's default would hold the monitor's answer until every queryable
     # on the key finished (one that never does would hold it until ``timeout``)
     for reply in session.get(key_expr, payload=payload, attachment=signature, timeout=timeout,
@@ -66,10 +95,12 @@ def request_answer(session, key_expr: str, payload: bytes, signature: bytes | No
         signer = None
         if monitor_keys is not None:
             attachment = reply.ok.attachment
-            signer = signed_by(monitor_keys, key_expr, payload, raw,
-                               attachment.to_bytes() if attachment is not None else None)
-            if signer is None:
-                continue  # not the monitor's answer to this request: not believed
+            signer, why = _judge(monitor_keys, key_expr, payload, raw,
+                                 attachment.to_bytes() if attachment is not None else None)
+            if signer is None:  # not the monitor's answer to this request: not believed
+                if ignored is not None:
+                    ignored.append(why)
+                continue
         try:
             body = json.loads(raw)
         except (ValueError, UnicodeDecodeError, RecursionError):

@@ -8,7 +8,9 @@ verified one waits for the pipeline (``poll``), its query until the pipeline's j
 answer (``answer``) or ``answer_s`` has passed without the pipeline taking it (``expire``: then
 it is answered "not judged" and dropped, never judged later: an operator told REFUSED must not
 find the zone muted or the object accepted). One the pipeline has taken is answered with its
-judgement, however late. Thread-safe.
+judgement, however late. Every answer is signed with the monitor's key and names the request
+it answers (``monitor.wire.answers``), so ``--monitor-key`` believes no other responder on the
+key. Thread-safe.
 
 Here, below both users (``monitor.cases.mute_requests``, ``monitor.bus.accept_desk``): it needs
 only the answers' wire format (``monitor.wire.answers``) and the bottom layer's ``Alert``;
@@ -49,10 +51,6 @@ class DeskRules:
     noun: str  # "mute", "object acceptance": "<noun> in the name of <operator> refused ..."
     schema: str  # the answers' schema
     max_payload: int  # the bound a refused payload is read with for the operator it names
-    # answers name the request they answer (its SHA-256) and the monitor (``who``) and carry
-    # the monitor's signature (``monitor.wire.answers``); False: the plain answer of mutes
-    # (``monitor mute`` reads no monitor key)
-    authenticated: bool = False
 
 
 class SignedRequestDesk:
@@ -66,7 +64,7 @@ class SignedRequestDesk:
         self.rules = rules
         self.answer_s = answer_s
         self.signer = signer
-        self.who = who if who is not None else {}  # instance, boot: in authenticated answers
+        self.who = who if who is not None else {}  # instance, boot: in every answer
         self._lock = threading.Lock()
         self._queue: collections.deque = collections.deque(maxlen=16)
         # request id -> (query, deadline, the request's digest)
@@ -172,18 +170,17 @@ class SignedRequestDesk:
         return out
 
     def _reply(self, query, body: dict, digest: str) -> None:
-        """Answer a query and finalise it (the querier's get then returns at once)."""
+        """Answer a query, signed, and finalise it (the querier's get then returns at once).
+        Every answer (accepted, refused, not judged, the bus closing) names the request it
+        answers and the monitor, and carries the monitor's signature: a rogue queryable on the
+        key cannot make ``--monitor-key`` believe an "accepted" the monitor never said."""
         if query is None:
             return
         key = self.gate.key_expr
-        if self.rules.authenticated:
-            answer = json.dumps({"schema": self.rules.schema, **body, **self.who,
-                                 "request": digest}).encode()
-            attachment = answer_attachment(self.signer, key, answer)
-        else:
-            answer = json.dumps({"schema": self.rules.schema, **body}).encode()
-            attachment = None
+        answer = json.dumps({"schema": self.rules.schema, **body, **self.who,
+                             "request": digest}).encode()
         with contextlib.suppress(Exception):
-            query.reply(key, answer, encoding="application/json", attachment=attachment)
+            query.reply(key, answer, encoding="application/json",
+                        attachment=answer_attachment(self.signer, key, answer))
         with contextlib.suppress(Exception):
             query.drop()
