@@ -9,7 +9,7 @@ import numpy as np
 
 from monitor import zones as zn
 from monitor.tracking.whereabouts import Whereabouts
-from tests.test_tracks import H, W, Run, held, person
+from tests.test_tracks import H, Run, W, held, person
 
 # a protective image zone in the lower half of the picture, near the camera (as the street
 # scene's zone, drawn on the floor in front of the robot)
