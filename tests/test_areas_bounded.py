@@ -52,8 +52,8 @@ def test_a_fresh_loss_inside_an_old_area_leaves_the_old_area_its_bounded_life():
 
 def test_a_fresh_loss_that_covers_an_old_area_takes_it_in():
     """The other nesting: person 1's old area lies inside the fresh loss's larger one. Joined
-    (the union is the fresh loss's cells), the old one ends no later than alone, and the
-    union keeps the fresh loss's life."""
+    (the union is the fresh loss's cells, named by the longest lost), it keeps the fresh
+    loss's life: person 1's cells end no earlier than alone."""
     where = Whereabouts()
     where.view(W, H)
     where.lose(1, np.array(person(650, bottom=640, h=200, w=60)), 0.0)
@@ -62,7 +62,20 @@ def test_a_fresh_loss_that_covers_an_old_area_takes_it_in():
     where.lose(2, np.array(person(650, bottom=650, h=500, w=300)), 0.0)
     assert _bounded(where, 0.0, 5) == []
     (area,) = where.areas.values()
-    assert area.track_id == 1 and 2 in area.merged and area.age_s < 1.0
+    assert area.track_id == 1 and area.merged == (2,) and area.age_s < 1.0
+
+
+def test_a_lost_persons_area_and_a_place_a_merged_track_stood_stay_apart():
+    """A place a merged track stood (``behind``: it does not walk, no sighting ends it) and
+    a lost person's area (it walks) that nest are not joined: the union would take one
+    rule for both (a walker's area that stops walking, or a merged place a sighting ends)."""
+    where = Whereabouts()
+    where.view(W, H)
+    where.lose(1, np.array(person(650, bottom=650, h=500, w=300)), 0.0)
+    where.lose(2, np.array(person(650, bottom=640, h=200, w=60)), 0.0, behind=True)
+    where.update(0.0, np.zeros((0, 4)), True, 100.0, None)
+    assert set(where.areas) == {1, 2}
+    assert where.areas[2].behind and not where.areas[1].behind
 
 
 def _swallowed_then_carried(b_box: list[float], a_bottom: float, a_h: float):

@@ -491,8 +491,9 @@ class Whereabouts:
 
     def _merge_alike(self) -> None:
         """An area within another (ghosts of one person following them) joins it, named by
-        the longest lost; past ``max_areas`` the newest join the oldest. The union keeps
-        every cell either could be on."""
+        the longest lost, when the union lives no longer than the area that covers it
+        (``_joins``); past ``max_areas`` the newest join the oldest. The union keeps every
+        cell either could be on."""
         order = sorted(self.areas.values(), key=lambda a: (a.lost_since, a.track_id))
         kept: list[LostArea] = []
         for area in order:
@@ -555,7 +556,9 @@ def _joins(into: LostArea, area: LostArea) -> bool:
     life of the one that covers the union. A fresh loss inside an old person's larger area
     stays on its own: joined, the old area would live as long as the fresh loss (in a busy
     scene a flicker a second kept one person's area alive for ever, issue 46)."""
-    if not _nested(into.cells, area.cells):
+    # a place a merged track stood does not walk and no sighting ends it, a lost person's
+    # area walks: joined, one would take the other's rule
+    if into.behind != area.behind or not _nested(into.cells, area.cells):
         return False
     if area.age_s >= into.age_s - 1e-9:  # not younger: the union lives no longer
         return True
