@@ -520,19 +520,24 @@ class PersonTracker:
 
     def _follow_carriers(self, rows_to_id: list[int], boxes: np.ndarray, now: float) -> None:
         """A track lost into a neighbour's box may be hidden right behind them and walk with
-        them: while that box is seen, the lost track's area takes the cells under it too (the
-        place it was swallowed is kept as well). Else a person boxed with a colleague who
-        steps behind a fixture while still boxed as one leaves no area at the fixture, and
-        the cell runs with them there once the colleague has left. Only within the area's
-        bounded life (nobody walks hidden behind others for ever, docs/tracking.md); ends
-        when the track is seen again, its area ends, or the carrier is not seen."""
+        them: while that box is seen, the lost track's area takes the cells of that box
+        where their feet may be, at their own depth within a walk since the loss
+        (``Whereabouts.carry``; the place it was swallowed is kept as well). Else a person
+        boxed with a colleague who steps behind a fixture while still boxed as one leaves no
+        area at the fixture, and the cell runs with them there once the colleague has left.
+        Only within the area's bounded life (nobody walks hidden behind others for ever,
+        docs/tracking.md); ends when the track is seen again, its area ends, or the carrier
+        is not seen."""
+        cfg = self.config
         for tid, carrier in list(self._carriers.items()):
             rec, area = self._records.get(tid), self.where.areas.get(tid)
             if rec is None or not rec.lost or area is None or carrier not in rows_to_id \
                     or now - rec.last_seen >= self.where.life_s(area) - 1e-9:
                 del self._carriers[tid]
                 continue
-            self.where.lose(tid, boxes[rows_to_id.index(carrier)], rec.last_seen, behind=True)
+            reach_px = cfg.walk_speed_mps / cfg.height_m * area.box_height_px \
+                * cfg.reach_margin * (now - rec.last_seen)
+            self.where.carry(tid, rec.box, boxes[rows_to_id.index(carrier)], reach_px)
 
     def _merged_into(self, box: np.ndarray, boxes: np.ndarray) -> list[int]:
         """Rows of this frame's boxes that cover ``merge_ios`` or more of a lost box."""

@@ -151,6 +151,27 @@ class FootGrid:
         return out
 
 
+def carried_cells(grid: FootGrid, lost_box_px: np.ndarray, carrier_box_px: np.ndarray,
+                  reach_px: float, below: float) -> np.ndarray:
+    """(ny, nx) bool: where the feet of a person hidden in a seen neighbour's box (the
+    carrier) may be: across the carrier's columns (walking with it), at the hidden person's
+    own depth (the feet rows of their last box: the lowest ``FEET_BAND`` and ``below``
+    under it) grown by ``reach_px`` (the walk since the loss, in pixels), and never outside
+    the carrier's own rows (``below`` under it included): hidden by it. A person lost 6 m
+    behind a passer-by walks on 6 m behind them, not at their feet (the carrier's feet band
+    put a person lost on the far side of the protective zone into it, issue 46). Rows
+    that miss the carrier: its own feet band (``cells_under``)."""
+    lx1, ly1, lx2, ly2 = (float(v) for v in np.asarray(lost_box_px, np.float64).reshape(4))
+    cx1, cy1, cx2, cy2 = (float(v) for v in np.asarray(carrier_box_px, np.float64).reshape(4))
+    lh, ch = max(ly2 - ly1, 0.0), max(cy2 - cy1, 0.0)
+    reach = max(float(reach_px), 0.0) if math.isfinite(reach_px) else math.inf
+    top = max(ly2 - FEET_BAND * lh - reach, cy1)
+    bottom = min(ly2 + below * lh + reach, cy2 + below * ch)
+    if not all(map(math.isfinite, (lx1, ly1, lx2, ly2, cx1, cy1, cx2, cy2))) or top > bottom:
+        return grid.cells_under(carrier_box_px, below)
+    return grid.cells_under(np.array([cx1, top, cx2, bottom]), 0.0, band=1.0)
+
+
 def _span(lo: float, hi: float, cell: float, n: int) -> tuple[int, int]:
     """Cells whose centre lies in [lo, hi] (at least the cell containing lo..hi's middle)."""
     a = max(0, math.ceil(lo / cell - 0.5))
@@ -289,6 +310,17 @@ class Whereabouts:
         self.areas[track_id] = LostArea(track_id, float(last_seen), box,  # type: ignore[arg-type]
                                         seed, float(last_seen), behind=behind,
                                         height_px=float(height_px))
+
+    def carry(self, track_id: int, lost_box_px: np.ndarray, carrier_box_px: np.ndarray,
+              reach_px: float) -> None:
+        """A lost track hidden in a seen neighbour's box (the carrier) walks with it: its
+        area (a place a merged track stood) takes ``carried_cells``."""
+        area = self.areas.get(track_id)
+        if area is None or self.grid is None:
+            return
+        area.cells |= carried_cells(self.grid, lost_box_px, carrier_box_px, reach_px,
+                                    self.config.below)
+        area.behind = True
 
     def found(self, track_id: int, clear_view: bool = False) -> bool:
         """The lost person's own track is seen again (the tracker's association, never a box
@@ -460,12 +492,13 @@ class Whereabouts:
 
     def _merge_alike(self) -> None:
         """An area within another (ghosts of one person following them) joins it, named by
-        the longest lost; past ``max_areas`` the newest join the oldest. The union keeps
-        every cell either could be on."""
+        the longest lost, when the union lives no longer than the area that covers it
+        (``_joins``); past ``max_areas`` the newest join the oldest. The union keeps every
+        cell either could be on."""
         order = sorted(self.areas.values(), key=lambda a: (a.lost_since, a.track_id))
         kept: list[LostArea] = []
         for area in order:
-            same = next((k for k in kept if _nested(k.cells, area.cells)), None)
+            same = next((k for k in kept if _joins(k, area)), None)
             if same is None and len(kept) < self.config.max_areas:
                 kept.append(area)
                 continue
@@ -533,6 +566,22 @@ def shows_only_seen_persons(cells: np.ndarray, hidden: np.ndarray, explains: np.
     if not cells.any() or (cells & hidden).any():
         return False
     return not (cells & ~explains).any() or not (cells & ~seen_free).any()
+
+
+def _joins(into: LostArea, area: LostArea) -> bool:
+    """``area`` may join ``into`` without making a hold outlive its bounded life: one lies
+    within the other, and the union's life (its youngest member's) is no longer than the
+    life of the one that covers the union. A fresh loss inside an old person's larger area
+    stays on its own: joined, the old area would live as long as the fresh loss (in a busy
+    scene a flicker a second kept one person's area alive for ever, issue 46)."""
+    # a place a merged track stood does not walk and no sighting ends it, a lost person's
+    # area walks: joined, one would take the other's rule
+    if into.behind != area.behind or not _nested(into.cells, area.cells):
+        return False
+    if area.age_s >= into.age_s - 1e-9:  # not younger: the union lives no longer
+        return True
+    # the younger covers the union (the older lies within it): the union is the younger
+    return bool(np.array_equal(into.cells & area.cells, into.cells))
 
 
 def _nested(a: np.ndarray, b: np.ndarray) -> bool:
