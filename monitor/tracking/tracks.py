@@ -155,11 +155,6 @@ class TrackUpdate:
     ended_by: tuple[tuple[int, str], ...] = ()
 
 
-# a box seen too wide for one person in this many sightings in a row, then narrow: two
-# persons boxed as one may have parted (``Tracker._split_from``)
-SPLIT_AFTER_WIDE = 2
-
-
 @dataclass
 class _Record:
     track_id: int
@@ -178,9 +173,6 @@ class _Record:
     # grows at the pace of the person's full height, not of that sliver
     heights: list[tuple[float, float]] = field(default_factory=list)
     feet_bottom: float = math.nan  # a cut-off box: the lowest row its hidden feet may be on
-    # sightings in a row too wide for one person (a pair boxed as one stays wide; a walker's
-    # stride widens the box for a frame now and then)
-    wide_run: int = 0
     byte_id: int = -1  # the last sighting's ByteTrack id (-1: none)
 
     def tall_px(self) -> float:
@@ -252,18 +244,6 @@ class PersonTracker:
         # lost track -> the seen track whose box swallowed it: the person hidden right behind
         # that box walks with it (``_follow_carriers``)
         self._carriers: dict[int, int] = {}
-
-    def _split_from(self, wide_box: np.ndarray, seen: float, height_px: float) -> None:
-        """A box too wide for one person (not known as one: ``PocketBook.single``) narrowed:
-        two persons boxed as one may have parted, and the tracker keeps its id on one of
-        them. The other was never seen alone, so no track of theirs is lost: they get an
-        area of their own from where the wide box stood, a name no sighting links to (only
-        seen free, the bounded life or a pocket's count end it). Without it, one of a pair
-        walking in side by side stepped behind the cabinet and a plain reset was accepted
-        with them inside (tests/test_name_link_attacks.py)."""
-        split_id = self._next_id
-        self._next_id += 1
-        self.where.lose(split_id, wide_box, seen, height_px=height_px)
 
     def _buffer_frames(self, fps: float) -> int:
         return max(1, math.ceil(self.config.lost_track_s * fps))
@@ -364,8 +344,6 @@ class PersonTracker:
         pockets.count_exits(self.pockets, self.where, boxes, [
             row for row, tid in enumerate(rows_to_id)
             if tid not in self._records or self._records[tid].lost], now)
-        # tracks seen too wide for one person up to the last frame (a pair boxed as one)
-        wide_before = {t for t, c in self.pockets.carrying.items() if pockets.WIDE in c}
         pockets.seen(self.pockets, self.where, rows_to_id, boxes)
         row_zones = self._row_zones(report, n)
         floors: list[np.ndarray | None] = [None] * n
@@ -381,7 +359,6 @@ class PersonTracker:
             rec = self._records.get(tid)
             if rec is None:
                 rec = self._records[tid] = _Record(tid, boxes[row].copy(), now)
-                rec.wide_run = 0 if _narrow(boxes[row]) else 1
                 rec.byte_id = self._byte_ids.get(row, -1)
                 rec.zones = row_zones[row] if row_zones is not None else ()
                 self._place(rec, boxes[row], floors[row], now, first=True)
@@ -400,10 +377,6 @@ class PersonTracker:
             if row not in self._guessed and self._same_person(rec, row, boxes, now):
                 self.where.found(tid, self._clear_view(rec, row, boxes, now, frame_size))
             old_box, old_seen = rec.box.copy(), rec.last_seen
-            narrow = _narrow(boxes[row])
-            if tid in wide_before and narrow and rec.wide_run >= SPLIT_AFTER_WIDE:
-                self._split_from(old_box, old_seen, rec.tall_px())
-            rec.wide_run = 0 if narrow else rec.wide_run + 1
             self._place(rec, boxes[row], floors[row], now, first=False)
             rec.byte_id = self._byte_ids.get(row, -1)
             if row_zones is not None:
@@ -634,9 +607,3 @@ class PersonTracker:
         heights = np.maximum((rows[:, 3] - rows[:, 1])[:, None],
                              np.array([r.box[3] - r.box[1] for r in free])[None, :])
         return cfg.walk_speed_mps / cfg.height_m * heights * dt[None, :]
-
-
-def _narrow(box: np.ndarray) -> bool:
-    """The box is no wider than one person for its height (``pockets.SINGLE_WIDTH``)."""
-    x1, y1, x2, y2 = (float(v) for v in np.asarray(box, np.float64).reshape(4))
-    return x2 - x1 <= pockets.SINGLE_WIDTH * max(y2 - y1, 1.0)
