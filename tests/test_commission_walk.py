@@ -42,7 +42,7 @@ def _zone_data(scene: scene_cell.CellScene) -> dict:
 
 
 def _truth_entries(truth) -> list[float]:
-    inside = [sc._rect_distance(t.persons[0].floor_m) < RADIUS_M for t in truth]
+    inside = [sc.rect_distance(t.persons[0].floor_m) < RADIUS_M for t in truth]
     return [truth[k].time_s for k in range(len(truth))
             if inside[k] and (k == 0 or not inside[k - 1])]
 

@@ -231,7 +231,7 @@ def _walk_behind_base(detector, robot_base: dict | None):
     inside)."""
     from monitor.pipeline import Pipeline
     from monitor.policy import RUN, SLOW, PolicyConfig, ResetRequest
-    from monitor.replay.scenarios import PROTECTIVE, _rect_distance
+    from monitor.replay.scenarios import PROTECTIVE, rect_distance
     from monitor.scene.cell import Block, CellScene, Walker, zone_data
     from monitor.types import FrameInfo
 
@@ -252,7 +252,7 @@ def _walk_behind_base(detector, robot_base: dict | None):
         t = truth.time_s
         res = pipe.process(img, FrameInfo(cam.camera_id, k, t, cam.width, cam.height), t,
                            reset=ResetRequest("test", t, request_id=f"r{k}"))
-        if any(_rect_distance(p.floor_m, PROTECTIVE) < radius for p in truth.persons):
+        if any(rect_distance(p.floor_m, PROTECTIVE) < radius for p in truth.persons):
             inside += 1
             bad += res.command.state in (RUN, SLOW)
             accepted += res.command.reset is not None and res.command.reset.accepted

@@ -218,7 +218,7 @@ def test_a_busy_flickering_cell_lets_go_once_the_zone_is_seen_free(detector, nam
             reset, next_reset = ResetRequest("anna", t, request_id=f"r{k}"), next_reset + 0.5
         res = pipe.process(img, FrameInfo(cam.camera_id, k, t, cam.width, cam.height), t,
                            reset=reset)
-        inside = any(sc._rect_distance(p.floor_m) < radius for p in truth.persons)
+        inside = any(sc.rect_distance(p.floor_m) < radius for p in truth.persons)
         state, outcome = res.command.state, res.command.reset
         if inside:
             last_inside = t

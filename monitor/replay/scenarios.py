@@ -139,7 +139,8 @@ class ScenarioResult:
                 and not late and self.false_stop_frames == 0)
 
 
-def _rect_distance(p: tuple[float, float], rect=PROTECTIVE) -> float:
+def rect_distance(p: tuple[float, float], rect=PROTECTIVE) -> float:
+    """How far floor point ``p`` lies outside the rectangle ``rect`` (0: inside)."""
     (x0, y0), (x1, y1) = rect
     dx = max(x0 - p[0], 0.0, p[0] - x1)
     dy = max(y0 - p[1], 0.0, p[1] - y1)
@@ -584,7 +585,7 @@ def run_scenario(scenario: Scenario, detector, policy=None,
             next_reset += RESET_PERIOD_S
         frame = FrameInfo(cam.camera_id, k, t, cam.width, cam.height)
         res = pipe.process(img, frame, t, reset=reset)
-        inside = any(_rect_distance(p.floor_m) < radius for p in truth.persons)
+        inside = any(rect_distance(p.floor_m) < radius for p in truth.persons)
         if inside:
             last_inside = t
         outcome = res.command.reset
@@ -597,7 +598,7 @@ def run_scenario(scenario: Scenario, detector, policy=None,
         oldest = max([oldest, *(t - h.lost_since for h in holds)])
         clear = all(p.visible_fraction >= CLEAR_VIEW_FRACTION and p.full_box_px is not None
                     and _in_image(p.full_box_px, cam.width, cam.height)
-                    and _rect_distance(p.floor_m) > OUTSIDE_MARGIN_M for p in truth.persons)
+                    and rect_distance(p.floor_m) > OUTSIDE_MARGIN_M for p in truth.persons)
         if not clear:
             last_near = t
         state = res.command.state
