@@ -12,6 +12,8 @@ import cv2
 from monitor.scene import DemoScene
 from tests.helpers import free_port
 
+FPS = 15  # the camera's frame rate
+
 
 def _serve(frames: list[bytes], port: int, online, ready) -> None:
     """The camera's own process: the stream never waits for the test process's threads."""
@@ -28,13 +30,16 @@ def _serve(frames: list[bytes], port: int, online, ready) -> None:
             self.send_header("Content-Type", "multipart/x-mixed-replace; boundary=frame")
             self.end_headers()
             k = 0
+            start = time.monotonic()
             try:
                 while online.is_set():
                     jpeg = frames[k % len(frames)]
                     self.wfile.write(b"--frame\r\nContent-Type: image/jpeg\r\n"
                                      b"Content-Length: %d\r\n\r\n" % len(jpeg) + jpeg + b"\r\n")
                     k += 1
-                    time.sleep(1 / 15)
+                    # on a fixed schedule, as a camera's sensor clock: a late frame on a loaded
+                    # host is followed by the next one on time, not a whole period later
+                    time.sleep(max(0.0, start + k / FPS - time.monotonic()))
             except OSError:  # the service closed the stream
                 pass
 

@@ -3,7 +3,9 @@
 
 The video's clock must be the walk's: frame k of the file stands for ``k / fps`` seconds after
 the first frame. A camera faster than ``fps`` has frames dropped; a slower one (or one that
-stalls) has its newest frame repeated in the slots it missed.
+stalls) has its newest frame repeated in the slots it missed. A frame that arrived in a slot
+already filled, followed by an empty slot (arrival times jitter on a loaded host), fills that
+slot: a distinct frame at most one slot late, not counted as a repeat.
 
 The reading thread never encodes: frames go to a writer thread through a queue (a repeated slot
 is the same array again, no copy), so a slow encoder on a loaded host (one H.264 write took
@@ -76,6 +78,7 @@ def record_walk(source, path: Path, seconds: float, fps: float,
     t0 = t_last = None
     written = repeated = dropped = read = 0
     last = None
+    last_written = True  # False: ``last`` came in a slot already filled and is not written yet
     try:
         while written < slots and not stop.is_set() and encoder.error is None:
             frame = source.read()
@@ -89,12 +92,21 @@ def record_walk(source, path: Path, seconds: float, fps: float,
             while written < min(slot, slots) and last is not None:
                 encoder.put(last)
                 written += 1
-                repeated += 1
+                if last_written:
+                    repeated += 1
+                else:
+                    # the frame that came early (two in one slot: an HTTP camera's arrival
+                    # times jitter on a loaded host) fills the empty slot after it, a distinct
+                    # frame at most one slot late, where a repeat would show it all the same
+                    dropped -= 1
+                    last_written = True
             if slot == written and written < slots:
                 encoder.put(frame.image)
                 written += 1
+                last_written = True
             else:
                 dropped += 1
+                last_written = False
             last = frame.image
     finally:
         codec = encoder.close()
