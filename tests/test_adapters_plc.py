@@ -343,8 +343,9 @@ def test_inputs_only_from_the_allow_list_and_only_in_range():
         out.close()
 
 
-def test_a_plc_reset_reaches_the_monitor_as_the_operators_signed_reset(keys, tmp_path):
-    private, public = keys
+def _monitor_with_operator_anna(tmp_path, private):
+    """Operator anna's key pair and file, and a monitor's bus config that trusts her:
+    (anna's private key, the config, the bus port, a Modbus port)."""
     op_key, _, op_text = new_key_pair(tmp_path / "anna.key")
     operators = tmp_path / "operators"
     operators.write_text(f"anna {op_text}\n")
@@ -353,10 +354,22 @@ def test_a_plc_reset_reaches_the_monitor_as_the_operators_signed_reset(keys, tmp
     cfg = BusConfig(cell=CELL, instance="mon-plc", listen=(f"tcp/127.0.0.1:{zport}",),
                     heartbeat_hz=20.0, ttl_ms=TTL_MS, signing_key=str(private),
                     operators_file=str(operators), stall_timeout=60.0)
+    return op_key, cfg, zport, mport
+
+
+def _latched(bus) -> Latch:
+    """The monitor publishes a STOP latched by person 1 in P, waiting for a reset."""
+    latch = Latch("protective_zone", "person 1 in P", 0.0, "P", 1, nonce="1-abcdef")
+    bus.publish_command(Command("STOP", 0.0, (Reason("latched", "waiting for a reset"),),
+                                latched=True, latched_by=latch, reset_possible=True))
+    return latch
+
+
+def test_a_plc_reset_reaches_the_monitor_as_the_operators_signed_reset(keys, tmp_path):
+    private, public = keys
+    op_key, cfg, zport, mport = _monitor_with_operator_anna(tmp_path, private)
     with SafetyBus(cfg) as bus:
-        latch = Latch("protective_zone", "person 1 in P", 0.0, "P", 1, nonce="1-abcdef")
-        bus.publish_command(Command("STOP", 0.0, (Reason("latched", "waiting for a reset"),),
-                                    latched=True, latched_by=latch, reset_possible=True))
+        _latched(bus)
         proc = start_adapter(zport, mport, public, "--inputs", "--allow-client", "127.0.0.1",
                              "--reset-operator", "anna", "--reset-key", str(op_key))
         plc = Plc(mport)
@@ -381,23 +394,14 @@ def test_a_rogue_responders_accepted_never_reads_reset_accepted_on_the_plc(keys,
     monitor refuses it. The adapter believes only the answer its --monitor-key signed for that
     request: reset_result reads 3 (refused), never 2 (before: 2, the rogue's)."""
     private, public = keys
-    op_key, _, op_text = new_key_pair(tmp_path / "anna.key")
-    operators = tmp_path / "operators"
-    operators.write_text(f"anna {op_text}\n")
-    os.chmod(operators, 0o644)
-    zport, mport = free_port(), free_port()
-    cfg = BusConfig(cell=CELL, instance="mon-plc", listen=(f"tcp/127.0.0.1:{zport}",),
-                    heartbeat_hz=20.0, ttl_ms=TTL_MS, signing_key=str(private),
-                    operators_file=str(operators), stall_timeout=60.0)
+    op_key, cfg, zport, mport = _monitor_with_operator_anna(tmp_path, private)
     keys_of = BusKeys.of(f"workcell/{CELL}/")
     with SafetyBus(cfg) as bus, open_session(BusConfig(
             cell=CELL, instance="rogue", connect=(f"tcp/127.0.0.1:{zport}",))) as rogue:
         rogue.declare_queryable(keys_of.reset, lambda q: q.reply(keys_of.reset, json.dumps(
             {"schema": "workcell.safety.reset-answer/1", "accepted": True, "stage": "policy",
              "reason": "reset accepted", "state": "RUN", "instance": "mon-plc"})))
-        latch = Latch("protective_zone", "person 1 in P", 0.0, "P", 1, nonce="1-abcdef")
-        bus.publish_command(Command("STOP", 0.0, (Reason("latched", "waiting for a reset"),),
-                                    latched=True, latched_by=latch, reset_possible=True))
+        latch = _latched(bus)
         proc = start_adapter(zport, mport, public, "--inputs", "--allow-client", "127.0.0.1",
                              "--reset-operator", "anna", "--reset-key", str(op_key))
         plc = Plc(mport)

@@ -11,6 +11,7 @@ import json
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 from monitor.bus.session import BusConfig, SafetyBus, open_session
 from monitor.cases.receiver import CASE_ANSWER_SCHEMA, CaseReceiver, case_key, request_case
@@ -24,14 +25,21 @@ CELL = "cans"
 PLAN = CasePlan((ZoneSet("A", frozenset({"a"})), ZoneSet("B", frozenset({"b"}))), default="A")
 
 
-def _select_against_a_rogue(tmp_path, *extra: str) -> tuple[str, str, int]:
+def _monitor_with_selector_robot(tmp_path) -> tuple[Path, BusConfig, int]:
+    """The monitor's key pair, a selectors file listing robot (its key pair beside it) and the
+    monitor's bus config that trusts it: (robot's private key, the config, the bus port)."""
     private, _, _ = new_key_pair(tmp_path / "monitor.key")
-    _, _, robot = new_key_pair(tmp_path / "robot.key")  # listed
-    mallory, _, _ = new_key_pair(tmp_path / "mallory.key")  # not listed: the monitor refuses
+    robot_key, _, robot = new_key_pair(tmp_path / "robot.key")
     (tmp_path / "selectors").write_text(f"robot {robot}\n")
     port = free_port()
     cfg = BusConfig(cell=CELL, instance="mon-cans", listen=(f"tcp/127.0.0.1:{port}",),
                     signing_key=str(private), selectors_file=str(tmp_path / "selectors"))
+    return robot_key, cfg, port
+
+
+def _select_against_a_rogue(tmp_path, *extra: str) -> tuple[str, str, int]:
+    _, cfg, port = _monitor_with_selector_robot(tmp_path)  # robot is listed
+    mallory, _, _ = new_key_pair(tmp_path / "mallory.key")  # not listed: the monitor refuses
     with SafetyBus(cfg) as bus, \
             CaseReceiver.for_bus(bus.session, bus.config, PLAN, bus.signed_answer), \
             open_session(BusConfig(cell=CELL, instance="rogue",
@@ -58,12 +66,7 @@ def test_a_rogue_responders_verified_is_not_believed_with_the_monitor_key(tmp_pa
 
 
 def test_selection_answers_are_signed_and_name_the_request(tmp_path):
-    private, _, _ = new_key_pair(tmp_path / "monitor.key")
-    robot_key, _, robot = new_key_pair(tmp_path / "robot.key")
-    (tmp_path / "selectors").write_text(f"robot {robot}\n")
-    port = free_port()
-    cfg = BusConfig(cell=CELL, instance="mon-cans", listen=(f"tcp/127.0.0.1:{port}",),
-                    signing_key=str(private), selectors_file=str(tmp_path / "selectors"))
+    robot_key, cfg, port = _monitor_with_selector_robot(tmp_path)
     with SafetyBus(cfg) as bus, \
             CaseReceiver.for_bus(bus.session, bus.config, PLAN, bus.signed_answer), \
             open_session(BusConfig(cell=CELL, instance="robot",
