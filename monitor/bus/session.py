@@ -78,7 +78,7 @@ from monitor.policy import STOP, Command, Reason, ResetRequest
 from monitor.signals import close_bounded
 from monitor.types import Alert, Fault, Persons, ZoneReport
 from monitor.wire.alerts import AlertLimiter, AlertLimits, alert_to_dict, signed_attachment
-from monitor.wire.answers import answer_attachment
+from monitor.wire.answers import answer_attachment, request_digest
 from monitor.wire.busconfig import (
     MODES,
     BusConfig,
@@ -277,8 +277,9 @@ class SafetyBus:
         """An answer to the request whose SHA-256 is ``digest`` on ``key_expr``, as the desks
         write theirs (``monitor.wire.answers``): ``body``, this monitor's instance and boot and
         the request it answers, and its signature (None: the monitor has no key). For the
-        queryables the bus does not own (zone applies)."""
-        answer = json.dumps({**body, **self._resets.who, "request": digest}).encode()
+        queryables the bus does not own (zone applies, zone sets) and its status."""
+        answer = json.dumps({**body, **self._resets.who, "request": digest},
+                            default=str).encode()
         return answer, answer_attachment(self._signer, key_expr, answer)
 
     @property
@@ -547,6 +548,12 @@ class SafetyBus:
 
     def _on_status_query(self, query: zenoh.Query) -> None:
         with contextlib.suppress(Exception):  # a vanished querier must not kill the callback
-            query.reply(self.keys.status, json.dumps(self.status(), default=str).encode(),
-                        encoding="application/json")
+            # signed, naming the query's payload (``monitor status --monitor-key`` sends a
+            # nonce): anyone may answer on the status key, and a forged "RUN, all healthy"
+            # must not reach an operator who asked the monitor
+            request = query.payload.to_bytes() if query.payload is not None else b""
+            answer, signature = self.signed_answer(self.keys.status, self.status(),
+                                                   request_digest(request))
+            query.reply(self.keys.status, answer, encoding="application/json",
+                        attachment=signature)
 

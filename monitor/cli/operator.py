@@ -14,6 +14,7 @@ import zenoh
 
 from monitor.bus.session import BusKeys, default_instance, open_session
 from monitor.cli.keys import KEY_DIR
+from monitor.cli.monitor_key_arg import add_monitor_key_arg, monitor_keys_of
 from monitor.cli.role_arg import add_role_arg
 from monitor.cli.roles import no_answer, role_keys
 from monitor.cli.status_text import status_text
@@ -26,7 +27,7 @@ from monitor.cli.zenoh_args import (
 )
 from monitor.errors import ConfigError
 from monitor.signals import Interrupted, StopSignals, call_interruptible
-from monitor.wire.answers import ignored_text
+from monitor.wire.answers import ignored_text, judge_answer, status_request
 from monitor.wire.resets import latch_of_status, request_reset, reset_payload
 from monitor.wire.signing import load_private_key, load_public_key
 
@@ -130,13 +131,17 @@ def answered_by(answer: dict) -> str:
 
 
 def ask(session, key: str, timeout: float, stop, want: Callable[[bytes], dict | None],
-        grace: float = 0.0) -> list[dict]:
+        grace: float = 0.0, monitor_keys: tuple | None = None,
+        ignored: list[str] | None = None) -> list[dict]:
     """The answers on ``key`` that ``want`` accepts (it returns None for the others), returned
     at the first one: only those arriving within ``grace`` s after it are added (a second
     monitor on the cell). It never waits for the query itself to end: a queryable that never
     finishes its answer (a hung peer) would hold the command until ``timeout``. A query that
     ends unanswered (nothing routed yet: the session is still connecting) is asked again until
-    ``timeout``. Returns [] when nothing answered or ``stop`` was set."""
+    ``timeout``. Returns [] when nothing answered or ``stop`` was set. ``monitor_keys``: the
+    query carries a fresh nonce (``status_request``) and only answers signed by one of the
+    keys naming it count (``signed_by`` set); why each other one was skipped is appended to
+    ``ignored``."""
     started = time.monotonic()
     answers: list[dict] = []
     first_at: float | None = None
@@ -145,9 +150,10 @@ def ask(session, key: str, timeout: float, stop, want: Callable[[bytes], dict | 
         if left <= 0:
             break
         inbox: queue.SimpleQueue = queue.SimpleQueue()
+        request = status_request() if monitor_keys is not None else None
         # no consolidation: Zenoh's default keeps every reply until all queryables finished
         session.get(key, handler=zenoh.handlers.Callback(inbox.put, lambda q=inbox: q.put(_END)),
-                    consolidation=zenoh.ConsolidationMode.NONE, timeout=left)
+                    consolidation=zenoh.ConsolidationMode.NONE, timeout=left, payload=request)
         while not stop.is_set():
             until = started + timeout if first_at is None else first_at + grace
             wait = until - time.monotonic()
@@ -159,7 +165,21 @@ def ask(session, key: str, timeout: float, stop, want: Callable[[bytes], dict | 
                 continue
             if reply is _END:
                 break  # the query ended: with answers, done; without, ask again
-            body = want(reply.ok.payload.to_bytes()) if reply.ok is not None else None
+            if reply.ok is None:
+                continue
+            raw = reply.ok.payload.to_bytes()
+            signer = None
+            if request is not None:
+                attachment = reply.ok.attachment
+                signer, why = judge_answer(monitor_keys, key, request, raw,
+                                           None if attachment is None else attachment.to_bytes())
+                if signer is None:  # not the monitor's answer to this query: not believed
+                    if ignored is not None:
+                        ignored.append(why)
+                    continue
+            body = want(raw)
+            if body is not None and signer is not None:
+                body = {**body, "signed_by": signer}
             if body is not None:
                 answers.append(body)
                 first_at = first_at if first_at is not None else time.monotonic()
@@ -182,12 +202,14 @@ def first_status(session, keys: BusKeys, timeout: float, stop) -> dict | None:
 def cmd_status(args: argparse.Namespace) -> int:
     with StopSignals(name="monitor status") as stop:
         bus = bus_config(args, instance=args.instance or default_instance("status"))
+        monitor_keys = monitor_keys_of(args, "monitor status")
         roles = list(dict.fromkeys(args.role)) or [""]
         try:
             session = call_interruptible(lambda: open_session(bus), stop)
         except Interrupted:
             return 130
         answered: list[tuple[str, BusKeys, list[dict], float]] = []
+        ignored: list[str] = []  # answers not believed (--monitor-key): someone else's
         with bounded(session, "monitor status") as session:
             for role in roles:
                 keys = role_keys(bus, role)
@@ -195,13 +217,19 @@ def cmd_status(args: argparse.Namespace) -> int:
                 # every monitor that answers within STATUS_GRACE_S of the first is shown (two
                 # monitors on one cell, or of one role, is a fault the operator must see)
                 answers = ask(session, keys.status, args.timeout, stop, _any_json,
-                              STATUS_GRACE_S)
+                              STATUS_GRACE_S, monitor_keys, ignored)
                 answered.append((role, keys, answers, time.monotonic() - started))
                 if stop.is_set():
                     return 130
             if roles == [""] and not answers:
+                if ignored:
+                    print(f"monitor status: {ignored_text(ignored)}: someone else answers on "
+                          f"{keys.status}", file=sys.stderr, flush=True)
                 raise no_answer("monitor status", keys.status, args.timeout, bus, session,
                                 stop)
+    if ignored:
+        print(f"monitor status: {ignored_text(ignored)}: someone else answers on the status "
+              "key", file=sys.stderr, flush=True)
     silent = 0
     for role, keys, answers, waited in answered:
         if role and not answers:
@@ -210,7 +238,11 @@ def cmd_status(args: argparse.Namespace) -> int:
         for body in answers:
             if role:
                 print(f"{role}:")
-            print(json.dumps(body, indent=2) if args.json else status_text(body))
+            if args.json:
+                print(json.dumps(body, indent=2))
+            else:
+                print(status_text(body))
+                print(f"answered by {answered_by(body)}")
     return 2 if silent else 0
 
 
@@ -262,4 +294,5 @@ def register(subparsers) -> None:
     p.add_argument("--json", action="store_true",
                    help="print the monitor's answer as JSON, every field (for scripts and "
                    "`monitor commission report --status`; default: a text summary)")
+    add_monitor_key_arg(p)
     p.set_defaults(func=cmd_status)

@@ -10,12 +10,15 @@ this request, and says which key it was (``signed_by``); the others are skipped 
 on) and each is told (``ignored``, ``ignored_text``): someone else answers on the key.
 
 Signed so: resets (``monitor.bus.reset_desk``), mutes and acceptances of objects
-(``monitor.wire.request_desk``)."""
+(``monitor.wire.request_desk``), zone applies, zone-set selections and the status (a status
+query carries no signature of its own: ``status_request`` is a fresh nonce the signed answer
+names, so an answer recorded earlier is not taken for today's)."""
 
 from __future__ import annotations
 
 import hashlib
 import json
+import secrets
 
 import zenoh
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PublicKey
@@ -32,6 +35,15 @@ def request_digest(payload: bytes) -> str:
     return hashlib.sha256(payload).hexdigest()
 
 
+STATUS_REQUEST_SCHEMA = "workcell.safety.status-request/1"
+
+
+def status_request() -> bytes:
+    """A status query's payload: a nonce of its own for the monitor's signed answer to name."""
+    return json.dumps({"schema": STATUS_REQUEST_SCHEMA, "nonce": secrets.token_hex(16)}
+                      ).encode()
+
+
 def answer_attachment(signer: Signer | None, key_expr: str, answer: bytes) -> bytes | None:
     """The monitor's signature of its answer (None: the monitor has no key)."""
     return signer.sign(answer_key(key_expr), answer) if signer is not None else None
@@ -41,7 +53,7 @@ def signed_by(monitor_keys, key_expr: str, request: bytes, answer: bytes,
               signature: bytes | None) -> str | None:
     """The ``ed25519:...`` text of the key in ``monitor_keys`` that signed this answer to
     ``request``; None when none did or the answer names another request."""
-    return _judge(monitor_keys, key_expr, request, answer, signature)[0]
+    return judge_answer(monitor_keys, key_expr, request, answer, signature)[0]
 
 
 # why an answer was not believed (``request_answer``'s ``ignored``), in the user's words
@@ -50,8 +62,8 @@ OTHER_REQUEST = "not naming this request"
 OTHER_KEY = "not signed by --monitor-key"
 
 
-def _judge(monitor_keys, key_expr: str, request: bytes, answer: bytes,
-           signature: bytes | None) -> tuple[str | None, str]:
+def judge_answer(monitor_keys, key_expr: str, request: bytes, answer: bytes,
+                 signature: bytes | None) -> tuple[str | None, str]:
     """(the key text that signed it, "") or (None, why it is not the monitor's answer)."""
     if signature is None:
         return None, UNSIGNED
@@ -95,7 +107,7 @@ def request_answer(session, key_expr: str, payload: bytes, signature: bytes | No
         signer = None
         if monitor_keys is not None:
             attachment = reply.ok.attachment
-            signer, why = _judge(monitor_keys, key_expr, payload, raw,
+            signer, why = judge_answer(monitor_keys, key_expr, payload, raw,
                                  attachment.to_bytes() if attachment is not None else None)
             if signer is None:  # not the monitor's answer to this request: not believed
                 if ignored is not None:

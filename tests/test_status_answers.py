@@ -1,0 +1,103 @@
+"""Whose status `monitor status` believes: the monitor signs its status answer with its key and
+names the query it answers (a fresh nonce `monitor status --monitor-key` sends), and with the
+option nothing else is shown.
+
+Anyone who may declare a queryable on the status key can answer it: before, a rogue responder's
+"RUN, nothing latched, every camera healthy" was printed to the maintenance engineer beside the
+monitor's STOP as a second monitor of equal standing, and with only the rogue answering (the
+monitor silent or down) it was all the engineer saw. Here a rogue session answers every status
+query at once, three ways (unsigned; signed with its own key; the monitor's genuine signed
+answer to another query, replayed). Real SafetyBus, real Zenoh sessions on 127.0.0.1,
+`monitor status` as a real process.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+
+from monitor.bus.session import BusConfig, BusKeys, SafetyBus, open_session
+from monitor.wire.answers import answer_attachment, request_digest, status_request
+from monitor.wire.signing import load_private_key, new_key_pair
+from tests.helpers import free_port
+
+CELL = "sans"
+FORGED = {"boot": "b00t", "state": "RUN", "latched": False, "instance": "mon-sans"}
+
+
+def _status(port: int, *extra: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "monitor", "status", "--json", "--cell", CELL, "--connect",
+         f"tcp/127.0.0.1:{port}", "--timeout", "5", *extra], capture_output=True, text=True,
+        timeout=60)
+
+
+def _monitor(tmp_path) -> tuple[BusConfig, int]:
+    private, _, _ = new_key_pair(tmp_path / "monitor.key")
+    port = free_port()
+    return BusConfig(cell=CELL, instance="mon-sans", listen=(f"tcp/127.0.0.1:{port}",),
+                     signing_key=str(private)), port
+
+
+def _rogue_answers(rogue, key: str, mallory, replayed: tuple[bytes, bytes]) -> None:
+    def answer(query) -> None:
+        query.reply(key, json.dumps(FORGED).encode())  # unsigned
+        own = json.dumps({**FORGED, "request": request_digest(
+            query.payload.to_bytes() if query.payload is not None else b"")}).encode()
+        query.reply(key, own, attachment=answer_attachment(mallory, key, own))  # another key
+        query.reply(key, replayed[0], attachment=replayed[1])  # the monitor's, to another query
+
+    rogue.declare_queryable(key, answer)
+
+
+def _replayed(session, key: str) -> tuple[bytes, bytes]:
+    """The monitor's genuine signed answer to some earlier status query."""
+    for reply in session.get(key, payload=status_request(), timeout=5):
+        if reply.ok is not None and reply.ok.attachment is not None:
+            return reply.ok.payload.to_bytes(), reply.ok.attachment.to_bytes()
+    raise AssertionError("the monitor gave no signed status answer")
+
+
+def test_with_the_monitor_key_only_the_monitors_signed_status_is_shown(tmp_path):
+    cfg, port = _monitor(tmp_path)
+    mallory = load_private_key(new_key_pair(tmp_path / "mallory.key")[0])
+    key = BusKeys.of(f"workcell/{CELL}/").status
+    with SafetyBus(cfg) as bus, open_session(BusConfig(
+            cell=CELL, instance="rogue", connect=(f"tcp/127.0.0.1:{port}",))) as rogue:
+        replayed = _replayed(rogue, key)
+        _rogue_answers(rogue, key, mallory, replayed)
+        time.sleep(0.3)
+        believed = _status(port, "--monitor-key", str(tmp_path / "monitor.key.pub"))
+        trusting = _status(port)
+    out = believed.stdout
+    assert believed.returncode == 0, (out, believed.stderr)
+    shown = json.loads(out)  # one answer: the monitor's own
+    assert shown["boot"] == bus.boot and shown["signed_by"] == bus.public_key, shown
+    assert "b00t" not in out
+    assert "3 answers ignored (1 unsigned, 1 not signed by --monitor-key, 1 not naming this " \
+        "request)" in believed.stderr, believed.stderr
+    assert "NOT authenticated" not in believed.stderr
+    # without the option every answer is shown, and the user is told none is authenticated
+    assert "b00t" in trusting.stdout and "NOT authenticated" in trusting.stderr, trusting
+
+
+def test_with_only_a_rogue_answering_the_status_is_no_answer_naming_what_was_ignored(
+        tmp_path):
+    cfg, port = _monitor(tmp_path)
+    mallory = load_private_key(new_key_pair(tmp_path / "mallory.key")[0])
+    key = BusKeys.of(f"workcell/{CELL}/").status
+    with SafetyBus(cfg), open_session(BusConfig(
+            cell=CELL, instance="probe", connect=(f"tcp/127.0.0.1:{port}",))) as probe:
+        replayed = _replayed(probe, key)  # recorded while the monitor ran
+    rogue_port = free_port()
+    with open_session(BusConfig(cell=CELL, instance="rogue",
+                                listen=(f"tcp/127.0.0.1:{rogue_port}",))) as rogue:
+        _rogue_answers(rogue, key, mallory, replayed)
+        time.sleep(0.3)
+        got = _status(rogue_port, "--monitor-key", str(tmp_path / "monitor.key.pub"))
+    assert got.returncode == 2 and got.stdout == "", (got.stdout, got.stderr)
+    errors = [line for line in got.stderr.splitlines() if line.startswith("monitor: error: ")]
+    assert len(errors) == 1 and "no monitor answered" in errors[0], got.stderr
+    assert "answers ignored" in got.stderr and "Traceback" not in got.stderr
