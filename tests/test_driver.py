@@ -435,6 +435,9 @@ def test_replay_summary_counts_state_and_reason_changes_apart(tmp_path, detector
     assert summary.command_changes == len(commands)
     assert summary.ticks == 7 * 3  # 0.2 s between frames: ticks at +0.05, +0.10, +0.15
     assert [e["kind"] for e in events if e["type"] == "alert"] == ["reset_refused"]
+    # the alert's details as the bus carries them: who asked, which request
+    (refused,) = [e for e in events if e["type"] == "alert"]
+    assert refused["details"]["operator"] == "replay" and refused["details"]["request_id"]
     assert all(c["describe"].startswith(c["state"]) or "LATCHED" in c["describe"]
                for c in commands)
     # the annotated video: every frame, H.264 where PyAV is installed

@@ -71,6 +71,8 @@ def command_event(result: StepResult, index: int, tick: bool = False,
 def alert_event(alert: Alert, index: int, snapshot: str | None) -> dict:
     event = {"type": "alert", "frame": index, "time_s": _r(alert.time), "kind": alert.kind,
              "severity": alert.severity, "source": alert.source, "message": alert.message}
+    if alert.details:  # what the bus's alert carries too: the operator, the fault, the zone
+        event["details"] = _rounded(alert.details)
     if snapshot:
         event["snapshot"] = snapshot
     return event
