@@ -138,6 +138,9 @@ class Whereabouts:
         self.free_since: np.ndarray | None = None  # (ny, nx) time, nan: not seen free now
         self.areas: dict[int, LostArea] = {}
         self._free: np.ndarray | None = None  # seen free for clear_time at the last frame
+        # not seen free at the last frame although the camera was working: under a seen
+        # person's feet band, or where a cut-off box's feet may be
+        self._occupied: np.ndarray | None = None
         self._zone_cache: dict[tuple[int, int], tuple[HeldZone, ...]] = {}
         self._zone_key: object = None
         self.last_time: float | None = None  # capture time of the last frame judged
@@ -187,6 +190,12 @@ class Whereabouts:
         no frame yet)."""
         return None if self.grid is None else self._free
 
+    def occupied_now(self) -> np.ndarray | None:
+        """(ny, nx) bool: the cells under the persons seen in the last frame (their feet
+        band, and down a cut-off box's range): someone may stand hidden right behind them
+        (None: no frame yet)."""
+        return None if self.grid is None else self._occupied
+
     def blind(self) -> None:
         """A frame the camera could not judge (detector error): nothing has been seen free."""
         if self.free_since is not None:
@@ -232,21 +241,36 @@ class Whereabouts:
                                     self.config.below)
         area.behind = True
 
-    def found(self, track_id: int, clear_view: bool = False) -> bool:
+    def found(self, track_id: int, clear_view: bool = False, apart: bool = False) -> bool:
         """The lost person's own track is seen again (the tracker's association, never a box
         given the id for being near): the sighting explains the loss while everything the
         area covers is in view (a flicker, a short miss), or when the person is seen again in
         clear view (``clear_view``: the whole box in the image, its feet on cells the camera
         sees), also after walking behind a fixture: the name link says it is the same person.
-        The place a merged track stood (``behind``) stays. True when the area ended."""
+        The place a merged track stood (``behind``) stays, unless the track swallowed by a
+        neighbour's box is seen again in clear view ``apart`` from that box (the neighbour's
+        track seen in another box of the same frame: both persons in view) and the area,
+        one loss's, reaches no hidden cell. True when the area ended."""
         area = self.areas.get(track_id)
-        if area is None or area.behind or self.hidden is None:
+        if area is None or self.hidden is None:
+            return False
+        if area.behind and not (apart and clear_view and not area.merged
+                                and not (area.cells & self.hidden).any()):
             return False
         if not clear_view and (area.cells & self.hidden).any():
             return False
         del self.areas[track_id]
-        self.ended.append((area, "seen again"))
+        area.ended_by = "seen again"
+        self.ended.append((area, area.ended_by))
         return True
+
+    def came_out(self, track_id: int) -> None:
+        """The lost person was seen walking out of their area (``monitor.tracking.exits``):
+        the area ends."""
+        area = self.areas.pop(track_id, None)
+        if area is not None:
+            area.ended_by = "seen coming out"
+            self.ended.append((area, area.ended_by))
 
     def drop(self) -> list[LostArea]:
         """An operator confirmed the cell clear: every area ends."""
@@ -336,7 +360,7 @@ class Whereabouts:
             if not young and area.cells.any() and not (area.cells & self.hidden).any():
                 area.cells[:] = False
                 area.ended_by = "bounded life"
-        self._free, self.last_time = free, now
+        self._free, self._occupied, self.last_time = free, occupied, now
         if free_elsewhere is not None and floor is not None:
             self._clear_elsewhere(free_elsewhere, floor)
         if settle is not None:
