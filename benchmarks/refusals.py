@@ -8,13 +8,16 @@ Per cause, one line:
 * a seen person (``protective_zone``): their box, whether its feet may be cut off (the
   wall-foot line: ``cut_feet_rows``, how far down), and the ground-truth person under it;
 * a lost person (``person_lost``): the lost track, when and where it was lost (its last box,
-  the ground-truth person it was and why the camera lost them: a detector miss, hidden
-  behind something, merged), who was seen next near there (a new id: ByteTrack did not link
-  the box again), and its area now: cells in all, hidden, under seen persons' feet, seen
-  free but not yet for clear_time, and of the rules that end areas (seen free, bounded life,
-  under seen persons, seen again) why none has yet.
+  the ground-truth person it was and whether the camera showed them), who was seen next near
+  there and how that person was seen again (the same track, a new one, another old one: ids
+  switched), and its area now: cells in all, hidden, under seen persons' feet, seen free but
+  not yet for clear_time; the cells that hold the protective zone, by the same kinds (what
+  would have to be seen to let go); and of the rules that end areas (seen free, bounded
+  life, under seen persons, seen again) why none has yet.
 A last table counts, per scene, the areas ended by each rule (all areas, and those that
-held a zone), and the causes of the refusals by kind.
+held a zone), and the causes of the refusals by kind (a seen person, cut off or not; a lost
+person's area, a place a merged track stood or not, by what its cells that hold the
+protective zone are).
 """
 
 from __future__ import annotations
@@ -200,17 +203,28 @@ class Observer:
                                                  if only else "partly seen empty, partly "
                                                  "under a person" if under.any() and
                                                  streak.any() else "no"))
-        kind = ("behind (merged) " if area.behind else "") + \
-            ("reaches hidden" if hidden.any() else
-             "under persons' feet" if under.any() else "seen free, waiting")
         who = f"track {area.track_id}" + (f" (+{','.join(map(str, area.merged))})"
                                           if area.merged else "")
+        prot = where.zone_cells(area, ("protective",))
+        fs = where.free_since
+        holding = (f"{int(prot.sum())} cells hold the protective zone: "
+                   f"{int((prot & where.hidden).sum())} hidden, "
+                   f"{int((prot & explains & ~where.hidden).sum())} under seen persons' feet, "
+                   f"{int((prot & occupied & ~explains & ~where.hidden).sum())} under a "
+                   f"cut-off box's range, {int((prot & ~np.isnan(fs)).sum())} seen free for "
+                   f"< clear_time")
+        # what holds the protective zone: what would have to be seen to let go
+        kinds = [name for name, cells in (
+            ("hidden", prot & where.hidden), ("under feet", prot & explains & ~where.hidden),
+            ("cut-off range", prot & occupied & ~explains & ~where.hidden),
+            ("seen free < clear_time", prot & ~np.isnan(fs))) if cells.any()]
+        kind = ("behind: " if area.behind else "lost: ") + (" + ".join(kinds) or "-")
         text = (f"lost {who}, lost at {area.lost_since:.1f} s ({t - area.lost_since:.1f} s "
                 f"ago; {'behind, ' if area.behind else ''}age {area.age_s:.1f} of life "
                 f"{life:.1f} s) box {_box(area.box_px)}; was {was}; next near there: "
                 f"{seen_next}; area {n} cells: {int(hidden.sum())} hidden, "
                 f"{int(under.sum())} under feet, {int(streak.sum())} seen free now; "
-                f"zones {','.join(z.zone_id for z in area.zones)}; not ended: "
+                f"zones {','.join(z.zone_id for z in area.zones)} ({holding}); not ended: "
                 + "; ".join(why))
         return kind, text
 

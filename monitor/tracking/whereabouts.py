@@ -447,6 +447,18 @@ class Whereabouts:
             into.merged = (*into.merged, area.track_id, *area.merged)
         self.areas = {a.track_id: a for a in kept}
 
+    def zone_cells(self, area: LostArea, kinds: Iterable[str] = HOLD_KINDS) -> np.ndarray:
+        """(ny, nx) bool: the cells of ``area`` a person standing on would be in a zone of
+        one of ``kinds`` (the zone answers of its last frame): where the hold is (what a
+        diagnostic asks of a refusal, ``benchmarks/refusals.py``)."""
+        out = np.zeros_like(area.cells)
+        wanted = set(kinds)
+        hq = _height_bucket(area.box_height_px)
+        for i in np.flatnonzero(area.cells.ravel()):
+            if any(z.kind in wanted for z in self._zone_cache.get((int(i), hq), ())):
+                out.flat[i] = True
+        return out
+
     def _zones(self, zones_of: ZonesOf | None) -> None:
         """Each area's zones: those a person standing on one of its cells would be in."""
         if zones_of is None or self.grid is None:
