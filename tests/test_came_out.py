@@ -3,7 +3,7 @@ swallowed by a neighbour's box ends the place they stood once seen apart from th
 (``Whereabouts.found(apart=True)``); the twins where someone else may be there keep the hold
 (issue 46: a flickering box comes back under a new id, or as a guess of the tracker, and the
 hold stayed for clear_time or a bounded life). Hand-made boxes through the real zone check
-and tracker (ByteTrack), as tests/test_tracks.py."""
+and tracker (ByteTrack), as tests/test_tracks.py, and a scene through the real pipeline."""
 
 from __future__ import annotations
 
@@ -12,6 +12,8 @@ import functools
 import numpy as np
 
 from monitor import zones as zn
+from monitor.replay.scenario_run import Scenario, run_scenario
+from monitor.scene.cell import CellScene, Walker
 from monitor.tracking.tracks import PersonTracker
 from monitor.types import FrameInfo, Persons
 
@@ -126,3 +128,22 @@ def test_a_person_still_in_the_box_that_swallowed_them_stays_held():
     b = person(650, bottom=500, h=200, w=66)
     after = _pass_in_front(Run(), [[person(640, bottom=650, h=280, w=93), b]])
     assert 2 in held(after[0])
+
+
+def test_a_person_missed_as_they_walk_out_and_stop_lets_the_reset_through_at_once(detector):
+    """The real pipeline (synthetic model, zone check, tracker, policy, a plain reset every
+    0.5 s): a person stands in the protective zone, walks out and stops 0.5 m outside; the
+    detector misses them for the two frames as they leave (2.4, 2.6 s). Seen again where only
+    they could have come from, their area ends: the reset at 3.0 s is accepted and the cell
+    runs once they have walked off. Before, their area held the zone until ByteTrack linked
+    the box again, and that reset was refused (accepted at 3.6 s)."""
+    walker = Walker(((0.0, 0.0, 0.0), (2.0, 0.0, 0.0), (3.0, 1.8, 0.0), (3.6, 1.8, 0.0),
+                     (5.6, 4.6, 0.0)), unseen_frames=frozenset({12, 13}))
+    scenario = Scenario("walk-out-flicker", "walks out of the zone, missed as they stop",
+                        CellScene((walker,), fps=5.0, duration_s=8.0, seed=5),
+                        needs=("tracker",))
+    r = run_scenario(scenario, detector)
+    assert r.missed_stop_frames == 0 and r.resets_accepted_inside == 0
+    at = {round(s.time_s, 1): s.reset_accepted for s in r.scores}
+    assert at[3.0] is True
+    assert r.scores[-1].state == "RUN"
