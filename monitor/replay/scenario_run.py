@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from monitor.pipeline import Pipeline
+from monitor.pipeline import Pipeline, StepResult
 from monitor.policy import STOP, PolicyConfig, ResetRequest
 from monitor.replay.end_holds import EndHold, hidden_persons, judge_end_holds
 from monitor.scene.cell import SCENE_ROBOT_BASE, CellFrameTruth, CellScene, zone_data
@@ -110,6 +110,19 @@ class ScenarioResult:
                 and not late and self.false_stop_frames == 0)
 
 
+@dataclass(frozen=True)
+class StepSeen:
+    """One frame of a running scenario, for a diagnostic (``run_scenario``'s ``observe``):
+    the ground truth, the pipeline after the step (its trackers' areas), the step's result,
+    and whether its reset was refused although nobody had been inside for the grace."""
+
+    index: int
+    truth: CellFrameTruth
+    pipeline: Pipeline
+    result: StepResult
+    refused_free: bool
+
+
 def rect_distance(p: tuple[float, float], rect=PROTECTIVE) -> float:
     """How far floor point ``p`` lies outside the rectangle ``rect`` (0: inside)."""
     (x0, y0), (x1, y1) = rect
@@ -146,8 +159,10 @@ def image_polygon_zones(scene: CellScene, data: dict, margin_m: float = 0.4) -> 
 
 
 def run_scenario(scenario: Scenario, detector, policy=None,
-                 on_frame: Callable[[int], None] | None = None) -> ScenarioResult:
-    """Render the scenario, run every frame through the real pipeline, score the commands."""
+                 on_frame: Callable[[int], None] | None = None,
+                 observe: Callable[[StepSeen], None] | None = None) -> ScenarioResult:
+    """Render the scenario, run every frame through the real pipeline, score the commands.
+    ``observe``: called after every step with what it saw (a diagnostic's look inside)."""
     cell = parse_cell(scenario.zone_data())
     policy = policy or PolicyConfig()
     cam = scenario.scene.camera
@@ -180,9 +195,10 @@ def run_scenario(scenario: Scenario, detector, policy=None,
             last_inside = t
         outcome = res.command.reset
         # (a reset while nothing is latched is answered "nothing to reset": no refusal)
-        if outcome is not None and not outcome.accepted and res.command.latched \
-                and entry is not None and t - last_inside > grace:
-            refused_free += 1
+        free_refusal = bool(outcome is not None and not outcome.accepted
+                            and res.command.latched and entry is not None
+                            and t - last_inside > grace)
+        refused_free += free_refusal
         holds = [h for hs in pipe.holds.values() for h in hs]
         holds_empty += bool(not truth.persons and holds)
         oldest = max([oldest, *(t - h.lost_since for h in holds)])
@@ -205,6 +221,8 @@ def run_scenario(scenario: Scenario, detector, policy=None,
                                  None if outcome is None else outcome.accepted))
         if on_frame is not None:
             on_frame(k)
+        if observe is not None:
+            observe(StepSeen(k, truth, pipe, res, free_refusal))
         last = truth
     end = () if last is None else judge_end_holds(
         pipe.cameras, hidden_persons(last, scenario.scene, scenario.missed))

@@ -2,9 +2,10 @@
 
 Owns: persistent person ids and the holds of persons lost near zones (``tracks``, ByteTrack from
 supervision; what it hands out in ``track_types``), where a lost person could be until a working
-camera has seen it free (``whereabouts``), the person counts of hidden pockets enclosed by seen
-floor (``pockets``), one person id across the cameras of a cell (``cell_persons``) and the
-hand-over of holds between the monitors of one cell (``handover``).
+camera has seen it free (``whereabouts``, on the image's grid of foot positions:
+``foot_grid``; a lost person seen walking out of it: ``exits``), the person counts of hidden
+pockets enclosed by seen floor (``pockets``), one person id across the cameras of a cell
+(``cell_persons``) and the hand-over of holds between the monitors of one cell (``handover``).
 
 May import: ``monitor.zones`` (the hand-over's zones), ``monitor.wire`` (roles), the building
 blocks and the bottom layer. Never the pipeline that runs it.

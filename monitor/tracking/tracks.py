@@ -30,7 +30,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from monitor.tracking import pockets
+from monitor.tracking import exits, pockets
 from monitor.tracking.pockets import PocketBook
 from monitor.tracking.track_types import (
     HiddenCells,
@@ -244,9 +244,13 @@ class PersonTracker:
         # count; persons appearing now, not seen in the previous frame, may come out of one
         if not working:
             pockets.unknown(self.pockets, "a frame the camera could not judge", now)
-        pockets.count_exits(self.pockets, self.where, boxes, [
-            row for row, tid in enumerate(rows_to_id)
-            if tid not in self._records or self._records[tid].lost], now)
+        appearing = [row for row, tid in enumerate(rows_to_id)
+                     if tid not in self._records or self._records[tid].lost]
+        pockets.count_exits(self.pockets, self.where, boxes, appearing, now)
+        # a person appearing where only one lost person could have been is them, whatever
+        # id the box gets (monitor.tracking.exits): their area ends
+        for tid in exits.came_out(self.where, boxes, appearing, now, self.pockets.single):
+            self.where.came_out(tid)
         pockets.seen(self.pockets, self.where, rows_to_id, boxes)
         row_zones = self._row_zones(report, n)
         floors: list[np.ndarray | None] = [None] * n
@@ -278,7 +282,12 @@ class PersonTracker:
             # track has not been given to a box by a guess since the loss: after longer
             # behind a fixture, a person stepping out there may as well be someone else)
             if row not in self._guessed and self._same_person(rec, row, boxes, now):
-                self.where.found(tid, self._clear_view(rec, row, boxes, now, frame_size))
+                # swallowed by a neighbour's box and now seen apart from it: both seen
+                carrier = self._carriers.get(tid)
+                apart = rec.lost and carrier is not None and carrier != tid \
+                    and carrier in seen_now
+                self.where.found(tid, self._clear_view(rec, row, boxes, now, frame_size),
+                                 apart=apart)
             old_box, old_seen = rec.box.copy(), rec.last_seen
             self._place(rec, boxes[row], floors[row], now, first=False)
             rec.byte_id = self._byte_ids.get(row, -1)

@@ -37,15 +37,12 @@ import math
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
-import cv2
 import numpy as np
 
+from monitor.tracking.foot_grid import FEET_BAND, FootGrid, carried_cells, grow
 from monitor.types import ZoneReport
 
 HOLD_KINDS = frozenset({"protective", "warning"})
-# the lowest share of a person's box where the feet of a person hidden right behind them may
-# be (two persons whose boxes merge stand within about half a metre of each other)
-FEET_BAND = 0.35
 ZonesOf = Callable[[np.ndarray], ZoneReport]
 # floor points (N, 2) m -> (N,) bool: seen free for clear_time by another working camera
 FreeElsewhere = Callable[[np.ndarray], np.ndarray]
@@ -106,93 +103,6 @@ class WhereaboutsConfig:
     life_max_s: float = 30.0
 
 
-@dataclass(frozen=True)
-class FootGrid:
-    """Square cells over a ``width`` x ``height`` image; a cell stands for feet at its centre."""
-
-    width: int
-    height: int
-    cell_px: float
-    nx: int
-    ny: int
-
-    @classmethod
-    def of(cls, width: int, height: int, across: int) -> FootGrid:
-        cell = max(float(width) / max(int(across), 1), 1.0)
-        return cls(int(width), int(height), cell, max(1, math.ceil(width / cell)),
-                   max(1, math.ceil(height / cell)))
-
-    @property
-    def shape(self) -> tuple[int, int]:
-        return self.ny, self.nx
-
-    def centres(self) -> np.ndarray:
-        """(ny * nx, 2) pixel centres, row by row."""
-        xs = (np.arange(self.nx) + 0.5) * self.cell_px
-        ys = (np.arange(self.ny) + 0.5) * self.cell_px
-        gx, gy = np.meshgrid(xs, ys)
-        return np.c_[gx.ravel(), gy.ravel()]
-
-    def cells_under(self, boxes_px: np.ndarray, below: float, band: float = FEET_BAND
-                    ) -> np.ndarray:
-        """(ny, nx) bool: cells where the feet of a person with one of these boxes, or of one
-        hidden right behind them, may be: the lowest ``band`` of the box (a person further
-        behind shows their head above it to a camera mounted above head height), half a
-        cell wider, and ``below`` of its height under its bottom edge."""
-        out = np.zeros(self.shape, dtype=bool)
-        c = self.cell_px
-        for x1, y1, x2, y2 in np.asarray(boxes_px, np.float64).reshape(-1, 4):
-            if not all(map(math.isfinite, (x1, y1, x2, y2))):
-                return np.ones(self.shape, dtype=bool)  # a box that says nothing: anywhere
-            h = max(y2 - y1, 0.0)
-            i0, i1 = _span(x1 - 0.5 * c, x2 + 0.5 * c, c, self.nx)
-            j0, j1 = _span(y2 - band * h, y2 + below * h + 0.5 * c, c, self.ny)
-            out[j0:j1, i0:i1] = True
-        return out
-
-
-def carried_cells(grid: FootGrid, lost_box_px: np.ndarray, carrier_box_px: np.ndarray,
-                  reach_px: float, below: float) -> np.ndarray:
-    """(ny, nx) bool: where the feet of a person hidden in a seen neighbour's box (the
-    carrier) may be: across the carrier's columns (walking with it), at the hidden person's
-    own depth (the feet rows of their last box: the lowest ``FEET_BAND`` and ``below``
-    under it) grown by ``reach_px`` (the walk since the loss, in pixels), and never outside
-    the carrier's own rows (``below`` under it included): hidden by it. A person lost 6 m
-    behind a passer-by walks on 6 m behind them, not at their feet (the carrier's feet band
-    put a person lost on the far side of the protective zone into it, issue 46). Rows
-    that miss the carrier: its own feet band (``cells_under``)."""
-    lx1, ly1, lx2, ly2 = (float(v) for v in np.asarray(lost_box_px, np.float64).reshape(4))
-    cx1, cy1, cx2, cy2 = (float(v) for v in np.asarray(carrier_box_px, np.float64).reshape(4))
-    lh, ch = max(ly2 - ly1, 0.0), max(cy2 - cy1, 0.0)
-    reach = max(float(reach_px), 0.0) if math.isfinite(reach_px) else math.inf
-    top = max(ly2 - FEET_BAND * lh - reach, cy1)
-    bottom = min(ly2 + below * lh + reach, cy2 + below * ch)
-    if not all(map(math.isfinite, (lx1, ly1, lx2, ly2, cx1, cy1, cx2, cy2))) or top > bottom:
-        return grid.cells_under(carrier_box_px, below)
-    return grid.cells_under(np.array([cx1, top, cx2, bottom]), 0.0, band=1.0)
-
-
-def _span(lo: float, hi: float, cell: float, n: int) -> tuple[int, int]:
-    """Cells whose centre lies in [lo, hi] (at least the cell containing lo..hi's middle)."""
-    a = max(0, math.ceil(lo / cell - 0.5))
-    b = min(n, math.floor(hi / cell - 0.5) + 1)
-    if b <= a:  # narrower than a cell: the cell under the middle
-        mid = min(max(int((lo + hi) * 0.5 / cell), 0), n - 1)
-        return mid, mid + 1
-    return a, b
-
-
-_KERNEL = np.ones((3, 3), np.uint8)
-
-
-def grow(cells: np.ndarray, steps: int) -> np.ndarray:
-    """``cells`` grown by ``steps`` cells in every direction (8 neighbours a step: a square,
-    more than a walk of that many cells in any direction, never less)."""
-    if steps <= 0 or not cells.any():
-        return cells.copy()
-    return cv2.dilate(cells.astype(np.uint8), _KERNEL, iterations=int(steps)).astype(bool)
-
-
 @dataclass
 class LostArea:
     """Where one lost person could be (cells of the camera's ``FootGrid``)."""
@@ -228,6 +138,9 @@ class Whereabouts:
         self.free_since: np.ndarray | None = None  # (ny, nx) time, nan: not seen free now
         self.areas: dict[int, LostArea] = {}
         self._free: np.ndarray | None = None  # seen free for clear_time at the last frame
+        # not seen free at the last frame although the camera was working: under a seen
+        # person's feet band, or where a cut-off box's feet may be
+        self._occupied: np.ndarray | None = None
         self._zone_cache: dict[tuple[int, int], tuple[HeldZone, ...]] = {}
         self._zone_key: object = None
         self.last_time: float | None = None  # capture time of the last frame judged
@@ -277,6 +190,12 @@ class Whereabouts:
         no frame yet)."""
         return None if self.grid is None else self._free
 
+    def occupied_now(self) -> np.ndarray | None:
+        """(ny, nx) bool: the cells under the persons seen in the last frame (their feet
+        band, and down a cut-off box's range): someone may stand hidden right behind them
+        (None: no frame yet)."""
+        return None if self.grid is None else self._occupied
+
     def blind(self) -> None:
         """A frame the camera could not judge (detector error): nothing has been seen free."""
         if self.free_since is not None:
@@ -322,21 +241,36 @@ class Whereabouts:
                                     self.config.below)
         area.behind = True
 
-    def found(self, track_id: int, clear_view: bool = False) -> bool:
+    def found(self, track_id: int, clear_view: bool = False, apart: bool = False) -> bool:
         """The lost person's own track is seen again (the tracker's association, never a box
         given the id for being near): the sighting explains the loss while everything the
         area covers is in view (a flicker, a short miss), or when the person is seen again in
         clear view (``clear_view``: the whole box in the image, its feet on cells the camera
         sees), also after walking behind a fixture: the name link says it is the same person.
-        The place a merged track stood (``behind``) stays. True when the area ended."""
+        The place a merged track stood (``behind``) stays, unless the track swallowed by a
+        neighbour's box is seen again in clear view ``apart`` from that box (the neighbour's
+        track seen in another box of the same frame: both persons in view) and the area,
+        one loss's, reaches no hidden cell. True when the area ended."""
         area = self.areas.get(track_id)
-        if area is None or area.behind or self.hidden is None:
+        if area is None or self.hidden is None:
+            return False
+        if area.behind and not (apart and clear_view and not area.merged
+                                and not (area.cells & self.hidden).any()):
             return False
         if not clear_view and (area.cells & self.hidden).any():
             return False
         del self.areas[track_id]
-        self.ended.append((area, "seen again"))
+        area.ended_by = "seen again"
+        self.ended.append((area, area.ended_by))
         return True
+
+    def came_out(self, track_id: int) -> None:
+        """The lost person was seen walking out of their area (``monitor.tracking.exits``):
+        the area ends."""
+        area = self.areas.pop(track_id, None)
+        if area is not None:
+            area.ended_by = "seen coming out"
+            self.ended.append((area, area.ended_by))
 
     def drop(self) -> list[LostArea]:
         """An operator confirmed the cell clear: every area ends."""
@@ -426,7 +360,7 @@ class Whereabouts:
             if not young and area.cells.any() and not (area.cells & self.hidden).any():
                 area.cells[:] = False
                 area.ended_by = "bounded life"
-        self._free, self.last_time = free, now
+        self._free, self._occupied, self.last_time = free, occupied, now
         if free_elsewhere is not None and floor is not None:
             self._clear_elsewhere(free_elsewhere, floor)
         if settle is not None:
@@ -513,6 +447,18 @@ class Whereabouts:
             into.merged = (*into.merged, area.track_id, *area.merged)
         self.areas = {a.track_id: a for a in kept}
 
+    def zone_cells(self, area: LostArea, kinds: Iterable[str] = HOLD_KINDS) -> np.ndarray:
+        """(ny, nx) bool: the cells of ``area`` a person standing on would be in a zone of
+        one of ``kinds`` (the zone answers of its last frame): where the hold is (what a
+        diagnostic asks of a refusal, ``benchmarks/refusals.py``)."""
+        out = np.zeros_like(area.cells)
+        wanted = set(kinds)
+        hq = _height_bucket(area.box_height_px)
+        for i in np.flatnonzero(area.cells.ravel()):
+            if any(z.kind in wanted for z in self._zone_cache.get((int(i), hq), ())):
+                out.flat[i] = True
+        return out
+
     def _zones(self, zones_of: ZonesOf | None) -> None:
         """Each area's zones: those a person standing on one of its cells would be in."""
         if zones_of is None or self.grid is None:
@@ -593,3 +539,9 @@ def _nested(a: np.ndarray, b: np.ndarray) -> bool:
 def _height_bucket(h: float) -> int:
     """Box heights in steps of 8 px (the zone answers of hypothetical persons are cached)."""
     return max(8, round(h / 8.0) * 8)
+
+
+# the foot grid's names (monitor.tracking.foot_grid), where callers have always found them
+__all__ = ["FEET_BAND", "HOLD_KINDS", "CellZones", "FootGrid", "FreeElsewhere", "HeldZone",
+           "LostArea", "ToFloor", "Whereabouts", "WhereaboutsConfig", "ZonesOf",
+           "carried_cells", "grow", "shows_only_seen_persons", "union_zones"]
