@@ -97,8 +97,8 @@ def test_the_objects_watch_finds_what_the_plain_comparison_finds():
     from monitor.zones import parse_cell, read_cell_data
 
     class Plain(ZoneObjects):
-        def _changed(self, frame, free):  # as written before (issue 49): the reference
-            ref = self._ref
+        def _changed(self, small, free):  # as written before (issue 49): the reference
+            ref, frame = self._ref, small.astype(np.float32)
             if free.sum() < 50:
                 return np.zeros(free.shape, bool)
             cur, bg = frame[free].ravel(), ref[free].ravel()
