@@ -214,7 +214,7 @@ class ZoneObjects:
         visible = free.ravel()
         cur = np.compress(visible, small.reshape(-1, 3), axis=0).ravel()
         bg = np.compress(visible, self._ref_u8.reshape(-1, 3), axis=0).ravel()
-        gain, offset = _lighting_fit(cur, bg, 2 * self.config.diff)
+        gain, offset = lighting_fit(cur, bg, 2 * self.config.diff)
         predicted = gain * self._ref + offset
         excess = np.abs(small.astype(np.float32) - predicted)
         # channel by channel: numpy's reductions over a last axis of 3 are slow (2 ms against
@@ -397,7 +397,7 @@ def carry_over(old: ZoneObjects, new: ZoneObjects) -> None:
     new.version = old.version + 1
 
 
-def _lighting_fit(cur: np.ndarray, bg: np.ndarray, tolerance: float) -> tuple[float, float]:
+def lighting_fit(cur: np.ndarray, bg: np.ndarray, tolerance: float) -> tuple[float, float]:
     """The gain and offset that map the reference's levels ``bg`` onto the frame's ``cur``
     (uint8, the same pixels), fitted by least squares on the pixels a median offset already
     explains within ``tolerance`` (a changed region does not bend the fit).
