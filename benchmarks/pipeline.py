@@ -230,7 +230,7 @@ def fixed_path_cpu(video: Path, detector: Detector, cell: Cell, frames: int = 90
     del images
     pipeline = new_pipeline(detector, cell)
     out: dict[str, list[float]] = {"read_main": [], "workers": [], "pipeline": [],
-                                   "wall": [], **{s: [] for s in CPU_STAGES}}
+                                   "wall": [], **{s: [] for s in (*CPU_STAGES, *HEALTH_PARTS)}}
     detector.runner = _Replayed(real, recorded)
     stamps = _StageCpu()
     try:
@@ -266,19 +266,22 @@ class _StageCpu:
 
     def __init__(self) -> None:
         self._ms: dict[str, float] = {}
+        self._parts: dict[str, float] = {}
         self._t0 = 0.0
 
     def start(self) -> None:
         self._ms = dict.fromkeys(CPU_STAGES, 0.0)
+        self._parts = dict.fromkeys(HEALTH_PARTS, 0.0)
         self._t0 = time.thread_time()
 
     def stages(self) -> dict[str, float]:
+        """Each stage's CPU, and the health stage's parts (``HEALTH_PARTS``) apart."""
         total = (time.thread_time() - self._t0) * 1e3
         self._ms[OUTSIDE] = max(0.0, total - sum(v for k, v in self._ms.items()
                                                   if k != OUTSIDE))
-        return self._ms
+        return {**self._ms, **self._parts}
 
-    def _wrap(self, owner, name: str, stage: str):
+    def _wrap(self, owner, name: str, stage: str, part: str = ""):
         inner = getattr(owner, name)
 
         def timed(*args, **kwargs):
@@ -286,7 +289,10 @@ class _StageCpu:
             try:
                 return inner(*args, **kwargs)
             finally:
-                self._ms[stage] = self._ms.get(stage, 0.0) + (time.thread_time() - t) * 1e3
+                ms = (time.thread_time() - t) * 1e3
+                self._ms[stage] = self._ms.get(stage, 0.0) + ms
+                if part:
+                    self._parts[part] += ms
         setattr(owner, name, timed)
         return inner
 
@@ -294,12 +300,13 @@ class _StageCpu:
     def timing(self):
         wrapped = [(Letterboxer, "__call__", "preprocess"),
                    (Detector, "postprocess", "decode"),
-                   (CameraHealth, "check", "health"), (ZoneObjects, "check", "health"),
+                   (CameraHealth, "check", "health", HEALTH_PARTS[0]),
+                   (ZoneObjects, "check", "health", HEALTH_PARTS[1]),
                    (pipeline_core, "locate", "zones"),
                    *((Pipeline, name, "policy") for name in (
                        "_confirm_clear", "_inputs", "_decide", "_fault_alerts"))]
-        saved = [(owner, name, self._wrap(owner, name, stage))
-                 for owner, name, stage in wrapped]
+        saved = [(owner, name, self._wrap(owner, name, *stage))
+                 for owner, name, *stage in wrapped]
         try:
             yield
         finally:
@@ -593,6 +600,9 @@ def run_passes(video: Path, detector: Detector, cell: Cell, args, n: int) -> dic
 FIXED = ("read+decode", "preprocess", "decode", "zones", "health", "policy")
 OUTSIDE = "outside every stage's timer"
 CPU_STAGES = (*FIXED[1:], OUTSIDE)  # the fixed path's CPU rows
+# the health stage's parts: the camera checks (with the envelope and the watch zones) and the
+# objects-since-commissioning watch (with ``--commissioned``), on the same analysis image
+HEALTH_PARTS = ("health: camera checks", "health: objects watch")
 
 
 def fixed_ms(stages: dict[str, list[float]]) -> float:
@@ -674,6 +684,9 @@ def report_fixed(fx: dict, label: str = "") -> None:
           f"({med(fx['read_main']):.2f} + {med(fx['workers']):.2f}) |")
     for stage in CPU_STAGES:
         print(f"| {stage} (main thread) | {med(fx[stage]):.2f} |")
+        if stage == "health":
+            for part in HEALTH_PARTS:
+                print(f"| - of it {part.split(': ')[1]} | {med(fx[part]):.2f} |")
     print(f"| pipeline (every stage but inference) | {med(fx['pipeline']):.2f} |")
     print(f"| fixed path in CPU time (per frame) | {med(fx['cpu']):.2f} |")
 

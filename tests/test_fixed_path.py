@@ -97,8 +97,8 @@ def test_the_objects_watch_finds_what_the_plain_comparison_finds():
     from monitor.zones import parse_cell, read_cell_data
 
     class Plain(ZoneObjects):
-        def _changed(self, frame, free):  # as written before (issue 49): the reference
-            ref = self._ref
+        def _changed(self, small, free):  # as written before (issue 49): the reference
+            ref, frame = self._ref, small.astype(np.float32)
             if free.sum() < 50:
                 return np.zeros(free.shape, bool)
             cur, bg = frame[free].ravel(), ref[free].ravel()
@@ -146,3 +146,39 @@ def test_the_objects_watch_finds_what_the_plain_comparison_finds():
                                                            plain.view_changed_since)
     assert alerts[0] == alerts[1]
     assert fast.objects and any("object" in a for a in alerts[0]), "no object: shows nothing"
+
+
+def test_the_lighting_fit_in_whole_levels_is_the_plain_median_and_least_squares():
+    """The objects watch's lighting fit (a histogram median, int64 sums) gives the gain and
+    offset np.median and np.cov give on the same pixels: odd and even counts, a light switched
+    down with noise, a flat view (no gain), too few pixels near the median (no fit), clipping."""
+    from monitor.health.objects import lighting_fit
+
+    def plain(cur, bg, tolerance):
+        cur, bg = cur.astype(np.float32), bg.astype(np.float32)
+        offset = float(np.median(cur - bg))
+        use = np.abs(cur - bg - offset) < tolerance
+        gain = 1.0
+        if use.sum() >= 30:
+            x, y = bg[use].astype(np.float64), cur[use].astype(np.float64)
+            var = float(x.var())
+            if var >= 25.0:
+                gain = min(max(float(np.cov(x, y, bias=True)[0, 1]) / var, 0.5), 2.0)
+            offset = float(y.mean() - gain * x.mean())
+        return gain, offset
+
+    rng = np.random.default_rng(3)
+    cases = []
+    for n in (50, 51, 1000, 1001, 107064):
+        bg = rng.integers(0, 256, n).astype(np.uint8)
+        for gain, noise in ((1.0, 0.0), (0.7, 3.0), (1.3, 8.0), (0.2, 1.0)):
+            cur = np.clip(bg * gain + 12 + rng.normal(0, noise, n), 0, 255).astype(np.uint8)
+            cases.append((cur, bg))
+    flat = np.full(500, 90, np.uint8)
+    cases.append((np.clip(flat + rng.normal(0, 2, 500), 0, 255).astype(np.uint8), flat))
+    scattered = rng.integers(0, 256, 60).astype(np.uint8)  # few pixels near the median
+    cases.append((rng.integers(0, 256, 60).astype(np.uint8), scattered))
+    for cur, bg in cases:
+        for tolerance in (60.0, 7.5, 0.5):
+            got, want = lighting_fit(cur, bg, tolerance), plain(cur, bg, tolerance)
+            np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9)

@@ -259,8 +259,11 @@ def test_camera_shifted_by_20_px_is_a_stop_fault(demo, reference, dx, dy):
     assert fault.stop
     shift_px = float(fault.reason.split("shifted by ")[1].split(" px")[0])
     assert abs(shift_px - 20) <= 1.5
-    # the direction in full-resolution pixels, so an integrator can re-aim the camera
-    assert f"(dx {dx}, dy {dy}; limit 8 px)" in fault.reason
+    # the direction in full-resolution pixels, so an integrator can re-aim the camera (within
+    # a pixel: the person's box weighs nothing in the comparison, a little less view to match)
+    got = fault.reason.split("(dx ")[1].split("; limit 8 px)")[0]
+    got_dx, got_dy = (int(v) for v in got.replace("dy ", "").split(", "))
+    assert abs(got_dx - dx) <= 1 and abs(got_dy - dy) <= 1, fault.reason
     assert alerts(reports) == []  # the zone's change is the camera's move, not the scene's
 
 

@@ -19,7 +19,8 @@ checks: "moved" compares the view with it by phase correlation, "defocused" comp
 Without a reference the first healthy frame without persons takes its place, so only changes
 during this run are seen.
 
-Modules: ``config`` (thresholds, fault and alert names), ``report`` (what a check answers),
+Modules: ``config`` (thresholds, fault and alert names), ``analysis`` (the one small copy of a
+frame every image check judges, the objects watch too), ``report`` (what a check answers),
 ``camera`` (``CameraHealth``: the camera STOP faults and the defocus warning), ``scene`` (the
 watch zones' scene changes) and ``draw`` (drawing a report; snapshot JPEGs). Import the names
 below from ``monitor.health``.

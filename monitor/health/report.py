@@ -5,6 +5,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from monitor.types import Alert, Fault
 
 
@@ -41,3 +43,6 @@ class HealthReport:
     # codec's lone keyframe jump in a repeated picture): the pipeline dates what the frame
     # shows by the last frame that did (frame age, lost persons' times)
     picture_changed: bool = True
+    # the frame's analysis image (BGR uint8, monitor/health/analysis.py) the checks judged:
+    # the objects watch judges the same one instead of making its own (issue 49)
+    analysis_bgr: np.ndarray | None = field(default=None, repr=False, compare=False)

@@ -342,7 +342,9 @@ class Pipeline:
         object_alerts: list[Alert] = []
         if watch is not None:  # what changed since commissioning (no person, lasting)
             try:
-                object_alerts = watch.check(image, persons.boxes_px, now, working)
+                # the health checks' analysis image of this frame: made once (issue 49)
+                object_alerts = watch.check(image, persons.boxes_px, now, working,
+                                            health.analysis_bgr if health else None)
                 faults.extend(watch.faults())
             except Exception as exc:  # unknown: fail towards STOP
                 faults.append(Fault("object_check_error", one_line(exc), True,
