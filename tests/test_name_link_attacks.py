@@ -2,14 +2,13 @@
 cell side by side, boxed as one by the detector (0.80 as wide as tall, too wide for one
 person), and one of them steps behind the cabinet inside the protective zone while the other
 stays in view. No track is ever lost, so no area is kept where the hidden person could be.
-Both holes below were found on main at 44a8ec5 and are NOT fixed yet: each test is marked
-``xfail(strict=True)`` so that it turns into a failure (XPASS) the day a fix lands, and the
-mark must then go. Run through the real pipeline, a confirm-clear at 0.5 s, then plain resets
-every 0.5 s (``run_pocket_scene``)."""
+Both holes below were found on main at 44a8ec5 (a plain reset accepted with the person
+behind the cabinet) and are closed by the pair rule (``monitor.tracking.pairs``): the box
+showed two heads against the commissioning reference, then one, so the person who stepped
+out of it gets an area of their own (no name link ends it). Run through the real pipeline, a
+confirm-clear at 0.5 s, then plain resets every 0.5 s (``run_pocket_scene``)."""
 
 from __future__ import annotations
-
-import pytest
 
 from monitor.policy import STOP
 from monitor.replay.pocket_scenes import CABINET, run_pocket_scene
@@ -33,8 +32,6 @@ def _violations(frames) -> list[str]:
             "inside" for f in frames if f.inside and (f.state != STOP or f.accepted)]
 
 
-@pytest.mark.xfail(strict=True, reason="open hole: a wide (two-person) box that narrows "
-                   "loses nobody, so nothing keeps the person who stepped out of it")
 def test_one_of_a_pair_boxed_as_one_stepping_behind_the_cabinet_stays_held(detector):
     """The pair's box (one ByteTrack track from the first frame, 0.80 wide) narrows to the
     colleague at 2.5 s as the person steps behind the cabinet; the colleague stands 0.35 m to
@@ -47,8 +44,6 @@ def test_one_of_a_pair_boxed_as_one_stepping_behind_the_cabinet_stays_held(detec
     assert not _violations(frames), _violations(frames)
 
 
-@pytest.mark.xfail(strict=True, reason="open hole: a track whose person vanishes is given "
-                   "by nearness to another box in the same frame, so it is never lost")
 def test_an_id_passed_by_nearness_to_the_colleague_keeps_the_hidden_person_held(detector):
     """The pair splits at 2 s (the colleague stops 0.35 m to the left); at 2.5 s the detector
     misses the colleague and ByteTrack keeps the pair's track on the person walking to the

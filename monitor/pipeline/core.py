@@ -361,7 +361,8 @@ class Pipeline:
             hidden=hidden_of(self.cell, frame.camera_id, self.masks.rule(frame),
                              self.visible_fraction, watch),
             elsewhere=free_elsewhere(self.cameras, self.cell, frame.camera_id,
-                                     frame.capture_time, self.policy.clear_time))
+                                     frame.capture_time, self.policy.clear_time),
+            image=image, reference=self.references.get(frame.camera_id))
         t3 = time.perf_counter()
         self.applying.waiting.discard(frame.camera_id)  # this frame was checked on the new zones
         cam.frame_time, cam.report, cam.faults = shown.capture_time, report, tuple(faults)

@@ -19,6 +19,7 @@ from monitor.pipeline.data import CameraState
 from monitor.pipeline.fault_alerts import one_line
 from monitor.policy import PolicyConfig
 from monitor.tracking.cell_persons import CellPersons, Who
+from monitor.tracking.pairs import heads_in_boxes
 from monitor.tracking.pockets import SINGLE_WIDTH
 from monitor.tracking.whereabouts import CellZones, FootGrid, FreeElsewhere
 from monitor.types import Fault, FrameInfo, Persons, ZoneReport
@@ -197,14 +198,17 @@ def locate(frame: FrameInfo, persons: Persons, cam: CameraState, prepared, detec
            tool_speed_mps: float | None, pose_time: float | None, policy: PolicyConfig,
            faults: list[Fault], *, working: bool = True,
            hidden: tuple[Callable[[FootGrid], np.ndarray] | None, object] = (None, None),
-           elsewhere: FreeElsewhere | None = None
+           elsewhere: FreeElsewhere | None = None,
+           image: np.ndarray | None = None, reference: np.ndarray | None = None
            ) -> tuple[ZoneReport | None, tuple[int, ...], tuple[Who, ...]]:
     """The frame's zone answer (None: unknown), each row's track id and cell person; the
     faults of a failed stage are added to ``faults``. Nothing is checked after a detector
     error (the answer is unknown, nothing is seen free); no zones (``prepared`` None) is an
     empty answer. ``working``: the camera's view can be trusted in this frame (its lost
     persons' areas shrink where it sees no person); ``hidden``: ``hidden_of``'s answer;
-    ``elsewhere``: ``free_elsewhere``'s answer."""
+    ``elsewhere``: ``free_elsewhere``'s answer. ``image`` and the camera's commissioning
+    ``reference``: the heads in each box (two persons boxed as one, ``monitor.tracking.pairs``;
+    without a reference the tracker judges by the box widths)."""
     report, placed, foot = None, None, None
     tool_pose, tool_state = tool_for(now, tool_pose, tool_speed_mps, pose_time, policy)
     if prepared is not None and detector_error is None:
@@ -229,13 +233,14 @@ def locate(frame: FrameInfo, persons: Persons, cam: CameraState, prepared, detec
             if foot is None:  # inside the try: a failure here is a tracking fault, as before
                 foot = detector.foot_uncertainty_px(frame.width, frame.height)
             cut = cut_feet_rows(prepared, frame.camera_id, persons.boxes_px, foot, placed)
+            heads = heads_in_boxes(image, reference, persons.boxes_px)
             update = cam.tracker.update(
                 persons, report, frame.capture_time, (frame.width, frame.height),
                 zones_of(prepared, detector, frame, tool_pose, tool_speed_mps, tool_state),
                 working=working and report is not None, hidden=hidden[0],
                 hidden_key=hidden[1], clear_time=policy.clear_time,
                 zones_key=id(prepared) if static else None, free_elsewhere=elsewhere,
-                feet_bottom_px=cut)
+                feet_bottom_px=cut, heads=heads)
             named = cell_persons.name(frame.camera_id, cam.tracker, update, frame.capture_time)
             report, track_ids, person_ids = named.report, update.track_ids, named.person_ids
             for line in named.lines:  # holds begun, guesses (said once, holds stay)

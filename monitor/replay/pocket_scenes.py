@@ -76,14 +76,15 @@ class PocketFrame:
 
 
 def run_pocket_scene(scenario: Scenario, detector, confirm_at_s: float = CONFIRM_AT_S,
-                     fault_at_s: tuple[float, ...] = ()) -> list[PocketFrame]:
+                     fault_at_s: tuple[float, ...] = (), reference: bool = True
+                     ) -> list[PocketFrame]:
     """Every frame through the real pipeline with a reset every 0.5 s, the first at or after
     ``confirm_at_s`` a confirm-clear; the frames at ``fault_at_s`` come with a STOP fault of
-    the camera (blinded)."""
+    the camera (blinded). ``reference`` False: the monitor has no commissioning reference."""
     cell = parse_cell(scenario.zone_data())
     cam = scenario.scene.camera
-    pipe = Pipeline(detector, cam.camera_id, PolicyConfig(), cell,
-                    references={cam.camera_id: scenario.scene.reference()})
+    refs = {cam.camera_id: scenario.scene.reference()} if reference else None
+    pipe = Pipeline(detector, cam.camera_id, PolicyConfig(), cell, references=refs)
     tracker = pipe.cameras[cam.camera_id].tracker
     radius = cell.spec.person.radius_m
     out, next_reset, confirmed = [], RESET_PERIOD_S, False

@@ -30,7 +30,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from monitor.tracking import exits, pockets
+from monitor.tracking import exits, pairs, pockets
+from monitor.tracking.pairs import PairWatch, Split
 from monitor.tracking.pockets import PocketBook
 from monitor.tracking.track_types import (
     HiddenCells,
@@ -147,6 +148,63 @@ class PersonTracker:
         # lost track -> the seen track whose box swallowed it: the person hidden right behind
         # that box walks with it (``_follow_carriers``)
         self._carriers: dict[int, int] = {}
+        self.pairs = PairWatch()  # tracks whose box is known to hold two persons (``pairs``)
+        self._splits: list[Split] = []  # areas of persons who stepped out of such a box
+        self._boxes_before: dict[int, np.ndarray] = {}  # track -> box in the previous frame
+
+    def _split_from(self, track_id: int, box: np.ndarray, seen: float, height_px: float
+                    ) -> None:
+        """A box that held two persons holds one now (``monitor.tracking.pairs``: two heads
+        before, one now; or wide from its first sighting, narrow now): the tracker keeps its
+        id on one of them, and the other, never seen alone, has no track to lose. They get an
+        area of their own from where the box held both, under a new person number no
+        ByteTrack track links to (the name link never ends it: only seen free, the bounded
+        life, a pocket's count or a confirm-clear do). Without it one of a pair boxed as one
+        stepped behind the cabinet and a plain reset was accepted with them inside
+        (tests/test_name_link_attacks.py)."""
+        split_id = self._next_id
+        self._next_id += 1
+        # behind fixtures only: in a busy cell an area that grows behind every passer-by
+        # lived its whole bounded life for a detector's miss of one of two persons
+        self.where.lose(split_id, box, seen, height_px=height_px, behind_persons=False)
+        self._splits.append(Split(split_id, track_id, np.asarray(box, np.float64).copy(),
+                                  seen))
+
+    def _pairs_again(self, rows_to_id: list[int], boxes: np.ndarray, new_rows: set[int],
+                     now: float, frame_size: tuple[int, int]) -> None:
+        """A split's area ends when the pair is seen as two again within ``lost_track_s``:
+        the track that kept the box seen by its own association (not a guess) and a new box
+        (a row no track of the previous frame was associated with) within a walk of where
+        the pair stood that can only have come from floor the camera shows
+        (``pairs.out_in_view``). A detector that missed one of two persons side by side for a
+        frame then leaves no area riding on passers-by; one who stepped behind a fixture
+        (or is hidden behind someone) is not seen coming back this way."""
+        grid, hidden, cfg = self.where.grid, self.where.hidden, self.config
+        kept = []
+        for split in self._splits:
+            if split.area_id not in self.where.areas \
+                    or now - split.since > cfg.lost_track_s + 1e-9:
+                continue
+            kept.append(split)
+            if split.track_id not in rows_to_id or grid is None or hidden is None \
+                    or rows_to_id.index(split.track_id) in self._guessed:
+                continue
+            before = [b for t, b in self._boxes_before.items() if t != split.track_id]
+            others = grid.cells_under(np.array(before).reshape(-1, 4), cfg.below)
+            height = max(float(split.box[3] - split.box[1]), 1.0)
+            px_per_s = cfg.walk_speed_mps / cfg.height_m * height * cfg.reach_margin
+            since = grow(grid.cells_under(split.box, cfg.below),
+                         math.ceil(px_per_s * (now - split.since) / grid.cell_px))
+            dt = now - (self.where.last_time if self.where.last_time is not None else now)
+            for row in new_rows:
+                if (grid.cells_under(boxes[row], 0.0) & since).any() and pairs.out_in_view(
+                        grid, hidden, boxes[row], others,
+                        math.ceil(px_per_s * max(dt, 0.0) / grid.cell_px), frame_size,
+                        cfg.edge_margin_px):
+                    self.where.found(split.area_id, clear_view=True)
+                    kept.pop()
+                    break
+        self._splits = kept
 
     def _buffer_frames(self, fps: float) -> int:
         return max(1, math.ceil(self.config.lost_track_s * fps))
@@ -217,7 +275,8 @@ class PersonTracker:
                working: bool = True, hidden: HiddenCells | None = None,
                hidden_key: object = None, clear_time: float = 1.0,
                zones_key: object = None, free_elsewhere: FreeElsewhere | None = None,
-               feet_bottom_px: np.ndarray | None = None) -> TrackUpdate:
+               feet_bottom_px: np.ndarray | None = None,
+               heads: np.ndarray | None = None) -> TrackUpdate:
         """Associate this frame's persons with the tracks; return their ids and the report
         with track ids on the seen hits plus one lost hit per held zone.
 
@@ -231,7 +290,8 @@ class PersonTracker:
         when ``hidden_key`` changes). A cell is free once seen free for ``clear_time``, by
         this camera or (``free_elsewhere``, floor points; needs ``to_floor``) another one.
         ``feet_bottom_px`` (per row; NaN: feet in view): how far below a cut-off box its
-        hidden feet may be (``Whereabouts.update``).
+        hidden feet may be (``Whereabouts.update``). ``heads`` (per row; ``pairs.heads_in_boxes``,
+        None: not counted): the heads seen in each box, two persons in one box when two.
         """
         boxes = np.asarray(persons.boxes_px, np.float64).reshape(-1, 4)
         n = len(boxes)
@@ -261,6 +321,8 @@ class PersonTracker:
         cut_rows = np.full(n, np.nan) if feet_bottom_px is None \
             else np.asarray(feet_bottom_px, np.float64).reshape(-1)
         seen_now = set(rows_to_id)
+        head_rows = np.full(n, pairs.UNKNOWN) if heads is None \
+            else np.asarray(heads, np.int64).reshape(-1)
         moved: dict[int, tuple[np.ndarray, float, bool]] = {}  # row -> old box, time, left
         for row, tid in enumerate(rows_to_id):
             rec = self._records.get(tid)
@@ -270,6 +332,7 @@ class PersonTracker:
                 rec.zones = row_zones[row] if row_zones is not None else ()
                 self._place(rec, boxes[row], floors[row], now, first=True)
                 rec.feet_bottom = float(cut_rows[row])
+                self.pairs.seen(tid, boxes[row], int(head_rows[row]))
                 for new, old in self._reidentified:
                     if new == tid and old in self._records:
                         rec.was = old
@@ -289,6 +352,12 @@ class PersonTracker:
                 self.where.found(tid, self._clear_view(rec, row, boxes, now, frame_size),
                                  apart=apart)
             old_box, old_seen = rec.box.copy(), rec.last_seen
+            stepped = self.pairs.seen(tid, boxes[row], int(head_rows[row]))
+            # only a track seen in the previous frame: one re-found after a loss left its
+            # own area there (a split then kept ghost holds in the street scene, measured)
+            if stepped is not None and old_seen == self.where.last_time \
+                    and not pairs.seen_beside(stepped, row, boxes):
+                self._split_from(tid, stepped, old_seen, rec.tall_px())
             self._place(rec, boxes[row], floors[row], now, first=False)
             rec.byte_id = self._byte_ids.get(row, -1)
             if row_zones is not None:
@@ -315,6 +384,8 @@ class PersonTracker:
                 if left and old_box is not None:
                     self.where.lose(rows_to_id[row], old_box, old_seen, behind=True)
         self._follow_carriers(rows_to_id, boxes, now)
+        self._pairs_again(rows_to_id, boxes, {*appearing, *self._guessed}, now, frame_size)
+        self._boxes_before = {tid: boxes[row].copy() for row, tid in enumerate(rows_to_id)}
         self.where.update(now, boxes, working, clear_time, zones_of, zones_key,
                           free_elsewhere, self.to_floor, feet_bottom_px,
                           settle=lambda w: pockets.settle(self.pockets, w, now))
@@ -322,6 +393,7 @@ class PersonTracker:
         for tid in [t for t, r in self._records.items() if r.lost and t not in self.where.areas
                     and now - r.last_seen > self.config.forget_after_s]:
             del self._records[tid]
+            self.pairs.forget(tid)
 
         after = {h.track_id: h for h in self.holds}
         started = tuple(h for t, h in after.items() if t not in before)

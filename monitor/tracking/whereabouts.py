@@ -121,6 +121,8 @@ class LostArea:
     age_s: float = 0.0  # working time since the loss (the bounded life counts it)
     latest_loss: float | None = None  # the latest loss joined into this area (None: its own)
     ended_by: str = ""  # the rule that ended the area (when it has ended)
+    # grows behind seen persons too (False: only behind fixtures; ``monitor.tracking.pairs``)
+    behind_persons: bool = True
 
     @property
     def box_height_px(self) -> float:
@@ -203,14 +205,15 @@ class Whereabouts:
 
     def lose(self, track_id: int, box_px: np.ndarray, last_seen: float,
              behind: bool = False, height_px: float = 0.0,
-             feet_bottom_px: float = math.nan) -> None:
+             feet_bottom_px: float = math.nan, behind_persons: bool = True) -> None:
         """A person lost: their area starts under their last box (joined to an area the same
         track left before). ``behind``: the track is still seen, in a box merged with a
         neighbour's; someone may stand where it stood (only seeing that free ends it).
         ``height_px``: the person's full height in the last frames (the tracker's; a person
         vanishing behind a wall leaves a last box of a head only): the area grows at the
         pace of the taller of it and the last box. ``feet_bottom_px``: the last box was cut
-        off, its feet may be down to this row."""
+        off, its feet may be down to this row. ``behind_persons`` False: it grows only behind
+        fixtures, never behind seen persons (``monitor.tracking.pairs``)."""
         if self.grid is None:
             raise RuntimeError("Whereabouts.lose before view(): the image size is unknown")
         seed = self.grid.cells_under(box_px, self.config.below)
@@ -228,7 +231,8 @@ class Whereabouts:
             return
         self.areas[track_id] = LostArea(track_id, float(last_seen), box,  # type: ignore[arg-type]
                                         seed, float(last_seen), behind=behind,
-                                        height_px=float(height_px))
+                                        height_px=float(height_px),
+                                        behind_persons=behind_persons)
 
     def carry(self, track_id: int, lost_box_px: np.ndarray, carrier_box_px: np.ndarray,
               reach_px: float) -> None:
@@ -333,7 +337,7 @@ class Whereabouts:
             # is observed, so the area reaches as far as a walk; but a cell the camera shows
             # free now holds nobody it could see, so the area grows only into cells it does
             # not show, never through other persons' trails on open floor
-            unseen = self.hidden | (occupied & young) if working \
+            unseen = self.hidden | (occupied & young & area.behind_persons) if working \
                 else np.ones(grid.shape, bool)
             # where a merged track stood does not walk: a person hidden behind a neighbour
             # who moves on is seen (or merges again); it ends once seen free
@@ -521,8 +525,9 @@ def _joins(into: LostArea, area: LostArea) -> bool:
     stays on its own: joined, the old area would live as long as the fresh loss (in a busy
     scene a flicker a second kept one person's area alive for ever, issue 46)."""
     # a place a merged track stood does not walk and no sighting ends it, a lost person's
-    # area walks: joined, one would take the other's rule
-    if into.behind != area.behind or not _nested(into.cells, area.cells):
+    # area walks (and one kept only behind fixtures): joined, one would take the other's rule
+    if (into.behind, into.behind_persons) != (area.behind, area.behind_persons) \
+            or not _nested(into.cells, area.cells):
         return False
     if area.age_s >= into.age_s - 1e-9:  # not younger: the union lives no longer
         return True
