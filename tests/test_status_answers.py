@@ -14,6 +14,7 @@ answer to another query, replayed). Real SafetyBus, real Zenoh sessions on 127.0
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 import time
@@ -76,8 +77,8 @@ def test_with_the_monitor_key_only_the_monitors_signed_status_is_shown(tmp_path)
     shown = json.loads(out)  # one answer: the monitor's own
     assert shown["boot"] == bus.boot and shown["signed_by"] == bus.public_key, shown
     assert "b00t" not in out
-    assert "3 answers ignored (1 unsigned, 1 not signed by --monitor-key, 1 not naming this " \
-        "request)" in believed.stderr, believed.stderr
+    # (what was ignored is counted only for answers before the monitor's and within the grace
+    # after it: on a loaded host the monitor may answer first; the count is tested below)
     assert "NOT authenticated" not in believed.stderr
     # without the option every answer is shown, and the user is told none is authenticated
     assert "b00t" in trusting.stdout and "NOT authenticated" in trusting.stderr, trusting
@@ -100,4 +101,10 @@ def test_with_only_a_rogue_answering_the_status_is_no_answer_naming_what_was_ign
     assert got.returncode == 2 and got.stdout == "", (got.stdout, got.stderr)
     errors = [line for line in got.stderr.splitlines() if line.startswith("monitor: error: ")]
     assert len(errors) == 1 and "no monitor answered" in errors[0], got.stderr
-    assert "answers ignored" in got.stderr and "Traceback" not in got.stderr
+    # each query the command asks again until its timeout gets the rogue's three answers
+    counts = re.search(r"(\d+) answers ignored \((\d+) unsigned, (\d+) not signed by "
+                       r"--monitor-key, (\d+) not naming this request\)", got.stderr)
+    assert counts, got.stderr
+    total, unsigned, other_key, replayed = map(int, counts.groups())
+    assert unsigned == other_key == replayed >= 1 and total == 3 * unsigned, got.stderr
+    assert "Traceback" not in got.stderr
