@@ -80,8 +80,9 @@ def test_with_the_monitor_key_only_the_monitors_signed_status_is_shown(tmp_path)
     # (what was ignored is counted only for answers before the monitor's and within the grace
     # after it: on a loaded host the monitor may answer first; the count is tested below)
     assert "NOT authenticated" not in believed.stderr
-    # without the option every answer is shown, and the user is told none is authenticated
-    assert "b00t" in trusting.stdout and "NOT authenticated" in trusting.stderr, trusting
+    # without the option the user is told the answer is not authenticated (which answers come
+    # within the grace after the first depends on the host's load)
+    assert trusting.returncode == 0 and "NOT authenticated" in trusting.stderr, trusting
 
 
 def test_with_only_a_rogue_answering_the_status_is_no_answer_naming_what_was_ignored(
