@@ -43,6 +43,8 @@ RIGHTS = [  # (level, action, allowed): every pair, written out
     ("admin", "mark_reviewed", True),
     ("viewer", "confirm_clear", False), ("operator", "confirm_clear", True),
     ("admin", "confirm_clear", True),
+    # a plain reset from the live page, signed with the operator's own reset key
+    ("viewer", "reset", False), ("operator", "reset", True), ("admin", "reset", True),
     ("operator", "view", True), ("operator", "edit_zone", True),
     ("operator", "edit_mute", False), ("operator", "edit_sets", False),
     ("operator", "edit_volume", False),
@@ -59,14 +61,17 @@ def test_may_level_do_action(level, action, allowed):
 
 
 def test_the_table_covers_every_pair_and_nothing_grants_a_reset():
+    """The level alone grants no reset: the console's reset and confirm-clear are signed with
+    the operator's own key of the operators file (tests/test_console_confirm_clear.py)."""
     assert {(lv, a) for lv, a, _ in RIGHTS} == {(lv, a) for lv in LEVELS for a in ACTIONS}
-    for action in NEVER:  # reset, apply, mute, select a set: no level of the console
+    for action in NEVER:  # apply, mute, select a set: no level of the console
         assert not any(may(level, action) for level in LEVELS)
         assert "operators file" in refusal("ada", "admin", action)
     for bad in (None, "root", "", "Admin", "admin "):
         assert not may(bad, "view")
     assert not may("admin", "format_disk")  # unknown actions: never
-    assert [r["levels"] for r in table() if r["action"] == "reset"] == [[]]
+    assert [r["levels"] for r in table() if r["action"] == "reset"] == [["operator", "admin"]]
+    assert set(NEVER) == {"apply", "mute", "select_set"}
 
 
 def test_a_refusal_names_the_level_needed_in_one_line():
@@ -274,10 +279,12 @@ def test_who_may_reset_is_the_operators_file_shown_read_only(cell_dir):
         {"name": n, "fingerprint": key_fingerprint(k)} for n, k in sorted(keys.items())]}
     assert all(k not in json.dumps(body) for k in keys.values())  # fingerprints, not keys
     reset_row = next(r for r in body["rights"] if r["action"] == "reset")
-    assert reset_row["levels"] == []
-    # no route changes the operators file or resets: the console never grants it
+    assert reset_row["levels"] == ["operator", "admin"]
+    # no route changes the operators file; a reset needs the operator's own key held by the
+    # console (--reset-key), which this one does not hold: nothing is sent
     assert client.put("/api/access", json={}, headers=basic("ada", PASSWORD)).status_code == 405
-    assert client.post("/api/reset", headers=basic("ada", PASSWORD)).status_code == 404
+    r = client.post("/api/reset", headers=basic("ada", PASSWORD))
+    assert r.status_code == 403 and "--reset-key" in r.json()["error"], r.json()
     os.chmod(ops, 0o666)  # writable by others: refused as the monitor refuses it
     body = client.get("/api/access").json()
     assert body["reset"]["operators"] == [] and "mode 0666" in body["reset"]["error"]

@@ -13,8 +13,9 @@ The browser sends the credentials with each edit (an ``Authorization: Basic`` he
 page's script, never remembered by the browser), so a page of another site cannot make the
 browser edit a zone. Why passwords rather than the operators' Ed25519 reset keys: a browser
 cannot use a key file without an extension or WebCrypto key import, and a key held by the
-console server would sign for whoever reaches it. The console never grants a reset: the
-operators file of signed resets stays the one source of truth for that.
+console server would sign for whoever reaches it. The console never grants a reset by itself:
+its reset and confirm-clear are signed with the operator's own key (``--reset-key``) and the
+operators file of signed resets stays the one source of truth for who may reset.
 
 Listening: loopback by default; any other address needs TLS (certificate and key) and a
 passwords file, or the console refuses to start; there, viewing needs a login too

@@ -11,6 +11,13 @@ other: it verifies the signature against its operators file, refuses it while a 
 fault or a person is seen in a zone, and drops the lost persons' holds and accepts the reset in
 the same step when it may. The level alone grants nothing the operators file does not.
 
+The same operator may send a plain reset with the same key (``send(..., confirm_clear=False)``,
+``POST /api/reset``): strictly less than a confirm-clear, since the monitor accepts it only when
+it sees the cell clear itself and it drops no hold. The live page offers the plain reset while
+the monitor is latched and the confirm-clear only while a lost person's area or a hidden pocket
+holds a zone: a confirm-clear as the only button is pressed by habit and empties the restart
+interlock.
+
 The console refuses before signing when it cannot show the cell: a camera of the zone file
 without a live picture now (``LiveState.preview``: signed, captured within ``LIVE_WITHIN_S``),
 or a request that does not say it was shown every camera. Every attempt, refused or sent, is
@@ -59,10 +66,12 @@ def reset_keys(items: list[str]) -> dict[str, Signer]:
     return out
 
 
-def parse_request(raw: bytes, cameras: list[str]) -> tuple[str, list[str]]:
+def parse_request(raw: bytes, cameras: list[str],
+                  look: bool = True) -> tuple[str, list[str]]:
     """(note, cameras shown) of a confirm-clear body ``{"note": str, "looked_at": [camera
     ids]}``; a body that is not that, or does not name every camera of the cell, is refused
-    (400): the operator confirms what they were shown."""
+    (400): the operator confirms what they were shown. ``look`` False (a plain reset, which
+    the monitor judges on its own evidence): ``looked_at`` may be left out."""
     try:
         body = json.loads(raw or b"{}")
     except (ValueError, UnicodeDecodeError, RecursionError):
@@ -70,14 +79,14 @@ def parse_request(raw: bytes, cameras: list[str]) -> tuple[str, list[str]]:
     if not isinstance(body, dict):
         raise ConfirmClearRefused("the body must be a JSON object", 400)
     note = body.get("note", "")
-    looked = body.get("looked_at")
+    looked = body.get("looked_at", None if look else [])
     if not isinstance(note, str) or len(note) > MAX_NOTE:
         raise ConfirmClearRefused(f"note: a text of at most {MAX_NOTE} characters", 400)
     if not isinstance(looked, list) or not all(isinstance(c, str) for c in looked):
         raise ConfirmClearRefused("looked_at: the camera ids whose live pictures were shown",
                                   400)
     unseen = [c for c in cameras if c not in looked]
-    if unseen:
+    if look and unseen:
         raise ConfirmClearRefused(f"the live picture of {', '.join(unseen)} was not shown: "
                                   "confirm the cell clear only after looking at every camera",
                                   400)
@@ -111,10 +120,11 @@ class ConfirmClear:
         return (f"the console holds no reset key for {operator!r} (--reset-key "
                 f"{operator}=FILE): use monitor reset --confirm-clear")
 
-    def send(self, operator: str, note: str) -> dict:
+    def send(self, operator: str, note: str, confirm_clear: bool = True) -> dict:
         """The monitor's answer ``{"accepted", "reason", ...}`` to ``operator``'s signed
-        confirm-clear; ``ConfirmClearRefused`` when nothing could be sent or nothing
-        answered."""
+        confirm-clear (``confirm_clear`` False: a plain reset, which the monitor accepts only
+        on its own evidence that the cell is clear); ``ConfirmClearRefused`` when nothing could
+        be sent or nothing answered."""
         why = self.can(operator)
         if why is not None:
             raise ConfirmClearRefused(why, 403)
@@ -126,9 +136,11 @@ class ConfirmClear:
                                           f"{self.timeout_s:g} s", 504)
             boot, latch = latch_of_status(status)
             if latch is None:
-                raise ConfirmClearRefused(f"nothing to confirm: the monitor is not latched "
+                raise ConfirmClearRefused(f"nothing to {'confirm' if confirm_clear else 'reset'}: "
+                                          f"the monitor is not latched "
                                           f"(state {status.get('state')})")
-            payload = reset_payload(operator, "", note, cell=self.cell, confirm_clear=True,
+            payload = reset_payload(operator, "", note, cell=self.cell,
+                                    confirm_clear=confirm_clear,
                                     boot=boot, latch=latch)
             signature = self.signers[operator].sign(self.keys.reset, payload)
             answer = request_reset(self.session, self.keys.reset, payload, signature,

@@ -9,7 +9,8 @@ configurator such as SICK Safety Designer):
   zone file and the recorder's files too).
 * ``operator``: may also edit the image polygons of the zone file (drafts): what a password
   holder could do before levels existed; and confirm the cell clear after looking at the
-  fresh live pictures (``monitor/console/confirm_clear.py``), signed with that operator's own
+  fresh live pictures (``monitor/console/confirm_clear.py``), or send a plain reset (which the
+  monitor accepts only when it sees the cell clear), each signed with that operator's own
   reset key, which the console holds only when started with ``--reset-key NAME=FILE``. A
   passwords-file line without a level (the format before levels, ``name:scrypt$...``) is an
   operator: an upgrade takes no right away.
@@ -19,8 +20,8 @@ configurator such as SICK Safety Designer):
   and a volume or a set rule changes where and when protection applies for every camera at
   once; a polygon edit changes one camera's view of one zone.
 
-No level grants a plain reset, a mute, a zone set selection or an apply, and the confirm-clear
-is not granted by the level alone: those stay with the signed requests of the monitor's operators
+No level grants a mute, a zone set selection or an apply, and the reset and confirm-clear are
+not granted by the level alone: those stay with the signed requests of the monitor's operators
 file (Ed25519 keys, ``bus.operators_file``), the one source
 of truth for who may reset. The console only shows that file (names and key fingerprints,
 read-only; ``monitor/console/resetters.py``), and every saved edit stays a draft on disk until an
@@ -41,13 +42,13 @@ ACTIONS: dict[str, tuple[str, str]] = {
     "edit_zone": ("operator", "edit zone polygons"),
     "mark_reviewed": ("operator", "mark an incident reviewed"),
     "confirm_clear": ("operator", "confirm the cell clear after looking at the live picture"),
+    "reset": ("operator", "reset the monitor"),
     "edit_mute": ("admin", "change a zone's mute setting"),
     "edit_sets": ("admin", "change the zone sets' switching rules"),
     "edit_volume": ("admin", "change a cell-space volume"),
 }
 # asked for by no level: only the signed requests of the monitor's operators file do these
 NEVER = {
-    "reset": "reset the monitor (a signed request of the operators file: monitor reset)",
     "apply": "apply the zone file to the running monitor (signed: monitor zones apply)",
     "mute": "mute a zone (signed: monitor mute)",
     "select_set": "select a zone set (signed: monitor case select)",

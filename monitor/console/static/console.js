@@ -51,6 +51,7 @@ async function pollState() {
           : " (in view: waiting ends it once the camera sees the spot free)")));
     }
   }
+  const areasHolding = held.length;  // a confirm-clear can end these (showConfirm)
   // the hidden pockets with their counts (outlined in the view): what ends a hold behind one
   for (const [cam, pockets] of Object.entries(s.pockets || {})) {
     for (const p of pockets) {
@@ -78,7 +79,7 @@ async function pollState() {
       "operator signs it (" + (draft.apply || "monitor zones apply") + "), not at a restart.";
   }
   const cams = s.camera_ids || [];
-  showConfirm(s, cams);
+  showConfirm(s, cams, areasHolding > 0);
   if (cams.join() !== liveCameras.join()) {
     liveCameras = cams;
     const box = $("cams");
@@ -92,39 +93,45 @@ async function pollState() {
   }));
 }
 
-// confirm-clear (monitor/console/confirm_routes.py): offered while the cell is stopped (the
-// monitor itself says when there is no latch to release), sendable only while every camera
-// has a live picture and the operator says they looked
-function showConfirm(s, cams) {
+// reset and confirm-clear (monitor/console/confirm_routes.py): the plain reset is offered
+// while the cell is latched (the monitor accepts it only on its own evidence); the confirm-
+// clear only while a lost person's area holds a zone or the monitor's reason asks for one
+// (a confirm-clear as the only button is pressed by habit and empties the restart
+// interlock), sendable only while every camera has a live picture and the operator says
+// they looked
+function showConfirm(s, cams, holds) {
   const box = $("confirm");
   if (!box) return;
   box.hidden = !(s.latched || s.state === "STOP");
+  $("cc-block").hidden = !(holds || /confirm-clear/.test(s.reason || ""));
   const live = s.live_picture || {};
   const allLive = cams.length > 0 && cams.every((c) => live[c] === true);
   $("cc-send").disabled = !(allLive && $("cc-looked").checked);
   $("cc-send").title = allLive ? "" : "no live picture of every camera: the cell cannot be seen";
 }
 
-async function confirmClear() {
+async function sendReset(confirm) {
   const msg = $("cc-message");
   const auth = "Basic " + btoa(unescape(encodeURIComponent(
     $("cc-operator").value + ":" + $("cc-password").value)));
   msg.className = ""; msg.textContent = "sending…";
-  let r, body;
+  const body = confirm ? { looked_at: liveCameras, note: "confirmed from the console" }
+    : { note: "reset from the console" };
+  let r, answer;
   try {
-    r = await fetch("/api/confirm-clear", {
+    r = await fetch(confirm ? "/api/confirm-clear" : "/api/reset", {
       method: "POST", headers: { "content-type": "application/json", authorization: auth },
-      body: JSON.stringify({ looked_at: liveCameras, note: "confirmed from the console" }) });
-    body = await r.json();
+      body: JSON.stringify(body) });
+    answer = await r.json();
   } catch (err) {
     msg.className = "error"; msg.textContent = "console not reachable"; return;
   }
-  $("cc-looked").checked = false;  // each confirm-clear is a look of its own
-  if (r.ok && body.accepted) {
-    msg.className = "ok"; msg.textContent = "accepted by the monitor: " + body.reason;
+  if (confirm) $("cc-looked").checked = false;  // each confirm-clear is a look of its own
+  if (r.ok && answer.accepted) {
+    msg.className = "ok"; msg.textContent = "accepted by the monitor: " + answer.reason;
   } else {
     msg.className = "error";
-    msg.textContent = "REFUSED: " + (body.error || body.reason || r.status);
+    msg.textContent = "REFUSED: " + (answer.error || answer.reason || r.status);
   }
 }
 
@@ -301,7 +308,8 @@ const page = document.body.dataset.page;
 if (page === "live") {
   pollState(); setInterval(pollState, 300);
   setInterval(refreshImages, 700);
-  $("cc-send").addEventListener("click", confirmClear);
+  $("cc-send").addEventListener("click", () => sendReset(true));
+  $("rs-send").addEventListener("click", () => sendReset(false));
 } else if (page === "incidents") {  // the review page's own script: incidents.js
   getJSON("/api/state").then((s) => { $("cell").textContent = "cell " + (s.cell || ""); });
 } else if (page === "zones") {
