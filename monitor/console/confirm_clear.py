@@ -14,9 +14,9 @@ the same step when it may. The level alone grants nothing the operators file doe
 The same operator may send a plain reset with the same key (``send(..., confirm_clear=False)``,
 ``POST /api/reset``): strictly less than a confirm-clear, since the monitor accepts it only when
 it sees the cell clear itself and it drops no hold. The live page offers the plain reset while
-the monitor is latched and the confirm-clear only while a lost person's area or a hidden pocket
-holds a zone: a confirm-clear as the only button is pressed by habit and empties the restart
-interlock.
+the monitor is latched and the confirm-clear only while a lost person's area holds a zone
+(also one in a hidden pocket: a pocket holds only through the areas that reach it): a
+confirm-clear as the only button is pressed by habit and empties the restart interlock.
 
 The console refuses before signing when it cannot show the cell: a camera of the zone file
 without a live picture now (``LiveState.preview``: signed, captured within ``LIVE_WITHIN_S``),

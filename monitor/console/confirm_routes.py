@@ -37,9 +37,6 @@ def confirm_routes(console: Any, login: Login,
     """The route; ``login`` and ``read_body``: the app's own (one rule for passwords,
     lock-outs and body limits)."""
 
-    def audit(event: str, **fields) -> dict:
-        return console.audit.record(event=event, **fields)
-
     async def send(request: Request, confirm: bool) -> Response:
         event = "confirm_clear" if confirm else "reset"
         credentials = basic_credentials(request.headers.get("authorization"))
@@ -71,14 +68,15 @@ def confirm_routes(console: Any, login: Login,
             answer = await run_in_threadpool(sender.send, operator, note, confirm)
         except ConfirmClearRefused as exc:
             await run_in_threadpool(functools.partial(
-                audit, event, operator=operator, **source.fields(), result="refused",
-                error=bounded(str(exc), 400)))
+                console.audit.record, event=event, operator=operator, **source.fields(),
+                result="refused", error=bounded(str(exc), 400)))
             return JSONResponse({"error": str(exc)}, status_code=exc.status, headers=headers)
         accepted = bool(answer.get("accepted"))
         reason = str(answer.get("reason", ""))
         await run_in_threadpool(functools.partial(
-            audit, event, operator=operator, **source.fields(), note=bounded(note, 200),
-            looked_at=looked, result="accepted" if accepted else "refused_by_monitor",
+            console.audit.record, event=event, operator=operator, **source.fields(),
+            note=bounded(note, 200), looked_at=looked,
+            result="accepted" if accepted else "refused_by_monitor",
             reason=bounded(reason, 600), monitor_state=answer.get("state")))
         return JSONResponse({"accepted": accepted, "reason": reason,
                              "state": answer.get("state")}, headers=headers)
