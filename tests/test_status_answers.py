@@ -109,3 +109,48 @@ def test_with_only_a_rogue_answering_the_status_is_no_answer_naming_what_was_ign
     total, unsigned, other_key, replayed = map(int, counts.groups())
     assert unsigned == other_key == replayed >= 1 and total == 3 * unsigned, got.stderr
     assert "Traceback" not in got.stderr
+
+
+def _reset(port: int, *extra: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "monitor", "reset", "--cell", CELL, "--connect",
+         f"tcp/127.0.0.1:{port}", "--timeout", "4", "--operator", "alice", *extra],
+        capture_output=True, text=True, timeout=60)
+
+
+# a rogue's status: latched, naming a latch for the reset to release
+LATCHED = {**FORGED, "state": "STOP", "latched": True, "latch": "n0nce"}
+
+
+def test_reset_with_the_monitor_key_reads_the_latch_from_the_monitors_signed_status(tmp_path):
+    """``monitor reset`` names the boot and latch its status read gave. A rogue's unsigned
+    "latched, latch n0nce" must not be what it reads: with ``--monitor-key`` it takes the
+    monitor's own signed answer (not latched: nothing to reset) and says what it ignored."""
+    cfg, port = _monitor(tmp_path)
+    key = BusKeys.of(f"workcell/{CELL}/").status
+    with SafetyBus(cfg), open_session(BusConfig(
+            cell=CELL, instance="rogue", connect=(f"tcp/127.0.0.1:{port}",))) as rogue:
+        rogue.declare_queryable(key, lambda q: q.reply(key, json.dumps(LATCHED).encode()))
+        time.sleep(0.3)
+        got = _reset(port, "--monitor-key", str(tmp_path / "monitor.key.pub"))
+    assert got.returncode == 1, (got.stdout, got.stderr)
+    assert "nothing to reset" in got.stdout and "b00t" not in got.stdout, got.stdout
+    assert "Traceback" not in got.stderr
+
+
+def test_reset_with_the_monitor_key_and_only_a_rogue_answering_sends_nothing(tmp_path):
+    port = free_port()
+    _monitor(tmp_path)  # the monitor's key pair; the monitor itself is down
+    key = BusKeys.of(f"workcell/{CELL}/").status
+    with open_session(BusConfig(cell=CELL, instance="rogue",
+                                listen=(f"tcp/127.0.0.1:{port}",))) as rogue:
+        asked: list[str] = []
+        rogue.declare_queryable(key, lambda q: q.reply(key, json.dumps(LATCHED).encode()))
+        rogue.declare_queryable(BusKeys.of(f"workcell/{CELL}/").reset,
+                                lambda q: asked.append("reset"))
+        time.sleep(0.3)
+        got = _reset(port, "--monitor-key", str(tmp_path / "monitor.key.pub"))
+    assert got.returncode == 2 and not asked, (got.stdout, got.stderr, asked)
+    assert re.search(r"\d+ answers? ignored \(\d+ unsigned\) on \S+status", got.stderr), \
+        got.stderr
+    assert "Traceback" not in got.stderr

@@ -29,7 +29,11 @@ def reset_roles(args: argparse.Namespace, bus: BusConfig, session, signer, stop,
         keys = role_keys(bus, role)
         if stop.is_set():
             return 130
-        status = first_status(session, keys, args.timeout, stop)
+        skipped: list[str] = []  # status answers not the monitor's (--monitor-key)
+        status = first_status(session, keys, args.timeout, stop, monitor_keys, skipped)
+        if skipped:
+            print(f"{role}: status {ignored_text(skipped)}: someone else answers on "
+                  f"{keys.status}", file=sys.stderr, flush=True)
         if status is None:
             silent += 1
             print(f"{role}: NO ANSWER on {keys.status} within {args.timeout:g} s")

@@ -27,7 +27,7 @@ from monitor.cli.zenoh_args import (
 )
 from monitor.errors import ConfigError
 from monitor.signals import Interrupted, StopSignals, call_interruptible
-from monitor.wire.answers import ignored_text, judge_answer, status_request
+from monitor.wire.answers import ignored_text, reply_of, status_request
 from monitor.wire.resets import latch_of_status, request_reset, reset_payload
 from monitor.wire.signing import load_private_key, load_public_key
 
@@ -73,7 +73,10 @@ def cmd_reset(args: argparse.Namespace) -> int:
             started = time.monotonic()
             answer = None
             # the reset names the monitor's boot and the latch it releases (signed into it)
-            status = first_status(session, keys, args.timeout, stop)
+            skipped: list[str] = []  # status answers not the monitor's (--monitor-key)
+            status = first_status(session, keys, args.timeout, stop, monitor_keys, skipped)
+            if (line := status_ignored_line("monitor reset", keys.status, skipped)):
+                print(line, file=sys.stderr, flush=True)
             if status is None:
                 if stop.is_set():
                     return 130
@@ -165,18 +168,10 @@ def ask(session, key: str, timeout: float, stop, want: Callable[[bytes], dict | 
                 continue
             if reply is _END:
                 break  # the query ended: with answers, done; without, ask again
-            if reply.ok is None:
+            counted = reply_of(reply, key, request, monitor_keys, ignored)
+            if counted is None:
                 continue
-            raw = reply.ok.payload.to_bytes()
-            signer = None
-            if request is not None:
-                attachment = reply.ok.attachment
-                signer, why = judge_answer(monitor_keys, key, request, raw,
-                                           None if attachment is None else attachment.to_bytes())
-                if signer is None:  # not the monitor's answer to this query: not believed
-                    if ignored is not None:
-                        ignored.append(why)
-                    continue
+            raw, signer = counted
             body = want(raw)
             if body is not None and signer is not None:
                 body = {**body, "signed_by": signer}
@@ -193,10 +188,24 @@ def _monitor_status(payload: bytes) -> dict | None:
     return body if isinstance(body.get("boot"), str) else None
 
 
-def first_status(session, keys: BusKeys, timeout: float, stop) -> dict | None:
-    """The first status answer of a monitor within ``timeout``; None when none came."""
-    answers = ask(session, keys.status, timeout, stop, _monitor_status)
+def first_status(session, keys: BusKeys, timeout: float, stop,
+                 monitor_keys: tuple | None = None,
+                 ignored: list[str] | None = None) -> dict | None:
+    """The first status answer of a monitor within ``timeout``; None when none came.
+    ``monitor_keys``: only the monitor's answer signed for this query counts (what a request
+    then names, its boot and latch, is the monitor's, not a rogue's on the status key); why
+    each other answer was skipped is appended to ``ignored``."""
+    answers = ask(session, keys.status, timeout, stop, _monitor_status,
+                  monitor_keys=monitor_keys, ignored=ignored)
     return answers[0] if answers else None
+
+
+def status_ignored_line(command: str, key: str, ignored: list[str]) -> str | None:
+    """``monitor reset: 2 answers ignored (2 unsigned) on the status key ...``: the status
+    answers that were not the monitor's (None when there were none)."""
+    if not ignored:
+        return None
+    return f"{command}: {ignored_text(ignored)} on {key}: someone else answers there"
 
 
 def cmd_status(args: argparse.Namespace) -> int:

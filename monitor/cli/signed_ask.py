@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 from monitor.bus.session import BusKeys, default_instance, open_session
 from monitor.cli.keys import KEY_DIR
-from monitor.cli.operator import first_status, operator_key_path
+from monitor.cli.operator import first_status, operator_key_path, status_ignored_line
 from monitor.cli.role_arg import add_role_arg
 from monitor.cli.roles import no_answer, role_keys
 from monitor.cli.zenoh_args import add_zenoh_args, bounded, bus_config, nothing_found_hint
@@ -90,7 +90,11 @@ def ask_signed(args: argparse.Namespace, ask: SignedAsk, signer: Signer,
         ignored: list[str] = []  # answers not believed (``monitor_keys``): someone else's
         with bounded(session, ask.command) as session:
             started = time.monotonic()
-            status = first_status(session, keys, args.timeout, stop)  # the monitor's boot
+            # the monitor's boot (with ``monitor_keys``: from its signed answer only)
+            skipped: list[str] = []
+            status = first_status(session, keys, args.timeout, stop, monitor_keys, skipped)
+            if (line := status_ignored_line(ask.command, keys.status, skipped)):
+                print(line, file=sys.stderr, flush=True)
             if status is None:
                 if stop.is_set():
                     return 130

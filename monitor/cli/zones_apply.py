@@ -56,7 +56,7 @@ def cmd_apply(args: argparse.Namespace) -> int:
     from monitor.bus.session import default_instance, open_session
     from monitor.cases.zone_apply import apply_payload, request_apply
     from monitor.cli.monitor_key_arg import monitor_keys_of
-    from monitor.cli.operator import first_status, operator_key_path
+    from monitor.cli.operator import first_status, operator_key_path, status_ignored_line
     from monitor.cli.roles import no_answer, role_keys
     from monitor.cli.zenoh_args import bounded as _bounded
     from monitor.cli.zenoh_args import bus_config as _bus_config
@@ -83,7 +83,10 @@ def cmd_apply(args: argparse.Namespace) -> int:
             return 130
         with _bounded(session, "monitor zones apply") as session:
             started = time.monotonic()
-            status = first_status(session, keys, args.timeout, stop)
+            skipped: list[str] = []  # status answers not the monitor's (--monitor-key)
+            status = first_status(session, keys, args.timeout, stop, monitor_keys, skipped)
+            if (line := status_ignored_line("monitor zones apply", keys.status, skipped)):
+                print(line, file=sys.stderr, flush=True)
             if status is None:
                 if stop.is_set():
                     return 130

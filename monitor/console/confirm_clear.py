@@ -35,6 +35,7 @@ from pathlib import Path
 from monitor.bus.session import BusKeys
 from monitor.cli.operator import first_status
 from monitor.errors import ConfigError
+from monitor.wire.answers import ignored_text
 from monitor.wire.resets import latch_of_status, request_reset, reset_payload
 from monitor.wire.signing import Signer, load_private_key
 
@@ -130,10 +131,13 @@ class ConfirmClear:
             raise ConfirmClearRefused(why, 403)
         with self._lock:  # one at a time: each names the latch its status read gave
             stop = threading.Event()
-            status = first_status(self.session, self.keys, self.timeout_s, stop)
+            skipped: list[str] = []  # status answers not the monitor's (its keys given)
+            status = first_status(self.session, self.keys, self.timeout_s, stop,
+                                  self.monitor_keys, skipped)
             if status is None:
+                also = f" ({ignored_text(skipped)})" if skipped else ""
                 raise ConfirmClearRefused(f"no monitor answered on {self.keys.status} within "
-                                          f"{self.timeout_s:g} s", 504)
+                                          f"{self.timeout_s:g} s{also}", 504)
             boot, latch = latch_of_status(status)
             if latch is None:
                 raise ConfirmClearRefused(f"nothing to {'confirm' if confirm_clear else 'reset'}: "

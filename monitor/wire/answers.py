@@ -87,6 +87,28 @@ def ignored_text(ignored: list[str]) -> str:
             + ", ".join(f"{n} {why}" for why, n in counts.items()) + ")")
 
 
+def reply_of(reply, key_expr: str, request: bytes | None,
+             monitor_keys: tuple[Ed25519PublicKey, ...] | None,
+             ignored: list[str] | None) -> tuple[bytes, str | None] | None:
+    """One Zenoh reply to ``request`` on ``key_expr``: (its payload, the key text that signed
+    it) when it counts, None to skip it (an error reply; with ``monitor_keys``, an answer not
+    signed by one of them for this request: why is appended to ``ignored``). Without
+    ``monitor_keys`` (or ``request``) every answer counts, signed by nobody known."""
+    if reply.ok is None:
+        return None
+    raw = reply.ok.payload.to_bytes()
+    if monitor_keys is None or request is None:
+        return raw, None
+    attachment = reply.ok.attachment
+    signer, why = judge_answer(monitor_keys, key_expr, request, raw,
+                               attachment.to_bytes() if attachment is not None else None)
+    if signer is None:  # not the monitor's answer to this request: not believed
+        if ignored is not None:
+            ignored.append(why)
+        return None
+    return raw, signer
+
+
 def request_answer(session, key_expr: str, payload: bytes, signature: bytes | None,
                    timeout: float,
                    monitor_keys: tuple[Ed25519PublicKey, ...] | None = None,
@@ -101,18 +123,10 @@ def request_answer(session, key_expr: str, payload: bytes, signature: bytes | No
     # on the key finished (one that never does would hold it until ``timeout``)
     for reply in session.get(key_expr, payload=payload, attachment=signature, timeout=timeout,
                              consolidation=zenoh.ConsolidationMode.NONE):
-        if reply.ok is None:
+        counted = reply_of(reply, key_expr, payload, monitor_keys, ignored)
+        if counted is None:
             continue
-        raw = reply.ok.payload.to_bytes()
-        signer = None
-        if monitor_keys is not None:
-            attachment = reply.ok.attachment
-            signer, why = judge_answer(monitor_keys, key_expr, payload, raw,
-                                 attachment.to_bytes() if attachment is not None else None)
-            if signer is None:  # not the monitor's answer to this request: not believed
-                if ignored is not None:
-                    ignored.append(why)
-                continue
+        raw, signer = counted
         try:
             body = json.loads(raw)
         except (ValueError, UnicodeDecodeError, RecursionError):
