@@ -29,6 +29,22 @@ def _plain_letterbox(image: np.ndarray, layout: ModelLayout) -> np.ndarray:
     return tensor[None].astype(np.float32)
 
 
+def _plain_fit(cur, bg, tolerance):
+    """The objects watch's lighting fit as first written (np.median, np.cov): the plain
+    reference the fast fit is compared with."""
+    cur, bg = cur.astype(np.float32), bg.astype(np.float32)
+    offset = float(np.median(cur - bg))
+    use = np.abs(cur - bg - offset) < tolerance
+    gain = 1.0
+    if use.sum() >= 30:
+        x, y = bg[use].astype(np.float64), cur[use].astype(np.float64)
+        var = float(x.var())
+        if var >= 25.0:
+            gain = min(max(float(np.cov(x, y, bias=True)[0, 1]) / var, 0.5), 2.0)
+        offset = float(y.mean() - gain * x.mean())
+    return gain, offset
+
+
 @pytest.mark.parametrize("layout", [
     ModelLayout("darknet", "x", 416, 416),
     ModelLayout("darknet", "x", 416, 416, rect=True),
@@ -101,16 +117,8 @@ def test_the_objects_watch_finds_what_the_plain_comparison_finds():
             ref, frame = self._ref, small.astype(np.float32)
             if free.sum() < 50:
                 return np.zeros(free.shape, bool)
-            cur, bg = frame[free].ravel(), ref[free].ravel()
-            offset = float(np.median(cur - bg))
-            use = np.abs(cur - bg - offset) < 2 * self.config.diff
-            gain = 1.0
-            if use.sum() >= 30:
-                x, y = bg[use].astype(np.float64), cur[use].astype(np.float64)
-                var = float(x.var())
-                if var >= 25.0:
-                    gain = min(max(float(np.cov(x, y, bias=True)[0, 1]) / var, 0.5), 2.0)
-                offset = float(y.mean() - gain * x.mean())
+            gain, offset = _plain_fit(frame[free].ravel(), ref[free].ravel(),
+                                      2 * self.config.diff)
             excess = np.abs(frame - (gain * ref + offset)).max(axis=2)
             return (excess > self.config.diff) & self._watch
 
@@ -154,18 +162,7 @@ def test_the_lighting_fit_in_whole_levels_is_the_plain_median_and_least_squares(
     down with noise, a flat view (no gain), too few pixels near the median (no fit), clipping."""
     from monitor.health.objects import lighting_fit
 
-    def plain(cur, bg, tolerance):
-        cur, bg = cur.astype(np.float32), bg.astype(np.float32)
-        offset = float(np.median(cur - bg))
-        use = np.abs(cur - bg - offset) < tolerance
-        gain = 1.0
-        if use.sum() >= 30:
-            x, y = bg[use].astype(np.float64), cur[use].astype(np.float64)
-            var = float(x.var())
-            if var >= 25.0:
-                gain = min(max(float(np.cov(x, y, bias=True)[0, 1]) / var, 0.5), 2.0)
-            offset = float(y.mean() - gain * x.mean())
-        return gain, offset
+    plain = _plain_fit
 
     rng = np.random.default_rng(3)
     cases = []
