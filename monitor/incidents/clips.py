@@ -12,17 +12,21 @@ import numpy as np
 
 from monitor.records.annotate import annotate
 from monitor.timetext import TimeText
+from monitor.zones.draw import ZoneDrawCache
 
 CODEC = "H.264 (libx264 via PyAV)"
 
 
 def overlay(image: np.ndarray, result, cell, camera_id: str, watch: list,
-            when: TimeText | None = None) -> np.ndarray:
+            when: TimeText | None = None,
+            zone_cache: ZoneDrawCache | None = None) -> np.ndarray:
     """The replay's overlay (``monitor.records.annotate``): the header with camera and time, zones
     with labels apart and a legend, each person with the track id the commands use and the floor
     range behind a hit, health, the state bar with the command's description. ``when``: the times as
-    text (live: wall clock); None: seconds of the video."""
-    return annotate(image, result, cell, camera_id, watch, when=when)[0]
+    text (live: wall clock); None: seconds of the video. ``zone_cache``: the camera's zone
+    drawing kept between frames (``ZoneDrawCache``)."""
+    return annotate(image, result, cell, camera_id, watch, when=when,
+                    zone_cache=zone_cache)[0]
 
 
 class ClipWriter:
