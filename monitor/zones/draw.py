@@ -12,6 +12,7 @@ import numpy as np
 
 from monitor import geometry as geo
 from monitor.errors import ConfigError
+from monitor.geometry.occlusion import standable
 from monitor.zones.coverage import figure_visible, occluders_contain
 from monitor.zones.files import Cell
 from monitor.zones.labels import Rect, place_labels
@@ -353,8 +354,6 @@ def shadow_image(cell: Cell, camera_id: str, width: int, height: int, step_px: i
     there (``coverage.figure_visible``, the visibility the lost persons' areas use), or None
     without occluders or calibration. Evaluated every ``step_px`` pixels of the camera and
     scaled to ``width`` x ``height``."""
-    from monitor.geometry.occlusion import standable  # occlusion imports prepare: late
-
     occluders = cell.spec.occluder_zones()  # the robot base included
     model = cell.camera_models.get(camera_id)
     cam = cell.cameras[camera_id]
