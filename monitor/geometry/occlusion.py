@@ -32,7 +32,7 @@ there, or flags it (monitor/zones/coverage.py).
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
 import cv2
@@ -40,6 +40,7 @@ import numpy as np
 
 from monitor import geometry as geo
 from monitor.geometry.floors import FloorRegion, plane_hits
+from monitor.geometry.sight import sight_blocked
 
 # How close (pixels) a box bottom must come to an occluder outline or the image edge for the
 # feet to count as possibly hidden, besides the detector's foot band.
@@ -454,13 +455,17 @@ def segments_hit_polygons(u: np.ndarray, y0: np.ndarray, y1: np.ndarray,
 
 
 def shadowed(floor_xy_m: np.ndarray, model: geo.CameraModel, occluders_contain,
-             min_height_m: float, samples: int = 48) -> np.ndarray:
+             min_height_m: float, samples: int = 48,
+             blocked: Callable[[np.ndarray, np.ndarray, float, float], np.ndarray] | None
+             = None) -> np.ndarray:
     """(N,) bool: floor points in this camera's shadow (see the module docstring).
 
     ``occluders_contain(points (M, 3)) -> (M,) bool`` says which cell points lie inside any
     occluder. The sight line from the camera to each head top is sampled ``samples`` times
-    (and its ends excluded); a camera without a pinhole calibration sees no heights, so every
-    point counts as shadowed only when its head top is outside the image.
+    (and its ends excluded), or, with ``blocked(origin, ends, t0, t1)`` (exact sight lines,
+    ``monitor.geometry.sight``), tested over the same span without gaps; a camera without a
+    pinhole calibration sees no heights, so every point counts as shadowed only when its
+    head top is outside the image.
     """
     pts = np.asarray(floor_xy_m, float).reshape(-1, 2)
     n = len(pts)
@@ -472,10 +477,11 @@ def shadowed(floor_xy_m: np.ndarray, model: geo.CameraModel, occluders_contain,
     centre = camera_centre_m(model)
     if centre is None or occluders_contain is None or not n:
         return out
+    if blocked is not None:
+        return out | blocked(centre, heads, 1.0 / (samples + 1), samples / (samples + 1))
     t = (np.arange(1, samples + 1) / (samples + 1))[None, :, None]
     line = centre[None, None, :] + t * (heads[:, None, :] - centre[None, None, :])
-    blocked = occluders_contain(line.reshape(-1, 3)).reshape(n, samples).any(axis=1)
-    return out | blocked
+    return out | occluders_contain(line.reshape(-1, 3)).reshape(n, samples).any(axis=1)
 
 
 def points_in_volume(z, points_m: np.ndarray,
@@ -515,7 +521,11 @@ def shadowed_by(occluders: Sequence, meshes: Mapping[str, tuple[np.ndarray, np.n
             out |= points_in_volume(z, points, meshes)
         return out
 
-    return shadowed(floor_xy_m, model, contain if occluders else None, min_height_m)
+    def blocked(origin: np.ndarray, ends: np.ndarray, t0: float, t1: float) -> np.ndarray:
+        return sight_blocked(occluders, meshes, origin, ends, t0, t1)
+
+    return shadowed(floor_xy_m, model, contain if occluders else None, min_height_m,
+                    blocked=blocked)
 
 
 def standable(occluders: Sequence, meshes: Mapping[str, tuple[np.ndarray, np.ndarray]],

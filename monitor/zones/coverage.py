@@ -31,6 +31,7 @@ import numpy as np
 
 from monitor import geometry as geo
 from monitor.geometry.occlusion import camera_centre_m, points_in_volume, standable
+from monitor.geometry.sight import sight_blocked
 from monitor.zones.moving import follows_tool, max_zone
 from monitor.zones.schema import CellSpec
 
@@ -90,15 +91,30 @@ class ZoneCoverage:
 # What one camera sees
 
 
-def occluders_contain(occluders: Sequence, meshes: Mapping[str, tuple[np.ndarray, np.ndarray]]
-             ) -> Contain:
-    def contain(points: np.ndarray) -> np.ndarray:
+@dataclass(frozen=True)
+class OccluderVolumes:
+    """A camera's occluders as ``sight_free`` tests them: called with points (M, 3), which
+    lie inside one; ``blocks`` says which sight lines pass through one, exactly (a sampled
+    line missed every occluder thinner than the gap between its samples: a 3 cm screen hid
+    nothing, ``monitor.geometry.sight``)."""
+
+    occluders: tuple
+    meshes: Mapping[str, tuple[np.ndarray, np.ndarray]]
+
+    def __call__(self, points: np.ndarray) -> np.ndarray:
         out = np.zeros(len(points), dtype=bool)
-        for z in occluders:
-            out |= points_in_volume(z, points, meshes)
+        for z in self.occluders:
+            out |= points_in_volume(z, points, self.meshes)
         return out
 
-    return contain
+    def blocks(self, origin: np.ndarray, ends: np.ndarray, t0: float, t1: float
+               ) -> np.ndarray:
+        return sight_blocked(self.occluders, self.meshes, origin, ends, t0, t1)
+
+
+def occluders_contain(occluders: Sequence, meshes: Mapping[str, tuple[np.ndarray, np.ndarray]]
+                      ) -> OccluderVolumes:
+    return OccluderVolumes(tuple(occluders), meshes)
 
 
 def _in_image(model: geo.CameraModel, px: np.ndarray, front: np.ndarray,
@@ -115,6 +131,9 @@ def sight_free(model: geo.CameraModel, points_m: np.ndarray, contain: Contain) -
     n = len(points_m)
     if centre is None or not n:
         return np.ones(n, dtype=bool)
+    t0, t1 = 1.0 / (SIGHT_SAMPLES + 1), SIGHT_SAMPLES / (SIGHT_SAMPLES + 1)
+    if isinstance(contain, OccluderVolumes):  # exactly, over the span the samples covered
+        return ~contain.blocks(centre, points_m, t0, t1)
     t = (np.arange(1, SIGHT_SAMPLES + 1) / (SIGHT_SAMPLES + 1))[None, :, None]
     line = centre[None, None, :] + t * (points_m[:, None, :] - centre[None, None, :])
     return ~contain(line.reshape(-1, 3)).reshape(n, SIGHT_SAMPLES).any(axis=1)
