@@ -102,12 +102,16 @@ def test_with_only_a_rogue_answering_the_status_is_no_answer_naming_what_was_ign
     assert got.returncode == 2 and got.stdout == "", (got.stdout, got.stderr)
     errors = [line for line in got.stderr.splitlines() if line.startswith("monitor: error: ")]
     assert len(errors) == 1 and "no monitor answered" in errors[0], got.stderr
-    # each query the command asks again until its timeout gets the rogue's three answers
+    # each query the command asks again until its timeout gets the rogue's three answers (the
+    # last one may be cut by the timeout between two of them: at load 12, 45 / 45 / 44)
     counts = re.search(r"(\d+) answers ignored \((\d+) unsigned, (\d+) not signed by "
                        r"--monitor-key, (\d+) not naming this request\)", got.stderr)
     assert counts, got.stderr
     total, unsigned, other_key, replayed = map(int, counts.groups())
-    assert unsigned == other_key == replayed >= 1 and total == 3 * unsigned, got.stderr
+    assert min(unsigned, other_key, replayed) >= 1, got.stderr
+    assert max(unsigned, other_key, replayed) - min(unsigned, other_key, replayed) <= 1, \
+        got.stderr
+    assert total == unsigned + other_key + replayed, got.stderr
     assert "Traceback" not in got.stderr
 
 
