@@ -86,17 +86,26 @@ class _Mesh:
     shape, id = "mesh", "m"
 
 
+class _ThinMesh:  # a 1 cm plate turned 40 degrees and leaning: its bounding box is 1.5 m deep
+    shape, id = "mesh", "t"
+
+
 @pytest.mark.parametrize("z", [_Box((-0.5, -0.4, 0.0), (0.7, 0.02, 2.0), 0.0),
                                _Box((-0.5, -0.4, 0.0), (0.7, -0.37, 2.0), 33.0),
-                               _Cylinder(), _Prism(), _Mesh()],
-                         ids=["box", "thin-box-turned", "cylinder", "l-prism", "mesh"])
+                               _Cylinder(), _Prism(), _Mesh(), _ThinMesh()],
+                         ids=["box", "thin-box-turned", "cylinder", "l-prism", "mesh",
+                              "thin-mesh-turned"])
 def test_the_exact_sight_test_finds_every_line_a_dense_sampling_finds(z):
     """Against 4000 samples a line: never free where a sample lies inside (the sampled test
     could only miss), and blocked without a sample inside only for lines grazing the shape
     (fewer than 1 %)."""
     mesh = trimesh.creation.box(extents=(0.8, 0.05, 1.5))
     mesh.apply_translation((0.1, 0.0, 0.75))
-    meshes = {"m": (np.asarray(mesh.vertices), np.asarray(mesh.faces))}
+    plate = trimesh.creation.box(extents=(1.6, 0.01, 1.8))
+    plate.apply_transform(trimesh.transformations.euler_matrix(0.3, 0.0, np.radians(40)))
+    plate.apply_translation((0.0, 0.2, 0.9))
+    meshes = {"m": (np.asarray(mesh.vertices), np.asarray(mesh.faces)),
+              "t": (np.asarray(plate.vertices), np.asarray(plate.faces))}
     rng = np.random.default_rng(11)
     origin = np.array([0.2, -5.0, 3.0])
     ends = np.c_[rng.uniform(-2, 2, 3000), rng.uniform(-2, 3, 3000), rng.uniform(0, 2, 3000)]
