@@ -32,7 +32,7 @@ there, or flags it (monitor/zones/coverage.py).
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import cv2
@@ -455,15 +455,13 @@ def segments_hit_polygons(u: np.ndarray, y0: np.ndarray, y1: np.ndarray,
 
 
 def shadowed(floor_xy_m: np.ndarray, model: geo.CameraModel, occluders_contain,
-             min_height_m: float, samples: int = 48,
-             blocked: Callable[[np.ndarray, np.ndarray, float, float], np.ndarray] | None
-             = None) -> np.ndarray:
+             min_height_m: float, samples: int = 48) -> np.ndarray:
     """(N,) bool: floor points in this camera's shadow (see the module docstring).
 
     ``occluders_contain(points (M, 3)) -> (M,) bool`` says which cell points lie inside any
     occluder. The sight line from the camera to each head top is sampled ``samples`` times
-    (and its ends excluded), or, with ``blocked(origin, ends, t0, t1)`` (exact sight lines,
-    ``monitor.geometry.sight``), tested over the same span without gaps; a camera without a
+    (and its ends excluded), or, given ``OccluderVolumes``, tested whole over the same span
+    (exact sight lines, ``monitor.geometry.sight``); a camera without a
     pinhole calibration sees no heights, so every point counts as shadowed only when its
     head top is outside the image.
     """
@@ -477,8 +475,9 @@ def shadowed(floor_xy_m: np.ndarray, model: geo.CameraModel, occluders_contain,
     centre = camera_centre_m(model)
     if centre is None or occluders_contain is None or not n:
         return out
-    if blocked is not None:
-        return out | blocked(centre, heads, 1.0 / (samples + 1), samples / (samples + 1))
+    if isinstance(occluders_contain, OccluderVolumes):
+        return out | occluders_contain.blocks(centre, heads, 1.0 / (samples + 1),
+                                              samples / (samples + 1))
     t = (np.arange(1, samples + 1) / (samples + 1))[None, :, None]
     line = centre[None, None, :] + t * (heads[:, None, :] - centre[None, None, :])
     return out | occluders_contain(line.reshape(-1, 3)).reshape(n, samples).any(axis=1)
@@ -511,21 +510,34 @@ def points_in_volume(z, points_m: np.ndarray,
     return out
 
 
+@dataclass(frozen=True)
+class OccluderVolumes:
+    """A camera's occluders as the sight tests use them: called with points (M, 3), which lie
+    inside one; ``blocks`` says which sight lines pass through one, exactly (a sampled line
+    missed every occluder thinner than the gap between its samples: a 3 cm screen hid
+    nothing, ``monitor.geometry.sight``)."""
+
+    occluders: tuple
+    meshes: Mapping[str, tuple[np.ndarray, np.ndarray]]
+
+    def __call__(self, points: np.ndarray) -> np.ndarray:
+        out = np.zeros(len(points), dtype=bool)
+        for z in self.occluders:
+            out |= points_in_volume(z, points, self.meshes)
+        return out
+
+    def blocks(self, origin: np.ndarray, ends: np.ndarray, t0: float, t1: float
+               ) -> np.ndarray:
+        return sight_blocked(self.occluders, self.meshes, origin, ends, t0, t1)
+
+
 def shadowed_by(occluders: Sequence, meshes: Mapping[str, tuple[np.ndarray, np.ndarray]],
                 floor_xy_m: np.ndarray, model: geo.CameraModel, min_height_m: float
                 ) -> np.ndarray:
     """``shadowed`` for the occluder zone specs ``occluders`` of a cell."""
-    def contain(points: np.ndarray) -> np.ndarray:
-        out = np.zeros(len(points), dtype=bool)
-        for z in occluders:
-            out |= points_in_volume(z, points, meshes)
-        return out
-
-    def blocked(origin: np.ndarray, ends: np.ndarray, t0: float, t1: float) -> np.ndarray:
-        return sight_blocked(occluders, meshes, origin, ends, t0, t1)
-
-    return shadowed(floor_xy_m, model, contain if occluders else None, min_height_m,
-                    blocked=blocked)
+    return shadowed(floor_xy_m, model,
+                    OccluderVolumes(tuple(occluders), meshes) if occluders else None,
+                    min_height_m)
 
 
 def standable(occluders: Sequence, meshes: Mapping[str, tuple[np.ndarray, np.ndarray]],

@@ -116,10 +116,11 @@ def _mesh(verts: np.ndarray, faces: np.ndarray, a: np.ndarray, d: np.ndarray,
         return out
     tri = verts[faces]
     v0, e1, e2 = tri[:, 0], tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
-    hit = points_in_mesh(a[idx] + t0 * d[idx], verts, faces)  # starts inside the mesh
+    hit = np.zeros(len(idx), bool)
     step = max(1, chunk * 64 // max(len(faces), 1))
     for k in range(0, len(idx), step):
         rows = idx[k:k + step]
+        hit[k:k + step] = points_in_mesh(a[rows] + t0 * d[rows], verts, faces)  # starts inside
         dd, aa = d[rows][:, None, :], a[rows][:, None, :]
         pvec = np.cross(dd, e2[None])
         det = np.einsum("nij,ij->ni", pvec, e1)

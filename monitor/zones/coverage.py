@@ -30,8 +30,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from monitor import geometry as geo
-from monitor.geometry.occlusion import camera_centre_m, points_in_volume, standable
-from monitor.geometry.sight import sight_blocked
+from monitor.geometry.occlusion import (
+    OccluderVolumes,
+    camera_centre_m,
+    points_in_volume,
+    standable,
+)
 from monitor.zones.moving import follows_tool, max_zone
 from monitor.zones.schema import CellSpec
 
@@ -89,27 +93,6 @@ class ZoneCoverage:
 
 # --------------------------------------------------------------------------------------------
 # What one camera sees
-
-
-@dataclass(frozen=True)
-class OccluderVolumes:
-    """A camera's occluders as ``sight_free`` tests them: called with points (M, 3), which
-    lie inside one; ``blocks`` says which sight lines pass through one, exactly (a sampled
-    line missed every occluder thinner than the gap between its samples: a 3 cm screen hid
-    nothing, ``monitor.geometry.sight``)."""
-
-    occluders: tuple
-    meshes: Mapping[str, tuple[np.ndarray, np.ndarray]]
-
-    def __call__(self, points: np.ndarray) -> np.ndarray:
-        out = np.zeros(len(points), dtype=bool)
-        for z in self.occluders:
-            out |= points_in_volume(z, points, self.meshes)
-        return out
-
-    def blocks(self, origin: np.ndarray, ends: np.ndarray, t0: float, t1: float
-               ) -> np.ndarray:
-        return sight_blocked(self.occluders, self.meshes, origin, ends, t0, t1)
 
 
 def occluders_contain(occluders: Sequence, meshes: Mapping[str, tuple[np.ndarray, np.ndarray]]
