@@ -68,7 +68,10 @@ def test_snapshots_follow_the_signed_commands_and_fall_to_stop_on_silence(
         monitor_and_follower):
     bus, _, _, follower, _ = monitor_and_follower
     first = follower.step()
-    assert first.state == "STOP" and first.reason_code == "no_command" and first.counter == 1
+    # STOP before the monitor's first word; on a loaded machine its first heartbeat (the STOP it
+    # starts in) may already be in while its liveliness token is not: STOP for either reason
+    assert first.state == "STOP" and first.speed_scale == 0.0 and first.counter == 1
+    assert first.reason_code in ("no_command", "liveliness", "startup")
     bus.publish_command(Command("SLOW", 0.4, (Reason("warning_zone", "person 1 in W",
                                                      zone_id="W"),)))
     slow = wait_for(lambda: (s := follower.step(0.01)).state == "SLOW" and s)
