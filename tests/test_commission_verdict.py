@@ -37,7 +37,7 @@ def cell():
     return parse_cell(walk_zone_data(corner_walk()[0]))
 
 
-def _walk(cell, feet_by_frame, *, faults=(), camera="cam0") -> dict:
+def walk_json(cell, feet_by_frame, *, faults=(), camera="cam0") -> dict:
     """A walk.json of frames at 5 fps: in each, the feet given (a STOP naming the zone while
     one is inside) and the camera faults given."""
     floors = zone_floors(cell)
@@ -52,51 +52,51 @@ def _walk(cell, feet_by_frame, *, faults=(), camera="cam0") -> dict:
     return {**data, "camera": camera, "zones_hash": cell.config_hash, "video": "w.mp4"}
 
 
-def _verdict(verdicts, subject):
+def verdict_of(verdicts, subject):
     return next(v for v in verdicts if v.subject == subject)
 
 
 def test_nobody_detected_fails_every_zone_with_the_reason(cell):
-    walk = _walk(cell, [()] * 20)
+    walk = walk_json(cell, [()] * 20)
     zones = zone_verdicts(details.zones(cell), [walk])
     for v in zones:
         assert v.verdict == FAIL and "nobody was detected in the walk (20 frames)" in v.reasons
-    assert "the protective zone was never entered" in _verdict(zones, ZONE).reasons
-    assert _verdict(camera_verdicts(["cam0"], [walk]), "cam0").verdict == FAIL
+    assert "the protective zone was never entered" in verdict_of(zones, ZONE).reasons
+    assert verdict_of(camera_verdicts(["cam0"], [walk]), "cam0").verdict == FAIL
 
 
 def test_a_protective_zone_never_entered_fails(cell):
-    walk = _walk(cell, [((3.0, 3.0),)] * 20)  # seen all the time, never inside
-    v = _verdict(zone_verdicts(details.zones(cell), [walk]), ZONE)
+    walk = walk_json(cell, [((3.0, 3.0),)] * 20)  # seen all the time, never inside
+    v = verdict_of(zone_verdicts(details.zones(cell), [walk]), ZONE)
     assert v.verdict == FAIL and v.reasons[0] == "the protective zone was never entered"
-    assert _verdict(camera_verdicts(["cam0"], [walk]), "cam0").verdict == PASS
+    assert verdict_of(camera_verdicts(["cam0"], [walk]), "cam0").verdict == PASS
 
 
 def test_a_frozen_camera_fails_its_zones_and_itself(cell):
     path = [((0.1 * k - 0.9, -0.7),) for k in range(19)]  # across the zone
-    ok = _walk(cell, path)
-    assert _verdict(zone_verdicts(details.zones(cell), [ok]), ZONE).verdict == PASS
-    frozen = _walk(cell, path, faults=(("cam0", "camera_frozen"),))
-    v = _verdict(zone_verdicts(details.zones(cell), [frozen]), ZONE)
+    ok = walk_json(cell, path)
+    assert verdict_of(zone_verdicts(details.zones(cell), [ok]), ZONE).verdict == PASS
+    frozen = walk_json(cell, path, faults=(("cam0", "camera_frozen"),))
+    v = verdict_of(zone_verdicts(details.zones(cell), [frozen]), ZONE)
     assert v.verdict == FAIL and "camera cam0 was frozen in 17 frames (walk 1)" in v.reasons
-    cam = _verdict(camera_verdicts(["cam0"], [frozen]), "cam0")
+    cam = verdict_of(camera_verdicts(["cam0"], [frozen]), "cam0")
     assert cam.verdict == FAIL and "frozen in 17 frames" in cam.reasons[0]
 
 
 def test_little_floor_walked_fails_and_the_share_is_settable(cell):
-    walk = _walk(cell, [((-0.7, -0.7),)] * 10)  # inside, on one spot
-    v = _verdict(zone_verdicts(details.zones(cell), [walk]), ZONE)
+    walk = walk_json(cell, [((-0.7, -0.7),)] * 10)  # inside, on one spot
+    v = verdict_of(zone_verdicts(details.zones(cell), [walk]), ZONE)
     assert v.verdict == FAIL and "of the zone's visible floor was walked" in v.reasons[0]
     assert "at least 10 % asked" in v.reasons[0]
     lenient = zone_verdicts(details.zones(cell), [walk], WalkLimits(min_walked=0.0))
-    assert _verdict(lenient, ZONE).verdict == PASS
+    assert verdict_of(lenient, ZONE).verdict == PASS
 
 
 def test_a_camera_never_walked_fails(cell):
-    walk = _walk(cell, [((0.1 * k - 0.9, -0.7),) for k in range(19)])
+    walk = walk_json(cell, [((0.1 * k - 0.9, -0.7),) for k in range(19)])
     cams = camera_verdicts(["cam0", "cam1"], [walk])
-    assert _verdict(cams, "cam0").verdict == PASS
-    assert _verdict(cams, "cam1").reasons == ("never walked: no walk was recorded from this "
+    assert verdict_of(cams, "cam0").verdict == PASS
+    assert verdict_of(cams, "cam1").reasons == ("never walked: no walk was recorded from this "
                                               "camera",)
     image_zone = {"id": "cam1-stop", "kind": "protective", "enabled": True, "camera": "cam1"}
     v = zone_verdicts([image_zone], [walk])[0]
@@ -104,8 +104,8 @@ def test_a_camera_never_walked_fails(cell):
 
 
 def test_two_walks_merge(cell):
-    left = _walk(cell, [((-0.9 + 0.1 * k, -0.5),) for k in range(10)])
-    right = _walk(cell, [((0.0 + 0.1 * k, 0.5),) for k in range(10)])
+    left = walk_json(cell, [((-0.9 + 0.1 * k, -0.5),) for k in range(10)])
+    right = walk_json(cell, [((0.0 + 0.1 * k, 0.5),) for k in range(10)])
     one, both = merge_zone(ZONE, [left]), merge_zone(ZONE, [left, right])
     assert both["seen_cells"] > one["seen_cells"]
     assert [e["walk"] for e in both["entries"]] == [1, 2]

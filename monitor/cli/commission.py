@@ -183,7 +183,8 @@ def cmd_walk(args: argparse.Namespace) -> int:
     print(f"outputs: {args.out}/ (walk.json, {', '.join(sorted(pictures.values()))})")
     data = read_walk(args.out)
     ours = [z for z in zone_details(cell) if z["camera"] in (None, data["camera"])]
-    verdicts = [v.to_dict() for v in zone_verdicts(ours, [data], WalkLimits(args.min_walked))
+    limits = WalkLimits(args.min_walked, config.policy.clear_time)
+    verdicts = [v.to_dict() for v in zone_verdicts(ours, [data], limits)
                 + camera_verdicts([data["camera"]], [data])]
     _print_verdict(verdicts)
     failed = feet_hidden or any(v["verdict"] == "FAIL" for v in verdicts)

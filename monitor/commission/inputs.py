@@ -49,6 +49,8 @@ def gather(config_path: Path | None, model_path: Path,
     per camera, or several passes: they merge); ``signer_key``: the public key text of the
     commissioner who signs it."""
     config = load_config(config_path)
+    if limits.clear_time_s is None:  # the walk's gaps are judged against the config's policy
+        limits = dataclasses.replace(limits, clear_time_s=config.policy.clear_time)
     zones_file = zones_file_of(config)
     cell = load_cell(zones_file) if zones_file else None
     status = _read_json(status_file, "status file", " (save it with `monitor status --json "

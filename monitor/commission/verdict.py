@@ -12,7 +12,15 @@ A walk proves a zone only when it showed a person being seen there. A zone FAILs
 * a camera was frozen, lost, blinded, moved or defocused during a walk (``camera_faults``):
   those frames show nothing about the zone;
 * its camera was never walked (``camera_not_walked``: an image zone whose camera no walk comes
-  from; a volume zone when no walk at all was given).
+  from; a volume zone when no walk at all was given);
+* it is protective and the detector lost the walker in it for so many frames in a row that
+  the monitor would have let go of them unseen (``detector_gaps``): a lost person's area
+  gives up floor the camera has shown empty for ``clear_time``, so a run of missed frames
+  spanning ``clear_time`` (from the first missed frame to the last) ends the hold while the
+  person is still there, and a reset is accepted with them inside. The walk measures the
+  detector's longest miss on this camera, the user raises ``clear_time`` above it. A gap
+  from which the walker could have reached floor no camera sees (a blind spot within a walk
+  of where they were last seen) is left out: hidden floor is never seen free, the hold stays.
 
 Each reason is its own function of ``(zone, merged, walks, limits)`` in ``ZONE_CHECKS`` (a later
 check, e.g. feet hidden in a protective zone, is one more function there). A camera FAILs when
@@ -26,18 +34,30 @@ warns about them).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
+from monitor.policy import PolicyConfig
+
 MIN_WALKED = 0.10  # share of a zone's visible floor the walk must have seen a person on
 PASS, FAIL = "PASS", "FAIL"
+# a walker in a gap reaches at most this far from where they were last seen (a brisk walk, as
+# the lost persons' areas grow: monitor.tracking.whereabouts)
+GAP_WALK_MPS = 1.5
 
 
 @dataclass(frozen=True)
 class WalkLimits:
-    """What a walk must show (the report's options)."""
+    """What a walk must show (the report's options). ``clear_time_s``: the ``[policy]
+    clear_time`` the monitor runs with (None: the default policy's)."""
 
     min_walked: float = MIN_WALKED
+    clear_time_s: float | None = None
+
+    @property
+    def clear_time(self) -> float:
+        return PolicyConfig().clear_time if self.clear_time_s is None else self.clear_time_s
 
 
 DEFAULT_LIMITS = WalkLimits()
@@ -174,10 +194,42 @@ def feet_hidden(zone: dict, merged: dict | None, walks: Sequence[dict],
     return out
 
 
+def detector_gaps(zone: dict, merged: dict | None, walks: Sequence[dict],
+                  limits: WalkLimits) -> list[str]:
+    """A protective zone where the detector missed the walker in open view for a run of
+    frames spanning ``clear_time`` (see the module's rules): the monitor would have let go
+    of a person it could not see."""
+    if zone.get("kind") != "protective" or merged is None:
+        return []
+    clear = limits.clear_time
+    blind = [tuple(p) for p in merged.get("blind_spots") or []]
+    out = []
+    for g in merged["gaps"]:
+        walk = walks[g["walk"] - 1] if 0 < g.get("walk", 0) <= len(walks) else {}
+        interval = float(walk.get("frame_interval_s") or 0.0)
+        missed = int(g.get("frames_missed") or 0)
+        if interval <= 0.0 or missed < 1:
+            continue
+        span = (missed - 1) * interval  # seen free from the first missed frame to the last
+        if span < clear - 1e-6:
+            continue
+        last = g.get("last_seen_m")
+        reach = GAP_WALK_MPS * float(g.get("duration_s") or 0.0)
+        if last is not None and any(math.dist(last, p) <= reach for p in blind):
+            continue  # may have been hidden there: that floor is never seen free
+        out.append(f"the detector missed the walker for {missed} frames in a row "
+                   f"({missed * interval:.2f} s from {g['from_s']:g} s, walk {g['walk']}): "
+                   f"with clear_time {clear:g} s the monitor lets go of a person it has not "
+                   f"seen for {span:.2f} s, and a reset would be accepted with them inside; "
+                   f"raise [policy] clear_time above {missed * interval:.2f} s, or give the "
+                   "camera a better view of the zone")
+    return out
+
+
 ZoneCheck = Callable[[dict, "dict | None", Sequence[dict], WalkLimits], list[str]]
 ZONE_CHECKS: tuple[ZoneCheck, ...] = (nobody_detected, camera_not_walked, never_entered,
                                       entries_without_stop, little_walked, camera_faults,
-                                      feet_hidden)
+                                      feet_hidden, detector_gaps)
 
 
 def zone_verdicts(zones: Sequence[dict], walks: Sequence[dict],
