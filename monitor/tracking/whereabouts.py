@@ -101,6 +101,15 @@ class WhereaboutsConfig:
     # walk_speed_mps needs to cross the camera's seen floor, within these bounds (seconds)
     life_min_s: float = 4.0
     life_max_s: float = 30.0
+    # floor a seen person has stood in front of this long without a break is unseen space,
+    # as behind a fixture: the bounded life never ends an area that reaches it (a colleague
+    # standing still can hide a crouching person for as long as they stand; one walking past
+    # uncovers each cell within a second)
+    covered_s: float = 2.0
+    # a seen person explains a lost one's area ("under seen persons") only when their box is
+    # within this factor of the lost person's height: the same person seen again, not a
+    # colleague standing nearer the camera with the lost one crouching behind them
+    same_size: float = 1.5
 
 
 @dataclass
@@ -138,6 +147,9 @@ class Whereabouts:
         self.hidden: np.ndarray | None = None  # (ny, nx) bool: never seen free
         self._hidden_key: object = None
         self.free_since: np.ndarray | None = None  # (ny, nx) time, nan: not seen free now
+        # (ny, nx) time since when each cell has not been seen free without a break (nan:
+        # seen free now): floor a standing person has hidden for ``covered_s``
+        self.unseen_since: np.ndarray | None = None
         self.areas: dict[int, LostArea] = {}
         self._free: np.ndarray | None = None  # seen free for clear_time at the last frame
         # not seen free at the last frame although the camera was working: under a seen
@@ -158,6 +170,7 @@ class Whereabouts:
         if self.grid is None or (self.grid.width, self.grid.height) != (width, height):
             self.grid = FootGrid.of(width, height, self.config.cells_across)
             self.free_since = np.full(self.grid.shape, np.nan)
+            self.unseen_since = np.full(self.grid.shape, np.nan)
             self.areas.clear()  # another image: cells mean other places (never seen here)
             self._hidden_key = object()
             self._zone_cache.clear()
@@ -308,7 +321,10 @@ class Whereabouts:
         boxes = np.asarray(boxes_px, np.float64).reshape(-1, 4)
         cut = np.zeros(len(boxes), bool) if feet_bottom_px is None \
             else np.isfinite(np.asarray(feet_bottom_px, np.float64).reshape(-1))
-        explains = grid.cells_under(boxes[~cut], 0.0)
+        whole = boxes[~cut]
+        under = [grid.cells_under(b, 0.0) for b in whole]  # each feet-in-view box's cells
+        heights = whole[:, 3] - whole[:, 1]
+        explains = np.logical_or.reduce(under) if under else np.zeros(grid.shape, bool)
         occupied = explains | grid.cells_under(boxes[cut], 0.0)
         if cut.any():  # where the hidden feet may be, below the box, down to the range's end
             below = boxes[cut].copy()
@@ -321,6 +337,13 @@ class Whereabouts:
         self.free_since[~seen_free] = np.nan
         with np.errstate(invalid="ignore"):
             free = seen_free & (now - self.free_since >= clear_time - 1e-9)
+        if self.unseen_since is None or self.unseen_since.shape != grid.shape:
+            self.unseen_since = np.full(grid.shape, np.nan)
+        self.unseen_since[seen_free] = np.nan
+        self.unseen_since[~seen_free & np.isnan(self.unseen_since)] = now
+        with np.errstate(invalid="ignore"):
+            covered = ~seen_free & ~self.hidden \
+                & (now - self.unseen_since >= cfg.covered_s - 1e-9)
         floor = self._floor_points(to_floor)
         for area in self.areas.values():
             dt = max(0.0, now - area.updated)
@@ -352,16 +375,19 @@ class Whereabouts:
             # place a merged track stood, and never one that reaches where the camera cannot
             # see (``shows_only_seen_persons``)
             if working and not area.behind and shows_only_seen_persons(
-                    area.cells, self.hidden, explains, seen_free):
+                    area.cells, self.hidden, _same_size(under, heights, area, cfg.same_size),
+                    seen_free):
                 area.explained = now if area.explained is None else area.explained
                 if now - area.explained >= clear_time - 1e-9:
                     area.cells[:] = False
                     area.ended_by = "under seen persons"
             else:
                 area.explained = None
-            # the bounded life: an area that reaches no hidden cell, past the time a walker
+            # the bounded life: an area that reaches no hidden cell (behind a fixture, or
+            # behind a person who has stood there for covered_s), past the time a walker
             # needs to leave the seen floor, holds nobody who could not have been seen
-            if not young and area.cells.any() and not (area.cells & self.hidden).any():
+            if not young and area.cells.any() \
+                    and not (area.cells & (self.hidden | covered)).any():
                 area.cells[:] = False
                 area.ended_by = "bounded life"
         self._free, self._occupied, self.last_time = free, occupied, now
@@ -516,6 +542,18 @@ def shows_only_seen_persons(cells: np.ndarray, hidden: np.ndarray, explains: np.
     if not cells.any() or (cells & hidden).any():
         return False
     return not (cells & ~explains).any() or not (cells & ~seen_free).any()
+
+
+def _same_size(under: list[np.ndarray], heights: np.ndarray, area: LostArea,
+               factor: float) -> np.ndarray:
+    """(ny, nx) bool: the cells under the feet-in-view boxes whose height is within
+    ``factor`` of the lost person's (``under``: each box's cells, ``heights`` theirs)."""
+    h = area.box_height_px
+    out = np.zeros_like(area.cells)
+    for cells, bh in zip(under, heights, strict=True):
+        if h / factor <= bh <= h * factor:
+            out |= cells
+    return out
 
 
 def _joins(into: LostArea, area: LostArea) -> bool:
