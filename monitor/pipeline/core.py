@@ -355,7 +355,7 @@ class Pipeline:
         shown = frame
         if health is not None and not health.picture_changed and cam.frame_time is not None:
             shown = replace(frame, capture_time=min(cam.frame_time, frame.capture_time))
-        report, track_ids, person_ids = locate(
+        report, track_ids, person_ids, gap_alerts = locate(
             shown, persons, cam, self.prepared, self.detector, self.persons, detector_error,
             now, tool_pose, tool_speed_mps, pose_time, self.policy, faults, working=working,
             hidden=hidden_of(self.cell, frame.camera_id, self.masks.rule(frame),
@@ -374,7 +374,8 @@ class Pipeline:
         outcomes, mute_alerts = self.mute_desk.take_events()
         accepts, accept_alerts = self._take_accepts()
         alerts = (*cleared, *mute_alerts, *accept_alerts, *(health.alerts if health else ()),
-                  *object_alerts, *self._fault_alerts(inputs.faults, detector_error, now, image))
+                  *object_alerts, *gap_alerts,
+                  *self._fault_alerts(inputs.faults, detector_error, now, image))
         t4 = time.perf_counter()
         stage.update(detect=(t1 - t0) * 1e3, health=(t2 - t1) * 1e3, zones=(t3 - t2) * 1e3,
                      policy=(t4 - t3) * 1e3)

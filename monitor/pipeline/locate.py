@@ -19,10 +19,11 @@ from monitor.pipeline.data import CameraState
 from monitor.pipeline.fault_alerts import one_line
 from monitor.policy import PolicyConfig
 from monitor.tracking.cell_persons import CellPersons, Who
+from monitor.tracking.gaps import DetectorGap
 from monitor.tracking.pairs import heads_in_boxes
 from monitor.tracking.pockets import SINGLE_WIDTH
 from monitor.tracking.whereabouts import CellZones, FootGrid, FreeElsewhere
-from monitor.types import Fault, FrameInfo, Persons, ZoneReport
+from monitor.types import Alert, Fault, FrameInfo, Persons, ZoneReport
 from monitor.zones import Cell, check_persons, merge_towards_danger
 from monitor.zones.check import placement
 from monitor.zones.masks import MaskRule
@@ -33,6 +34,7 @@ log = logging.getLogger("monitor.pipeline")  # the pipeline's log, as before the
 # a box wider than one person (``SINGLE_WIDTH`` of its height) may be two side by side: each
 # end is also checked as one person this wide (of the box height; the synthetic model boxes
 # a walker 0.61 wide: narrower puts the end person's feet nearer the box's edge)
+DETECTOR_GAP = "detector_gap"  # the alert of a person missed longer than clear_time
 END_PERSON_WIDTH = 0.5
 
 
@@ -200,8 +202,9 @@ def locate(frame: FrameInfo, persons: Persons, cam: CameraState, prepared, detec
            hidden: tuple[Callable[[FootGrid], np.ndarray] | None, object] = (None, None),
            elsewhere: FreeElsewhere | None = None,
            image: np.ndarray | None = None, reference: np.ndarray | None = None
-           ) -> tuple[ZoneReport | None, tuple[int, ...], tuple[Who, ...]]:
-    """The frame's zone answer (None: unknown), each row's track id and cell person; the
+           ) -> tuple[ZoneReport | None, tuple[int, ...], tuple[Who, ...], tuple[Alert, ...]]:
+    """The frame's zone answer (None: unknown), each row's track id and cell person, and the
+    alerts of persons the detector missed longer than clear_time (``gap_alerts``); the
     faults of a failed stage are added to ``faults``. Nothing is checked after a detector
     error (the answer is unknown, nothing is seen free); no zones (``prepared`` None) is an
     empty answer. ``working``: the camera's view can be trusted in this frame (its lost
@@ -223,6 +226,7 @@ def locate(frame: FrameInfo, persons: Persons, cam: CameraState, prepared, detec
         report = ZoneReport()
     track_ids: tuple[int, ...] = ()
     person_ids: tuple[Who, ...] = ()
+    alerts: tuple[Alert, ...] = ()
     if detector_error is not None and cam.tracker is not None:
         cam.tracker.blind()
     if detector_error is None and cam.tracker is not None:
@@ -247,6 +251,31 @@ def locate(frame: FrameInfo, persons: Persons, cam: CameraState, prepared, detec
                 log.info("%s: %s", frame.camera_id, line)
             for line in cam.tracker.pockets.take_changes():  # pocket counts (in, out, unknown)
                 log.info("%s: %s", frame.camera_id, line)
+            alerts = gap_alerts(cam.tracker.gaps.take(), frame.camera_id, cell_persons,
+                                policy.clear_time, now)
         except Exception as exc:  # tracks unknown: a lost person may be missing, STOP
             faults.append(Fault("tracking_error", one_line(exc), True, frame.camera_id))
-    return report, track_ids, person_ids
+    return report, track_ids, person_ids, alerts
+
+
+def gap_alerts(gaps: list[DetectorGap], camera_id: str, cell_persons: CellPersons,
+               clear_time: float, now: float) -> tuple[Alert, ...]:
+    """A warning for each person seen again on the spot where their hold had ended as seen
+    free (``monitor.tracking.gaps``): the detector missed them for longer than clear_time,
+    and a reset in that time would have been accepted with them there."""
+    out = []
+    for gap in gaps:
+        who = cell_persons.who(camera_id, gap.track_id)
+        message = (f"{camera_id}: person {who} seen again where they were lost "
+                   f"{gap.seen_again - gap.lost_at:.2f} s earlier ({gap.missed_frames} frames "
+                   f"missed) after the camera had shown that floor empty for clear_time "
+                   f"{clear_time:g} s: the detector missed them there and their hold ended; "
+                   f"raise [policy] clear_time above {gap.clear_time_s:.2f} s and check the "
+                   f"light, the lens and the model (docs/tracking.md)")
+        log.warning("%s", message)
+        out.append(Alert(DETECTOR_GAP, "warning", message, camera_id, now, details={
+            "person": who, "lost_at": round(gap.lost_at, 3),
+            "seen_again": round(gap.seen_again, 3), "missed_frames": gap.missed_frames,
+            "clear_time_s": clear_time, "raise_clear_time_above_s": round(gap.clear_time_s, 3),
+            "box_px": [round(v, 1) for v in gap.box_px]}))
+    return tuple(out)

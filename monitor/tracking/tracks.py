@@ -31,6 +31,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from monitor.tracking import exits, pairs, pockets
+from monitor.tracking.gaps import GapWatch
 from monitor.tracking.pairs import PairWatch, Split
 from monitor.tracking.pockets import PocketBook
 from monitor.tracking.track_types import (
@@ -145,6 +146,7 @@ class PersonTracker:
         self._byte_ids: dict[int, int] = {}  # row -> ByteTrack's id in the newest frame
         self.where = Whereabouts(self.config.areas())
         self.pockets = PocketBook()  # enclosed hidden regions with a count (``pockets``)
+        self.gaps = GapWatch()  # persons seen again where their hold ended (``gaps``)
         # lost track -> the seen track whose box swallowed it: the person hidden right behind
         # that box walks with it (``_follow_carriers``)
         self._carriers: dict[int, int] = {}
@@ -307,6 +309,8 @@ class PersonTracker:
         appearing = [row for row, tid in enumerate(rows_to_id)
                      if tid not in self._records or self._records[tid].lost]
         pockets.count_exits(self.pockets, self.where, boxes, appearing, now)
+        self.gaps.appeared(boxes, appearing, rows_to_id, now, statistics.median(
+            self._intervals) if self._intervals else 0.0, frame_size)
         # a person appearing where only one lost person could have been is them, whatever
         # id the box gets (monitor.tracking.exits): their area ends
         for tid in exits.came_out(self.where, boxes, appearing, now, self.pockets.single):
@@ -403,7 +407,9 @@ class PersonTracker:
             seen_hits = tuple(replace(h, track_id=rows_to_id[h.person])
                               if 0 <= h.person < n else h for h in report.hits)
             out = replace(report, hits=seen_hits + self.held_hits())
-        rules = tuple((a.track_id, rule) for a, rule in self.where.take_ended())
+        ended_areas = self.where.take_ended()
+        self.gaps.ended(ended_areas, now, boxes)
+        rules = tuple((a.track_id, rule) for a, rule in ended_areas)
         return TrackUpdate(tuple(rows_to_id), out, started, ended, tuple(self._reidentified),
                            rules)
 
