@@ -269,7 +269,8 @@ def gap_alerts(gaps: list[DetectorGap], camera_id: str, cell_persons: CellPerson
         message = (f"{camera_id}: person {who} seen again where they were lost "
                    f"{gap.seen_again - gap.lost_at:.2f} s earlier ({gap.missed_frames} frames "
                    f"missed) after the camera had shown that floor empty for clear_time "
-                   f"{clear_time:g} s: the detector missed them there and their hold ended; "
+                   f"{clear_time:g} s: the detector missed them there (or someone in front hid "
+                   f"them) and their hold ended; "
                    f"raise [policy] clear_time above {gap.clear_time_s:.2f} s and check the "
                    f"light, the lens and the model (docs/tracking.md)")
         log.warning("%s", message)
