@@ -26,7 +26,7 @@ from __future__ import annotations
 import math
 import statistics
 import warnings
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 
 import numpy as np
 
@@ -34,6 +34,7 @@ from monitor.tracking import exits, pairs, pockets
 from monitor.tracking.gaps import GapWatch
 from monitor.tracking.pairs import PairWatch, Split
 from monitor.tracking.pockets import PocketBook
+from monitor.tracking.track_record import TALL_WINDOW_S, TrackRecord
 from monitor.tracking.track_types import (
     HiddenCells,
     Hold,
@@ -66,51 +67,6 @@ def _supervision():
     return supervision
 
 
-@dataclass
-class _Record:
-    track_id: int
-    box: np.ndarray  # (4,) float64
-    last_seen: float
-    velocity: np.ndarray = field(default_factory=lambda: np.zeros(2))
-    floor: np.ndarray | None = None
-    floor_velocity: np.ndarray | None = None
-    zones: tuple[HeldZone, ...] = ()
-    lost: bool = False
-    was: int | None = None  # the lost track this one perhaps is (a guess; see reidentified)
-    seen_as: int | None = None  # a new track that perhaps is this lost one
-    left_view: bool = False
-    # (time, box height) of the last ``TALL_WINDOW_S``: a person walking behind a wall is
-    # seen smaller frame by frame, and at 15 fps the last box may be a head only; the area
-    # grows at the pace of the person's full height, not of that sliver
-    heights: list[tuple[float, float]] = field(default_factory=list)
-    feet_bottom: float = math.nan  # a cut-off box: the lowest row its hidden feet may be on
-    byte_id: int = -1  # the last sighting's ByteTrack id (-1: none)
-
-    def tall_px(self) -> float:
-        """The tallest box height of the last ``TALL_WINDOW_S`` seconds it was seen."""
-        return max((h for _, h in self.heights), default=float(self.box[3] - self.box[1]))
-
-    def snapshot(self, held: tuple[HeldZone, ...]) -> Track:
-        floor = None if self.floor is None else (float(self.floor[0]), float(self.floor[1]))
-        fvel = None if self.floor_velocity is None else (float(self.floor_velocity[0]),
-                                                        float(self.floor_velocity[1]))
-        return Track(self.track_id, _box_tuple(self.box), self.last_seen,
-                     (float(self.velocity[0]), float(self.velocity[1])), floor, fvel,
-                     self.zones, self.lost, held, self.was, self.left_view)
-
-    def label(self) -> str:
-        """``person 6``, or ``person 6 (was person 1?)`` when re-identified by a guess."""
-        return f"person {self.track_id}" + ("" if self.was is None else
-                                             f" (was person {self.was}?)")
-
-
-TALL_WINDOW_S = 1.0
-
-
-def _box_tuple(box: np.ndarray) -> tuple[float, float, float, float]:
-    return (float(box[0]), float(box[1]), float(box[2]), float(box[3]))
-
-
 def _bottom_centre(boxes: np.ndarray) -> np.ndarray:
     return np.stack([(boxes[:, 0] + boxes[:, 2]) * 0.5, boxes[:, 3]], axis=1)
 
@@ -136,7 +92,7 @@ class PersonTracker:
                                       minimum_matching_threshold=self.config.matching_threshold,
                                       frame_rate=30, minimum_consecutive_frames=1)
         self._byte.max_time_lost = self._buffer_frames(30.0)
-        self._records: dict[int, _Record] = {}
+        self._records: dict[int, TrackRecord] = {}
         self._by_byte_id: dict[int, int] = {}  # ByteTrack's id -> our track id
         self._next_id = 1
         self._last_time: float | None = None
@@ -331,7 +287,7 @@ class PersonTracker:
         for row, tid in enumerate(rows_to_id):
             rec = self._records.get(tid)
             if rec is None:
-                rec = self._records[tid] = _Record(tid, boxes[row].copy(), now)
+                rec = self._records[tid] = TrackRecord(tid, boxes[row].copy(), now)
                 rec.byte_id = self._byte_ids.get(row, -1)
                 rec.zones = row_zones[row] if row_zones is not None else ()
                 self._place(rec, boxes[row], floors[row], now, first=True)
@@ -487,7 +443,7 @@ class PersonTracker:
                 per_row[h.person].append(HeldZone(h.zone_id, h.kind, float(h.speed_scale)))
         return [union_zones(z) for z in per_row]
 
-    def _place(self, rec: _Record, box: np.ndarray, floor: np.ndarray | None, now: float,
+    def _place(self, rec: TrackRecord, box: np.ndarray, floor: np.ndarray | None, now: float,
                first: bool) -> None:
         """Move a record to its new box; update image and floor velocities."""
         a = self.config.velocity_smoothing
@@ -539,7 +495,7 @@ class PersonTracker:
         cover = np.clip(w, 0, None) * np.clip(h, 0, None) / area
         return np.flatnonzero(cover >= self.config.merge_ios).tolist()
 
-    def _same_person(self, rec: _Record, row: int, boxes: np.ndarray, now: float) -> bool:
+    def _same_person(self, rec: TrackRecord, row: int, boxes: np.ndarray, now: float) -> bool:
         """The row is the lost track's own person again, as far as a tracker can say: the
         same ByteTrack track as at the last sighting (not only an id that ByteTrack's track
         was once mapped to: in a busy scene a merged box's ByteTrack track passes on to a
@@ -556,7 +512,7 @@ class PersonTracker:
         steps = math.ceil(min(reach_px / grid.cell_px, grid.nx + grid.ny))
         return bool((grid.cells_under(boxes[row], 0.0) & grow(area.cells, steps)).any())
 
-    def _clear_view(self, rec: _Record, row: int, boxes: np.ndarray, now: float,
+    def _clear_view(self, rec: TrackRecord, row: int, boxes: np.ndarray, now: float,
                     frame_size: tuple[int, int]) -> bool:
         """Seen again in clear view soon enough to be the name link: within ByteTrack's
         buffer (``lost_track_s``; after longer behind a fixture a person stepping out there
@@ -578,7 +534,7 @@ class PersonTracker:
             return False
         return not self._merged_into(box, np.delete(boxes, row, axis=0))
 
-    def _leaving_view(self, rec: _Record, frame_size: tuple[int, int]) -> bool:
+    def _leaving_view(self, rec: TrackRecord, frame_size: tuple[int, int]) -> bool:
         """Box at the left, right or bottom image border and moving outwards across it. Not
         the top: a head cut off there says nothing of the feet, which are still in view."""
         w, h = frame_size
@@ -588,7 +544,7 @@ class PersonTracker:
         return bool((x1 <= m and vx <= -v) or (x2 >= w - m and vx >= v)
                     or (y2 >= h - m and vy >= v))
 
-    def _walk_reach(self, rows: np.ndarray, free: list[_Record], now: float) -> np.ndarray:
+    def _walk_reach(self, rows: np.ndarray, free: list[TrackRecord], now: float) -> np.ndarray:
         """(rows, free) pixels a person can walk since each free track was last seen, at
         ``walk_speed_mps``, scaled by the box height (a ``height_m`` person; the larger of the
         two boxes), for at most ``reach_max_s``."""
