@@ -260,9 +260,9 @@ def locate(frame: FrameInfo, persons: Persons, cam: CameraState, prepared, detec
 
 def gap_alerts(gaps: list[DetectorGap], camera_id: str, cell_persons: CellPersons,
                clear_time: float, now: float) -> tuple[Alert, ...]:
-    """A warning for each person seen again on the spot where their hold had ended as seen
-    free (``monitor.tracking.gaps``): the detector missed them for longer than clear_time,
-    and a reset in that time would have been accepted with them there."""
+    """A warning for each person seen again within a walk of where their hold had ended as
+    seen free (``monitor.tracking.gaps``): the detector missed them for longer than
+    clear_time, and a reset in that time would have been accepted with them there."""
     out = []
     for gap in gaps:
         who = cell_persons.who(camera_id, gap.track_id)

@@ -8,9 +8,9 @@ its envelope change that later, so the tracker watches for it on every frame: an
 by "seen free" with nobody of their size in view near it, whose person then appears again
 within a walk of where they were lost, soon (within ``walk_gap_s``: a box of their size, whole
 in the picture, the only such box and the only such loss), means the camera showed the floor
-empty while they were there. The watch cannot tell the same person
-from another one stepping out there, so it only reports (an alert naming the clear_time that
-would have held them); it never holds or releases anything.
+empty while they were there. The watch cannot tell the same person from another one stepping
+out there, so it only reports (an alert naming the clear_time that would have held them); it
+never holds or releases anything.
 
 Pure bookkeeping over boxes and times; ``PersonTracker`` feeds it (``monitor.tracking.tracks``).
 """
@@ -60,14 +60,16 @@ class _Ended:
 class GapWatch:
     """The areas ended as seen free in the last ``window_s`` seconds, and the gaps found."""
 
+    # the tracker's walk (``TrackerConfig.walk_speed_mps``, ``height_m``) and image border
+    # margin (``edge_margin_px``: a box this close to it may be someone coming in)
+    walk_speed_mps: float
+    height_m: float
+    edge_px: float
     window_s: float = 3.0  # how long after an area ended a sighting near it counts
-    walk_speed_mps: float = 1.5  # how far the missed person may have walked meanwhile
-    height_m: float = 1.75  # box height of a person, to turn metres into pixels
     same_size: float = 1.3  # the new box's height within this factor of the last one's
     # seen again within this long after the loss (later, in a busy scene someone else has
     # walked up: measured, the synthetic detector's boxes of two passers-by on one spot agree)
     walk_gap_s: float = 2.5
-    edge_px: float = 4.0  # a box this close to the image border may be someone coming in
     _ended: list[_Ended] = field(default_factory=list)
     _found: list[DetectorGap] = field(default_factory=list)
 
@@ -76,7 +78,6 @@ class GapWatch:
         """Areas that ended in this frame, each with its rule: the seen-free ones with no box
         of this frame (``boxes_px``) within a walk of them are kept (a person seen under
         another id was not missed)."""
-        self._ended = [e for e in self._ended if now - e.ended_at <= self.window_s]
         boxes = np.asarray(boxes_px, np.float64).reshape(-1, 4)
         for area, rule in areas:
             if rule != SEEN_FREE or area.behind or area.merged:
@@ -89,7 +90,8 @@ class GapWatch:
     def appeared(self, boxes_px: np.ndarray, rows: list[int], ids: list[int], now: float,
                  interval_s: float, frame_size: tuple[int, int]) -> None:
         """Persons appearing in this frame (``rows`` of ``boxes_px``, with their ids): the
-        one box near a recently ended area, and near no other, is a gap."""
+        one box near a recently ended area, and near no other, is a gap (areas ended more
+        than ``window_s`` ago are forgotten here, once a frame)."""
         boxes = np.asarray(boxes_px, np.float64).reshape(-1, 4)
         self._ended = [e for e in self._ended if now - e.ended_at <= self.window_s]
         w, h = frame_size
@@ -131,4 +133,3 @@ class GapWatch:
         """The gaps found since the last call."""
         out, self._found = self._found, []
         return out
-

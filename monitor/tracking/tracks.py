@@ -102,7 +102,9 @@ class PersonTracker:
         self._byte_ids: dict[int, int] = {}  # row -> ByteTrack's id in the newest frame
         self.where = Whereabouts(self.config.areas())
         self.pockets = PocketBook()  # enclosed hidden regions with a count (``pockets``)
-        self.gaps = GapWatch()  # persons seen again where their hold ended (``gaps``)
+        # persons seen again where their hold ended (``gaps``)
+        self.gaps = GapWatch(self.config.walk_speed_mps, self.config.height_m,
+                             self.config.edge_margin_px)
         # lost track -> the seen track whose box swallowed it: the person hidden right behind
         # that box walks with it (``_follow_carriers``)
         self._carriers: dict[int, int] = {}
